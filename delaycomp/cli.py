@@ -1,0 +1,156 @@
+"""delaycomp: predictor-based delay compensation for sampled-data loops, as FMUs.
+
+Examples
+--------
+Build the FMUs (plant, transport delay, predictor-controller)::
+
+    delaycomp build --out build/fmus
+
+Reproduce Figure 3 of Karafyllis & Krstic (compensated, r = 0.3, u0 = 4)::
+
+    delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
+
+The critical measurement delay of the uncompensated loop (k = 2, T = 1)::
+
+    delaycomp critical-delay example-3.6
+
+List the scenarios and their parameters::
+
+    delaycomp list
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import __version__, scenarios
+from .scenarios import ParameterError
+
+
+class UsageError(Exception):
+    """Bad command-line input: reported as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage dump, exit 2
+        raise UsageError(message)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="delaycomp", description=__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"delaycomp {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    b = sub.add_parser("build", help="build the FMUs into a folder")
+    b.add_argument("--out", required=True, type=Path, help="output folder")
+
+    r = sub.add_parser("run", help="co-simulate a scenario")
+    r.add_argument("scenario")
+    _common(r)
+    r.add_argument("--stop-time", type=float, default=None, metavar="S",
+                   help="stop time in seconds (default: the scenario's)")
+    r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
+                   help="write one row per base step")
+    r.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+
+    c = sub.add_parser("critical-delay",
+                       help="largest measurement delay for which the uncompensated loop "
+                            "is stable")
+    c.add_argument("scenario")
+    _common(c)
+    c.add_argument("--periods", type=int, default=40,
+                   help="periods of each confirming co-simulation (default 40)")
+
+    sub.add_parser("list", help="list the scenarios and their parameters")
+    return p
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a scenario parameter (repeatable)")
+    p.add_argument("--fmu-dir", type=Path, default=None,
+                   help="folder of built FMUs (default: a per-version cache, built on demand)")
+
+
+def _cmd_build(args) -> int:
+    from .build import build_all
+
+    for path in build_all(args.out):
+        print(path)
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from .simulate import run_loop
+
+    scenario = scenarios.get(args.scenario)
+    params = scenario.resolve(args.set)
+    stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
+    started = time.perf_counter()
+    result = run_loop(scenario.make(params), stop, args.fmu_dir)
+    elapsed = time.perf_counter() - started
+    if args.out:
+        result.write_csv(args.out)
+    if args.plot:
+        from .plotting import plot_result
+
+        plot_result(result, args.plot, f"{scenario.title}\n" + _describe(params))
+    last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
+    print(f"{scenario.name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
+          f"in {elapsed:.2f} s; final {last}")
+    if not result.success:
+        print(f"delaycomp: error: {result.message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _describe(params: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in params.items())
+
+
+def _cmd_critical_delay(args) -> int:
+    from .critical import critical_delay_report
+
+    scenario = scenarios.get(args.scenario)
+    if args.periods < 10:
+        raise UsageError(f"--periods {args.periods} is not allowed: must be an integer >= 10")
+    report = critical_delay_report(scenario, args.set, args.periods, args.fmu_dir)
+    print(f"r_c = {report.r_c:.9f}")
+    for line in report.lines:
+        print(line)
+    return 0 if report.confirmed else 1
+
+
+def _cmd_list(args) -> int:
+    for sc in scenarios.SCENARIOS.values():
+        print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
+        for p in sc.params:
+            print(f"    {p.name:<6} default {p.default!s:<12} {p.help}; {p.allowed}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = _parser().parse_args(argv)
+        handler = {"build": _cmd_build, "run": _cmd_run,
+                   "critical-delay": _cmd_critical_delay, "list": _cmd_list}[args.command]
+        return handler(args)
+    except (UsageError, ParameterError) as exc:
+        print(f"delaycomp: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("delaycomp: interrupted", file=sys.stderr)
+        return 130
+    except (OSError, RuntimeError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        print(f"delaycomp: error: {msg}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
+

@@ -1,0 +1,129 @@
+"""Thin base class shared by the project's pythonfmu slaves.
+
+It does the FMI bookkeeping that every slave of this project needs, so that each slave
+module only declares its variable table and calls the maths:
+
+1. the build configuration (dimensions, names) is read from ``delaycomp_fmu.json`` in the
+   FMU's resources, written there by :mod:`delaycomp.build`;
+2. the bundled package version is checked against the one the FMU was built with
+   (pythonfmu slaves share the host's ``sys.modules``: a different ``delaycomp`` already
+   imported in the host would silently run other code);
+3. the GUID is pinned (a UUID5 of model name, version and configuration), so that a rebuild
+   of the same sources gives the same modelDescription;
+4. the ModelStructure lists each output's dependencies on inputs (direct feedthrough),
+   which pythonfmu leaves undeclared.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import uuid
+from xml.etree.ElementTree import SubElement
+from typing import Callable, Iterable
+
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu.enums import Fmi2Status
+from pythonfmu.enums import Fmi2Initial
+
+import delaycomp
+
+CONFIG_NAME = "delaycomp_fmu.json"
+_GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
+
+
+class ParameterError(ValueError):
+    """A parameter value outside its allowed range; the message names both."""
+
+
+def check_finite(name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise ParameterError(f"{name} = {value!r} is not allowed: must be a finite number")
+    return value
+
+
+class TableSlave(Fmi2Slave):
+    """Base of the project's slaves: configuration, pinned GUID, declared dependencies."""
+
+    description = "delaycomp FMU"
+    author = "delaycomp contributors"
+    license = "MIT"
+    version = delaycomp.__version__
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.config = self._read_config()
+        built_with = self.config.get("version")
+        if built_with != delaycomp.__version__:
+            raise RuntimeError(
+                f"{type(self).__name__}: built with delaycomp {built_with}, but delaycomp "
+                f"{delaycomp.__version__} is already loaded in this process"
+            )
+        key = json.dumps({"model": type(self).__name__, "config": self.config}, sort_keys=True)
+        self.guid = uuid.uuid5(_GUID_NAMESPACE, key)
+        #: output name -> names of the inputs it depends on at the same instant
+        self.dependencies: dict[str, list[str]] = {}
+
+    def _read_config(self) -> dict:
+        if self.resources is None:
+            raise RuntimeError(f"{type(self).__name__}: no resources folder")
+        with open(os.path.join(self.resources, CONFIG_NAME), encoding="utf-8") as fh:
+            return json.load(fh)
+
+    # -- registration helpers ----------------------------------------------------------
+    def parameter(
+        self, name: str, getter: Callable[[], float], setter: Callable[[float], None],
+        description: str, unit: str | None = None,
+    ) -> None:
+        del unit  # pythonfmu 0.7 writes no unit attribute; units are in the README table
+        self.register_variable(
+            Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                 getter=getter, setter=setter, description=description)
+        )
+
+    def string_parameter(
+        self, name: str, getter: Callable[[], str], setter: Callable[[str], None],
+        description: str,
+    ) -> None:
+        self.register_variable(
+            String(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                   getter=getter, setter=setter, description=description)
+        )
+
+    def real_input(self, name: str, getter, setter, description: str) -> None:
+        self.register_variable(
+            Real(name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
+                 getter=getter, setter=setter, description=description)
+        )
+
+    def real_output(
+        self, name: str, getter, description: str, depends_on: Iterable[str] = (),
+        variability: Fmi2Variability = Fmi2Variability.continuous,
+    ) -> None:
+        self.register_variable(
+            Real(name, causality=Fmi2Causality.output, variability=variability,
+                 initial=Fmi2Initial.calculated, getter=getter, description=description)
+        )
+        self.dependencies[name] = list(depends_on)
+
+    def fail(self, message: str) -> None:
+        """Log ``message`` as an error and raise, so the call returns fmi2Error."""
+        self.log(message, Fmi2Status.error)
+        raise ParameterError(message)
+
+    # -- modelDescription --------------------------------------------------------------
+    def to_xml(self, model_options=None):
+        root = super().to_xml(model_options or {})
+        index_of = {v.name: i + 1 for i, v in enumerate(self.vars.values())}
+        outputs = root.find("ModelStructure/Outputs")
+        if outputs is not None:
+            for unknown in outputs.findall("Unknown"):
+                var = list(self.vars.values())[int(unknown.get("index")) - 1]
+                deps = self.dependencies.get(var.name, [])
+                unknown.set("dependencies", " ".join(str(index_of[d]) for d in deps))
+            # FMI 2.0, 2.2.8: outputs with initial="calculated" are initial unknowns.
+            initial = SubElement(root.find("ModelStructure"), "InitialUnknowns")
+            for unknown in outputs.findall("Unknown"):
+                SubElement(initial, "Unknown", attrib={"index": unknown.get("index")})
+        return root

@@ -1,0 +1,218 @@
+"""Scenarios: named closed loops with their parameters, defaults and allowed ranges.
+
+A scenario turns user parameters into a :class:`LoopSpec`: which FMU each instance is,
+its parameter values, the connections and the recorded signals. It does not run anything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .lti import GRID_RTOL, MODES, split_delay
+from .names import indexed
+
+
+class ParameterError(ValueError):
+    """A scenario parameter is unknown or outside its allowed range (one-line message)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """A scenario parameter: name, default, how to parse it, and its allowed range."""
+
+    name: str
+    default: object
+    help: str
+    allowed: str
+    parse: Callable[[str], object]
+    ok: Callable[[object], bool]
+
+
+def _real(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError("not finite")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    return int(text)
+
+
+def real(name, default, help, allowed="a finite number", ok=lambda v: True) -> Param:
+    return Param(name, default, help, allowed, _real, ok)
+
+
+@dataclass(frozen=True)
+class LoopSpec:
+    """A closed loop ready for the master."""
+
+    #: instance name -> (FMU kind of :data:`delaycomp.build.FMUS`, build config, parameters)
+    instances: dict[str, tuple[str, dict, dict]]
+    connections: list[str]
+    T: float
+    N: int
+    #: (instance, variable) recorded as CSV columns ``instance.variable``
+    recorded: list[tuple[str, str]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    title: str
+    params: tuple[Param, ...]
+    make: Callable[[dict], LoopSpec]
+    default_stop_time: float
+    check: Callable[[dict], None] = lambda p: None
+    #: for LTI scenarios: parameters -> (A, B, K) of ``x' = A x + B u``, ``u = K x``
+    lti: Callable[[dict], tuple] | None = None
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        names = ", ".join(p.name for p in self.params)
+        raise ParameterError(f"unknown parameter {name!r} for {self.name}: allowed are {names}")
+
+    def resolve(self, assignments: list[str] | dict | None = None) -> dict:
+        """Defaults overridden by ``NAME=VALUE`` strings (or a dict); validated."""
+        values = {p.name: p.default for p in self.params}
+        items = assignments.items() if isinstance(assignments, dict) else (
+            _split(a) for a in (assignments or []))
+        for name, text in items:
+            p = self.param(name)
+            try:
+                value = p.parse(str(text))
+            except ValueError:
+                raise ParameterError(
+                    f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
+            if not p.ok(value):
+                raise ParameterError(
+                    f"parameter {name} = {text!r} is not allowed: must be {p.allowed}")
+            values[name] = value
+        self.check(values)
+        return values
+
+
+def _split(assignment: str) -> tuple[str, str]:
+    name, sep, value = assignment.partition("=")
+    if not sep or not name:
+        raise ParameterError(f"--set {assignment!r}: expected NAME=VALUE")
+    return name.strip(), value.strip()
+
+
+def on_grid(value: float, step: float) -> bool:
+    """Is ``value`` an integer multiple of ``step`` (up to round-off)?"""
+    ratio = value / step
+    return abs(ratio - round(ratio)) <= GRID_RTOL * max(1.0, abs(ratio))
+
+
+def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
+             state: str = "x", inp: str = "u") -> LoopSpec:
+    """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
+
+    ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``. The history of x on
+    ``[-r, 0]`` is the constant ``x0`` (the measurement delay's initial history), the
+    controller's output history on ``[-r - tau, 0)`` the constant ``u0``.
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    B = np.atleast_2d(np.asarray(B, dtype=float))
+    K = np.atleast_2d(np.asarray(K, dtype=float))
+    n, m = B.shape
+    x0 = np.asarray(x0, dtype=float).reshape(n)
+    u0 = np.asarray(u0, dtype=float).reshape(m)
+
+    def mat(label, M):
+        return {f"{label}[{i + 1},{j + 1}]": float(M[i, j])
+                for i in range(M.shape[0]) for j in range(M.shape[1])}
+
+    def vec(label, v):
+        return {f"{label}[{i + 1}]": float(v[i]) for i in range(len(v))}
+
+    xs, us = indexed(state, n), indexed(inp, m)
+    ys_in, ys_out = indexed("u", n), indexed("y", n)  # delay FMU on the measurement
+    dl_in, dl_out = indexed("u", m), indexed("y", m)  # delay FMU on the input
+    ctrl_in = indexed("y", n)
+    instances = {
+        "plant": ("plant", {"n": n, "m": m, "state": state, "input": inp}, {**mat("A", A), **mat("B", B), **vec("x0", x0)}),
+        "meas_delay": ("delay", {"n": n}, {"delay": r, **vec("u0", x0)}),
+        "controller": ("controller", {"n": n, "m": m},
+                       {"T": T, "r": r, "tau": tau, "mode": mode, **mat("A", A),
+                        **mat("B", B), **mat("K", K), **vec("u0", u0)}),
+        "input_delay": ("delay", {"n": m}, {"delay": tau, **vec("u0", u0)}),
+    }
+    connections = (
+        [f"plant.{x} -> meas_delay.{i}" for x, i in zip(xs, ys_in)]
+        + [f"meas_delay.{o} -> controller.{i}" for o, i in zip(ys_out, ctrl_in)]
+        + [f"controller.{u} -> input_delay.{i}" for u, i in zip(us, dl_in)]
+        + [f"input_delay.{o} -> plant.{u}" for o, u in zip(dl_out, us)]
+    )
+    recorded = [("plant", x) for x in xs] + [("controller", u) for u in us]
+    return LoopSpec(instances, connections, T, N, recorded)
+
+
+# -- Example 3.6 ----------------------------------------------------------------------
+
+def _check_timing(p: dict) -> None:
+    """Cross-parameter rules shared by the LTI scenarios."""
+    T, N = p["T"], p["N"]
+    if p["tau"] > 0 and split_delay(p["tau"], T)[1] != 0.0:
+        raise ParameterError(
+            f"parameter tau = {p['tau']!r} is not allowed: must be a multiple l*T (l >= 0) "
+            f"of T = {T!r}")
+    h = T / N
+    if not on_grid(p["r"], h):
+        raise ParameterError(
+            f"parameter r = {p['r']!r} is not allowed: must be a multiple of the base step "
+            f"h = T/N = {h!r} (raise N)")
+
+
+def _example_3_6_matrices(p: dict) -> tuple:
+    return [[1.0]], [[1.0]], [[-p["k"]]]
+
+
+def _example_3_6(p: dict) -> LoopSpec:
+    A, B, K = _example_3_6_matrices(p)
+    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], [p["x0"]],
+                    [p["u0"]])
+
+
+def _mode_param() -> Param:
+    return Param("mode", "compensated", "controller: u = K Phi(y) or u = K y",
+                 " or ".join(MODES), str, lambda v: v in MODES)
+
+
+EXAMPLE_3_6 = Scenario(
+    name="example-3.6",
+    title="Example 3.6: x' = x + u, u = -k x under ZOH, measurement delay r",
+    params=(
+        real("k", 2.0, "feedback gain, u = -k x"),
+        real("T", 1.0, "sampling period", "a finite number > 0", lambda v: v > 0),
+        real("r", 0.3, "measurement delay", "a finite number >= 0", lambda v: v >= 0),
+        real("tau", 0.0, "input delay", "a finite multiple l*T of T, l >= 0",
+             lambda v: v >= 0),
+        Param("N", 100, "base steps per sampling period (h = T/N)", "a positive integer",
+              _positive_int, lambda v: v >= 1),
+        _mode_param(),
+        real("x0", 1.0, "constant history of x on [-r, 0]"),
+        real("u0", 0.0, "constant input history on [-r - tau, 0)"),
+    ),
+    make=_example_3_6,
+    default_stop_time=20.0,
+    check=_check_timing,
+    lti=_example_3_6_matrices,
+)
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (EXAMPLE_3_6,)}
+
+
+def get(name: str) -> Scenario:
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise ParameterError(
+            f"unknown scenario {name!r}: allowed are {', '.join(SCENARIOS)}") from None

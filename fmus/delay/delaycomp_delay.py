@@ -1,0 +1,69 @@
+"""FMU slave: transport delay ``y(t) = u(t - delay)`` on n channels.
+
+The maths is :class:`delaycomp.delayline.DelayLine`. See README.md beside this file.
+"""
+
+from __future__ import annotations
+
+from delaycomp.delayline import DelayLine, steps_of
+from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.names import indexed
+
+
+class DelaycompDelay(TableSlave):
+    """Transport delay, exact for signals piecewise constant on the communication grid."""
+
+    description = "transport delay y(t) = u(t - delay), initial history u0 on [t0 - delay, t0)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        n = int(self.config["n"])
+        self.n = n
+        self.delay = 0.0
+        self.u0 = [0.0] * n
+        self.u = [0.0] * n
+        self.line: DelayLine | None = None  # made at the first step, when h is known
+        self._h = None
+        self.parameter("delay", lambda: self.delay, lambda v: setattr(self, "delay", v),
+                       "delay in seconds, an integer multiple of the communication step", "s")
+        for i in range(n):
+            self.parameter(f"u0[{i + 1}]", (lambda i=i: self.u0[i]),
+                           (lambda v, i=i: self.u0.__setitem__(i, v)),
+                           "input history, constant on [t0 - delay, t0)")
+        self.input_names = indexed("u", n)
+        self.output_names = indexed("y", n)
+        for i, name in enumerate(self.input_names):
+            self.real_input(name, (lambda i=i: self.u[i]),
+                            (lambda v, i=i: self.u.__setitem__(i, v)), "delayed signal, input")
+        for i, (name, src) in enumerate(zip(self.output_names, self.input_names)):
+            # Declared dependent on its input: with delay = 0 the output is the input.
+            self.real_output(name, (lambda i=i: self._output()[i]), "u(t - delay)",
+                             depends_on=(src,))
+
+    def exit_initialization_mode(self):
+        check_finite("delay", self.delay)
+        if self.delay < 0:
+            self.fail(f"delay = {self.delay!r} is not allowed: must be >= 0")
+        for i, v in enumerate(self.u0):
+            check_finite(f"u0[{i + 1}]", v)
+        self.line = None
+        self._h = None
+
+    def _output(self):
+        if self.line is not None:
+            return self.line.output(self.u)
+        return tuple(self.u) if self.delay == 0 else tuple(self.u0)
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        if self.line is None:
+            try:
+                D = steps_of(self.delay, step_size)
+            except ValueError as exc:
+                self.fail(f"delay: {exc}")
+            self.line = DelayLine(self.n, D, self.u0)
+            self._h = step_size
+        elif abs(step_size - self._h) > 1e-12 * self._h:
+            self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
+                      f"communication step, {self._h!r}")
+        self.line.push(self.u)
+        return True

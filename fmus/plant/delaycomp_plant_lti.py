@@ -1,0 +1,74 @@
+"""FMU slave: LTI plant ``x' = A x + B u``, exactly discretized over each step.
+
+The adapter only copies values in and out; the maths is :func:`delaycomp.lti.discretize`.
+See README.md beside this file for the equations and the variable table.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.names import indexed
+from delaycomp.lti import discretize
+
+
+class DelaycompPlantLTI(TableSlave):
+    """LTI plant with n states and m inputs; A, B and x0 are parameters."""
+
+    description = "LTI plant x' = A x + B u, exact zero-order-hold discretization per step"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        n, m = int(self.config["n"]), int(self.config["m"])
+        self.n, self.m = n, m
+        self.A = np.zeros((n, n))
+        self.B = np.zeros((n, m))
+        self.x0 = np.zeros(n)
+        self.x = np.zeros(n)
+        self.u = np.zeros(m)
+        self._h = None  # step size of the cached discretization
+        self._Ad = self._Bd = None
+
+        def elem(mat, i, j):
+            return (lambda: float(mat[i, j])), (lambda v: mat.__setitem__((i, j), v))
+
+        for i in range(n):
+            for j in range(n):
+                g, s = elem(self.A, i, j)
+                self.parameter(f"A[{i + 1},{j + 1}]", g, s, "system matrix A")
+        for i in range(n):
+            for j in range(m):
+                g, s = elem(self.B, i, j)
+                self.parameter(f"B[{i + 1},{j + 1}]", g, s, "input matrix B")
+        for i in range(n):
+            self.parameter(f"x0[{i + 1}]", (lambda i=i: float(self.x0[i])),
+                           (lambda v, i=i: self.x0.__setitem__(i, v)), "initial state x(t0)")
+        self.input_names = indexed(self.config.get("input", "u"), m)
+        self.output_names = indexed(self.config.get("state", "x"), n)
+        for j, name in enumerate(self.input_names):
+            self.real_input(name, (lambda j=j: float(self.u[j])),
+                            (lambda v, j=j: self.u.__setitem__(j, v)),
+                            "plant input, held constant over each communication step")
+        for i, name in enumerate(self.output_names):
+            self.real_output(name, (lambda i=i: float(self.x[i])), "plant state",
+                             depends_on=())
+
+    def exit_initialization_mode(self):
+        for name, value in self._parameter_values():
+            check_finite(name, value)
+        self.x = self.x0.copy()
+        self._h = None
+
+    def _parameter_values(self):
+        for v in self.vars.values():
+            if v.causality.name == "parameter":
+                yield v.name, v.getter()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        if not step_size > 0:
+            self.fail(f"step size {step_size!r} is not allowed: must be > 0")
+        if step_size != self._h:
+            self._Ad, self._Bd = discretize(self.A, self.B, step_size)
+            self._h = step_size
+        self.x = self._Ad @ self.x + self._Bd @ self.u
+        return True

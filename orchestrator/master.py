@@ -1,0 +1,276 @@
+"""A small, exact fixed-step co-simulation master (Gauss-Seidel along the signal chain).
+
+Lifecycle (after libcosim's algorithm): :meth:`Master.setup` instantiates and sets
+parameters, :meth:`Master.initialize` leaves initialization mode, :meth:`Master.step`
+advances one base step, :meth:`Master.terminate` ends and frees everything. Results go to
+observers (:class:`Recorder`), kept apart from the stepping.
+
+Time is an integer count ``k`` of base steps ``h = T / N``; the master never accumulates
+``t += h``. The time of tick ``k`` is ``t0 + (k // N) T + (k % N) T / N``, so every
+sampling instant ``t0 + i T`` is hit exactly as the controllers compute it.
+
+Exactness. At every tick the master
+
+1. reads the outputs of components without direct feedthrough (their outputs at ``t_k``
+   do not depend on inputs at ``t_k``: the plant);
+2. visits the components with direct feedthrough in topological order, each time setting
+   its inputs from outputs already at ``t_k`` and then reading its outputs (delay lines,
+   controller);
+3. sets the inputs of the components of step 1;
+4. hands the values at ``t_k`` to the observers, then steps every component from ``t_k`` to
+   ``t_{k+1}``.
+
+So a signal never waits a communication step at a connection: the controller sampling at
+``t_i`` receives ``x(t_i - r)`` and the plant on ``[t_k, t_{k+1})`` receives
+``u(t_k - tau)``. An algebraic loop (a cycle through feedthrough components only) is
+refused at setup.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Protocol, Sequence
+
+
+class SimulationError(RuntimeError):
+    """A component failed; the message names it, the time and the reason."""
+
+
+class Component(Protocol):
+    """What the master needs of a component (an FMU, or a mock in tests)."""
+
+    name: str
+    input_names: Sequence[str]
+    output_names: Sequence[str]
+    #: names of the outputs that depend on inputs at the same instant
+    feedthrough_outputs: frozenset[str]
+
+    def setup(self, start_time: float, stop_time: float, parameters: dict) -> None: ...
+    def initialize(self) -> None: ...
+    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None: ...
+    def get_outputs(self, names: Sequence[str]) -> list[float]: ...
+    def do_step(self, t: float, h: float) -> None: ...
+    def terminate(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class Connection:
+    """``src.src_var -> dst.dst_var``."""
+
+    src: str
+    src_var: str
+    dst: str
+    dst_var: str
+
+    @classmethod
+    def parse(cls, text: str) -> "Connection":
+        """From ``"plant.x -> delay.u"``."""
+        left, right = (part.strip() for part in text.split("->"))
+        src, src_var = left.split(".", 1)
+        dst, dst_var = right.split(".", 1)
+        return cls(src, src_var, dst, dst_var)
+
+
+@dataclass
+class _Plan:
+    """Per-tick work precomputed at setup: the hot loop only indexes lists."""
+
+    # (component, output names, slots) for components read first (no feedthrough)
+    heads: list = field(default_factory=list)
+    # (component, input names, input slots, output names, output slots), topological
+    chain: list = field(default_factory=list)
+    # (component, input names, input slots) set last
+    tails: list = field(default_factory=list)
+
+
+class Master:
+    """Fixed-step master over integer ticks of ``h = T / N``.
+
+    Parameters
+    ----------
+    components:
+        the components, by name; stepped every base step.
+    connections:
+        the signal connections.
+    T, N:
+        sampling period and base steps per period (``h = T / N``).
+    t0:
+        start time.
+    """
+
+    def __init__(self, components: Iterable[Component], connections: Iterable[Connection],
+                 T: float, N: int, t0: float = 0.0):
+        if not (isinstance(N, int) and N >= 1):
+            raise ValueError(f"N must be a positive integer, got {N!r}")
+        if not T > 0:
+            raise ValueError(f"T must be > 0, got {T!r}")
+        self.components = {c.name: c for c in components}
+        self.connections = list(connections)
+        self.T, self.N, self.t0 = float(T), N, float(t0)
+        self.h = self.T / N
+        self.k = 0
+        self._plan = self._make_plan()
+        self._slots: list[float] = [0.0] * len(self._slot_of)
+        self._observers: list = []
+
+    # -- planning ----------------------------------------------------------------------
+    def _make_plan(self) -> _Plan:
+        comps = self.components
+        self._slot_of: dict[tuple[str, str], int] = {}
+        for c in comps.values():
+            for name in c.output_names:
+                self._slot_of[(c.name, name)] = len(self._slot_of)
+        sources: dict[str, list[tuple[str, int]]] = {name: [] for name in comps}
+        seen_inputs = set()
+        for con in self.connections:
+            for inst, var, kind in ((con.src, con.src_var, "output"),
+                                    (con.dst, con.dst_var, "input")):
+                if inst not in comps:
+                    raise ValueError(f"connection {con}: no component named {inst!r}")
+                names = comps[inst].output_names if kind == "output" else comps[inst].input_names
+                if var not in names:
+                    raise ValueError(f"connection {con}: {inst} has no {kind} {var!r}")
+            if (con.dst, con.dst_var) in seen_inputs:
+                raise ValueError(f"input {con.dst}.{con.dst_var} is connected twice")
+            seen_inputs.add((con.dst, con.dst_var))
+            sources[con.dst].append((con.dst_var, self._slot_of[(con.src, con.src_var)]))
+
+        feed = {n for n, c in comps.items() if c.feedthrough_outputs}
+        # topological order of the feedthrough components (Kahn), edges src -> dst
+        preds = {n: {con.src for con in self.connections if con.dst == n and con.src in feed}
+                 for n in feed}
+        order: list[str] = []
+        ready = sorted(n for n in feed if not preds[n])
+        while ready:
+            n = ready.pop(0)
+            order.append(n)
+            for m in sorted(feed):
+                if n in preds[m]:
+                    preds[m].discard(n)
+                    if not preds[m] and m not in order and m not in ready:
+                        ready.append(m)
+        if len(order) != len(feed):
+            loop = sorted(feed - set(order))
+            raise ValueError(f"algebraic loop through {', '.join(loop)}: every component "
+                             "in it has direct feedthrough")
+
+        plan = _Plan()
+        for name, c in comps.items():
+            outs = list(c.output_names)
+            if name not in feed:
+                plan.heads.append((c, outs, [self._slot_of[(name, o)] for o in outs]))
+                ins = sources[name]
+                if ins:
+                    plan.tails.append((c, [v for v, _ in ins], [s for _, s in ins]))
+        for name in order:
+            c = comps[name]
+            ins = sources[name]
+            outs = list(c.output_names)
+            plan.chain.append((c, [v for v, _ in ins], [s for _, s in ins], outs,
+                               [self._slot_of[(name, o)] for o in outs]))
+        return plan
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def time_of(self, k: int) -> float:
+        """Time of tick ``k``, exact at every sampling instant."""
+        i, j = divmod(k, self.N)
+        return self.t0 + i * self.T + j * self.h
+
+    def add_observer(self, observer) -> None:
+        self._observers.append(observer)
+
+    def setup(self, stop_time: float, parameters: dict[str, dict]) -> None:
+        for name, c in self.components.items():
+            self._guard(c, 0, c.setup, self.t0, stop_time, parameters.get(name, {}))
+
+    def initialize(self) -> None:
+        for c in self.components.values():
+            self._guard(c, 0, c.initialize)
+        self.k = 0
+        self._propagate()
+
+    def _guard(self, comp, k, fn, *args):
+        try:
+            return fn(*args)
+        except SimulationError:
+            raise
+        except Exception as exc:  # an FMU or mock failed: name it, the time, the reason
+            reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
+            raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}"
+                                  ) from exc
+
+    def _propagate(self) -> None:
+        """Bring every output and input to the values of the current tick."""
+        slots = self._slots
+        k = self.k
+        try:
+            for c, outs, oslots in self._plan.heads:
+                for s, v in zip(oslots, c.get_outputs(outs)):
+                    slots[s] = v
+            for c, ins, islots, outs, oslots in self._plan.chain:
+                if ins:
+                    c.set_inputs(ins, [slots[s] for s in islots])
+                for s, v in zip(oslots, c.get_outputs(outs)):
+                    slots[s] = v
+            for c, ins, islots in self._plan.tails:
+                c.set_inputs(ins, [slots[s] for s in islots])
+        except Exception as exc:
+            self._fail(exc, k)
+        t = self.time_of(k)
+        for obs in self._observers:
+            obs.record(k, t, slots)
+
+    def _fail(self, exc: Exception, k: int):
+        culprit = next((c for c in self.components.values()
+                        if getattr(c, "last_message", None)), None)
+        name = culprit.name if culprit else "a component"
+        reason = (culprit.last_message if culprit else None) or str(exc)
+        raise SimulationError(f"{name} failed at t = {self.time_of(k):.12g}: {reason}") from exc
+
+    def step(self) -> None:
+        """Advance every component from ``t_k`` to ``t_{k+1}``; then propagate."""
+        t = self.time_of(self.k)
+        h = self.h
+        for c in self.components.values():
+            self._guard(c, self.k, c.do_step, t, h)
+        self.k += 1
+        self._propagate()
+
+    def run_until(self, stop_ticks: int) -> None:
+        while self.k < stop_ticks:
+            self.step()
+
+    def terminate(self) -> None:
+        errors = []
+        for c in self.components.values():
+            try:
+                c.terminate()
+            except Exception as exc:  # keep freeing the others
+                errors.append(f"{c.name}: {exc}")
+        if errors:
+            raise SimulationError("; ".join(errors))
+
+    def slot(self, instance: str, variable: str) -> int:
+        """Index of an output in the value vector handed to observers."""
+        try:
+            return self._slot_of[(instance, variable)]
+        except KeyError:
+            raise ValueError(f"no output {instance}.{variable}") from None
+
+
+class Recorder:
+    """Observer that keeps selected outputs at every tick, for CSV and plots."""
+
+    def __init__(self, master: Master, signals: Sequence[tuple[str, str]]):
+        self.names = [f"{i}.{v}" for i, v in signals]
+        self._idx = [master.slot(i, v) for i, v in signals]
+        self.times: list[float] = []
+        self.rows: list[list[float]] = []
+
+    def record(self, k: int, t: float, slots: Sequence[float]) -> None:
+        self.times.append(t)
+        self.rows.append([slots[i] for i in self._idx])
+
+    def column(self, name: str) -> list[float]:
+        j = self.names.index(name)
+        return [row[j] for row in self.rows]
