@@ -55,7 +55,7 @@ FMUS: dict[str, FmuSpec] = {
 }
 
 #: Dimensions of the default build: the scalar loop of Example 3.6.
-DEFAULT_CONFIG = {"plant": {"n": 1, "m": 1}, "delay": {"n": 1}, "controller": {"n": 1, "m": 1}}
+DEFAULT_CONFIG = {"plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1}, "controller": {"n": 1, "m": 1}}
 
 
 def build_fmu(kind: str, out_dir: Path, config: dict | None = None,

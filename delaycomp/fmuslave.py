@@ -74,9 +74,8 @@ class TableSlave(Fmi2Slave):
     # -- registration helpers ----------------------------------------------------------
     def parameter(
         self, name: str, getter: Callable[[], float], setter: Callable[[float], None],
-        description: str, unit: str | None = None,
+        description: str,
     ) -> None:
-        del unit  # pythonfmu 0.7 writes no unit attribute; units are in the README table
         self.register_variable(
             Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                  getter=getter, setter=setter, description=description)

@@ -37,13 +37,13 @@ class DelaycompControllerLTI(TableSlave):
         self._at_sample = True  # is the current time a sampling instant not yet committed?
         self._proposal = None   # u_i computed from the current y (cleared when y is set)
 
-        for name, attr, unit, text in (
-            ("T", "T", "s", "sampling period, > 0"),
-            ("r", "r", "s", "measurement delay assumed by the predictor, >= 0"),
-            ("tau", "tau", "s", "input delay assumed by the predictor, a multiple of T"),
+        for name, text in (
+            ("T", "sampling period [s], > 0"),
+            ("r", "measurement delay assumed by the predictor [s], >= 0"),
+            ("tau", "input delay assumed by the predictor [s], a multiple of T"),
         ):
-            self.parameter(name, (lambda a=attr: getattr(self, a)),
-                           (lambda v, a=attr: setattr(self, a, v)), text, unit)
+            self.parameter(name, (lambda a=name: getattr(self, a)),
+                           (lambda v, a=name: setattr(self, a, v)), text)
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
                               "compensated (u = K Phi) or uncompensated (u = K y)")
         for label, mat, rows, cols, text in (

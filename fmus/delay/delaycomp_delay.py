@@ -25,7 +25,7 @@ class DelaycompDelay(TableSlave):
         self.line: DelayLine | None = None  # made at the first step, when h is known
         self._h = None
         self.parameter("delay", lambda: self.delay, lambda v: setattr(self, "delay", v),
-                       "delay in seconds, an integer multiple of the communication step", "s")
+                       "delay [s], >= 0, an integer multiple of the communication step")
         for i in range(n):
             self.parameter(f"u0[{i + 1}]", (lambda i=i: self.u0[i]),
                            (lambda v, i=i: self.u0.__setitem__(i, v)),
