@@ -11,7 +11,15 @@ module only declares its variable table and calls the maths:
 3. the GUID is pinned (a UUID5 of model name, version and configuration), so that a rebuild
    of the same sources gives the same modelDescription;
 4. the ModelStructure lists each output's dependencies on inputs (direct feedthrough),
-   which pythonfmu leaves undeclared.
+   which pythonfmu leaves undeclared;
+5. no Python exception leaves the slave for an expected fault. pythonfmu 0.7 turns every
+   exception into fmi2Fatal and drops the Python object (a later fmi2Terminate crashes the
+   host, and repeated fatal errors have crashed the interpreter). Instead a bad parameter
+   is logged with status error when initialization ends, and every later ``doStep``
+   returns fmi2Discard with the reason logged; a fault during a step does the same.
+
+Subclasses implement ``_setup()`` (check parameters, build the maths objects) and
+``_step(t, h)`` (the maths of one communication step).
 """
 
 from __future__ import annotations
@@ -64,6 +72,8 @@ class TableSlave(Fmi2Slave):
         self.guid = uuid.uuid5(_GUID_NAMESPACE, key)
         #: output name -> names of the inputs it depends on at the same instant
         self.dependencies: dict[str, list[str]] = {}
+        #: why this instance refuses to step (None while it is healthy)
+        self.error: str | None = None
 
     def _read_config(self) -> dict:
         if self.resources is None:
@@ -107,9 +117,42 @@ class TableSlave(Fmi2Slave):
         self.dependencies[name] = list(depends_on)
 
     def fail(self, message: str) -> None:
-        """Log ``message`` as an error and raise, so the call returns fmi2Error."""
-        self.log(message, Fmi2Status.error)
+        """Abandon ``_setup`` or ``_step`` with ``message`` (logged by the caller)."""
         raise ParameterError(message)
+
+    def _refuse(self, message: str) -> None:
+        self.error = message
+        self.log(message, Fmi2Status.error)
+
+    # -- FMI entry points ----------------------------------------------------------------
+    def exit_initialization_mode(self):
+        self.error = None
+        try:
+            self._setup()
+        except ParameterError as exc:
+            self._refuse(str(exc))
+        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            self._refuse(f"initialization failed: {type(exc).__name__}: {exc}")
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        if self.error is not None:
+            self.log(f"refusing to step: {self.error}", Fmi2Status.discard)
+            return False
+        try:
+            self._step(current_time, step_size)
+        except ParameterError as exc:
+            self._refuse(str(exc))
+            return False
+        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            self._refuse(f"step at t = {current_time!r} failed: {type(exc).__name__}: {exc}")
+            return False
+        return True
+
+    def _setup(self) -> None:
+        raise NotImplementedError
+
+    def _step(self, t: float, h: float) -> None:
+        raise NotImplementedError
 
     # -- modelDescription --------------------------------------------------------------
     def to_xml(self, model_options=None):

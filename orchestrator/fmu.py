@@ -16,9 +16,14 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
 )
-from fmpy.fmi1 import calloc, free
+from fmpy.fmi1 import FMICallException, calloc, free
 
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+FATAL = 4
+
+
+class FmuRefused(RuntimeError):
+    """The FMU logged an error while its call returned OK (see ``delaycomp.fmuslave``)."""
 
 
 class FmuComponent:
@@ -44,6 +49,8 @@ class FmuComponent:
         )
         self.messages: list[str] = []
         self.last_message: str | None = None
+        #: worst status an FMI call of this instance returned (0 = ok .. 4 = fatal)
+        self.worst_status = 0
         self._vr_cache: dict[tuple[str, ...], list[int]] = {}
         self._unzipdir: str | None = None
         self.fmu: FMU2Slave | None = None
@@ -52,8 +59,9 @@ class FmuComponent:
     def _logger(self, component, instance_name, status, category, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
         self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] {text}")
-        if status >= 2:  # discard, error, fatal
-            self.last_message = text
+        if status >= 2 and self.last_message is None:  # discard, error, fatal
+            self.last_message = text  # the first one names the cause
+        self.worst_status = max(self.worst_status, status)
 
     def _callbacks(self) -> fmi2CallbackFunctions:
         cb = fmi2CallbackFunctions()
@@ -84,41 +92,78 @@ class FmuComponent:
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
         self._unzipdir = extract(str(self.path), tempfile.mkdtemp(prefix="delaycomp-fmu-"))
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier,
-                             instanceName=self.name)
-        self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
-        self.fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
-        self.fmu.enterInitializationMode()
-        for pname, value in parameters.items():
-            var = self._var(pname)
-            vr = [var.valueReference]
-            if var.type == "Real":
-                self.fmu.setReal(vr, [float(value)])
-            elif var.type in ("Integer", "Enumeration"):
-                self.fmu.setInteger(vr, [int(value)])
-            elif var.type == "Boolean":
-                self.fmu.setBoolean(vr, [bool(value)])
-            else:
-                self.fmu.setString(vr, [str(value)])
+        fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                        modelIdentifier=self.md.coSimulation.modelIdentifier,
+                        instanceName=self.name)
+        try:
+            fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+        except Exception:
+            fmu.freeLibrary()
+            self.worst_status = FATAL
+            raise
+        self.fmu = fmu
+        try:
+            fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+            fmu.enterInitializationMode()
+            for pname, value in parameters.items():
+                self._set_parameter(pname, value)
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
+
+    def _set_parameter(self, name: str, value) -> None:
+        var = self._var(name)
+        vr = [var.valueReference]
+        if var.type == "Real":
+            self.fmu.setReal(vr, [float(value)])
+        elif var.type in ("Integer", "Enumeration"):
+            self.fmu.setInteger(vr, [int(value)])
+        elif var.type == "Boolean":
+            self.fmu.setBoolean(vr, [bool(value)])
+        else:
+            self.fmu.setString(vr, [str(value)])
+
+    def _failed(self, exc: FMICallException) -> None:
+        self.worst_status = max(self.worst_status, exc.status)
 
     def initialize(self) -> None:
-        self.fmu.exitInitializationMode()
+        try:
+            self.fmu.exitInitializationMode()
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
+        if self.worst_status >= 3:  # it logged an error: it will refuse to step
+            raise FmuRefused(self.last_message or "the FMU logged an error")
 
     def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
-        self.fmu.setReal(self._vrs(names), values)
+        try:
+            self.fmu.setReal(self._vrs(names), values)
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
-        return self.fmu.getReal(self._vrs(names))
+        try:
+            return self.fmu.getReal(self._vrs(names))
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
 
     def do_step(self, t: float, h: float) -> None:
-        self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        try:
+            self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
 
     def terminate(self) -> None:
         try:
             if self.fmu is not None:
                 try:
-                    self.fmu.terminate()
+                    # After fmi2Fatal only fmi2FreeInstance is allowed (pythonfmu 0.7 has
+                    # dropped the Python object then, and fmi2Terminate would crash the host).
+                    if self.worst_status < FATAL:
+                        self.fmu.terminate()
                 finally:
                     self.fmu.freeInstance()
                     self.fmu = None

@@ -81,7 +81,7 @@ class DelaycompControllerLTI(TableSlave):
     def setup_experiment(self, start_time, stop_time, tolerance):
         self.t0 = float(start_time)
 
-    def exit_initialization_mode(self):
+    def _setup(self):
         for name in ("T", "r", "tau"):
             check_finite(name, getattr(self, name))
         for label, mat in (("A", self.A), ("B", self.B), ("K", self.K), ("u0", self.u0)):
@@ -103,13 +103,15 @@ class DelaycompControllerLTI(TableSlave):
         self._proposal = None
 
     def _output(self) -> np.ndarray:
+        if self.ctrl is None:  # not initialized, or refused its parameters
+            return self.u0
         if not self._at_sample:
             return self.ctrl.held
         if self._proposal is None:
             self._proposal = self.ctrl.propose(self.y)
         return self._proposal
 
-    def do_step(self, current_time: float, step_size: float) -> bool:
+    def _step(self, current_time: float, step_size: float) -> None:
         if self._at_sample:
             self.ctrl.commit(self._output())
             self._next += 1
@@ -121,4 +123,3 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")
         self._at_sample = abs(t_end - t_sample) <= tol
-        return True

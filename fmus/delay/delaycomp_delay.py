@@ -40,7 +40,7 @@ class DelaycompDelay(TableSlave):
             self.real_output(name, (lambda i=i: self._output()[i]), "u(t - delay)",
                              depends_on=(src,))
 
-    def exit_initialization_mode(self):
+    def _setup(self):
         check_finite("delay", self.delay)
         if self.delay < 0:
             self.fail(f"delay = {self.delay!r} is not allowed: must be >= 0")
@@ -54,7 +54,7 @@ class DelaycompDelay(TableSlave):
             return self.line.output(self.u)
         return tuple(self.u) if self.delay == 0 else tuple(self.u0)
 
-    def do_step(self, current_time: float, step_size: float) -> bool:
+    def _step(self, t: float, step_size: float) -> None:
         if self.line is None:
             try:
                 D = steps_of(self.delay, step_size)
@@ -66,4 +66,3 @@ class DelaycompDelay(TableSlave):
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
                       f"communication step, {self._h!r}")
         self.line.push(self.u)
-        return True

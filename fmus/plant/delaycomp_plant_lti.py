@@ -53,7 +53,7 @@ class DelaycompPlantLTI(TableSlave):
             self.real_output(name, (lambda i=i: float(self.x[i])), "plant state",
                              depends_on=())
 
-    def exit_initialization_mode(self):
+    def _setup(self):
         for name, value in self._parameter_values():
             check_finite(name, value)
         self.x = self.x0.copy()
@@ -64,11 +64,14 @@ class DelaycompPlantLTI(TableSlave):
             if v.causality.name == "parameter":
                 yield v.name, v.getter()
 
-    def do_step(self, current_time: float, step_size: float) -> bool:
+    def _step(self, t: float, step_size: float) -> None:
         if not step_size > 0:
             self.fail(f"step size {step_size!r} is not allowed: must be > 0")
         if step_size != self._h:
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
             self._h = step_size
-        self.x = self._Ad @ self.x + self._Bd @ self.u
-        return True
+        x = self._Ad @ self.x + self._Bd @ self.u
+        if not np.all(np.isfinite(x)):
+            self.fail(f"state is not finite at t = {t + step_size!r} (input u = "
+                      f"{self.u.tolist()}): the plant diverged or an input is not finite")
+        self.x = x
