@@ -94,10 +94,12 @@ def _cmd_run(args) -> int:
     result = run_loop(scenario.make(params), stop, args.fmu_dir)
     elapsed = time.perf_counter() - started
     if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         result.write_csv(args.out)
     if args.plot:
         from .plotting import plot_result
 
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
         plot_result(result, args.plot, f"{scenario.title}\n" + _describe(params))
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
     print(f"{scenario.name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
