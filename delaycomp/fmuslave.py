@@ -100,6 +100,18 @@ class TableSlave(Fmi2Slave):
                    getter=getter, setter=setter, description=description)
         )
 
+    def model_parameters(self, values: dict, defaults: dict) -> None:
+        """One FMU parameter per model parameter (Real for numbers, String for strings),
+        stored in ``values``."""
+        for name, default in defaults.items():
+            values[name] = default if isinstance(default, str) else float(default)
+            getter = (lambda n=name: values[n])
+            setter = (lambda v, n=name: values.__setitem__(n, v))
+            if isinstance(default, str):
+                self.string_parameter(name, getter, setter, "model parameter")
+            else:
+                self.parameter(name, getter, setter, "model parameter")
+
     def real_input(self, name: str, getter, setter, description: str) -> None:
         self.register_variable(
             Real(name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,

@@ -155,6 +155,59 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
     return LoopSpec(instances, connections, T, N, recorded)
 
 
+def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
+               params: dict | None = None, mode: str | None = None,
+               predictor: str | None = None, tolerance: float | None = None,
+               pad: bool = False) -> LoopSpec:
+    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.model`).
+
+    Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
+    """
+    from .model import load_model
+
+    model = load_model(model_path)
+    n, m = model.n, model.m
+    x0 = [float(v) for v in np.ravel(x0)]
+    u0 = [float(v) for v in np.ravel(u0)]
+    if len(x0) != n:
+        raise ParameterError(f"parameter x0 has {len(x0)} values: must have {n} "
+                             f"({', '.join(model.states)})")
+    if len(u0) != m:
+        raise ParameterError(f"parameter u0 has {len(u0)} values: must have {m} "
+                             f"({', '.join(model.inputs)})")
+    cfg = {"model": str(model_path)}
+    ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad),
+            **{f"u0[{j + 1}]": v for j, v in enumerate(u0)},
+            **{f"z0[{i + 1}]": v for i, v in enumerate(x0 if z0 is None else z0)},
+            **(params or {})}
+    if mode is not None:
+        ctrl["mode"] = mode
+    if predictor is not None:
+        ctrl["predictor"] = predictor
+    plant = {**{f"x0[{i + 1}]": v for i, v in enumerate(x0)},
+             **{k: v for k, v in (params or {}).items() if k in model.parameters}}
+    if tolerance is not None:
+        plant["tolerance"] = ctrl["tolerance"] = tolerance
+    instances = {
+        "plant": ("model_plant", cfg, plant),
+        "meas_delay": ("delay", {"n": n},
+                       {"delay": r, **{f"u0[{i + 1}]": v for i, v in enumerate(x0)}}),
+        "controller": ("model_controller", cfg, ctrl),
+        "input_delay": ("delay", {"n": m},
+                        {"delay": tau, **{f"u0[{j + 1}]": v for j, v in enumerate(u0)}}),
+    }
+    ys_in, ys_out = indexed("u", n), indexed("y", n)
+    dl_in, dl_out = indexed("u", m), indexed("y", m)
+    connections = (
+        [f"plant.{s} -> meas_delay.{i}" for s, i in zip(model.states, ys_in)]
+        + [f"meas_delay.{o} -> controller.y_{s}" for o, s in zip(ys_out, model.states)]
+        + [f"controller.{u} -> input_delay.{i}" for u, i in zip(model.inputs, dl_in)]
+        + [f"input_delay.{o} -> plant.{u}" for o, u in zip(dl_out, model.inputs)]
+    )
+    recorded = [("plant", s) for s in model.states] + [("controller", u) for u in model.inputs]
+    return LoopSpec(instances, connections, T, N, recorded)
+
+
 # -- Example 3.6 ----------------------------------------------------------------------
 
 def _check_timing(p: dict) -> None:

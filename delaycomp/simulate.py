@@ -15,7 +15,8 @@ import delaycomp
 from orchestrator.fmu import FmuComponent
 from orchestrator.master import Connection, Master, Recorder, SimulationError
 
-from .build import BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu
+from .build import (BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu,
+                    model_identifier)
 from .scenarios import LoopSpec, ParameterError, on_grid
 
 __all__ = ["Result", "run_loop", "fmu_path", "default_fmu_dir", "SimulationError"]
@@ -41,8 +42,8 @@ def default_fmu_dir() -> Path:
 
 def fmu_file_name(kind: str, config: dict) -> str:
     """``<ModelIdentifier>.fmu`` for the default dimensions, else with the config in it."""
-    ident = FMUS[kind].model_identifier
-    if config == DEFAULT_CONFIG[kind]:
+    ident = model_identifier(kind, config)
+    if FMUS[kind].template or config == DEFAULT_CONFIG[kind]:
         return f"{ident}.fmu"
     tag = "_".join(f"{k}{config[k]}" for k in sorted(config))
     return f"{ident}_{tag}.fmu"

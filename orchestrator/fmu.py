@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+import weakref
 from ctypes import byref
 from pathlib import Path
 from typing import Sequence
@@ -20,6 +21,10 @@ from fmpy.fmi1 import FMICallException, calloc, free
 
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 FATAL = 4
+#: Callback structures handed to FMUs. The pythonfmu runtime outlives ``fmi2FreeInstance``
+#: (it keeps a thread and its interpreter state until the library is unloaded at exit), so a
+#: callback freed with its component can be called after the fact: keep them all alive.
+_KEEPALIVE: list = []
 
 
 class FmuRefused(RuntimeError):
@@ -64,8 +69,15 @@ class FmuComponent:
         self.worst_status = max(self.worst_status, status)
 
     def _callbacks(self) -> fmi2CallbackFunctions:
+        owner = weakref.ref(self)  # the kept-alive callback must not keep the component
+
+        def logger(component, instance_name, status, category, message):
+            me = owner()
+            if me is not None:
+                me._logger(component, instance_name, status, category, message)
+
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(self._logger)
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         try:  # fmpy's proxy formats the variadic message arguments
@@ -73,6 +85,7 @@ class FmuComponent:
             addLoggerProxy(byref(cb))
         except Exception:  # pragma: no cover - older fmpy: messages unformatted
             pass
+        _KEEPALIVE.append(cb)
         return cb
 
     # -- Component protocol ------------------------------------------------------------

@@ -1,0 +1,126 @@
+"""The user's model: one Python module describing a plant and its delay-free feedback.
+
+A model module defines, at module level::
+
+    STATES = ("x1", "x2")            # state names, in order
+    INPUTS = ("u",)                  # input names, in order
+    CONTROL = "zoh"                  # "continuous" (Theorem 2.1) or "zoh" (Theorem 3.2)
+    PARAMETERS = {"a": 1.0}          # optional: numbers or strings the functions read
+
+    def f(x, u, p): ...              # dynamics x' = f(x, u), forward complete
+    def k(t, x, p): ...              # CONTROL = "continuous": nominal feedback k(t, x)
+    def k(x, p): ...                 # CONTROL = "zoh": nominal sampled-data feedback k(x)
+    def predictor(x, segments, p): ...  # optional closed-form Phi
+    def step(x, u, h, p): ...        # optional exact plant step under constant u
+
+``x`` and ``u`` are 1-D numpy arrays, ``p`` a dict of the parameters (the controller adds
+``T``, its sampling period). ``predictor`` receives the input history as segments
+``(duration, u)`` covering ``[t - r - tau, t)`` oldest first and returns the state reached
+from ``x`` after ``r + tau`` (Phi of the paper). Without it the controller solves the ODE.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import Callable
+
+CONTROLS = ("continuous", "zoh")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class ModelError(ValueError):
+    """The model module does not follow the interface (one-line message)."""
+
+
+@dataclass(frozen=True)
+class Model:
+    name: str
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    control: str
+    f: Callable
+    k: Callable
+    parameters: dict = field(default_factory=dict)
+    predictor: Callable | None = None
+    step: Callable | None = None
+    source: Path | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.states)
+
+    @property
+    def m(self) -> int:
+        return len(self.inputs)
+
+    def params(self, **overrides) -> dict:
+        p = dict(self.parameters)
+        p.update(overrides)
+        return p
+
+
+def from_module(module: ModuleType, name: str | None = None) -> Model:
+    """Check a model module against the interface and wrap it."""
+    label = name or module.__name__
+
+    def need(attr):
+        if not hasattr(module, attr):
+            raise ModelError(f"model {label}: missing {attr}")
+        return getattr(module, attr)
+
+    states = tuple(need("STATES"))
+    inputs = tuple(need("INPUTS"))
+    for kind, names in (("STATES", states), ("INPUTS", inputs)):
+        if not names:
+            raise ModelError(f"model {label}: {kind} is empty")
+        bad = [s for s in names if not isinstance(s, str) or not _NAME.match(s)]
+        if bad:
+            raise ModelError(f"model {label}: {kind} has names that are not identifiers: {bad}")
+    if len(set(states + inputs)) != len(states) + len(inputs):
+        raise ModelError(f"model {label}: state and input names must be distinct")
+    control = need("CONTROL")
+    if control not in CONTROLS:
+        raise ModelError(f"model {label}: CONTROL = {control!r}, must be one of {CONTROLS}")
+    params = dict(getattr(module, "PARAMETERS", {}))
+    for key, value in params.items():
+        if not _NAME.match(str(key)) or not isinstance(value, (int, float, str)):
+            raise ModelError(f"model {label}: PARAMETERS[{key!r}] must be a number or a string")
+    f, k = need("f"), need("k")
+    arity = len(inspect.signature(k).parameters)
+    if arity != (3 if control == "continuous" else 2):
+        form = "k(t, x, p)" if control == "continuous" else "k(x, p)"
+        raise ModelError(f"model {label}: CONTROL = {control!r} needs {form}")
+    return Model(label, states, inputs, control, f, k, params,
+                 getattr(module, "predictor", None), getattr(module, "step", None),
+                 Path(module.__file__) if getattr(module, "__file__", None) else None)
+
+
+def load_model(path: str | Path) -> Model:
+    """Import a model file under a name unique to its content, and check it."""
+    path = Path(path)
+    if not path.is_file() or path.suffix != ".py":
+        raise ModelError(f"--model {path}: not a Python file")
+    source = path.read_bytes()
+    mod_name = f"delaycomp_usermodel_{_slug(path.stem)}_{hashlib.sha256(source).hexdigest()[:10]}"
+    module = sys.modules.get(mod_name)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(mod_name, path)
+        module = importlib.util.module_from_spec(spec)
+        try:
+            spec.loader.exec_module(module)
+        except Exception as exc:  # the user's code: report it in one line
+            raise ModelError(f"--model {path}: importing it failed: {type(exc).__name__}: "
+                             f"{exc}") from None
+        sys.modules[mod_name] = module
+    return from_module(module, path.stem)
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", text)

@@ -1,0 +1,80 @@
+"""Proposition 4.2: the unicycle under zero-order hold on (v, omega), dead-beat.
+
+As printed, (4.9)-(4.11) holds ``(v, omega)`` constant, which is not holding ``(u1, u2)``:
+no dead-beat, and some initial states diverge (errata item 2). ``law = "corrected"`` (the
+default) is the errata's zero-order-hold law for ``(v, omega)`` itself, in the coordinates
+(4.2) of the predicted state ``(x1, x2, x3)``:
+
+- ``x2 != 0``: ``a = min(sqrt|x2|, pi/2)``, ``b = -a (x1 sin a + x2 cos a) / (1 - cos a)``,
+  ``(v, omega) = (b/T, a/T)``, which makes ``x2(T) = 0``;
+- else ``x1 != 0``: ``(v, omega) = (-x1/T, 0)``;
+- else: ``(v, omega) = (0, -x3/T)``.
+
+Dead-beat in 3T without delay. ``law = "printed"`` is (4.9) with (4.10)-(4.11). The sets
+are classified with scaled tolerances (``SET_TOL * max(1, |x|)`` for linear quantities,
+``SET_TOL * max(1, |x|^2)`` for quadratic ones): exact ``== 0`` tests fail in floating point
+(errata, implementation points).
+"""
+
+import math
+
+import numpy as np
+
+from delaycomp.models import unicycle
+
+STATES = unicycle.STATES
+INPUTS = unicycle.INPUTS
+CONTROL = "zoh"
+PARAMETERS = {"law": "corrected"}
+LAWS = ("corrected", "printed")
+SET_TOL = 1e-12
+
+
+def f(x, u, p):
+    return unicycle.dynamics(x, u)
+
+
+def step(x, u, h, p):
+    return unicycle.flow(x, u, h)
+
+
+def predictor(x, segments, p):
+    return unicycle.predict(x, segments)
+
+
+def _tols(x1, x2, x3):
+    """(linear, quadratic) set tolerances for the state (x1, x2, x3)."""
+    sq = x1 * x1 + x2 * x2 + x3 * x3
+    return SET_TOL * max(1.0, math.sqrt(sq)), SET_TOL * max(1.0, sq)
+
+
+def corrected(x1, x2, x3, T):
+    tol, _ = _tols(x1, x2, x3)
+    if abs(x2) > tol:
+        a = min(math.sqrt(abs(x2)), math.pi / 2)
+        b = -a * (x1 * math.sin(a) + x2 * math.cos(a)) / (1.0 - math.cos(a))
+        return b / T, a / T
+    if abs(x1) > tol:
+        return -x1 / T, 0.0
+    return 0.0, -x3 / T
+
+
+def printed(x1, x2, x3, T):
+    """(4.9) in the order C3, C2, C1 with a scaled tolerance; then (4.10)-(4.11)."""
+    lin, quad = _tols(x1, x2, x3)
+    if abs(2 * x2 - x1 * x3) <= quad:                     # C3
+        k1, k2 = -x1 / T, -x3 / T
+    elif abs(x2) <= lin and abs(x1 * x3) > quad:          # C2
+        den = T * (x1 * x1 + x3 * x3)
+        k1, k2 = -x1 * x3 * x3 / den, x3 * x1 * x1 / den
+    else:                                                 # C1
+        root = math.sqrt(abs(x2))
+        k1 = -2.0 / T * math.copysign(root, x2) - 2.0 / T * x1
+        k2 = root / T
+    return k1 + x2 * k2, k2  # v = u1 + x2 omega (4.3)
+
+
+def k(x, p):
+    x1, x2, x3 = unicycle.chained(x)
+    law = corrected if p.get("law", "corrected") == "corrected" else printed
+    return np.array(law(x1, x2, x3, p["T"]))

@@ -1,0 +1,43 @@
+"""The unicycle (4.1) and its exact flow under constant inputs (shared by Section 4's models).
+
+    x' = v cos(theta),   y' = v sin(theta),   theta' = omega
+
+Under constant ``(v, omega)`` for a time ``s``: ``theta+ = theta + omega s`` and
+``(x, y)+ = (x, y) + v s sinc(omega s / 2) (cos, sin)(theta + omega s / 2)`` (errata), so the
+predictor (4.5)/(4.12) over a piecewise-constant history is a composition of exact steps.
+``chained`` is the coordinate change (4.2) to the nonholonomic integrator (1.4).
+"""
+
+import math
+
+import numpy as np
+
+STATES = ("x", "y", "theta")
+INPUTS = ("v", "omega")
+
+
+def dynamics(s, u):
+    return np.array([u[0] * math.cos(s[2]), u[0] * math.sin(s[2]), u[1]])
+
+
+def flow(s, u, h):
+    v, w = float(u[0]), float(u[1])
+    half = 0.5 * w * h
+    sinc = math.sin(half) / half if half != 0.0 else 1.0
+    heading = s[2] + half
+    return np.array([s[0] + v * h * sinc * math.cos(heading),
+                     s[1] + v * h * sinc * math.sin(heading), s[2] + w * h])
+
+
+def predict(s, segments):
+    s = np.asarray(s, dtype=float)
+    for d, u in segments:
+        if d > 0:
+            s = flow(s, np.ravel(u), d)
+    return s
+
+
+def chained(s):
+    """(4.2): ``x1 = x cos + y sin``, ``x2 = x sin - y cos``, ``x3 = theta``."""
+    c, sn = math.cos(s[2]), math.sin(s[2])
+    return np.array([s[0] * c + s[1] * sn, s[0] * sn - s[1] * c, s[2]])

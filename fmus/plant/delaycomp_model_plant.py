@@ -1,0 +1,65 @@
+"""FMU slave template: the plant ``x' = f(x, u)`` of a user model (delaycomp.model).
+
+``delaycomp build --model FILE.py`` generates a subclass naming the model module (bundled
+under a name unique to the model's content). See README.md beside this file.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.model import from_module
+from delaycomp.nlcontrol import ModelPlant
+from delaycomp.predictors import DEFAULT_TOL
+
+
+class ModelPlantSlave(TableSlave):
+    """Plant of a user model; ``model_module`` is set by the generated subclass."""
+
+    model_module = ""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.model = from_module(importlib.import_module(self.model_module),
+                                 self.config.get("model_name"))
+        self.description = f"plant of model {self.model.name}: x' = f(x, u)"
+        n, m = self.model.n, self.model.m
+        self.values: dict = {}
+        self.model_parameters(self.values, self.model.parameters)
+        self.x0 = np.zeros(n)
+        self.tolerance = DEFAULT_TOL
+        self.u = np.zeros(m)
+        self.plant: ModelPlant | None = None
+        for i, s in enumerate(self.model.states):
+            self.parameter(f"x0[{i + 1}]", (lambda i=i: float(self.x0[i])),
+                           (lambda v, i=i: self.x0.__setitem__(i, v)),
+                           f"initial state {s}(t0)")
+        self.parameter("tolerance", lambda: self.tolerance,
+                       lambda v: setattr(self, "tolerance", v),
+                       "rtol = atol of the ODE solver when the model has no exact step, > 0")
+        for j, name in enumerate(self.model.inputs):
+            self.real_input(name, (lambda j=j: float(self.u[j])),
+                            (lambda v, j=j: self.u.__setitem__(j, v)),
+                            "plant input, held constant over each communication step")
+        for i, name in enumerate(self.model.states):
+            self.real_output(name, (lambda i=i: float(self._state()[i])), "plant state")
+
+    def _state(self):
+        return self.plant.x if self.plant is not None else self.x0
+
+    def _setup(self):
+        for i, v in enumerate(self.x0):
+            check_finite(f"x0[{i + 1}]", float(v))
+        check_finite("tolerance", self.tolerance)
+        if not 0 < self.tolerance < 1:
+            self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
+        self.plant = ModelPlant(self.model, self.values, self.x0, self.tolerance)
+
+    def _step(self, t, h):
+        if not np.all(np.isfinite(self.u)):
+            self.fail(f"input {list(self.model.inputs)} = {self.u.tolist()} at t = {t!r} is "
+                      "not allowed: must be finite")
+        self.plant.step(self.u, h)
