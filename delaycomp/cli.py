@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from . import __version__, scenarios
+from .model import ModelError
 from .scenarios import ParameterError
 
 
@@ -47,6 +48,9 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="build the FMUs into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
+    b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
+                   help="build plant, controller and delay FMUs for this model module "
+                        "(see README: the model interface)")
 
     r = sub.add_parser("run", help="co-simulate a scenario")
     r.add_argument("scenario")
@@ -77,9 +81,10 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_build(args) -> int:
-    from .build import build_all
+    from .build import build_all, build_model
 
-    for path in build_all(args.out):
+    paths = build_model(args.model, args.out) if args.model else build_all(args.out)
+    for path in paths:
         print(path)
     return 0
 
@@ -131,7 +136,9 @@ def _cmd_list(args) -> int:
     for sc in scenarios.SCENARIOS.values():
         print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
         for p in sc.params:
-            print(f"    {p.name:<6} default {p.default!s:<12} {p.help}; {p.allowed}")
+            default = ",".join(f"{v:g}" for v in p.default) if isinstance(p.default, tuple) \
+                else ("(depends on n)" if p.default is None else p.default)
+            print(f"    {p.name:<9} default {default!s:<12} {p.help}; {p.allowed}")
     return 0
 
 
@@ -141,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         handler = {"build": _cmd_build, "run": _cmd_run,
                    "critical-delay": _cmd_critical_delay, "list": _cmd_list}[args.command]
         return handler(args)
-    except (UsageError, ParameterError) as exc:
+    except (UsageError, ParameterError, ModelError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

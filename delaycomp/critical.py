@@ -70,8 +70,7 @@ def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
     r_hi = math.ceil((r_c + CONFIRM_OFFSET * T) / h) * h
     ok = []
     for r, side in ((r_lo, "below"), (r_hi, "above")):
-        p = scenario.resolve({**{k: str(v) for k, v in params.items()},
-                              "r": repr(r), "N": str(N), "mode": "uncompensated"})
+        p = scenario.resolve([*sets, f"r={r!r}", f"N={N}", "mode=uncompensated"])
         result = run_loop(scenario.make(p), periods * T, fmu_dir)
         lifted = lifted_loop(A, B, K, T, r, tau, "uncompensated")
         g_exact = lifted.spectral_radius

@@ -47,6 +47,28 @@ def real(name, default, help, allowed="a finite number", ok=lambda v: True) -> P
     return Param(name, default, help, allowed, _real, ok)
 
 
+def _vector(text: str) -> tuple[float, ...]:
+    return tuple(_real(part) for part in text.split(","))
+
+
+def vector(name, default, help) -> Param:
+    """Comma-separated finite numbers (the length is checked by the scenario)."""
+    return Param(name, default, help, "comma-separated finite numbers", _vector, lambda v: True)
+
+
+def choice(name, default, help, options) -> Param:
+    return Param(name, default, help, " or ".join(options), str, lambda v: v in options)
+
+
+def _flag(text: str) -> bool:
+    value = text.strip().lower()
+    if value in ("1", "true", "yes", "on"):
+        return True
+    if value in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(text)
+
+
 @dataclass(frozen=True)
 class LoopSpec:
     """A closed loop ready for the master."""
@@ -260,7 +282,138 @@ EXAMPLE_3_6 = Scenario(
     lti=_example_3_6_matrices,
 )
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (EXAMPLE_3_6,)}
+# -- the nonlinear examples and Corollary 3.7 -------------------------------------------
+
+def _timing_params(T, r, tau, N=100) -> tuple[Param, ...]:
+    return (
+        real("T", T, "sampling period", "a finite number > 0", lambda v: v > 0),
+        real("r", r, "measurement delay", "a finite number >= 0", lambda v: v >= 0),
+        real("tau", tau, "input delay", "a finite number >= 0", lambda v: v >= 0),
+        Param("N", N, "base steps per sampling period (h = T/N)", "a positive integer",
+              _positive_int, lambda v: v >= 1),
+    )
+
+
+def _history_params(x0, u0) -> tuple[Param, ...]:
+    return (vector("x0", x0, "initial state, comma-separated in state order, constant "
+                             "on [-r, 0]"),
+            vector("u0", u0, "input history, comma-separated, constant on [-r - tau, 0)"))
+
+
+_PREDICTOR = choice("predictor", "closed", "predictor map: the closed form or an ODE solve",
+                    ("closed", "numerical"))
+_PAD = Param("pad", False, "pad tau up to the next multiple of T (Remark 3.3(b))",
+             "0 or 1", _flag, lambda v: True)
+
+
+def _check_grid(p: dict, zoh: bool) -> None:
+    T, h = p["T"], p["T"] / p["N"]
+    for name in ("r", "tau"):
+        if not on_grid(p[name], h):
+            raise ParameterError(
+                f"parameter {name} = {p[name]!r} is not allowed: must be a multiple of the "
+                f"base step h = T/N = {h!r} (raise N)")
+    if zoh and not p.get("pad") and split_delay(p["tau"], T)[1] != 0.0:
+        raise ParameterError(
+            f"parameter tau = {p['tau']!r} is not allowed: zero-order hold needs a multiple "
+            f"l*T (l >= 0) of T = {T!r}; set pad=1 to pad the input delay (Remark 3.3(b))")
+
+
+def _check_lengths(p: dict, n: int, m: int, states, inputs) -> None:
+    for name, want, names in (("x0", n, states), ("u0", m, inputs)):
+        if len(p[name]) != want:
+            raise ParameterError(f"parameter {name} has {len(p[name])} values: must have "
+                                 f"{want} ({', '.join(names)})")
+
+
+def _model_scenario(name: str, title: str, module: str, defaults: dict, own: tuple,
+                    stop: float, states, inputs, zoh: bool) -> Scenario:
+    from .models import path
+
+    def check(p):
+        _check_grid(p, zoh)
+        _check_lengths(p, len(states), len(inputs), states, inputs)
+
+    def make(p):
+        params = {key: p[key] for key in ("law", "p") if key in p}
+        return model_loop(path(module), p["T"], p["r"], p["tau"], p["N"], p["x0"], p["u0"],
+                          params=params, predictor=p["predictor"],
+                          pad=p.get("pad", False))
+
+    params = (*_timing_params(defaults["T"], defaults["r"], defaults["tau"]),
+              *_history_params(defaults["x0"], defaults["u0"]), _PREDICTOR,
+              *((_PAD,) if zoh else ()), *own)
+    return Scenario(name, title, params, make, stop, check)
+
+
+EXAMPLE_2_4 = _model_scenario(
+    "example-2.4",
+    "Example 2.4: strict-feedforward system (2.15), continuous input, corrected (2.18)",
+    "example_2_4", dict(T=0.5, r=0.3, tau=0.7, x0=(1.0, -1.0, 0.5), u0=(0.0,)),
+    (choice("law", "corrected", "feedback (2.18): corrected (errata) or as printed",
+            ("corrected", "printed")),),
+    30.0, ("x1", "x2", "x3"), ("u",), zoh=False)
+
+EXAMPLE_3_8 = _model_scenario(
+    "example-3.8",
+    "Example 3.8: x1' = x2 + p(x2) u, x2' = u under ZOH, dead-beat (3.25)/(3.29)",
+    "example_3_8", dict(T=1.0, r=0.5, tau=0.0, x0=(1.0, -1.0), u0=(0.0,)),
+    (choice("p", "square", "p(w) = w^2 (square) or sin(w) (sin)", ("square", "sin")),),
+    10.0, ("x1", "x2"), ("u",), zoh=True)
+
+PROPOSITION_4_2 = _model_scenario(
+    "proposition-4.2",
+    "Proposition 4.2: unicycle, ZOH on (v, omega), dead-beat (corrected law)",
+    "proposition_4_2", dict(T=1.0, r=0.5, tau=1.0, x0=(1.0, 1.0, 0.5), u0=(0.0, 0.0)),
+    (choice("law", "corrected", "ZOH law: corrected (errata) or as printed (4.9)-(4.11)",
+            ("corrected", "printed")),),
+    10.0, ("x", "y", "theta"), ("v", "omega"), zoh=True)
+
+
+def _chain_x0(n: int) -> tuple[float, ...]:
+    return tuple((1.0, -1.0, 0.5)[i % 3] for i in range(n))
+
+
+def _corollary_3_7_check(p: dict) -> None:
+    if p["x0"] is None:
+        p["x0"] = _chain_x0(p["n"])
+    _check_grid(p, zoh=True)
+    _check_lengths(p, p["n"], 1, indexed("x", p["n"]), ("u",))
+
+
+def _corollary_3_7_matrices(p: dict) -> tuple:
+    from .predictors import deadbeat_gain
+
+    n = p["n"]
+    return np.eye(n, k=1), np.eye(n)[:, -1:], deadbeat_gain(n, p["T"])
+
+
+def _corollary_3_7(p: dict) -> LoopSpec:
+    A, B, K = _corollary_3_7_matrices(p)
+    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], p["x0"], p["u0"])
+
+
+COROLLARY_3_7 = Scenario(
+    name="corollary-3.7",
+    title="Corollary 3.7: chain of n integrators under ZOH, dead-beat gain for period T",
+    params=(
+        Param("n", 3, "number of integrators", "an integer from 1 to 12", _positive_int,
+              lambda v: 1 <= v <= 12),
+        *_timing_params(1.0, 0.5, 1.0),
+        Param("x0", None, "initial state, comma-separated (default 1,-1,0.5,1,... of length "
+                          "n), constant on [-r, 0]", "comma-separated finite numbers",
+              _vector, lambda v: True),
+        vector("u0", (0.0,), "input history, constant on [-r - tau, 0)"),
+        _mode_param(),
+    ),
+    make=_corollary_3_7,
+    default_stop_time=10.0,
+    check=_corollary_3_7_check,
+    lti=_corollary_3_7_matrices,
+)
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
+    EXAMPLE_3_6, EXAMPLE_2_4, EXAMPLE_3_8, COROLLARY_3_7, PROPOSITION_4_2)}
 
 
 def get(name: str) -> Scenario:
