@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import delaycomp
+
 CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmuslave.CONFIG_NAME
 
 FMU_ROOT = Path(__file__).resolve().parent.parent / "fmus"
@@ -165,8 +166,8 @@ def build_model(model_path: str | Path, out_dir: Path) -> list[Path]:
 
 
 def build_all(out_dir: Path) -> list[Path]:
-    """Build every FMU of the registry with its default dimensions."""
-    return [build_fmu(kind, out_dir) for kind in FMUS]
+    """Build the LTI loop's FMUs (plant, delay, controller) with default dimensions."""
+    return [build_fmu(kind, out_dir) for kind, spec in FMUS.items() if not spec.template]
 
 
 def _build_in_this_process(request: dict) -> None:

@@ -28,12 +28,11 @@ import json
 import math
 import os
 import uuid
+from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
-from typing import Callable, Iterable
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
-from pythonfmu.enums import Fmi2Status
-from pythonfmu.enums import Fmi2Initial
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
 
@@ -105,12 +104,9 @@ class TableSlave(Fmi2Slave):
         stored in ``values``."""
         for name, default in defaults.items():
             values[name] = default if isinstance(default, str) else float(default)
-            getter = (lambda n=name: values[n])
-            setter = (lambda v, n=name: values.__setitem__(n, v))
-            if isinstance(default, str):
-                self.string_parameter(name, getter, setter, "model parameter")
-            else:
-                self.parameter(name, getter, setter, "model parameter")
+            register = self.string_parameter if isinstance(default, str) else self.parameter
+            register(name, (lambda n=name: values[n]),
+                     (lambda v, n=name: values.__setitem__(n, v)), "model parameter")
 
     def real_input(self, name: str, getter, setter, description: str) -> None:
         self.register_variable(

@@ -11,8 +11,9 @@ Notation follows Karafyllis & Krstic: plant ``x' = A x + B u(t - tau)``, measure
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 from scipy.linalg import expm
@@ -117,7 +118,7 @@ def lifted_loop(A, B, K, T: float, r: float, tau: float, mode: str) -> LiftedLoo
     K = np.atleast_2d(np.asarray(K, dtype=float)).reshape(m, n)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-    l = periods_in(tau, T)
+    l = periods_in(tau, T)  # noqa: E741 - the paper's name
     q, rt = split_delay(r, T)
     L = l + q + 1
     dim = n + m * L
@@ -216,6 +217,7 @@ def critical_delay(
     while lo < r_max:
         hi = min(lo + step, r_max)
         if rho_of_r(hi) >= 1.0:
-            return brentq(lambda r: rho_of_r(r) - 1.0, lo, hi, xtol=xtol, rtol=4 * np.finfo(float).eps)
+            return brentq(lambda r: rho_of_r(r) - 1.0, lo, hi, xtol=xtol,
+                          rtol=4 * np.finfo(float).eps)
         lo = hi
     raise ValueError(f"the loop stays stable for every r up to {r_max}")

@@ -26,10 +26,10 @@ import importlib.util
 import inspect
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Callable
 
 CONTROLS = ("continuous", "zoh")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -115,7 +115,7 @@ def load_model(path: str | Path) -> Model:
         module = importlib.util.module_from_spec(spec)
         try:
             spec.loader.exec_module(module)
-        except Exception as exc:  # the user's code: report it in one line
+        except Exception as exc:  # noqa: BLE001 - the user's code: report it in one line
             raise ModelError(f"--model {path}: importing it failed: {type(exc).__name__}: "
                              f"{exc}") from None
         sys.modules[mod_name] = module

@@ -16,7 +16,7 @@ The closed forms of Example 2.4 and of the unicycle live with their models in
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -47,7 +47,7 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
         if duration <= 0:
             continue
         u = np.asarray(u, dtype=float)
-        sol = solve_ivp(lambda _t, s: f(s, u, p), (0.0, duration), z, method="DOP853",
+        sol = solve_ivp(lambda _t, s, u=u: f(s, u, p), (0.0, duration), z, method="DOP853",
                         rtol=rtol, atol=atol)
         if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
             raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "

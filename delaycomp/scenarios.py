@@ -7,8 +7,8 @@ its parameter values, the connections and the recorded signals. It does not run 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -160,7 +160,8 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
     dl_in, dl_out = indexed("u", m), indexed("y", m)  # delay FMU on the input
     ctrl_in = indexed("y", n)
     instances = {
-        "plant": ("plant", {"n": n, "m": m, "state": state, "input": inp}, {**mat("A", A), **mat("B", B), **vec("x0", x0)}),
+        "plant": ("plant", {"n": n, "m": m, "state": state, "input": inp},
+                  {**mat("A", A), **mat("B", B), **vec("x0", x0)}),
         "meas_delay": ("delay", {"n": n}, {"delay": r, **vec("u0", x0)}),
         "controller": ("controller", {"n": n, "m": m},
                        {"T": T, "r": r, "tau": tau, "mode": mode, **mat("A", A),

@@ -15,11 +15,10 @@ import delaycomp
 from orchestrator.fmu import FmuComponent
 from orchestrator.master import Connection, Master, Recorder, SimulationError
 
-from .build import (BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu,
-                    model_identifier)
+from .build import BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu, model_identifier
 from .scenarios import LoopSpec, ParameterError, on_grid
 
-__all__ = ["Result", "run_loop", "fmu_path", "default_fmu_dir", "SimulationError"]
+__all__ = ["Result", "SimulationError", "default_fmu_dir", "fmu_path", "run_loop"]
 
 
 def _source_digest() -> str:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import shutil
 import tempfile
 import weakref
+from collections.abc import Sequence
 from ctypes import byref
 from pathlib import Path
-from typing import Sequence
 
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
@@ -17,7 +18,6 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
 )
-from fmpy.fmi1 import FMICallException, calloc, free
 
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 FATAL = 4
@@ -83,7 +83,7 @@ class FmuComponent:
         try:  # fmpy's proxy formats the variadic message arguments
             from fmpy.logging import addLoggerProxy
             addLoggerProxy(byref(cb))
-        except Exception:  # pragma: no cover - older fmpy: messages unformatted
+        except Exception:  # noqa: BLE001 - older fmpy has no proxy: messages unformatted
             pass
         _KEEPALIVE.append(cb)
         return cb

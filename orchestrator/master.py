@@ -28,8 +28,9 @@ refused at setup.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Protocol, Sequence
+from typing import Protocol
 
 
 class SimulationError(RuntimeError):
@@ -63,7 +64,7 @@ class Connection:
     dst_var: str
 
     @classmethod
-    def parse(cls, text: str) -> "Connection":
+    def parse(cls, text: str) -> Connection:
         """From ``"plant.x -> delay.u"``."""
         left, right = (part.strip() for part in text.split("->"))
         src, src_var = left.split(".", 1)
@@ -194,7 +195,7 @@ class Master:
             return fn(*args)
         except SimulationError:
             raise
-        except Exception as exc:  # an FMU or mock failed: name it, the time, the reason
+        except Exception as exc:
             reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
             raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}"
                                   ) from exc
@@ -214,7 +215,7 @@ class Master:
                     slots[s] = v
             for c, ins, islots in self._plan.tails:
                 c.set_inputs(ins, [slots[s] for s in islots])
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             self._fail(exc, k)
         t = self.time_of(k)
         for obs in self._observers:
@@ -245,7 +246,7 @@ class Master:
         for c in self.components.values():
             try:
                 c.terminate()
-            except Exception as exc:  # keep freeing the others
+            except Exception as exc:  # noqa: BLE001 - keep freeing the others
                 errors.append(f"{c.name}: {exc}")
         if errors:
             raise SimulationError("; ".join(errors))

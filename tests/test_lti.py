@@ -41,7 +41,7 @@ def ode_solve(A, B, x0, segments):
     for duration, u in segments:
         if duration == 0:
             continue
-        sol = solve_ivp(lambda t, z: A @ z + B @ u, (0.0, duration), x, method="DOP853",
+        sol = solve_ivp(lambda t, z, u=u: A @ z + B @ u, (0.0, duration), x, method="DOP853",
                         rtol=ODE_TOL, atol=ODE_TOL)
         x = sol.y[:, -1]
     return x
@@ -118,7 +118,6 @@ def test_uncompensated_controller_is_K_y():
 
 def simulate_sampled_loop(A, B, K, T, r, tau, mode, x0, u0, periods, sub=50):
     """Direct simulation with solve_ivp on a fine grid (independent of the lifted model)."""
-    n, m = B.shape
     h = T / sub
     D, Lu = round(r / h), round(tau / T)
     ctrl = ZOHController(A, B, K, T, r, tau, mode, u0)

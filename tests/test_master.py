@@ -66,7 +66,7 @@ def test_feedthrough_chain_adds_no_delay():
     master.initialize()
     master.run_until(10)
     x = 1.0
-    for k, t in enumerate(rec.times):
+    for k in range(len(rec.times)):
         assert rec.rows[k][0] == pytest.approx(x, rel=1e-15)
         assert rec.rows[k][1] == pytest.approx(-3.0 * x, rel=1e-15)  # same instant, no lag
         x = x + 0.1 * (-3.0 * x)

@@ -18,7 +18,7 @@ LAWS = ("corrected", "printed")
 
 
 def f(x, u, p):
-    x1, x2, x3 = x
+    _, x2, x3 = x
     v = u[0]
     return np.array([x2 + x3 * x3, x3 + x3 * v, v])
 

@@ -28,7 +28,7 @@ def P_of(w, p):
 
 
 def f(x, u, p):
-    x1, x2 = x
+    x2 = x[1]
     v = u[0]
     return np.array([x2 + p_of(x2, p) * v, v])
 

@@ -10,8 +10,8 @@ from pythonfmu import Fmi2Variability
 
 from delaycomp.controller import ZOHController
 from delaycomp.fmuslave import TableSlave, check_finite
-from delaycomp.names import indexed
 from delaycomp.lti import MODES, split_delay
+from delaycomp.names import indexed
 
 
 class DelaycompControllerLTI(TableSlave):

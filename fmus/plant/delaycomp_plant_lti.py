@@ -7,9 +7,10 @@ See README.md beside this file for the equations and the variable table.
 from __future__ import annotations
 
 import numpy as np
+
 from delaycomp.fmuslave import TableSlave, check_finite
-from delaycomp.names import indexed
 from delaycomp.lti import discretize
+from delaycomp.names import indexed
 
 
 class DelaycompPlantLTI(TableSlave):
