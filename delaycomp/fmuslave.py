@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import uuid
 from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
@@ -37,6 +38,11 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 import delaycomp
 
 CONFIG_NAME = "delaycomp_fmu.json"
+#: pythonfmu 0.7's runtime releases one reference to the slave module's ``__dict__`` each
+#: time it instantiates the slave class (measured: a module whose dict nothing else holds
+#: is freed after the first instance, and the next instantiation reads freed memory). Each
+#: instance therefore pins one reference; generated slave modules also pin one at import.
+_PINNED_MODULE_DICTS: list = []
 _GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
 
 
@@ -60,6 +66,7 @@ class TableSlave(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        _PINNED_MODULE_DICTS.append(vars(sys.modules[type(self).__module__]))
         self.config = self._read_config()
         built_with = self.config.get("version")
         if built_with != delaycomp.__version__:

@@ -371,6 +371,13 @@ PROPOSITION_4_2 = _model_scenario(
     10.0, ("x", "y", "theta"), ("v", "omega"), zoh=True)
 
 
+COROLLARY_4_1 = _model_scenario(
+    "corollary-4.1",
+    "Corollary 4.1: unicycle, continuous input, Pomet's time-periodic stabilizer",
+    "corollary_4_1", dict(T=0.5, r=0.2, tau=0.3, x0=(1.0, 1.0, 0.5), u0=(0.0, 0.0)),
+    (), 100.0, ("x", "y", "theta"), ("v", "omega"), zoh=False)
+
+
 def _chain_x0(n: int) -> tuple[float, ...]:
     return tuple((1.0, -1.0, 0.5)[i % 3] for i in range(n))
 
@@ -414,7 +421,7 @@ COROLLARY_3_7 = Scenario(
 )
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
-    EXAMPLE_3_6, EXAMPLE_2_4, EXAMPLE_3_8, COROLLARY_3_7, PROPOSITION_4_2)}
+    EXAMPLE_3_6, EXAMPLE_2_4, EXAMPLE_3_8, COROLLARY_3_7, COROLLARY_4_1, PROPOSITION_4_2)}
 
 
 def get(name: str) -> Scenario:
