@@ -50,27 +50,49 @@ def test_instantiates_in_a_fresh_process_elsewhere_with_bundled_code(fmu_dir, ki
     assert proc.stdout.strip().endswith("ok")
 
 
-def readme_table(kind: str) -> list[dict]:
-    text = (FMUS[kind].folder / "README.md").read_text(encoding="utf-8")
+def readme_table(folder: Path, ident: str) -> list[dict]:
+    """Rows of the table that follows ``<!-- table: ident -->`` in the folder's README."""
+    lines = (folder / "README.md").read_text(encoding="utf-8").splitlines()
+    start = lines.index(f"<!-- table: {ident} -->")
     rows = []
-    for line in text.splitlines():
+    for line in lines[start + 1:]:
+        if not line.startswith("|"):
+            if rows:
+                break
+            continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if line.startswith("|") and len(cells) == 6 and cells[0] not in ("name", "---"):
+        if cells[0] not in ("name", "---"):
             rows.append(dict(zip(["name", "causality", "variability", "unit", "start",
                                   "description"], cells)))
     return rows
 
 
-@pytest.mark.parametrize("kind", KINDS)
-def test_readme_table_matches_model_description(fmu_dir, kind):
-    md = read_model_description(str(fmu_file(fmu_dir, kind)))
-    table = readme_table(kind)
-    assert [r["name"] for r in table] == [v.name for v in md.modelVariables]
-    for row, var in zip(table, md.modelVariables):
+def assert_table_matches(rows, md):
+    assert [r["name"] for r in rows] == [v.name for v in md.modelVariables]
+    for row, var in zip(rows, md.modelVariables):
         assert (row["causality"], row["variability"]) == (var.causality, var.variability)
         assert row["description"] == var.description
         if var.start is not None:
             assert row["start"] == str(var.start)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_readme_table_matches_model_description(fmu_dir, kind):
+    md = read_model_description(str(fmu_file(fmu_dir, kind)))
+    assert_table_matches(readme_table(FMUS[kind].folder, FMUS[kind].model_identifier), md)
+
+
+@pytest.mark.parametrize("kind", ["model_plant", "model_controller"])
+def test_readme_table_of_the_model_templates(fmu_dir, kind):
+    from delaycomp.models import path
+    from delaycomp.simulate import fmu_path
+
+    fmu = fmu_path(kind, {"model": str(path("example_3_8"))}, fmu_dir)
+    md = read_model_description(str(fmu))
+    ident = f"{FMUS[kind].model_identifier}_example_3_8"
+    assert md.coSimulation.modelIdentifier.startswith(ident + "_")
+    assert validate_fmu(str(fmu)) == []
+    assert_table_matches(readme_table(FMUS[kind].folder, ident), md)
 
 
 @pytest.mark.parametrize("kind", KINDS)
