@@ -106,6 +106,8 @@ def _cmd_run(args) -> int:
 
         args.plot.parent.mkdir(parents=True, exist_ok=True)
         plot_result(result, args.plot, f"{scenario.title}\n" + _describe(params))
+    for note in result.notes:
+        print(f"note: {note}")
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
     print(f"{scenario.name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")

@@ -6,7 +6,7 @@ import csv
 import hashlib
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +66,8 @@ class Result:
     data: np.ndarray
     success: bool = True
     message: str = ""
+    #: informational messages the components logged, as ``instance: text``
+    notes: list[str] = field(default_factory=list)
 
     def column(self, name: str) -> np.ndarray:
         return self.data[:, self.names.index(name)]
@@ -117,4 +119,6 @@ def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
     finally:
         master.terminate()
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
-    return Result(recorder.names, np.array(recorder.times), data, success, message)
+    notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
+             for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
+    return Result(recorder.names, np.array(recorder.times), data, success, message, notes)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import itertools
 import tempfile
 import weakref
 from collections.abc import Sequence
@@ -25,6 +26,20 @@ FATAL = 4
 #: (it keeps a thread and its interpreter state until the library is unloaded at exit), so a
 #: callback freed with its component can be called after the fact: keep them all alive.
 _KEEPALIVE: list = []
+#: fmpy's logger proxy keeps ONE Python logger for the whole process, so messages are routed
+#: to their component by the componentEnvironment pointer the FMU passes back.
+_COMPONENTS: dict[int, weakref.ReferenceType] = {}
+_ENV_IDS = itertools.count(1)
+
+
+def _route(env, instance_name, status, category, message):
+    ref = _COMPONENTS.get(env or 0)
+    comp = ref() if ref is not None else None
+    if comp is not None:
+        comp._logger(status, message)
+
+
+_DISPATCH = fmi2CallbackLoggerTYPE(_route)
 
 
 class FmuRefused(RuntimeError):
@@ -59,9 +74,11 @@ class FmuComponent:
         self._vr_cache: dict[tuple[str, ...], list[int]] = {}
         self._unzipdir: str | None = None
         self.fmu: FMU2Slave | None = None
+        self._env_id = next(_ENV_IDS)
+        _COMPONENTS[self._env_id] = weakref.ref(self)
 
     # -- logging -----------------------------------------------------------------------
-    def _logger(self, component, instance_name, status, category, message):
+    def _logger(self, status, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
         self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] {text}")
         if status >= 2 and self.last_message is None:  # discard, error, fatal
@@ -69,17 +86,11 @@ class FmuComponent:
         self.worst_status = max(self.worst_status, status)
 
     def _callbacks(self) -> fmi2CallbackFunctions:
-        owner = weakref.ref(self)  # the kept-alive callback must not keep the component
-
-        def logger(component, instance_name, status, category, message):
-            me = owner()
-            if me is not None:
-                me._logger(component, instance_name, status, category, message)
-
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.logger = _DISPATCH
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        cb.componentEnvironment = self._env_id
         try:  # fmpy's proxy formats the variadic message arguments
             from fmpy.logging import addLoggerProxy
             addLoggerProxy(byref(cb))
@@ -181,6 +192,7 @@ class FmuComponent:
                     self.fmu.freeInstance()
                     self.fmu = None
         finally:
+            _COMPONENTS.pop(self._env_id, None)
             if self._unzipdir:
                 shutil.rmtree(self._unzipdir, ignore_errors=True)
                 self._unzipdir = None

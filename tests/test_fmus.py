@@ -197,3 +197,18 @@ def test_controller_refuses_a_step_over_a_sampling_instant(fmu_dir):
         assert "passes over the sampling instant" in comp.last_message
     finally:
         comp.terminate()
+
+
+def test_log_messages_reach_the_instance_that_logged_them(fmu_dir):
+    """fmpy's logger proxy is process-wide; messages are routed by componentEnvironment."""
+    comps = [FmuComponent(f"d{i}", fmu_file(fmu_dir, "delay")) for i in range(3)]
+    try:
+        for i, comp in enumerate(comps):
+            comp.setup(0.0, 1.0, {"delay": -float(i + 1)})
+        for i, comp in enumerate(comps):
+            with pytest.raises(FmuRefused):
+                comp.initialize()
+            assert comp.last_message.startswith(f"delay = -{i + 1}.0 is not allowed")
+    finally:
+        for comp in comps:
+            comp.terminate()
