@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import shutil
 import itertools
+import shutil
 import tempfile
 import weakref
 from collections.abc import Sequence
