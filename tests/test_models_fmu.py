@@ -129,3 +129,21 @@ def test_repeated_instantiation_keeps_the_slave_module_intact(tmp_path):
     for module in slaves:
         assert module.__name__.startswith("delaycomp_")
         assert sys.getrefcount(vars(module)) >= 3  # the module, the pins, the call
+
+
+def test_readme_model_example_builds_and_is_deadbeat(tmp_path):
+    """The model module shown in the README works as documented."""
+    from .conftest import REPO
+
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Model interface", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "readme_model.py"
+    path.write_text(code, encoding="utf-8")
+    T, N = 1.0, 10
+    res = run_loop(model_loop(path, T, 0.5, 1.0, N, [1.0, -1.0], [0.3],
+                              params={"gain": 2.0}), 7.0, tmp_path / "fmus")
+    assert res.success, res.message
+    x = np.abs(res.data[:, :2]).max(axis=1)
+    # dead-beat in 2T without delay; l = 1, ceil(r/T) = 1: zero from 4T
+    assert x[4 * N:].max() < 1e-12 and x[4 * N - 1] > 1e-6
