@@ -19,22 +19,11 @@ import math
 import numpy as np
 
 from delaycomp.models import unicycle
+from delaycomp.models.unicycle import f, predictor, step  # noqa: F401  (model interface)
 
 STATES = unicycle.STATES
 INPUTS = unicycle.INPUTS
 CONTROL = "continuous"
-
-
-def f(x, u, p):
-    return unicycle.dynamics(x, u)
-
-
-def step(x, u, h, p):
-    return unicycle.flow(x, u, h)
-
-
-def predictor(x, segments, p):
-    return unicycle.predict(x, segments)
 
 
 def pomet(t, x1, x2, x3):

@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from delaycomp.models import unicycle
+from delaycomp.models.unicycle import f, predictor, step  # noqa: F401  (model interface)
 
 STATES = unicycle.STATES
 INPUTS = unicycle.INPUTS
@@ -28,18 +29,6 @@ CONTROL = "zoh"
 PARAMETERS = {"law": "corrected"}
 LAWS = ("corrected", "printed")
 SET_TOL = 1e-12
-
-
-def f(x, u, p):
-    return unicycle.dynamics(x, u)
-
-
-def step(x, u, h, p):
-    return unicycle.flow(x, u, h)
-
-
-def predictor(x, segments, p):
-    return unicycle.predict(x, segments)
 
 
 def _tols(x1, x2, x3):

@@ -41,3 +41,16 @@ def chained(s):
     """(4.2): ``x1 = x cos + y sin``, ``x2 = x sin - y cos``, ``x3 = theta``."""
     c, sn = math.cos(s[2]), math.sin(s[2])
     return np.array([s[0] * c + s[1] * sn, s[0] * sn - s[1] * c, s[2]])
+
+
+# The model-interface functions shared by the unicycle models (Corollary 4.1, Prop. 4.2).
+def f(x, u, p):
+    return dynamics(x, u)
+
+
+def step(x, u, h, p):
+    return flow(x, u, h)
+
+
+def predictor(x, segments, p):
+    return predict(x, segments)
