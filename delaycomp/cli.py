@@ -68,6 +68,26 @@ def _parser() -> argparse.ArgumentParser:
     _common(c)
     c.add_argument("--periods", type=int, default=40,
                    help="periods of each confirming co-simulation (default 40)")
+    c.add_argument("--grid", default=None, metavar="NAME=START:STOP:COUNT",
+                   help="r_c as a function of one parameter (T, k, ...): a table, no "
+                        "co-simulation")
+    c.add_argument("--out", type=Path, default=None, metavar="FILE.csv")
+    c.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+
+    s = sub.add_parser("sweep", help="run a scenario over a parameter grid")
+    s.add_argument("scenario")
+    _common(s)
+    s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
+                   help="a swept parameter (repeatable)")
+    s.add_argument("--stop-time", type=float, default=None, metavar="S")
+    s.add_argument("--engine", choices=("inprocess", "fmu"), default="fmu")
+    s.add_argument("--workers", type=int, default=1, help="local worker processes")
+    s.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on this Dask distributed scheduler")
+    s.add_argument("--exact", action="store_true",
+                   help="LTI scenarios: rho from the lifted discrete-time model")
+    s.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
+    s.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
     return p
@@ -121,10 +141,34 @@ def _describe(params: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in params.items())
 
 
+def _cmd_sweep(args) -> int:
+    from . import sweep
+
+    axes = [sweep.parse_grid(g) for g in args.grid]
+    if args.plot and len(axes) > 2:
+        raise UsageError("--plot draws one or two grid parameters")
+    started = time.perf_counter()
+    rows = sweep.run_sweep(args.scenario, axes, args.set, args.stop_time, args.engine,
+                           args.workers, args.scheduler,
+                           str(args.fmu_dir) if args.fmu_dir else None, args.exact)
+    sweep.write_csv(rows, [a.name for a in axes], args.out)
+    if args.plot:
+        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set))
+    stable = sum(r["stable"] for r in rows)
+    print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
+          f"{stable} stable; wrote {args.out}")
+    return 0
+
+
 def _cmd_critical_delay(args) -> int:
-    from .critical import critical_delay_report
+    from .critical import critical_delay_report, critical_delay_table
 
     scenario = scenarios.get(args.scenario)
+    if args.grid:
+        rows = critical_delay_table(scenario, args.set, args.grid, args.out, args.plot)
+        for line in rows:
+            print(line)
+        return 0
     if args.periods < 10:
         raise UsageError(f"--periods {args.periods} is not allowed: must be an integer >= 10")
     report = critical_delay_report(scenario, args.set, args.periods, args.fmu_dir)
@@ -147,7 +191,7 @@ def _cmd_list(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
-        handler = {"build": _cmd_build, "run": _cmd_run,
+        handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "list": _cmd_list}[args.command]
         return handler(args)
     except (UsageError, ParameterError, ModelError) as exc:

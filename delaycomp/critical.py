@@ -15,6 +15,8 @@ from .scenarios import ParameterError, Scenario
 CONFIRM_OFFSET = 0.005
 #: Finest base step used for the confirming runs is T / CONFIRM_N at least.
 CONFIRM_N = 200
+#: ``critical-delay --grid`` searches r_c up to this many sampling periods.
+R_MAX_PERIODS = 5
 
 
 @dataclass
@@ -86,3 +88,99 @@ def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
     if not report.confirmed:
         report.lines.append("NOT confirmed by co-simulation")
     return report
+
+
+def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:
+    """``r_c`` for ``mode``, or ``"unstable"`` (at r = 0) or ``"stable"`` (up to r_max).
+
+    The compensated loop's lifted spectrum is the delay-free one plus zeros (tested in
+    tests/test_lti.py), so for it a check at a few delays up to ``r_max`` suffices.
+    """
+    def rho(r: float) -> float:
+        return lifted_loop(A, B, K, T, r, tau, mode).spectral_radius
+
+    if rho(0.0) >= 1.0:
+        return "unstable"
+    if mode == "compensated":
+        probes = np.linspace(0.0, r_max, 21)
+        return "stable" if all(rho(r) < 1.0 for r in probes) else "check"
+    try:
+        return critical_delay(rho, r_max=r_max, step=T / 100)
+    except ValueError:
+        return "stable"
+
+
+def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
+                         out: Path | None = None, plot: Path | None = None) -> list[str]:
+    """``r_c`` of the uncompensated and of the compensated loop along one parameter.
+
+    From the exact lifted model only. ``r_c`` is searched up to ``R_MAX_PERIODS`` periods;
+    the compensated loop with the delay it assumes has the delay-free spectrum, so it is
+    stable for every delay wherever the sampled delay-free loop is (``stable``), and
+    unstable for every delay where that is not (``unstable``, e.g. T beyond (3.20)).
+    """
+    from .sweep import _fmt, parse_grid
+
+    if scenario.lti is None:
+        raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
+    axis = parse_grid(grid)
+    lines = [f"{axis.name:>10} {'r_c uncompensated':>18} {'r_c compensated':>18}"]
+    table = []
+    for value in axis.values:
+        p = scenario.resolve([*sets, f"{axis.name}={_fmt(value)}"])
+        A, B, K = scenario.lti(p)
+        r_max = R_MAX_PERIODS * p["T"]
+        uncomp = _r_c(A, B, K, p["T"], p["tau"], "uncompensated", r_max)
+        comp = _r_c(A, B, K, p["T"], p["tau"], "compensated", r_max)
+        table.append((value, uncomp, comp, r_max))
+        cells = [f"{v:.9f}" if isinstance(v, float) else
+                 {"unstable": "unstable at r=0", "stable": f"stable r<={r_max:g}"}.get(v, v)
+                 for v in (uncomp, comp)]
+        lines.append(f"{_fmt(value):>10} {cells[0]:>18} {cells[1]:>18}")
+    if out:
+        import csv
+
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".part")
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow([axis.name, "r_c_uncompensated", "r_c_compensated"])
+            for value, uncomp, comp, _ in table:
+                w.writerow([repr(value), *(repr(v) if isinstance(v, float) else v
+                                           for v in (uncomp, comp))])
+        tmp.replace(out)
+    if plot:
+        _plot_table(table, axis.name, plot, scenario.name + " " + " ".join(sets))
+    return lines
+
+
+def _plot_table(table, name: str, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = np.array([t[0] for t in table])
+    unc = np.array([t[1] if isinstance(t[1], float) else np.nan for t in table])
+    comp_stable = np.array([t[2] == "stable" for t in table])
+    r_max = np.array([t[3] for t in table])
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.fill_between(x, 0, unc, color="tab:blue", alpha=0.25,
+                    label="uncompensated: stable for r < r_c")
+    ax.plot(x, unc, "o-", color="tab:blue", ms=3, label="r_c, uncompensated (u = K y)")
+    top = np.nanmax(unc) * 1.6 if np.any(np.isfinite(unc)) else 1.0
+    ax.fill_between(x, 0, np.where(comp_stable, np.minimum(r_max, top), np.nan),
+                    color="tab:green", alpha=0.12,
+                    label="compensated (u = K Phi): stable for every r shown")
+    ax.set_ylim(0, top)
+    ax.set_xlabel(name)
+    ax.set_ylabel("measurement delay r")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)

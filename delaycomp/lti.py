@@ -106,21 +106,31 @@ class LiftedLoop:
         return float(np.max(np.abs(np.linalg.eigvals(self.M))))
 
 
-def lifted_loop(A, B, K, T: float, r: float, tau: float, mode: str) -> LiftedLoop:
+def lifted_loop(A, B, K, T: float, r: float, tau: float, mode: str,
+                r_true: float | None = None, tau_true: float | None = None) -> LiftedLoop:
     """Lift the loop of Theorem 3.2 / Corollary 3.4 with ``u_i = K Phi`` or ``u_i = K y_i``.
 
-    Over ``[iT - r, (i+1)T - r)`` the plant sees ``u_{i-l-q-1}`` for ``r~`` time units and
-    then ``u_{i-l-q}`` for ``T - r~``, hence
-    ``x_{i+1} = e^{AT} x_i + e^{A(T-r~)} G(r~) u_{i-l-q-1} + G(T-r~) u_{i-l-q}``.
+    The controller assumes the delays ``r`` and ``tau = l T``; the loop's true delays are
+    ``r_true`` and ``tau_true`` (default: the assumed ones; any values >= 0). Only their sum
+    ``D = Q T + D~`` (``0 <= D~ < T``) shapes the plant's input: over
+    ``[iT - r_true, (i+1)T - r_true)`` the plant sees ``u_{i-Q-1}`` for ``D~`` time units and
+    then ``u_{i-Q}`` for ``T - D~``, hence, with ``x_i = x(iT - r_true) = y_i``,
+    ``x_{i+1} = e^{AT} x_i + e^{A(T-D~)} G(D~) u_{i-Q-1} + G(T-D~) u_{i-Q}``.
+    Without mismatch ``Q = l + q`` and ``D~ = r~``.
     """
     A, B = as_matrices(A, B)
     n, m = B.shape
     K = np.atleast_2d(np.asarray(K, dtype=float)).reshape(m, n)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    r_true = r if r_true is None else r_true
+    tau_true = tau if tau_true is None else tau_true
+    if r_true < 0 or tau_true < 0:
+        raise ValueError("true delays must be >= 0")
     l = periods_in(tau, T)  # noqa: E741 - the paper's name
-    q, rt = split_delay(r, T)
-    L = l + q + 1
+    q, _ = split_delay(r, T)
+    Q, Dt = split_delay(r_true + tau_true, T)
+    L = max(l + q + 1, Q + 1)
     dim = n + m * L
 
     def past(j: int) -> np.ndarray:
@@ -135,15 +145,15 @@ def lifted_loop(A, B, K, T: float, r: float, tau: float, mode: str) -> LiftedLoo
         F = K @ Sx
     else:
         pred = LTIPredictor(A, B, T, r, tau)
-        F = K @ (pred.E @ Sx + sum(pred.QB[p - 1] @ past(p) for p in range(1, L + 1)))
+        F = K @ (pred.E @ Sx + sum(pred.QB[p - 1] @ past(p) for p in range(1, pred.L + 1)))
 
     def u_sel(j: int) -> np.ndarray:
         return F if j == 0 else past(j)
 
     ET, _ = flow(A, B, T)
-    E_rest, G_rest = flow(A, B, T - rt)
-    _, G_rt = flow(A, B, rt)
-    x_next = ET @ Sx + E_rest @ G_rt @ u_sel(l + q + 1) + G_rest @ u_sel(l + q)
+    E_rest, G_rest = flow(A, B, T - Dt)
+    _, G_Dt = flow(A, B, Dt)
+    x_next = ET @ Sx + E_rest @ G_Dt @ u_sel(Q + 1) + G_rest @ u_sel(Q)
     rows = [x_next, F] + [past(j) for j in range(1, L)]
     return LiftedLoop(M=np.vstack(rows), n=n, m=m, L=L)
 

@@ -134,12 +134,15 @@ def on_grid(value: float, step: float) -> bool:
 
 
 def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
-             state: str = "x", inp: str = "u") -> LoopSpec:
+             state: str = "x", inp: str = "u", r_true: float | None = None,
+             tau_true: float | None = None) -> LoopSpec:
     """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
 
     ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``. The history of x on
     ``[-r, 0]`` is the constant ``x0`` (the measurement delay's initial history), the
-    controller's output history on ``[-r - tau, 0)`` the constant ``u0``.
+    controller's output history on ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs
+    apply the loop's true delays ``r_true``, ``tau_true`` (default: the assumed ``r``,
+    ``tau``), so a mismatch between what the controller assumes and the loop is possible.
     """
     A = np.atleast_2d(np.asarray(A, dtype=float))
     B = np.atleast_2d(np.asarray(B, dtype=float))
@@ -162,11 +165,13 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
     instances = {
         "plant": ("plant", {"n": n, "m": m, "state": state, "input": inp},
                   {**mat("A", A), **mat("B", B), **vec("x0", x0)}),
-        "meas_delay": ("delay", {"n": n}, {"delay": r, **vec("u0", x0)}),
+        "meas_delay": ("delay", {"n": n},
+                       {"delay": r if r_true is None else r_true, **vec("u0", x0)}),
         "controller": ("controller", {"n": n, "m": m},
                        {"T": T, "r": r, "tau": tau, "mode": mode, **mat("A", A),
                         **mat("B", B), **mat("K", K), **vec("u0", u0)}),
-        "input_delay": ("delay", {"n": m}, {"delay": tau, **vec("u0", u0)}),
+        "input_delay": ("delay", {"n": m},
+                        {"delay": tau if tau_true is None else tau_true, **vec("u0", u0)}),
     }
     connections = (
         [f"plant.{x} -> meas_delay.{i}" for x, i in zip(xs, ys_in)]
@@ -181,7 +186,8 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
 def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
                params: dict | None = None, mode: str | None = None,
                predictor: str | None = None, tolerance: float | None = None,
-               pad: bool = False) -> LoopSpec:
+               pad: bool = False, r_true: float | None = None,
+               tau_true: float | None = None) -> LoopSpec:
     """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.model`).
 
     Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
@@ -214,10 +220,12 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
     instances = {
         "plant": ("model_plant", cfg, plant),
         "meas_delay": ("delay", {"n": n},
-                       {"delay": r, **{f"u0[{i + 1}]": v for i, v in enumerate(x0)}}),
+                       {"delay": r if r_true is None else r_true,
+                        **{f"u0[{i + 1}]": v for i, v in enumerate(x0)}}),
         "controller": ("model_controller", cfg, ctrl),
         "input_delay": ("delay", {"n": m},
-                        {"delay": tau, **{f"u0[{j + 1}]": v for j, v in enumerate(u0)}}),
+                        {"delay": tau if tau_true is None else tau_true,
+                         **{f"u0[{j + 1}]": v for j, v in enumerate(u0)}}),
     }
     ys_in, ys_out = indexed("u", n), indexed("y", n)
     dl_in, dl_out = indexed("u", m), indexed("y", m)
@@ -231,20 +239,25 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
     return LoopSpec(instances, connections, T, N, recorded)
 
 
+def _true_delay_params() -> tuple[Param, ...]:
+    return (
+        Param("r_true", None, "the loop's true measurement delay (default: r, the one the "
+              "controller assumes)", "a finite number >= 0", _real, lambda v: v >= 0),
+        Param("tau_true", None, "the loop's true input delay (default: tau)",
+              "a finite number >= 0", _real, lambda v: v >= 0),
+    )
+
+
 # -- Example 3.6 ----------------------------------------------------------------------
 
 def _check_timing(p: dict) -> None:
     """Cross-parameter rules shared by the LTI scenarios."""
-    T, N = p["T"], p["N"]
+    T = p["T"]
     if p["tau"] > 0 and split_delay(p["tau"], T)[1] != 0.0:
         raise ParameterError(
             f"parameter tau = {p['tau']!r} is not allowed: must be a multiple l*T (l >= 0) "
             f"of T = {T!r}")
-    h = T / N
-    if not on_grid(p["r"], h):
-        raise ParameterError(
-            f"parameter r = {p['r']!r} is not allowed: must be a multiple of the base step "
-            f"h = T/N = {h!r} (raise N)")
+    _check_grid(p, zoh=False)
 
 
 def _example_3_6_matrices(p: dict) -> tuple:
@@ -254,7 +267,7 @@ def _example_3_6_matrices(p: dict) -> tuple:
 def _example_3_6(p: dict) -> LoopSpec:
     A, B, K = _example_3_6_matrices(p)
     return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], [p["x0"]],
-                    [p["u0"]])
+                    [p["u0"]], r_true=p["r_true"], tau_true=p["tau_true"])
 
 
 def _mode_param() -> Param:
@@ -276,6 +289,7 @@ EXAMPLE_3_6 = Scenario(
         _mode_param(),
         real("x0", 1.0, "constant history of x on [-r, 0]"),
         real("u0", 0.0, "constant input history on [-r - tau, 0)"),
+        *_true_delay_params(),
     ),
     make=_example_3_6,
     default_stop_time=20.0,
@@ -292,6 +306,7 @@ def _timing_params(T, r, tau, N=100) -> tuple[Param, ...]:
         real("tau", tau, "input delay", "a finite number >= 0", lambda v: v >= 0),
         Param("N", N, "base steps per sampling period (h = T/N)", "a positive integer",
               _positive_int, lambda v: v >= 1),
+        *_true_delay_params(),
     )
 
 
@@ -309,8 +324,8 @@ _PAD = Param("pad", False, "pad tau up to the next multiple of T (Remark 3.3(b))
 
 def _check_grid(p: dict, zoh: bool) -> None:
     T, h = p["T"], p["T"] / p["N"]
-    for name in ("r", "tau"):
-        if not on_grid(p[name], h):
+    for name in ("r", "tau", "r_true", "tau_true"):
+        if p.get(name) is not None and not on_grid(p[name], h):
             raise ParameterError(
                 f"parameter {name} = {p[name]!r} is not allowed: must be a multiple of the "
                 f"base step h = T/N = {h!r} (raise N)")
@@ -339,7 +354,8 @@ def _model_scenario(name: str, title: str, module: str, defaults: dict, own: tup
         params = {key: p[key] for key in ("law", "p") if key in p}
         return model_loop(path(module), p["T"], p["r"], p["tau"], p["N"], p["x0"], p["u0"],
                           params=params, predictor=p["predictor"],
-                          pad=p.get("pad", False))
+                          pad=p.get("pad", False), r_true=p["r_true"],
+                          tau_true=p["tau_true"])
 
     params = (*_timing_params(defaults["T"], defaults["r"], defaults["tau"]),
               *_history_params(defaults["x0"], defaults["u0"]), _PREDICTOR,
@@ -398,7 +414,8 @@ def _corollary_3_7_matrices(p: dict) -> tuple:
 
 def _corollary_3_7(p: dict) -> LoopSpec:
     A, B, K = _corollary_3_7_matrices(p)
-    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], p["x0"], p["u0"])
+    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], p["x0"], p["u0"],
+                    r_true=p["r_true"], tau_true=p["tau_true"])
 
 
 COROLLARY_3_7 = Scenario(

@@ -1,0 +1,287 @@
+"""Parameter sweeps and stability maps: many runs of one scenario over a grid.
+
+Each grid point is one run (or, with ``exact``, one lifted-model eigenvalue computation for
+LTI scenarios). Per point the sweep reports
+
+- ``rho``: the per-period growth factor of the state, from the trajectory's tail: with
+  ``e_j`` the root-sum-square of ``|x|`` over period ``j`` (which averages out the phase of
+  oscillating modes), ``rho = exp(slope)`` of a least-squares line through ``log e_j``
+  after the first fifth of the periods (0 if the state is exactly zero there, ``inf`` if
+  the run failed). On Example 3.6 it is within 0.006 of the exact value over 20 periods. With ``exact`` it is the spectral radius of the
+  lifted closed loop (:func:`delaycomp.lti.lifted_loop`);
+- ``stable``: 1 if ``rho < 1``, else 0;
+- ``final_norm``, ``peak_norm``: ``|x|`` at the end and its largest value;
+- ``deadbeat_time``: the time from which ``|x| < 1e-9`` holds to the end (empty if never).
+
+Points run one after another, on local worker processes, or on a Dask cluster; every
+point is computed by the same deterministic function, so the results do not depend on how
+they are distributed.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import scenarios
+from .scenarios import ParameterError
+
+#: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
+ZERO = 1e-9
+METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time")
+
+
+@dataclass(frozen=True)
+class Axis:
+    name: str
+    values: tuple[float, ...]
+
+
+def parse_grid(text: str) -> Axis:
+    """``NAME=START:STOP:COUNT`` -> an axis of ``COUNT`` evenly spaced values."""
+    name, sep, spec = text.partition("=")
+    parts = spec.split(":")
+    if not sep or not name or len(parts) != 3:
+        raise ParameterError(f"--grid {text!r}: expected NAME=START:STOP:COUNT")
+    try:
+        start, stop = float(parts[0]), float(parts[1])
+        count = int(parts[2])
+    except ValueError:
+        raise ParameterError(f"--grid {text!r}: START and STOP must be numbers, COUNT an "
+                             "integer") from None
+    if not (math.isfinite(start) and math.isfinite(stop)):
+        raise ParameterError(f"--grid {text!r}: START and STOP must be finite")
+    if not 1 <= count <= 100_000:
+        raise ParameterError(f"--grid {text!r}: COUNT = {count} is not allowed: must be an "
+                             "integer from 1 to 100000")
+    return Axis(name.strip(), tuple(float(v) for v in np.linspace(start, stop, count)))
+
+
+def _fmt(value: float) -> str:
+    return f"{value:.15g}"
+
+
+def points(axes: list[Axis]) -> list[tuple[float, ...]]:
+    return list(itertools.product(*(a.values for a in axes)))
+
+
+@dataclass(frozen=True)
+class Job:
+    """Everything one grid point needs; picklable for worker processes and Dask."""
+
+    scenario: str
+    sets: tuple[str, ...]
+    stop: float
+    engine: str
+    fmu_dir: str | None
+    exact: bool
+
+
+def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool) -> dict:
+    """The sweep's metrics for a recorded trajectory (``states``: one row per base step)."""
+    norms = np.linalg.norm(states, axis=1) if states.size else np.array([np.nan])
+    peak = float(np.nanmax(norms)) if norms.size else math.nan
+    final = float(norms[-1])
+    above = np.nonzero(~(norms < ZERO))[0]
+    if above.size == 0:
+        deadbeat = float(times[0])
+    elif above[-1] + 1 < len(norms):
+        deadbeat = float(times[above[-1] + 1])
+    else:
+        deadbeat = None
+    if not success or not np.all(np.isfinite(norms)):
+        return {"rho": math.inf, "stable": 0, "final_norm": final, "peak_norm": peak,
+                "deadbeat_time": None}
+    periods = (len(norms) - 1) // N
+    env = np.array([math.sqrt(float(np.sum(norms[j * N:(j + 1) * N] ** 2)))
+                    for j in range(periods)])
+    tail = env[max(1, periods // 5):]
+    if tail.size < 2:
+        rho = math.nan  # too few periods to estimate a rate
+    elif np.any(tail == 0.0):
+        rho = 0.0
+    else:
+        slope = np.polyfit(np.arange(tail.size), np.log(tail), 1)[0]
+        rho = float(math.exp(slope))
+    return {"rho": rho, "stable": int(rho < 1.0), "final_norm": final, "peak_norm": peak,
+            "deadbeat_time": deadbeat}
+
+
+def evaluate(job: Job) -> dict:
+    """Metrics of one grid point (a top-level function, for processes and Dask)."""
+    from .simulate import run_loop
+
+    sc = scenarios.get(job.scenario)
+    p = sc.resolve(list(job.sets))
+    if job.exact:
+        from .lti import lifted_loop
+
+        A, B, K = sc.lti(p)
+        loop = lifted_loop(A, B, K, p["T"], p["r"], p["tau"], p["mode"], p.get("r_true"),
+                           p.get("tau_true"))
+        rho = loop.spectral_radius
+        return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
+                "deadbeat_time": None}
+    spec = sc.make(p)
+    kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
+    res = run_loop(spec, job.stop, job.fmu_dir, **kwargs)
+    n_states = sum(1 for inst, _ in spec.recorded if inst == "plant")
+    return metrics_of(res.times, res.data[:, :n_states], spec.N, res.success)
+
+
+def _prebuild(jobs: list[Job]) -> None:
+    """Build every FMU the jobs need here, once, before workers start."""
+    from .simulate import fmu_path
+
+    seen = set()
+    for job in jobs:
+        sc = scenarios.get(job.scenario)
+        for kind, config, _ in sc.make(sc.resolve(list(job.sets))).instances.values():
+            key = (kind, tuple(sorted(config.items())))
+            if key not in seen:
+                seen.add(key)
+                fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
+
+
+class _Progress:
+    def __init__(self, total: int):
+        self.total, self.done = total, 0
+        self.enabled = sys.stderr.isatty()
+
+    def tick(self, count: int = 1) -> None:
+        self.done += count
+        if self.enabled:
+            width = 30
+            filled = int(width * self.done / self.total)
+            sys.stderr.write(f"\rsweep [{'#' * filled}{'.' * (width - filled)}] "
+                             f"{self.done}/{self.total}")
+            if self.done == self.total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
+              engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
+              fmu_dir: str | None = None, exact: bool = False) -> list[dict]:
+    """Run the grid; return one row (grid values + metrics) per point, in grid order."""
+    sc = scenarios.get(scenario)
+    if exact and sc.lti is None:
+        raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
+    if workers < 1:
+        raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
+    names = [a.name for a in axes]
+    if len(set(names)) != len(names):
+        raise ParameterError("--grid: each parameter may be swept once")
+    stop = sc.default_stop_time if stop is None else stop
+    jobs = []
+    for values in points(axes):
+        point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
+        try:
+            sc.resolve(list(point_sets))  # validate every point before running any
+        except ParameterError as exc:
+            where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
+            raise ParameterError(f"grid point {where}: {exc}") from None
+        jobs.append(Job(scenario, point_sets, float(stop), engine, fmu_dir, exact))
+    if not exact and engine == "fmu":
+        _prebuild(jobs)
+    progress = _Progress(len(jobs))
+    if scheduler:
+        results = _run_dask(jobs, scheduler, progress)
+    elif workers > 1:
+        results = _run_processes(jobs, workers, progress)
+    else:
+        results = []
+        for job in jobs:
+            results.append(evaluate(job))
+            progress.tick()
+    return [{**dict(zip(names, values)), **res} for values, res in zip(points(axes), results)]
+
+
+def _run_processes(jobs: list[Job], workers: int, progress: _Progress) -> list[dict]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # spawn: a forked child would inherit the parent's FMU runtime threads and locks
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        results = []
+        for res in pool.map(evaluate, jobs, chunksize=max(1, len(jobs) // (workers * 8))):
+            results.append(res)
+            progress.tick()
+    return results
+
+
+def _run_dask(jobs: list[Job], address: str, progress: _Progress) -> list[dict]:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise RuntimeError("--scheduler needs Dask: pip install 'delaycomp[dask]'") from None
+
+    with Client(address) as client:
+        futures = client.map(evaluate, jobs, pure=False)
+        results = client.gather(futures)
+    progress.tick(len(jobs))
+    return results
+
+
+def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow([*names, *METRICS])
+        for row in rows:
+            w.writerow([_cell(row[k]) for k in (*names, *METRICS)])
+    tmp.replace(path)
+
+
+def _cell(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return repr(float(value))
+
+
+def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str) -> None:
+    """A curve of ``rho`` for one grid parameter, a heat map of it for two."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rho = np.array([r["rho"] for r in rows], dtype=float)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    if len(axes) == 1:
+        ax.plot(axes[0].values, rho, "o-", ms=3)
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xlabel(axes[0].name)
+        ax.set_ylabel("rho (growth per period)")
+        ax.set_yscale("symlog", linthresh=1e-3)
+        ax.grid(True, alpha=0.3)
+    elif len(axes) == 2:
+        Z = np.clip(rho.reshape(len(axes[0].values), len(axes[1].values)), 0, 2)
+        mesh = ax.pcolormesh(axes[1].values, axes[0].values, Z, cmap="RdYlGn_r", vmin=0,
+                             vmax=2, shading="nearest")
+        if np.nanmin(Z) < 1 < np.nanmax(Z):
+            ax.contour(axes[1].values, axes[0].values, Z, levels=[1.0], colors="k")
+        fig.colorbar(mesh, ax=ax, label="rho (clipped to [0, 2]); black: rho = 1")
+        ax.set_xlabel(axes[1].name)
+        ax.set_ylabel(axes[0].name)
+    else:
+        raise ParameterError("--plot draws one or two grid parameters")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
