@@ -15,8 +15,10 @@ from .scenarios import ParameterError, Scenario
 CONFIRM_OFFSET = 0.005
 #: Finest base step used for the confirming runs is T / CONFIRM_N at least.
 CONFIRM_N = 200
-#: ``critical-delay --grid`` searches r_c up to this many sampling periods.
+#: ``critical-delay --grid`` searches r_c up to this many sampling periods, and at least
+#: up to R_MAX_MIN seconds.
 R_MAX_PERIODS = 5
+R_MAX_MIN = 1.0
 
 
 @dataclass
@@ -114,7 +116,8 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
                          out: Path | None = None, plot: Path | None = None) -> list[str]:
     """``r_c`` of the uncompensated and of the compensated loop along one parameter.
 
-    From the exact lifted model only. ``r_c`` is searched up to ``R_MAX_PERIODS`` periods;
+    From the exact lifted model only. ``r_c`` is searched up to ``R_MAX_PERIODS`` periods
+    (at least ``R_MAX_MIN`` seconds);
     the compensated loop with the delay it assumes has the delay-free spectrum, so it is
     stable for every delay wherever the sampled delay-free loop is (``stable``), and
     unstable for every delay where that is not (``unstable``, e.g. T beyond (3.20)).
@@ -127,9 +130,10 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
     lines = [f"{axis.name:>10} {'r_c uncompensated':>18} {'r_c compensated':>18}"]
     table = []
     for value in axis.values:
-        p = scenario.resolve([*sets, f"{axis.name}={_fmt(value)}"])
+        # r is what is searched: resolve with r = 0, which is on every grid
+        p = scenario.resolve(["r=0", *sets, f"{axis.name}={_fmt(value)}"])
         A, B, K = scenario.lti(p)
-        r_max = R_MAX_PERIODS * p["T"]
+        r_max = max(R_MAX_PERIODS * p["T"], R_MAX_MIN)
         uncomp = _r_c(A, B, K, p["T"], p["tau"], "uncompensated", r_max)
         comp = _r_c(A, B, K, p["T"], p["tau"], "compensated", r_max)
         table.append((value, uncomp, comp, r_max))
