@@ -22,6 +22,7 @@ List the scenarios and their parameters::
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -81,7 +82,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="a swept parameter (repeatable)")
     s.add_argument("--stop-time", type=float, default=None, metavar="S")
     s.add_argument("--engine", choices=("inprocess", "fmu"), default="fmu")
-    s.add_argument("--workers", type=int, default=1, help="local worker processes")
+    s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: one per core; 1 runs in this "
+                        "process)")
     s.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on this Dask distributed scheduler")
     s.add_argument("--exact", action="store_true",
