@@ -92,6 +92,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
     s.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
 
+    k = sub.add_parser("check", help="cross-check every reference case in every master")
+    k.add_argument("--master", action="append", default=None, metavar="NAME",
+                   help="only this master (repeatable; default: all)")
+    k.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+                   help="only this reference case (repeatable; default: all)")
+
     sub.add_parser("list", help="list the scenarios and their parameters")
     return p
 
@@ -181,6 +187,25 @@ def _cmd_critical_delay(args) -> int:
     return 0 if report.confirmed else 1
 
 
+def _cmd_check(args) -> int:
+    from . import check
+
+    try:
+        cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
+        if args.master:
+            for name in args.master:
+                if name not in check.PROVIDERS.providers:
+                    raise KeyError(f"unknown master {name!r}: allowed are "
+                                   f"{', '.join(check.PROVIDERS.providers)}")
+    except KeyError as exc:
+        raise UsageError(exc.args[0]) from None
+    rows = check.run_checks(cases, args.master)
+    print(check.format_table(rows))
+    failed = sum(not r.passed for r in rows)
+    print(f"{len(rows) - failed} passed, {failed} failed")
+    return 1 if failed else 0
+
+
 def _cmd_list(args) -> int:
     for sc in scenarios.SCENARIOS.values():
         print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
@@ -195,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
-                   "critical-delay": _cmd_critical_delay, "list": _cmd_list}[args.command]
+                   "critical-delay": _cmd_critical_delay, "check": _cmd_check,
+                   "list": _cmd_list}[args.command]
         return handler(args)
     except (UsageError, ParameterError, ModelError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
