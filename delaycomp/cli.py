@@ -61,6 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
                    help="write one row per base step")
     r.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
+                   help="fmu: the built FMUs through fmpy (default); inprocess: the same "
+                        "slaves called directly, same numbers, several times faster")
 
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
@@ -81,7 +84,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
                    help="a swept parameter (repeatable)")
     s.add_argument("--stop-time", type=float, default=None, metavar="S")
-    s.add_argument("--engine", choices=("inprocess", "fmu"), default="fmu")
+    s.add_argument("--engine", choices=("inprocess", "fmu"), default="fmu",
+                   help="fmu: the built FMUs (default); inprocess: the same slaves without "
+                        "the FMI layer")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core; 1 runs in this "
                         "process)")
@@ -125,7 +130,7 @@ def _cmd_run(args) -> int:
     params = scenario.resolve(args.set)
     stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
     started = time.perf_counter()
-    result = run_loop(scenario.make(params), stop, args.fmu_dir)
+    result = run_loop(scenario.make(params), stop, args.fmu_dir, engine=args.engine)
     elapsed = time.perf_counter() - started
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -210,8 +215,13 @@ def _cmd_list(args) -> int:
     for sc in scenarios.SCENARIOS.values():
         print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
         for p in sc.params:
-            default = ",".join(f"{v:g}" for v in p.default) if isinstance(p.default, tuple) \
-                else ("(depends on n)" if p.default is None else p.default)
+            if isinstance(p.default, tuple):
+                default = ",".join(f"{v:g}" for v in p.default)
+            elif p.default is None:  # derived from other parameters
+                default = {"r_true": "(= r)", "tau_true": "(= tau)"}.get(p.name,
+                                                                        "(depends on n)")
+            else:
+                default = p.default
             print(f"    {p.name:<9} default {default!s:<12} {p.help}; {p.allowed}")
     return 0
 

@@ -53,12 +53,12 @@ class DelayLine:
 
     def output(self, u) -> tuple[float, ...]:
         if self.D == 0:
-            return tuple(float(v) for v in u)
+            return tuple(map(float, u))
         return self.buffer[0]
 
     def push(self, u) -> None:
         if self.D:
-            self.buffer.append(tuple(float(v) for v in u))
+            self.buffer.append(tuple(map(float, u)))
 
     def get_state(self) -> list:
         return [list(v) for v in self.buffer]

@@ -67,7 +67,10 @@ class TableSlave(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         _PINNED_MODULE_DICTS.append(vars(sys.modules[type(self).__module__]))
-        self.config = self._read_config()
+        # In-process (``orchestrator.inprocess``) the configuration comes as an argument;
+        # inside an FMU it is read from the resources folder.
+        config = kwargs.get("config")
+        self.config = dict(config) if config is not None else self._read_config()
         built_with = self.config.get("version")
         if built_with != delaycomp.__version__:
             raise RuntimeError(

@@ -64,7 +64,7 @@ class ModelPlant:
             x = np.asarray(self.model.step(self.x, u, h, self.p), dtype=float)
         else:
             x = integrate(self.model.f, self.p, self.x, [(h, u)], self.tol, self.tol)
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             raise ValueError(f"the state is not finite after the step (input {u.tolist()})")
         self.x = x
         return x

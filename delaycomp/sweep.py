@@ -197,10 +197,13 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     elif workers > 1:
         results = _run_processes(jobs, workers, progress)
     else:
+        from .simulate import single_threaded_blas
+
         results = []
-        for job in jobs:
-            results.append(evaluate(job))
-            progress.tick()
+        with single_threaded_blas():  # once for the whole sweep, not per point
+            for job in jobs:
+                results.append(evaluate(job))
+                progress.tick()
     return [{**dict(zip(names, values)), **res} for values, res in zip(points(axes), results)]
 
 
@@ -210,12 +213,20 @@ def _run_processes(jobs: list[Job], workers: int, progress: _Progress) -> list[d
 
     # spawn: a forked child would inherit the parent's FMU runtime threads and locks
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                             initializer=_worker_init) as pool:
         results = []
         for res in pool.map(evaluate, jobs, chunksize=max(1, len(jobs) // (workers * 8))):
             results.append(res)
             progress.tick()
     return results
+
+
+def _worker_init() -> None:
+    """Worker processes run small matrices: one BLAS thread each (no oversubscription)."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
 
 
 def _run_dask(jobs: list[Job], address: str, progress: _Progress) -> list[dict]:

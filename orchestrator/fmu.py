@@ -173,6 +173,30 @@ class FmuComponent:
             self._failed(exc)
             raise
 
+    def reader(self, names: Sequence[str]):
+        """``() -> [values]`` of the outputs ``names``: the master's hot path."""
+        vrs = self._vrs(names)
+
+        def read():
+            try:
+                return self.fmu.getReal(vrs)
+            except FMICallException as exc:
+                self._failed(exc)
+                raise
+        return read
+
+    def writer(self, names: Sequence[str]):
+        """``(values) -> None`` setting the inputs ``names``: the master's hot path."""
+        vrs = self._vrs(names)
+
+        def write(values):
+            try:
+                self.fmu.setReal(vrs, values)
+            except FMICallException as exc:
+                self._failed(exc)
+                raise
+        return write
+
     def do_step(self, t: float, h: float) -> None:
         try:
             self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)

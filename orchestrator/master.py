@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 from typing import Protocol
 
 
@@ -84,6 +85,16 @@ class _Plan:
     tails: list = field(default_factory=list)
 
 
+def _gather(slots: Sequence[int]):
+    """``values -> [values[i] for i in slots]`` as one C call (None for no slots)."""
+    if not slots:
+        return None
+    if len(slots) == 1:
+        i = slots[0]
+        return lambda values: (values[i],)
+    return itemgetter(*slots)
+
+
 class Master:
     """Fixed-step master over integer ticks of ``h = T / N``.
 
@@ -113,6 +124,31 @@ class Master:
         self._plan = self._make_plan()
         self._slots: list[float] = [0.0] * len(self._slot_of)
         self._observers: list = []
+        # the hot loop's work as bound methods and slot lists, precomputed once
+        self._stepping = list(self.components.values())
+        self._heads = [(self._getter(c, outs), oslots) for c, outs, oslots in self._plan.heads]
+        self._chain = [(self._setter(c, ins), _gather(islots), self._getter(c, outs), oslots)
+                       for c, ins, islots, outs, oslots in self._plan.chain]
+        self._tails = [(self._setter(c, ins), _gather(islots))
+                       for c, ins, islots in self._plan.tails]
+
+    @staticmethod
+    def _getter(c, names):
+        """``() -> values`` of the outputs ``names`` (the component's own if it has one)."""
+        names = list(names)
+        if hasattr(c, "reader"):
+            return c.reader(names)
+        get_outputs = c.get_outputs
+        return lambda: get_outputs(names)
+
+    @staticmethod
+    def _setter(c, names):
+        """``(values) -> None`` setting the inputs ``names``."""
+        names = list(names)
+        if hasattr(c, "writer"):
+            return c.writer(names)
+        set_inputs = c.set_inputs
+        return lambda values: set_inputs(names, values)
 
     # -- planning ----------------------------------------------------------------------
     def _make_plan(self) -> _Plan:
@@ -178,7 +214,7 @@ class Master:
         return self.t0 + i * self.T + j * self.h
 
     def add_observer(self, observer) -> None:
-        self._observers.append(observer)
+        self._observers.append(observer.record)
 
     def setup(self, stop_time: float, parameters: dict[str, dict]) -> None:
         for name, c in self.components.items():
@@ -205,21 +241,22 @@ class Master:
         slots = self._slots
         k = self.k
         try:
-            for c, outs, oslots in self._plan.heads:
-                for s, v in zip(oslots, c.get_outputs(outs)):
+            for get, oslots in self._heads:
+                for s, v in zip(oslots, get()):
                     slots[s] = v
-            for c, ins, islots, outs, oslots in self._plan.chain:
-                if ins:
-                    c.set_inputs(ins, [slots[s] for s in islots])
-                for s, v in zip(oslots, c.get_outputs(outs)):
+            for put, gather, get, oslots in self._chain:
+                if gather is not None:
+                    put(gather(slots))
+                for s, v in zip(oslots, get()):
                     slots[s] = v
-            for c, ins, islots in self._plan.tails:
-                c.set_inputs(ins, [slots[s] for s in islots])
+            for put, gather in self._tails:
+                put(gather(slots))
         except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             self._fail(exc, k)
-        t = self.time_of(k)
-        for obs in self._observers:
-            obs.record(k, t, slots)
+        if self._observers:
+            t = self.time_of(k)
+            for record in self._observers:
+                record(k, t, slots)
 
     def _fail(self, exc: Exception, k: int):
         culprit = next((c for c in self.components.values()
@@ -230,11 +267,19 @@ class Master:
 
     def step(self) -> None:
         """Advance every component from ``t_k`` to ``t_{k+1}``; then propagate."""
-        t = self.time_of(self.k)
+        k = self.k
+        t = self.time_of(k)
         h = self.h
-        for c in self.components.values():
-            self._guard(c, self.k, c.do_step, t, h)
-        self.k += 1
+        comp = None
+        try:
+            for comp in self._stepping:
+                comp.do_step(t, h)
+        except SimulationError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - reported with the component's reason
+            reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
+            raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}") from exc
+        self.k = k + 1
         self._propagate()
 
     def run_until(self, stop_ticks: int) -> None:
@@ -265,12 +310,13 @@ class Recorder:
     def __init__(self, master: Master, signals: Sequence[tuple[str, str]]):
         self.names = [f"{i}.{v}" for i, v in signals]
         self._idx = [master.slot(i, v) for i, v in signals]
+        self._gather = _gather(self._idx) or (lambda values: ())
         self.times: list[float] = []
-        self.rows: list[list[float]] = []
+        self.rows: list[Sequence[float]] = []
 
     def record(self, k: int, t: float, slots: Sequence[float]) -> None:
         self.times.append(t)
-        self.rows.append([slots[i] for i in self._idx])
+        self.rows.append(self._gather(slots))
 
     def column(self, name: str) -> list[float]:
         j = self.names.index(name)

@@ -13,6 +13,8 @@ from delaycomp.fmuslave import TableSlave, check_finite
 from delaycomp.lti import MODES, split_delay
 from delaycomp.names import indexed
 
+_EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times
+
 
 class DelaycompControllerLTI(TableSlave):
     """u_i = K Phi(y_i, past inputs) (compensated) or u_i = K y_i, held over each period."""
@@ -118,7 +120,7 @@ class DelaycompControllerLTI(TableSlave):
             self._proposal = None
         t_end = current_time + step_size
         t_sample = self.t0 + self._next * self.T
-        tol = 1e-9 * self.T + 4 * np.finfo(float).eps * abs(t_end)
+        tol = 1e-9 * self.T + _EPS4 * abs(t_end)
         if t_end > t_sample + tol:
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")

@@ -124,7 +124,7 @@ class ModelControllerSlave(TableSlave):
                 self.T, abs(t)):
             self.fail(f"step ({t!r}, {h!r}) is not allowed: this controller steps from "
                       f"{expected!r} by exactly T/N = {self.ctrl.h!r}")
-        if not np.all(np.isfinite(self.y)):
+        if not np.isfinite(self.y).all():
             self.fail(f"measurement {self.y.tolist()} at t = {t!r} is not allowed: must be "
                       "finite")
         self.ctrl.advance(self.y)

@@ -59,7 +59,7 @@ class ModelPlantSlave(TableSlave):
         self.plant = ModelPlant(self.model, self.values, self.x0, self.tolerance)
 
     def _step(self, t, h):
-        if not np.all(np.isfinite(self.u)):
+        if not np.isfinite(self.u).all():
             self.fail(f"input {list(self.model.inputs)} = {self.u.tolist()} at t = {t!r} is "
                       "not allowed: must be finite")
         self.plant.step(self.u, h)

@@ -72,7 +72,7 @@ class DelaycompPlantLTI(TableSlave):
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
             self._h = step_size
         x = self._Ad @ self.x + self._Bd @ self.u
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             self.fail(f"state is not finite at t = {t + step_size!r} (input u = "
                       f"{self.u.tolist()}): the plant diverged or an input is not finite")
         self.x = x

@@ -1,0 +1,436 @@
+"""delaycomp benchmark: engines, master overhead, predictor cost, accuracy against cost.
+
+Run from the repository root (it writes ``BENCHMARKS.md`` and
+``docs/figures/benchmarks.png``)::
+
+    python bench/run.py            # the full run, a few minutes
+    python bench/run.py --quick    # fewer repeats and scenarios, for a smoke test
+
+Everything is measured side by side in one run and reported as medians of repeated runs
+and as ratios, because absolute times on a shared machine drift from minute to minute:
+the two engines of a comparison are timed alternately, repeat after repeat. BLAS runs on
+one thread throughout, as in ``delaycomp run`` (see ``delaycomp.simulate``).
+
+Sections (the targets are those of the performance issue):
+
+1. wall time per simulated second of every scenario at N = 10, 100, 1000, with the FMUs
+   (``fmu``) and in-process (``inprocess``); the ratio between them; Example 3.6 (20 s,
+   N = 100) against real time (target >= 100x) and the in-process speed-up (target >= 20x);
+2. the master's own share: the master stepping the FMUs against a bare loop making the
+   same FMU calls (target <= 1.2x);
+3. predictor cost per sample for n = 3 and a window r + tau = 2 s: the closed forms
+   against the numerical Phi (targets: numerical <= 1 ms, closed-form LTI <= 50 us);
+4. accuracy against cost: the largest error against the reference traces as N grows, with
+   the observed order of the continuous-input loops.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from delaycomp import __version__, check, scenarios  # noqa: E402
+from delaycomp.simulate import (  # noqa: E402
+    fmu_path,
+    make_components,
+    run_loop,
+    single_threaded_blas,
+)
+from orchestrator.master import Connection, Master, Recorder  # noqa: E402
+
+TARGET_REALTIME = 100.0
+TARGET_INPROCESS = 20.0
+TARGET_MASTER = 1.2
+TARGET_NUMERICAL_PHI = 1e-3
+TARGET_LTI_PHI = 50e-6
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def alternate(fns: dict, repeats: int) -> dict:
+    """Median wall time of each callable, timed alternately (side by side)."""
+    samples = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            samples[name].append(time.perf_counter() - t)
+    return {name: statistics.median(v) for name, v in samples.items()}
+
+
+def stop_for(sc, N: int, T: float) -> float:
+    """About 2000 base steps, a whole number of periods, at most the scenario's stop time."""
+    periods = max(1, min(round(sc.default_stop_time / T), round(2000 / N)))
+    return periods * T
+
+
+# -- 1. engines ----------------------------------------------------------------------------
+
+def bench_engines(names, Ns, repeats, fmu_dir):
+    rows = []
+    for name in names:
+        sc = scenarios.get(name)
+        for N in Ns:
+            p = sc.resolve([f"N={N}"])
+            spec = sc.make(p)
+            stop = stop_for(sc, N, p["T"])
+            for kind, config, _ in spec.instances.values():
+                fmu_path(kind, config, fmu_dir)  # built before timing
+            med = alternate({
+                "fmu": lambda: run_loop(spec, stop, fmu_dir),
+                "inprocess": lambda: run_loop(spec, stop, engine="inprocess"),
+            }, repeats)
+            rows.append(dict(scenario=name, N=N, stop=stop,
+                             fmu=med["fmu"] / stop, inprocess=med["inprocess"] / stop,
+                             ratio=med["fmu"] / med["inprocess"]))
+            print(f"  {name:16s} N={N:<5d} fmu {med['fmu'] / stop * 1e3:8.2f} ms/s  "
+                  f"inprocess {med['inprocess'] / stop * 1e3:8.2f} ms/s  "
+                  f"ratio {med['fmu'] / med['inprocess']:5.1f}", flush=True)
+    return rows
+
+
+def bench_example_3_6(repeats, fmu_dir):
+    sc = scenarios.get("example-3.6")
+    spec = sc.make(sc.resolve([]))
+    med = alternate({
+        "fmu": lambda: run_loop(spec, 20.0, fmu_dir),
+        "inprocess": lambda: run_loop(spec, 20.0, engine="inprocess"),
+    }, repeats)
+    return dict(fmu=med["fmu"], inprocess=med["inprocess"], realtime=20.0 / med["fmu"],
+                realtime_inprocess=20.0 / med["inprocess"],
+                ratio=med["fmu"] / med["inprocess"])
+
+
+# -- 2. master overhead ----------------------------------------------------------------------
+
+def _ready_master(spec, stop, fmu_dir, record=True):
+    comps = make_components(spec, "fmu", fmu_dir)
+    master = Master(comps, [Connection.parse(c) for c in spec.connections], spec.T, spec.N)
+    if record:
+        master.add_observer(Recorder(master, spec.recorded))
+    master.setup(stop, {n: prm for n, (_, _, prm) in spec.instances.items()})
+    master.initialize()
+    return master
+
+
+def _bare_loop(master, ticks):
+    """The FMU calls the master makes per tick, in the same order, with nothing around."""
+    plan = master._plan
+    heads = [(c.fmu.getReal, c._vrs(outs)) for c, outs, _ in plan.heads]
+    chain = [(c.fmu.setReal, c._vrs(ins), c.fmu.getReal, c._vrs(outs))
+             for c, ins, _, outs, _ in plan.chain]
+    tails = [(c.fmu.setReal, c._vrs(ins)) for c, ins, _ in plan.tails]
+    steps = [c.fmu.doStep for c in master.components.values()]
+    h = master.h
+    values = [0.0] * 4
+    for k in range(ticks):
+        t = k * h
+        for step in steps:
+            step(t, h)
+        for get, vrs in heads:
+            values = get(vrs)
+        for set_, ivrs, get, ovrs in chain:
+            set_(ivrs, values[:len(ivrs)])
+            values = get(ovrs)
+        for set_, ivrs in tails:
+            set_(ivrs, values[:len(ivrs)])
+
+
+def bench_master(names, repeats, fmu_dir):
+    rows = []
+    for name in names:
+        sc = scenarios.get(name)
+        p = sc.resolve([])
+        spec = sc.make(p)
+        stop = stop_for(sc, 100, p["T"])
+        ticks = round(stop / (p["T"] / 100))
+        master_t, bare_t = [], []
+        for _ in range(repeats):
+            for which in ("master", "bare"):
+                m = _ready_master(spec, stop, fmu_dir)
+                try:
+                    t = time.perf_counter()
+                    if which == "master":
+                        m.run_until(ticks)
+                    else:
+                        _bare_loop(m, ticks)
+                    (master_t if which == "master" else bare_t).append(
+                        time.perf_counter() - t)
+                finally:
+                    m.terminate()
+        mt, bt = statistics.median(master_t), statistics.median(bare_t)
+        rows.append(dict(scenario=name, ticks=ticks, master=mt / ticks, bare=bt / ticks,
+                         ratio=mt / bt))
+        print(f"  {name:16s} master {mt / ticks * 1e6:6.1f} us/tick  bare FMU calls "
+              f"{bt / ticks * 1e6:6.1f} us/tick  ratio {mt / bt:5.2f}", flush=True)
+    return rows
+
+
+# -- 3. predictor cost -------------------------------------------------------------------------
+
+def bench_predictors(repeats):
+    from delaycomp.controller import ZOHController
+    from delaycomp.lti import LTIPredictor
+    from delaycomp.model import load_model
+    from delaycomp.models import path
+    from delaycomp.predictors import deadbeat_gain, numerical_predictor
+
+    rows = []
+    rng = np.random.default_rng(0)
+    # LTI, n = 3 chain of integrators, r = 1, tau = 1, T = 1: closed form (3.15)
+    A, B = np.eye(3, k=1), np.eye(3)[:, -1:]
+    pred = LTIPredictor(A, B, 1.0, 1.0, 1.0)
+    past = [rng.normal(size=1) for _ in range(pred.L)]
+    y = rng.normal(size=3)
+    n_calls = 2000
+    t = median_time(lambda: [pred.predict(y, past) for _ in range(n_calls)], repeats)
+    rows.append(dict(what="LTI closed form (3.15), n = 3, r + tau = 2 s", per=t / n_calls,
+                     target=TARGET_LTI_PHI))
+    ctrl = ZOHController(A, B, deadbeat_gain(3, 1.0), 1.0, 1.0, 1.0, "compensated", [0.0])
+    t = median_time(lambda: [ctrl.propose(y) for _ in range(n_calls)], repeats)
+    rows.append(dict(what="LTI controller sample K Phi, n = 3, r + tau = 2 s", per=t / n_calls,
+                     target=TARGET_LTI_PHI))
+
+    # nonlinear n = 3: the unicycle under ZOH (T = 1: window of 2 segments + a part) and
+    # Example 2.4 under continuous input (T = 0.5, N = 100: 200 segments of h = 0.005)
+    for module, label, seg_len, n_seg in (
+            ("proposition_4_2", "unicycle (4.12), ZOH T = 1", 1.0, 2),
+            ("example_2_4", "Example 2.4 (2.16)-(2.17), continuous, h = 0.01", 0.01, 200)):
+        model = load_model(path(module))
+        prm = model.params(T=1.0)
+        segs = [(seg_len, rng.normal(size=model.m) * 0.3) for _ in range(n_seg)]
+        x = np.array([1.0, -1.0, 0.5])
+        phi_num = numerical_predictor(model.f)
+        reps = 3 if n_seg > 10 else 50
+        t_closed = median_time(lambda: [model.predictor(x, segs, prm) for _ in range(reps)],
+                               repeats) / reps
+        t_num = median_time(lambda: [phi_num(x, segs, prm) for _ in range(reps)],
+                            repeats) / reps
+        diff = float(np.abs(model.predictor(x, segs, prm) - phi_num(x, segs, prm)).max())
+        rows.append(dict(what=f"{label}: closed form", per=t_closed, target=None))
+        rows.append(dict(what=f"{label}: numerical (DOP853, 1e-10), {n_seg} segments",
+                         per=t_num, target=TARGET_NUMERICAL_PHI, diff=diff))
+    for r in rows:
+        tgt = "" if r["target"] is None else f" (target {r['target'] * 1e6:g} us)"
+        print(f"  {r['what']}: {r['per'] * 1e6:.1f} us{tgt}", flush=True)
+    return rows
+
+
+# -- 4. accuracy against cost -------------------------------------------------------------
+
+def bench_accuracy(case_ids, Ns, repeats):
+    rows = []
+    for cid in case_ids:
+        c = check.case(cid)
+        sc = scenarios.get(c.scenario)
+        header, ref = c.reference()
+        stop = float(ref[-1, 0])
+        prev = None
+        for N in Ns:
+            sets = [*c.sets, f"N={N}"]
+            spec = sc.make(sc.resolve(sets))
+            res = run_loop(spec, stop, engine="inprocess")
+            cost = median_time(lambda spec=spec: run_loop(spec, stop, engine="inprocess"),
+                               repeats)
+            # the reference is on the N = 100 grid: compare on the common points
+            if N >= 100:
+                got, want = res.data[:: N // 100], ref[:, 1:]
+            else:
+                got, want = res.data, ref[:: 100 // N, 1:]
+            cols = [res.names.index(n) for n in header[1:]]
+            err = float(np.abs(got[:, cols] - want).max())
+            order = math.log2(prev / err) if prev and err > 0 and c.kind != "exact" else None
+            prev = err
+            rows.append(dict(case=cid, kind=c.kind, N=N, error=err, cost=cost, order=order))
+            o = "" if order is None else f" order {order:.2f}"
+            print(f"  {cid:26s} N={N:<4d} error {err:.3e} cost {cost * 1e3:7.1f} ms{o}",
+                  flush=True)
+    return rows
+
+
+# -- report ----------------------------------------------------------------------------------
+
+def versions() -> str:
+    import fmpy
+    import pythonfmu
+    import scipy
+
+    return (f"delaycomp {__version__}, Python {platform.python_version()}, numpy "
+            f"{np.__version__}, scipy {scipy.__version__}, fmpy {fmpy.__version__}, "
+            f"pythonfmu {pythonfmu.__version__}")
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({cpu}); "
+            f"load average at start {load:.2f}")
+
+
+def ok(flag: bool) -> str:
+    return "met" if flag else "NOT met"
+
+
+def write_report(path, results, args) -> None:
+    e36, eng, mas, pred, acc = (results[k] for k in
+                                ("ex36", "engines", "master", "predictors", "accuracy"))
+    L = ["# Benchmarks", "",
+         f"Generated by `python bench/run.py{' --quick' if args.quick else ''}` on "
+         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.", "",
+         f"- Machine: {machine()}",
+         f"- Versions: {versions()}",
+         f"- Medians of {args.repeats} repeats; the compared runs are timed alternately. BLAS "
+         "on one thread.", "",
+         "## Targets", "",
+         "| target | measured | status |", "|---|---|---|"]
+    L.append(f"| Example 3.6 (20 s, N = 100, FMUs) >= {TARGET_REALTIME:g}x real time | "
+             f"{e36['realtime']:.0f}x ({e36['fmu'] * 1e3:.0f} ms) | "
+             f"{ok(e36['realtime'] >= TARGET_REALTIME)} |")
+    L.append(f"| in-process >= {TARGET_INPROCESS:g}x faster than the FMU loop (Example 3.6, "
+             f"20 s) | {e36['ratio']:.1f}x ({e36['inprocess'] * 1e3:.1f} ms) | "
+             f"{ok(e36['ratio'] >= TARGET_INPROCESS)} |")
+    worst = max(mas, key=lambda r: r["ratio"])
+    L.append(f"| master <= {TARGET_MASTER:g}x the bare FMU calls | worst "
+             f"{worst['ratio']:.2f}x ({worst['scenario']}) | "
+             f"{ok(worst['ratio'] <= TARGET_MASTER)} |")
+    for r in pred:
+        if r["target"] is not None:
+            L.append(f"| {r['what']} <= {r['target'] * 1e6:g} us | {r['per'] * 1e6:.1f} us | "
+                     f"{ok(r['per'] <= r['target'])} |")
+    L += ["", "## 1. Wall time per simulated second", "",
+          "Each run about 2000 base steps (a whole number of periods, at most the scenario's "
+          "stop time), setup included.", "",
+          "| scenario | N | simulated s | fmu [ms/s] | inprocess [ms/s] | fmu / inprocess |",
+          "|---|---|---|---|---|---|"]
+    for r in eng:
+        L.append(f"| {r['scenario']} | {r['N']} | {r['stop']:g} | {r['fmu'] * 1e3:.2f} | "
+                 f"{r['inprocess'] * 1e3:.2f} | {r['ratio']:.1f} |")
+    L += ["", "## 2. The master's own share", "",
+          "The master (with its recorder) stepping the FMUs, against a bare loop making the "
+          "same fmpy calls in the same order (N = 100, setup excluded).", "",
+          "| scenario | ticks | master [us/tick] | bare calls [us/tick] | ratio |",
+          "|---|---|---|---|---|"]
+    for r in mas:
+        L.append(f"| {r['scenario']} | {r['ticks']} | {r['master'] * 1e6:.1f} | "
+                 f"{r['bare'] * 1e6:.1f} | {r['ratio']:.2f} |")
+    L += ["", "## 3. Predictor cost per sample", "",
+          "| predictor | per sample [us] | target [us] | closed vs numerical |",
+          "|---|---|---|---|"]
+    for r in pred:
+        tgt = "" if r["target"] is None else f"{r['target'] * 1e6:g}"
+        diff = f"{r['diff']:.1e}" if "diff" in r else ""
+        L.append(f"| {r['what']} | {r['per'] * 1e6:.1f} | {tgt} | {diff} |")
+    L += ["", "## 4. Accuracy against cost", "",
+          "Largest pointwise error against the reference trace (in-process engine, which "
+          "equals the FMUs to the bit); `exact` loops are exact at every N, the "
+          "continuous-input loops converge at first order in h.", "",
+          "| case | kind | N | largest error | cost [ms] | observed order |",
+          "|---|---|---|---|---|---|"]
+    for r in acc:
+        o = "" if r["order"] is None else f"{r['order']:.2f}"
+        L.append(f"| {r['case']} | {r['kind']} | {r['N']} | {r['error']:.3e} | "
+                 f"{r['cost'] * 1e3:.1f} | {o} |")
+    L += ["", "![](docs/figures/benchmarks.png)", ""]
+    notes = REPO / "bench" / "NOTES.md"
+    if notes.exists():
+        L += [notes.read_text(encoding="utf-8").rstrip(), ""]
+    Path(path).write_text("\n".join(L), encoding="utf-8")
+
+
+def plot(path, results) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    eng = [r for r in results["engines"] if r["N"] == 100]
+    x = np.arange(len(eng))
+    a1.bar(x - 0.2, [r["fmu"] * 1e3 for r in eng], 0.4, label="fmu")
+    a1.bar(x + 0.2, [r["inprocess"] * 1e3 for r in eng], 0.4, label="inprocess")
+    a1.set_xticks(x, [r["scenario"] for r in eng], rotation=30, ha="right", fontsize=8)
+    a1.set_ylabel("wall time per simulated second [ms] (N = 100)")
+    a1.set_yscale("log")
+    a1.legend()
+    a1.grid(True, axis="y", alpha=0.3)
+    for cid in dict.fromkeys(r["case"] for r in results["accuracy"]):
+        rows = [r for r in results["accuracy"] if r["case"] == cid]
+        a2.loglog([r["cost"] * 1e3 for r in rows], [max(r["error"], 1e-17) for r in rows],
+                  "o-", label=cid)
+    a2.set_xlabel("cost of one run [ms] (in-process)")
+    a2.set_ylabel("largest error against the reference")
+    a2.legend(fontsize=7)
+    a2.grid(True, alpha=0.3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repeats and scenarios")
+    ap.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
+    ap.add_argument("--plot", type=Path, default=REPO / "docs" / "figures" / "benchmarks.png")
+    args = ap.parse_args(argv)
+    args.repeats = 3 if args.quick else 7
+    names = ["example-3.6", "corollary-3.7"] if args.quick else list(scenarios.SCENARIOS)
+    Ns = (10, 100) if args.quick else (10, 100, 1000)
+    results = {}
+    with tempfile.TemporaryDirectory(prefix="delaycomp-bench-") as tmp, single_threaded_blas():
+        os.environ.setdefault("DELAYCOMP_CACHE_DIR", str(Path(tmp) / "cache"))
+        fmu_dir = Path(tmp) / "fmus"
+        print("building FMUs ...", flush=True)
+        for name in names:
+            sc = scenarios.get(name)
+            for kind, config, _ in sc.make(sc.resolve([])).instances.values():
+                fmu_path(kind, config, fmu_dir)
+        print("Example 3.6 against real time", flush=True)
+        results["ex36"] = bench_example_3_6(args.repeats, fmu_dir)
+        print("1. engines", flush=True)
+        results["engines"] = bench_engines(names, Ns, args.repeats, fmu_dir)
+        print("2. master overhead", flush=True)
+        results["master"] = bench_master(names, args.repeats, fmu_dir)
+        print("3. predictors", flush=True)
+        results["predictors"] = bench_predictors(args.repeats)
+        print("4. accuracy against cost", flush=True)
+        cases = (["example-3.6/fig3", "example-2.4/default"] if args.quick else
+                 ["example-3.6/fig3", "example-3.8/default", "example-2.4/default",
+                  "corollary-4.1/default"])
+        results["accuracy"] = bench_accuracy(cases, (50, 100, 200, 400),
+                                             max(1, args.repeats // 2))
+    write_report(args.out, results, args)
+    plot(args.plot, results)
+    print(f"wrote {args.out} and {args.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
