@@ -96,8 +96,9 @@ def bench_engines(names, Ns, repeats, fmu_dir):
             for kind, config, _ in spec.instances.values():
                 fmu_path(kind, config, fmu_dir)  # built before timing
             med = alternate({
-                "fmu": lambda: run_loop(spec, stop, fmu_dir),
-                "inprocess": lambda: run_loop(spec, stop, engine="inprocess"),
+                "fmu": lambda spec=spec, stop=stop: run_loop(spec, stop, fmu_dir),
+                "inprocess": lambda spec=spec, stop=stop: run_loop(spec, stop,
+                                                                   engine="inprocess"),
             }, repeats)
             rows.append(dict(scenario=name, N=N, stop=stop,
                              fmu=med["fmu"] / stop, inprocess=med["inprocess"] / stop,
@@ -221,10 +222,10 @@ def bench_predictors(repeats):
         x = np.array([1.0, -1.0, 0.5])
         phi_num = numerical_predictor(model.f)
         reps = 3 if n_seg > 10 else 50
-        t_closed = median_time(lambda: [model.predictor(x, segs, prm) for _ in range(reps)],
-                               repeats) / reps
-        t_num = median_time(lambda: [phi_num(x, segs, prm) for _ in range(reps)],
-                            repeats) / reps
+        t_closed = median_time(lambda phi=model.predictor, x=x, segs=segs, prm=prm, reps=reps:
+                               [phi(x, segs, prm) for _ in range(reps)], repeats) / reps
+        t_num = median_time(lambda phi=phi_num, x=x, segs=segs, prm=prm, reps=reps:
+                            [phi(x, segs, prm) for _ in range(reps)], repeats) / reps
         diff = float(np.abs(model.predictor(x, segs, prm) - phi_num(x, segs, prm)).max())
         rows.append(dict(what=f"{label}: closed form", per=t_closed, target=None))
         rows.append(dict(what=f"{label}: numerical (DOP853, 1e-10), {n_seg} segments",
@@ -249,7 +250,8 @@ def bench_accuracy(case_ids, Ns, repeats):
             sets = [*c.sets, f"N={N}"]
             spec = sc.make(sc.resolve(sets))
             res = run_loop(spec, stop, engine="inprocess")
-            cost = median_time(lambda spec=spec: run_loop(spec, stop, engine="inprocess"),
+            cost = median_time(lambda spec=spec, stop=stop: run_loop(spec, stop,
+                                                                     engine="inprocess"),
                                repeats)
             # the reference is on the N = 100 grid: compare on the common points
             if N >= 100:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import ode
 from scipy.linalg import expm
 
 from .lti import flow, predict_by_integration
@@ -39,22 +39,43 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
     """Solve ``x' = f(x, u, p)`` over piecewise-constant input segments.
 
     One solve per segment, so the integrator never steps over an input discontinuity.
-    Raises :class:`IntegrationError` if a solve fails or the state stops being finite.
+    The solver is Hairer's DOP853 (explicit Runge-Kutta 8(5,3) with step control), through
+    scipy's Fortran binding, restarted at each segment: per segment it costs a few
+    microseconds plus the evaluations of ``f``, where ``solve_ivp``'s Python stepping cost
+    five to eight times more (measured). Raises :class:`IntegrationError` if a solve fails
+    or the state stops being finite.
     """
     z = np.array(x, dtype=float)
+    solver = ode(lambda _t, s, u: f(s, u, p)).set_integrator(
+        "dop853", rtol=rtol, atol=atol, nsteps=_MAX_STEPS)
     elapsed = 0.0
     for duration, u in segments:
         if duration <= 0:
             continue
         u = np.asarray(u, dtype=float)
-        sol = solve_ivp(lambda _t, s, u=u: f(s, u, p), (0.0, duration), z, method="DOP853",
-                        rtol=rtol, atol=atol)
-        if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+        try:
+            solver.set_initial_value(z, 0.0).set_f_params(u)
+            z = solver.integrate(duration)
+            ok = solver.successful()
+            reason = _DOP853_MESSAGES.get(solver.get_return_code(), "unknown failure")
+        except Exception as exc:  # noqa: BLE001 - f raised, or a solver warning as error
+            ok, reason = False, f"{type(exc).__name__}: {exc}"
+        if ok and not np.isfinite(z).all():
+            ok, reason = False, "the state is not finite"
+        if not ok:
             raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "
-                                   f"(input {u.tolist()}): {sol.message}")
-        z = sol.y[:, -1]
+                                   f"(input {u.tolist()}): {reason}")
         elapsed += duration
-    return z
+    return np.array(z, dtype=float)
+
+
+#: DOP853's step budget per segment: a segment is at most a few sampling periods, so this
+#: bound is reached only by a solve that cannot progress (stiff or blowing up).
+_MAX_STEPS = 100_000
+_DOP853_MESSAGES = {1: "computation successful", 2: "computation successful",
+                    -1: "input is not consistent", -2: "larger nsteps is needed",
+                    -3: "step size becomes too small",
+                    -4: "problem is probably stiff (interrupted)"}
 
 
 def numerical_predictor(f: Callable, rtol: float = DEFAULT_TOL,

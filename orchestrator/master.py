@@ -276,7 +276,7 @@ class Master:
                 comp.do_step(t, h)
         except SimulationError:
             raise
-        except Exception as exc:  # noqa: BLE001 - reported with the component's reason
+        except Exception as exc:
             reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
             raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}") from exc
         self.k = k + 1
