@@ -84,9 +84,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
                    help="a swept parameter (repeatable)")
     s.add_argument("--stop-time", type=float, default=None, metavar="S")
-    s.add_argument("--engine", choices=("inprocess", "fmu"), default="fmu",
-                   help="fmu: the built FMUs (default); inprocess: the same slaves without "
-                        "the FMI layer")
+    s.add_argument("--engine", choices=("inprocess", "fmu"), default="inprocess",
+                   help="inprocess (default): the FMUs' slaves without the FMI layer, equal "
+                        "to the FMU run to the bit; fmu: the built FMUs")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core; 1 runs in this "
                         "process)")
