@@ -18,7 +18,8 @@ from orchestrator.master import Connection, Master, Recorder, SimulationError
 from .build import BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu, model_identifier
 from .scenarios import LoopSpec, ParameterError, on_grid
 
-__all__ = ["Result", "SimulationError", "default_fmu_dir", "fmu_path", "run_loop"]
+__all__ = ["Result", "SimulationError", "default_fmu_dir", "fmu_path", "make_master",
+           "parameters_of", "run_loop"]
 
 
 def _source_digest() -> str:
@@ -94,6 +95,23 @@ def stop_ticks(stop_time: float, T: float, N: int) -> int:
     return round(stop_time / h)
 
 
+def make_master(spec: LoopSpec, fmu_dir: Path | None = None,
+                t0: float = 0.0) -> tuple[Master, Recorder]:
+    """A master over fresh FMU components of ``spec``, with a recorder of its signals
+    (not yet set up: call ``master.setup(stop_time, parameters_of(spec))``)."""
+    components = [FmuComponent(name, fmu_path(kind, config, fmu_dir))
+                  for name, (kind, config, _) in spec.instances.items()]
+    master = Master(components, [Connection.parse(c) for c in spec.connections],
+                    spec.T, spec.N, t0)
+    recorder = Recorder(master, spec.recorded)
+    master.add_observer(recorder)
+    return master, recorder
+
+
+def parameters_of(spec: LoopSpec) -> dict[str, dict]:
+    return {name: params for name, (_, _, params) in spec.instances.items()}
+
+
 def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0) -> Result:
     """Co-simulate ``spec`` from ``t0`` to ``stop_time`` with one row per base step.
@@ -102,16 +120,11 @@ def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
     failure in ``message``.
     """
     ticks = stop_ticks(stop_time - t0, spec.T, spec.N)
-    components = [FmuComponent(name, fmu_path(kind, config, fmu_dir))
-                  for name, (kind, config, _) in spec.instances.items()]
-    master = Master(components, [Connection.parse(c) for c in spec.connections],
-                    spec.T, spec.N, t0)
-    recorder = Recorder(master, spec.recorded)
-    master.add_observer(recorder)
+    master, recorder = make_master(spec, fmu_dir, t0)
+    components = list(master.components.values())
     success, message = True, ""
     try:
-        master.setup(stop_time, {name: params for name, (_, _, params)
-                                 in spec.instances.items()})
+        master.setup(stop_time, parameters_of(spec))
         master.initialize()
         master.run_until(ticks)
     except SimulationError as exc:

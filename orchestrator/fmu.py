@@ -180,6 +180,33 @@ class FmuComponent:
             self._failed(exc)
             raise
 
+    # -- FMU state (canGetAndSetFMUstate, canSerializeFMUstate) ------------------------
+    def get_state(self) -> bytes:
+        """The instance's complete state, serialized (``fmi2GetFMUstate`` and
+        ``fmi2SerializeFMUstate``; the FMU-side state is freed again)."""
+        state = self._call(self.fmu.getFMUstate)
+        try:
+            return bytes(self._call(self.fmu.serializeFMUstate, state))
+        finally:
+            self._call(self.fmu.freeFMUstate, state)
+
+    def set_state(self, data: bytes) -> None:
+        """Restore a state from :meth:`get_state`, possibly of another instance."""
+        state = self._call(self.fmu.deSerializeFMUstate, data)
+        try:
+            self._call(self.fmu.setFMUstate, state)
+        finally:
+            self._call(self.fmu.freeFMUstate, state)
+        if self.worst_status >= 3:
+            raise FmuRefused(self.last_message or "the FMU refused the state")
+
+    def _call(self, fn, *args):
+        try:
+            return fn(*args)
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
+
     def terminate(self) -> None:
         try:
             if self.fmu is not None:

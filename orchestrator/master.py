@@ -190,6 +190,19 @@ class Master:
         self.k = 0
         self._propagate()
 
+    def get_state(self) -> dict:
+        """The tick and every component's state (components need ``get_state``)."""
+        return {"k": self.k, "components": {
+            name: self._guard(c, self.k, c.get_state) for name, c in self.components.items()}}
+
+    def set_state(self, state: dict) -> None:
+        """Go back (or forward) to a state from :meth:`get_state`; observers are not told
+        again about the restored tick (they saw it when it was first reached)."""
+        self.k = int(state["k"])
+        for name, c in self.components.items():
+            self._guard(c, self.k, c.set_state, state["components"][name])
+        self._propagate(record=False)
+
     def _guard(self, comp, k, fn, *args):
         try:
             return fn(*args)
@@ -200,7 +213,7 @@ class Master:
             raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}"
                                   ) from exc
 
-    def _propagate(self) -> None:
+    def _propagate(self, record: bool = True) -> None:
         """Bring every output and input to the values of the current tick."""
         slots = self._slots
         k = self.k
@@ -217,6 +230,8 @@ class Master:
                 c.set_inputs(ins, [slots[s] for s in islots])
         except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             self._fail(exc, k)
+        if not record:
+            return
         t = self.time_of(k)
         for obs in self._observers:
             obs.record(k, t, slots)

@@ -78,9 +78,6 @@ class DelaycompControllerLTI(TableSlave):
                              depends_on=self.input_names,
                              variability=Fmi2Variability.discrete)
 
-    def setup_experiment(self, start_time, stop_time, tolerance):
-        self.t0 = float(start_time)
-
     def _setup(self):
         for name in ("T", "r", "tau"):
             check_finite(name, getattr(self, name))
@@ -101,6 +98,16 @@ class DelaycompControllerLTI(TableSlave):
         self._next = 0
         self._at_sample = True
         self._proposal = None
+
+    def _hidden_state(self) -> dict:
+        return {"ctrl": self.ctrl.get_state(), "next": self._next,
+                "at_sample": self._at_sample}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.ctrl.set_state(hidden["ctrl"])
+        self._next = int(hidden["next"])
+        self._at_sample = bool(hidden["at_sample"])
+        self._proposal = None  # a cache: recomputed from the restored state
 
     def _output(self) -> np.ndarray:
         if self.ctrl is None:  # not initialized, or refused its parameters

@@ -81,9 +81,6 @@ class ModelControllerSlave(TableSlave):
             self.real_output(name, (lambda j=j: float(self._output()[j])), "control",
                              depends_on=inputs)
 
-    def setup_experiment(self, start_time, stop_time, tolerance):
-        self.t0 = float(start_time)
-
     def _setup(self):
         for name in ("T", "r", "tau", "tolerance"):
             check_finite(name, getattr(self, name))
@@ -107,6 +104,12 @@ class ModelControllerSlave(TableSlave):
                      f"{self.ctrl.padding!r} s")
         if hasattr(self.ctrl, "t0"):
             self.ctrl.t0 = self.t0
+
+    def _hidden_state(self) -> dict:
+        return {"ctrl": self.ctrl.get_state()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.ctrl.set_state(hidden["ctrl"])
 
     def _output(self):
         if self.ctrl is None:

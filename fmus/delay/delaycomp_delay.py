@@ -49,6 +49,17 @@ class DelaycompDelay(TableSlave):
         self.line = None
         self._h = None
 
+    def _hidden_state(self) -> dict:
+        if self.line is None:
+            return {"h": None}
+        return {"h": self._h, "D": self.line.D, "buffer": self.line.get_state()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        if hidden["h"] is not None:
+            self.line = DelayLine(self.n, int(hidden["D"]), self.u0)
+            self.line.set_state(hidden["buffer"])
+            self._h = float(hidden["h"])
+
     def _output(self):
         if self.line is not None:
             return self.line.output(self.u)

@@ -58,6 +58,12 @@ class ModelPlantSlave(TableSlave):
             self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
         self.plant = ModelPlant(self.model, self.values, self.x0, self.tolerance)
 
+    def _hidden_state(self) -> dict:
+        return {"x": self.plant.x.tolist()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.plant.x = np.array(hidden["x"], dtype=float).reshape(self.model.n)
+
     def _step(self, t, h):
         if not np.all(np.isfinite(self.u)):
             self.fail(f"input {list(self.model.inputs)} = {self.u.tolist()} at t = {t!r} is "

@@ -60,6 +60,12 @@ class DelaycompPlantLTI(TableSlave):
         self.x = self.x0.copy()
         self._h = None
 
+    def _hidden_state(self) -> dict:
+        return {"x": self.x.tolist()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.x = np.array(hidden["x"], dtype=float).reshape(self.n)
+
     def _parameter_values(self):
         for v in self.vars.values():
             if v.causality.name == "parameter":
