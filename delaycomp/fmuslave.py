@@ -37,6 +37,7 @@ import uuid
 from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
 
+import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
@@ -66,6 +67,26 @@ def _plain(value):
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"{type(value).__name__} is not part of an FMU state")
+
+
+def check_inputs(names, values, t: float) -> None:
+    """Refuse a non-finite input value, naming the input, its value and the time."""
+    for name, value in zip(names, values):
+        if not math.isfinite(value):
+            raise ParameterError(f"input {name} = {float(value)!r} at t = {t!r} is not "
+                                 "allowed: must be a finite number")
+
+
+def check_model_parameters(model, values: dict) -> None:
+    """Numbers finite, strings among the model's ``CHOICES`` (when it declares them)."""
+    for name, value in values.items():
+        if isinstance(value, str):
+            allowed = model.choices.get(name)
+            if allowed is not None and value not in allowed:
+                raise ParameterError(f"{name} = {value!r} is not allowed: must be one of "
+                                     f"{', '.join(allowed)}")
+        else:
+            check_finite(name, float(value))
 
 
 class TableSlave(Fmi2Slave):
@@ -186,7 +207,10 @@ class TableSlave(Fmi2Slave):
             self.log(f"refusing to step: {self.error}", Fmi2Status.discard)
             return False
         try:
-            self._step(current_time, step_size)
+            # The host's warning filters may turn numpy's overflow warnings into exceptions;
+            # the slaves check their results for non-finite values themselves.
+            with np.errstate(all="ignore"):
+                self._step(current_time, step_size)
         except ParameterError as exc:
             self._refuse(str(exc))
             return False

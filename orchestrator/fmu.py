@@ -168,10 +168,13 @@ class FmuComponent:
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
         try:
-            return self.fmu.getReal(self._vrs(names))
+            values = self.fmu.getReal(self._vrs(names))
         except FMICallException as exc:
             self._failed(exc)
             raise
+        if self.worst_status >= 3:  # it logged an error computing them: do not use them
+            raise FmuRefused(self.last_message or "the FMU logged an error")
+        return values
 
     def do_step(self, t: float, h: float) -> None:
         try:

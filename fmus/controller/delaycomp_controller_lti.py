@@ -9,7 +9,7 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.controller import ZOHController
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.lti import MODES, split_delay
 from delaycomp.names import indexed
 
@@ -119,6 +119,7 @@ class DelaycompControllerLTI(TableSlave):
         return self._proposal
 
     def _step(self, current_time: float, step_size: float) -> None:
+        check_inputs(self.input_names, self.y, current_time)
         if self._at_sample:
             self.ctrl.commit(self._output())
             self._next += 1

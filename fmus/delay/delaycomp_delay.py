@@ -6,7 +6,7 @@ The maths is :class:`delaycomp.delayline.DelayLine`. See README.md beside this f
 from __future__ import annotations
 
 from delaycomp.delayline import DelayLine, steps_of
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.names import indexed
 
 
@@ -76,4 +76,5 @@ class DelaycompDelay(TableSlave):
         elif abs(step_size - self._h) > 1e-12 * self._h:
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
                       f"communication step, {self._h!r}")
+        check_inputs(self.input_names, self.u, t)
         self.line.push(self.u)
