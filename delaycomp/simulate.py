@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import json
 import math
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,7 +17,16 @@ import delaycomp
 from orchestrator.fmu import FmuComponent
 from orchestrator.master import Connection, Master, Recorder, SimulationError
 
-from .build import BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu, model_identifier
+from .build import (
+    BUNDLED_MODULES,
+    CONFIG_NAME,
+    DEFAULT_CONFIG,
+    FMUS,
+    PACKAGE_DIR,
+    build_fmu,
+    model_identifier,
+)
+from .errors import BadFileError
 from .scenarios import LoopSpec, ParameterError, on_grid
 
 __all__ = ["Result", "SimulationError", "default_fmu_dir", "fmu_path", "make_master",
@@ -50,12 +61,62 @@ def fmu_file_name(kind: str, config: dict) -> str:
 
 
 def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
-    """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing."""
+    """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing.
+
+    An FMU already there is checked first (:func:`check_fmu`): a corrupt or foreign file
+    raises :class:`~delaycomp.errors.BadFileError` before anything runs.
+    """
     fmu_dir = Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
+    if fmu_dir.exists() and not fmu_dir.is_dir():
+        raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
     path = fmu_dir / fmu_file_name(kind, config)
     if not path.exists():
         build_fmu(kind, fmu_dir, config, path.name)
+    else:
+        check_fmu(path, kind, config)
     return path
+
+
+def check_fmu(path: Path, kind: str, config: dict) -> None:
+    """Refuse an FMU that is not a zip, has no readable modelDescription, is of another
+    model, or was built for other dimensions or another delaycomp version."""
+    from fmpy import read_model_description
+
+    ident = model_identifier(kind, config)
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            if "modelDescription.xml" not in names:
+                raise BadFileError(path, "is not an FMU: it has no modelDescription.xml")
+            built = zf.read(f"resources/{CONFIG_NAME}") if (
+                f"resources/{CONFIG_NAME}" in names) else None
+        md = read_model_description(str(path), validate=False)
+    except BadFileError:
+        raise
+    except zipfile.BadZipFile:
+        raise BadFileError(path, "is not an FMU: not a zip archive") from None
+    except Exception as exc:  # noqa: BLE001 - any parse failure is a bad file
+        raise BadFileError(path, f"is not a readable FMU: {type(exc).__name__}: {exc}"
+                           ) from None
+    found = md.coSimulation.modelIdentifier if md.coSimulation else None
+    if found != ident:
+        what = f"model {found!r}" if found else "a model without co-simulation"
+        raise BadFileError(path, f"is an FMU of {what}, expected {ident!r} (delete it or use "
+                                 "another --fmu-dir to rebuild)")
+    if built is None:
+        raise BadFileError(path, f"is not a delaycomp FMU: no resources/{CONFIG_NAME}")
+    try:
+        cfg = json.loads(built)
+    except ValueError:
+        raise BadFileError(path, f"has a corrupt resources/{CONFIG_NAME}") from None
+    if cfg.get("version") != delaycomp.__version__:
+        raise BadFileError(path, f"was built by delaycomp {cfg.get('version')!r}, this is "
+                                 f"{delaycomp.__version__!r} (delete it to rebuild)")
+    wanted = {k: v for k, v in config.items() if k != "model"}
+    differs = {k: cfg.get(k) for k, v in wanted.items() if cfg.get(k) != v}
+    if differs:
+        raise BadFileError(path, f"was built for {differs}, this loop needs "
+                                 f"{ {k: wanted[k] for k in differs} }")
 
 
 @dataclass

@@ -115,7 +115,14 @@ class DelaycompControllerLTI(TableSlave):
         if not self._at_sample:
             return self.ctrl.held
         if self._proposal is None:
-            self._proposal = self.ctrl.propose(self.y)
+            with np.errstate(all="ignore"):  # checked below
+                u = self.ctrl.propose(self.y)
+            if not np.all(np.isfinite(u)) and np.all(np.isfinite(self.y)) \
+                    and self.error is None:
+                t = self.t0 + self._next * self.T
+                self._refuse(f"control {self.output_names} = {u.tolist()} at t = {t!r} is "
+                             "not allowed: must be finite (the feedback overflowed)")
+            self._proposal = u
         return self._proposal
 
     def _step(self, current_time: float, step_size: float) -> None:
