@@ -156,15 +156,16 @@ def stop_ticks(stop_time: float, T: float, N: int) -> int:
     return round(stop_time / h)
 
 
-def make_master(spec: LoopSpec, fmu_dir: Path | None = None,
-                t0: float = 0.0) -> tuple[Master, Recorder]:
-    """A master over fresh FMU components of ``spec``, with a recorder of its signals
-    (not yet set up: call ``master.setup(stop_time, parameters_of(spec))``)."""
+def make_master(spec: LoopSpec, fmu_dir: Path | None = None, t0: float = 0.0,
+                every: int = 1) -> tuple[Master, Recorder]:
+    """A master over fresh FMU components of ``spec``, with a recorder of its signals at
+    every ``every``-th tick (not yet set up: call ``master.setup(stop_time,
+    parameters_of(spec))``)."""
     components = [FmuComponent(name, fmu_path(kind, config, fmu_dir))
                   for name, (kind, config, _) in spec.instances.items()]
     master = Master(components, [Connection.parse(c) for c in spec.connections],
                     spec.T, spec.N, t0)
-    recorder = Recorder(master, spec.recorded)
+    recorder = Recorder(master, spec.recorded, every)
     master.add_observer(recorder)
     return master, recorder
 

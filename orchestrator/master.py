@@ -275,15 +275,24 @@ class Master:
 
 
 class Recorder:
-    """Observer that keeps selected outputs at every tick, for CSV and plots."""
+    """Observer that keeps selected outputs at every ``every``-th tick, for CSV and plots.
 
-    def __init__(self, master: Master, signals: Sequence[tuple[str, str]]):
+    It keeps every row it records (memory grows with the run); ``every > 1`` decimates a
+    long run. The components themselves keep bounded state only (README, "Reliability").
+    """
+
+    def __init__(self, master: Master, signals: Sequence[tuple[str, str]], every: int = 1):
+        if not (isinstance(every, int) and every >= 1):
+            raise ValueError(f"every = {every!r} is not allowed: must be a positive integer")
         self.names = [f"{i}.{v}" for i, v in signals]
         self._idx = [master.slot(i, v) for i, v in signals]
+        self.every = every
         self.times: list[float] = []
         self.rows: list[list[float]] = []
 
     def record(self, k: int, t: float, slots: Sequence[float]) -> None:
+        if k % self.every:
+            return
         self.times.append(t)
         self.rows.append([slots[i] for i in self._idx])
 
