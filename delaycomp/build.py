@@ -55,18 +55,21 @@ class FmuSpec:
         return self.folder / self.script
 
 
+#: Every FMU saves and restores its complete state, hidden buffers included
+#: (``delaycomp.fmuslave``, point 6), and serializes it.
+_STATE = (("canGetAndSetFMUstate", True), ("canSerializeFMUstate", True))
+#: The delay and the controllers run on a fixed communication step.
+_FIXED_STEP = (("canHandleVariableCommunicationStepSize", False),)
+
 FMUS: dict[str, FmuSpec] = {
-    "plant": FmuSpec("plant", "delaycomp_plant_lti.py", "DelaycompPlantLTI"),
-    "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay",
-                     (("canHandleVariableCommunicationStepSize", False),)),
+    "plant": FmuSpec("plant", "delaycomp_plant_lti.py", "DelaycompPlantLTI", _STATE),
+    "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay", _FIXED_STEP + _STATE),
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
-                          "DelaycompControllerLTI",
-                          (("canHandleVariableCommunicationStepSize", False),)),
-    "model_plant": FmuSpec("plant", "delaycomp_model_plant.py", "DelaycompPlant",
+                          "DelaycompControllerLTI", _FIXED_STEP + _STATE),
+    "model_plant": FmuSpec("plant", "delaycomp_model_plant.py", "DelaycompPlant", _STATE,
                            template="ModelPlantSlave"),
     "model_controller": FmuSpec("controller", "delaycomp_model_controller.py",
-                                "DelaycompController",
-                                (("canHandleVariableCommunicationStepSize", False),),
+                                "DelaycompController", _FIXED_STEP + _STATE,
                                 template="ModelControllerSlave"),
 }
 

@@ -28,8 +28,12 @@ import time
 from pathlib import Path
 
 from . import __version__, scenarios
+from .errors import BadFileError
 from .model import ModelError
 from .scenarios import ParameterError
+
+#: suffix of the CSV of a failed run (rows up to the failure): never read as a result
+PARTIAL_SUFFIX = ".partial"
 
 
 class UsageError(Exception):
@@ -132,6 +136,20 @@ def _cmd_run(args) -> int:
     started = time.perf_counter()
     result = run_loop(scenario.make(params), stop, args.fmu_dir, engine=args.engine)
     elapsed = time.perf_counter() - started
+    for note in result.notes:
+        print(f"note: {note}")
+    if not result.success:
+        # Nothing that looks like a result: no FILE.csv, no plot. The rows recorded before
+        # the failure go to FILE.csv.partial, for diagnosis.
+        where = ""
+        if args.out and len(result.times):
+            partial = args.out.with_name(args.out.name + PARTIAL_SUFFIX)
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            result.write_csv(partial)
+            where = (f"; {len(result.times)} rows to t = {result.times[-1]:.6g} kept in "
+                     f"{partial}")
+        print(f"delaycomp: error: {result.message}{where}", file=sys.stderr)
+        return 1
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         result.write_csv(args.out)
@@ -140,14 +158,9 @@ def _cmd_run(args) -> int:
 
         args.plot.parent.mkdir(parents=True, exist_ok=True)
         plot_result(result, args.plot, f"{scenario.title}\n" + _describe(params))
-    for note in result.notes:
-        print(f"note: {note}")
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
     print(f"{scenario.name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")
-    if not result.success:
-        print(f"delaycomp: error: {result.message}", file=sys.stderr)
-        return 1
     return 0
 
 
@@ -233,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "list": _cmd_list}[args.command]
         return handler(args)
-    except (UsageError, ParameterError, ModelError) as exc:
+    except (UsageError, ParameterError, ModelError, BadFileError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -16,7 +16,12 @@ module only declares its variable table and calls the maths:
    exception into fmi2Fatal and drops the Python object (a later fmi2Terminate crashes the
    host, and repeated fatal errors have crashed the interpreter). Instead a bad parameter
    is logged with status error when initialization ends, and every later ``doStep``
-   returns fmi2Discard with the reason logged; a fault during a step does the same.
+   returns fmi2Discard with the reason logged; a fault during a step does the same;
+6. the FMU state (``fmi2GetFMUstate`` and its serialization) holds every registered
+   variable that has a setter, the start time, whether the instance is initialized, its
+   error, and the hidden state of the maths objects (delay buffers, input histories,
+   controller states and tick counters) that each subclass returns from ``_hidden_state``.
+   The state is plain JSON (floats written with ``repr``, so a round trip is exact).
 
 Subclasses implement ``_setup()`` (check parameters, build the maths objects) and
 ``_step(t, h)`` (the maths of one communication step).
@@ -32,6 +37,7 @@ import uuid
 from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
 
+import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
@@ -56,6 +62,33 @@ def check_finite(name: str, value: float) -> float:
     return value
 
 
+def _plain(value):
+    """JSON for numpy scalars and arrays (exact: floats are written with ``repr``)."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not part of an FMU state")
+
+
+def check_inputs(names, values, t: float) -> None:
+    """Refuse a non-finite input value, naming the input, its value and the time."""
+    for name, value in zip(names, values):
+        if not math.isfinite(value):
+            raise ParameterError(f"input {name} = {float(value)!r} at t = {t!r} is not "
+                                 "allowed: must be a finite number")
+
+
+def check_model_parameters(model, values: dict) -> None:
+    """Numbers finite, strings among the model's ``CHOICES`` (when it declares them)."""
+    for name, value in values.items():
+        if isinstance(value, str):
+            allowed = model.choices.get(name)
+            if allowed is not None and value not in allowed:
+                raise ParameterError(f"{name} = {value!r} is not allowed: must be one of "
+                                     f"{', '.join(allowed)}")
+        else:
+            check_finite(name, float(value))
+
+
 class TableSlave(Fmi2Slave):
     """Base of the project's slaves: configuration, pinned GUID, declared dependencies."""
 
@@ -71,18 +104,30 @@ class TableSlave(Fmi2Slave):
         # inside an FMU it is read from the resources folder.
         config = kwargs.get("config")
         self.config = dict(config) if config is not None else self._read_config()
+        #: why this instance refuses to step (None while it is healthy)
+        self.error: str | None = None
+        #: a fault found at instantiation (version clash); survives re-initialization
+        self.instantiation_error: str | None = None
         built_with = self.config.get("version")
         if built_with != delaycomp.__version__:
-            raise RuntimeError(
-                f"{type(self).__name__}: built with delaycomp {built_with}, but delaycomp "
-                f"{delaycomp.__version__} is already loaded in this process"
+            # Raising here would be fmi2Fatal with the object dropped (see point 5): refuse
+            # instead. The message reaches the host with the first FMI call after
+            # fmi2Instantiate; every later initialization and step is refused.
+            self.instantiation_error = (
+                f"version clash: this FMU bundles delaycomp {built_with!r}, but delaycomp "
+                f"{delaycomp.__version__!r} (from {os.path.dirname(delaycomp.__file__)}) is "
+                "already loaded in this process; pythonfmu FMUs share one interpreter, so "
+                "this FMU would run the other version's code. Load FMUs of one delaycomp "
+                "version per process"
             )
+            self._refuse(self.instantiation_error)
         key = json.dumps({"model": type(self).__name__, "config": self.config}, sort_keys=True)
         self.guid = uuid.uuid5(_GUID_NAMESPACE, key)
         #: output name -> names of the inputs it depends on at the same instant
         self.dependencies: dict[str, list[str]] = {}
-        #: why this instance refuses to step (None while it is healthy)
-        self.error: str | None = None
+        self.t0 = 0.0
+        #: has exitInitializationMode built the maths objects?
+        self.initialized = False
 
     def _read_config(self) -> dict:
         if self.resources is None:
@@ -143,10 +188,18 @@ class TableSlave(Fmi2Slave):
         self.log(message, Fmi2Status.error)
 
     # -- FMI entry points ----------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time, tolerance):
+        self.t0 = float(start_time)
+
     def exit_initialization_mode(self):
+        if self.instantiation_error is not None:
+            self._refuse(self.instantiation_error)
+            return
         self.error = None
+        self.initialized = False
         try:
             self._setup()
+            self.initialized = True
         except ParameterError as exc:
             self._refuse(str(exc))
         except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
@@ -157,7 +210,10 @@ class TableSlave(Fmi2Slave):
             self.log(f"refusing to step: {self.error}", Fmi2Status.discard)
             return False
         try:
-            self._step(current_time, step_size)
+            # The host's warning filters may turn numpy's overflow warnings into exceptions;
+            # the slaves check their results for non-finite values themselves.
+            with np.errstate(all="ignore"):
+                self._step(current_time, step_size)
         except ParameterError as exc:
             self._refuse(str(exc))
             return False
@@ -168,6 +224,55 @@ class TableSlave(Fmi2Slave):
 
     def _setup(self) -> None:
         raise NotImplementedError
+
+    # -- FMU state -----------------------------------------------------------------------
+    def _hidden_state(self) -> dict:
+        """State of the maths objects that no FMI variable holds (JSON-friendly)."""
+        return {}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        """Inverse of :meth:`_hidden_state`, called after ``_setup`` rebuilt the maths."""
+
+    def _get_fmu_state(self) -> dict:
+        try:
+            values = {v.name: v.getter() for v in self.vars.values() if v.setter is not None}
+            state = {"model": type(self).__name__, "values": values, "t0": self.t0,
+                     "initialized": self.initialized, "error": self.error,
+                     "hidden": self._hidden_state() if self.initialized else None}
+            # a deep copy: later steps must not change a saved state
+            return json.loads(json.dumps(state, default=_plain))
+        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            message = f"saving the FMU state failed: {type(exc).__name__}: {exc}"
+            self.log(message, Fmi2Status.error)
+            return {"model": None, "invalid": message}
+
+    def _set_fmu_state(self, state: dict) -> None:
+        try:
+            if "invalid" in state:
+                raise ParameterError(state["invalid"])
+            if state.get("model") != type(self).__name__:
+                raise ParameterError(f"FMU state of model {state.get('model')!r} is not "
+                                     f"allowed: this FMU is {type(self).__name__}")
+            by_name = {v.name: v for v in self.vars.values()}
+            for name, value in state["values"].items():
+                by_name[name].setter(value)
+            self.t0 = float(state["t0"])
+            self.initialized = False
+            if state["initialized"]:
+                self._setup()
+                self._restore_hidden(state["hidden"])
+                self.initialized = True
+            self.error = state["error"]
+        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            self._refuse(f"restoring the FMU state failed: {type(exc).__name__}: {exc}")
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: dict) -> bytes:
+        return json.dumps(state, sort_keys=True).encode("utf-8")
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict:
+        return json.loads(state.decode("utf-8"))
 
     def _step(self, t: float, h: float) -> None:
         raise NotImplementedError

@@ -6,6 +6,7 @@ A model module defines, at module level::
     INPUTS = ("u",)                  # input names, in order
     CONTROL = "zoh"                  # "continuous" (Theorem 2.1) or "zoh" (Theorem 3.2)
     PARAMETERS = {"a": 1.0}          # optional: numbers or strings the functions read
+    CHOICES = {"law": ("a", "b")}    # optional: the allowed values of string parameters
 
     def f(x, u, p): ...              # dynamics x' = f(x, u), forward complete
     def k(t, x, p): ...              # CONTROL = "continuous": nominal feedback k(t, x)
@@ -51,6 +52,8 @@ class Model:
     predictor: Callable | None = None
     step: Callable | None = None
     source: Path | None = None
+    #: allowed values of string parameters (optional ``CHOICES`` of the module)
+    choices: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -92,6 +95,11 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
     for key, value in params.items():
         if not _NAME.match(str(key)) or not isinstance(value, (int, float, str)):
             raise ModelError(f"model {label}: PARAMETERS[{key!r}] must be a number or a string")
+    choices = {key: tuple(values) for key, values in getattr(module, "CHOICES", {}).items()}
+    for key, values in choices.items():
+        if key not in params or params[key] not in values:
+            raise ModelError(f"model {label}: CHOICES[{key!r}] must list the values of a "
+                             "string parameter, its default among them")
     f, k = need("f"), need("k")
     arity = len(inspect.signature(k).parameters)
     if arity != (3 if control == "continuous" else 2):
@@ -99,7 +107,8 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
         raise ModelError(f"model {label}: CONTROL = {control!r} needs {form}")
     return Model(label, states, inputs, control, f, k, params,
                  getattr(module, "predictor", None), getattr(module, "step", None),
-                 Path(module.__file__) if getattr(module, "__file__", None) else None)
+                 Path(module.__file__) if getattr(module, "__file__", None) else None,
+                 choices)
 
 
 def load_model(path: str | Path) -> Model:

@@ -108,6 +108,16 @@ class _Base:
     def at_sample(self) -> bool:
         return self.k_tick % self.N == 0
 
+    # -- state, for FMU get/set state -------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything that changes while stepping, as JSON-friendly values."""
+        return {"k_tick": self.k_tick, "history": self.history.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        self.k_tick = int(state["k_tick"])
+        self.history.set_state(state["history"])
+        self._cache = None  # a memo of output(y): recomputed from the restored state
+
 
 class ContinuousController(_Base):
     """Theorem 2.1 on the base grid (see the module docstring)."""
@@ -134,6 +144,14 @@ class ContinuousController(_Base):
 
     def output(self, y) -> np.ndarray:
         return self._evaluate(y)[1]
+
+    def get_state(self) -> dict:
+        return {**super().get_state(), "z": self.z.tolist(), "t0": self.t0}
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        self.z = np.array(state["z"], dtype=float).reshape(self.model.n)
+        self.t0 = float(state["t0"])
 
     def advance(self, y) -> None:
         z, u = self._evaluate(y)
@@ -174,6 +192,15 @@ class ZOHModelController(_Base):
 
     def output(self, y) -> np.ndarray:
         return np.asarray(self.pad_line.output(self._held_now(y)))
+
+    def get_state(self) -> dict:
+        return {**super().get_state(), "held": self.held.tolist(),
+                "pad_line": self.pad_line.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        self.held = np.array(state["held"], dtype=float).reshape(self.model.m)
+        self.pad_line.set_state(state["pad_line"])
 
     def advance(self, y) -> None:
         u = self._held_now(y)

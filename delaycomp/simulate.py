@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import json
 import math
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,11 +17,20 @@ import delaycomp
 from orchestrator.fmu import FmuComponent
 from orchestrator.master import Connection, Master, Recorder, SimulationError
 
-from .build import BUNDLED_MODULES, DEFAULT_CONFIG, FMUS, PACKAGE_DIR, build_fmu, model_identifier
+from .build import (
+    BUNDLED_MODULES,
+    CONFIG_NAME,
+    DEFAULT_CONFIG,
+    FMUS,
+    PACKAGE_DIR,
+    build_fmu,
+    model_identifier,
+)
+from .errors import BadFileError
 from .scenarios import LoopSpec, ParameterError, on_grid
 
 __all__ = ["ENGINES", "Result", "SimulationError", "default_fmu_dir", "fmu_path",
-           "make_components", "run_loop"]
+           "make_components", "make_master", "parameters_of", "run_loop"]
 
 
 def _source_digest() -> str:
@@ -50,12 +61,62 @@ def fmu_file_name(kind: str, config: dict) -> str:
 
 
 def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
-    """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing."""
+    """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing.
+
+    An FMU already there is checked first (:func:`check_fmu`): a corrupt or foreign file
+    raises :class:`~delaycomp.errors.BadFileError` before anything runs.
+    """
     fmu_dir = Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
+    if fmu_dir.exists() and not fmu_dir.is_dir():
+        raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
     path = fmu_dir / fmu_file_name(kind, config)
     if not path.exists():
         build_fmu(kind, fmu_dir, config, path.name)
+    else:
+        check_fmu(path, kind, config)
     return path
+
+
+def check_fmu(path: Path, kind: str, config: dict) -> None:
+    """Refuse an FMU that is not a zip, has no readable modelDescription, is of another
+    model, or was built for other dimensions or another delaycomp version."""
+    from fmpy import read_model_description
+
+    ident = model_identifier(kind, config)
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            if "modelDescription.xml" not in names:
+                raise BadFileError(path, "is not an FMU: it has no modelDescription.xml")
+            built = zf.read(f"resources/{CONFIG_NAME}") if (
+                f"resources/{CONFIG_NAME}" in names) else None
+        md = read_model_description(str(path), validate=False)
+    except BadFileError:
+        raise
+    except zipfile.BadZipFile:
+        raise BadFileError(path, "is not an FMU: not a zip archive") from None
+    except Exception as exc:  # noqa: BLE001 - any parse failure is a bad file
+        raise BadFileError(path, f"is not a readable FMU: {type(exc).__name__}: {exc}"
+                           ) from None
+    found = md.coSimulation.modelIdentifier if md.coSimulation else None
+    if found != ident:
+        what = f"model {found!r}" if found else "a model without co-simulation"
+        raise BadFileError(path, f"is an FMU of {what}, expected {ident!r} (delete it or use "
+                                 "another --fmu-dir to rebuild)")
+    if built is None:
+        raise BadFileError(path, f"is not a delaycomp FMU: no resources/{CONFIG_NAME}")
+    try:
+        cfg = json.loads(built)
+    except ValueError:
+        raise BadFileError(path, f"has a corrupt resources/{CONFIG_NAME}") from None
+    if cfg.get("version") != delaycomp.__version__:
+        raise BadFileError(path, f"was built by delaycomp {cfg.get('version')!r}, this is "
+                                 f"{delaycomp.__version__!r} (delete it to rebuild)")
+    wanted = {k: v for k, v in config.items() if k != "model"}
+    differs = {k: cfg.get(k) for k, v in wanted.items() if cfg.get(k) != v}
+    if differs:
+        raise BadFileError(path, f"was built for {differs}, this loop needs "
+                                 f"{ {k: wanted[k] for k in differs} }")
 
 
 @dataclass
@@ -114,6 +175,23 @@ def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = 
                          f"{', '.join(ENGINES)}")
 
 
+def make_master(spec: LoopSpec, fmu_dir: Path | None = None, t0: float = 0.0,
+                every: int = 1, engine: str = "fmu") -> tuple[Master, Recorder]:
+    """A master over fresh components of ``spec`` (for ``engine``), with a recorder of its
+    signals at every ``every``-th tick (not yet set up: call ``master.setup(stop_time,
+    parameters_of(spec))``)."""
+    components = make_components(spec, engine, fmu_dir)
+    master = Master(components, [Connection.parse(c) for c in spec.connections],
+                    spec.T, spec.N, t0)
+    recorder = Recorder(master, spec.recorded, every)
+    master.add_observer(recorder)
+    return master, recorder
+
+
+def parameters_of(spec: LoopSpec) -> dict[str, dict]:
+    return {name: params for name, (_, _, params) in spec.instances.items()}
+
+
 def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0, engine: str = "fmu") -> Result:
     """Co-simulate ``spec`` from ``t0`` to ``stop_time`` with one row per base step.
@@ -142,15 +220,11 @@ def single_threaded_blas():
 
 def _run(spec: LoopSpec, ticks: int, stop_time: float, fmu_dir, t0: float,
          engine: str) -> Result:
-    components = make_components(spec, engine, fmu_dir)
-    master = Master(components, [Connection.parse(c) for c in spec.connections],
-                    spec.T, spec.N, t0)
-    recorder = Recorder(master, spec.recorded)
-    master.add_observer(recorder)
+    master, recorder = make_master(spec, fmu_dir, t0, engine=engine)
+    components = list(master.components.values())
     success, message = True, ""
     try:
-        master.setup(stop_time, {name: params for name, (_, _, params)
-                                 in spec.instances.items()})
+        master.setup(stop_time, parameters_of(spec))
         master.initialize()
         master.run_until(ticks)
     except SimulationError as exc:

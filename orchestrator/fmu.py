@@ -168,10 +168,13 @@ class FmuComponent:
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
         try:
-            return self.fmu.getReal(self._vrs(names))
+            values = self.fmu.getReal(self._vrs(names))
         except FMICallException as exc:
             self._failed(exc)
             raise
+        if self.worst_status >= 3:  # it logged an error computing them: do not use them
+            raise FmuRefused(self.last_message or "the FMU logged an error")
+        return values
 
     def reader(self, names: Sequence[str]):
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""
@@ -179,10 +182,13 @@ class FmuComponent:
 
         def read():
             try:
-                return self.fmu.getReal(vrs)
+                values = self.fmu.getReal(vrs)
             except FMICallException as exc:
                 self._failed(exc)
                 raise
+            if self.worst_status >= 3:  # it logged an error computing them: do not use them
+                raise FmuRefused(self.last_message or "the FMU logged an error")
+            return values
         return read
 
     def writer(self, names: Sequence[str]):
@@ -200,6 +206,33 @@ class FmuComponent:
     def do_step(self, t: float, h: float) -> None:
         try:
             self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
+
+    # -- FMU state (canGetAndSetFMUstate, canSerializeFMUstate) ------------------------
+    def get_state(self) -> bytes:
+        """The instance's complete state, serialized (``fmi2GetFMUstate`` and
+        ``fmi2SerializeFMUstate``; the FMU-side state is freed again)."""
+        state = self._call(self.fmu.getFMUstate)
+        try:
+            return bytes(self._call(self.fmu.serializeFMUstate, state))
+        finally:
+            self._call(self.fmu.freeFMUstate, state)
+
+    def set_state(self, data: bytes) -> None:
+        """Restore a state from :meth:`get_state`, possibly of another instance."""
+        state = self._call(self.fmu.deSerializeFMUstate, data)
+        try:
+            self._call(self.fmu.setFMUstate, state)
+        finally:
+            self._call(self.fmu.freeFMUstate, state)
+        if self.worst_status >= 3:
+            raise FmuRefused(self.last_message or "the FMU refused the state")
+
+    def _call(self, fn, *args):
+        try:
+            return fn(*args)
         except FMICallException as exc:
             self._failed(exc)
             raise

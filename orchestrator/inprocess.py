@@ -136,18 +136,23 @@ class SlaveComponent:
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
         key = tuple(names)
-        getters = self._getters.get(key)
-        if getters is None:
-            getters = self._getters[key] = [self._var(n).getter for n in names]
-        return [g() for g in getters]
+        read = self._getters.get(key)
+        if read is None:
+            read = self._getters[key] = self.reader(names)
+        return read()
 
     def reader(self, names: Sequence[str]):
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""
         getters = [self._var(n).getter for n in names]
-        if len(getters) == 1:
-            g = getters[0]
-            return lambda: [g()]
-        return lambda: [g() for g in getters]
+        slave = self.slave
+
+        def read():
+            values = [g() for g in getters]
+            if slave.error is not None:  # it refused while computing them: do not use them
+                self._drain()
+                raise SlaveRefused(self.last_message or slave.error)
+            return values
+        return read
 
     def writer(self, names: Sequence[str]):
         """``(values) -> None`` setting the inputs ``names``: the master's hot path."""
@@ -165,6 +170,20 @@ class SlaveComponent:
         if not self.slave.do_step(t, h):
             self._drain()
             raise SlaveRefused(self.last_message or "the slave refused to step")
+
+    def get_state(self) -> bytes:
+        """The slave's complete state, serialized as its FMU would serialize it."""
+        data = self.slave._fmu_state_to_bytes(self.slave._get_fmu_state())
+        self._drain()
+        if self.worst_status >= 3:
+            raise SlaveRefused(self.last_message or "saving the state failed")
+        return data
+
+    def set_state(self, data: bytes) -> None:
+        self.slave._set_fmu_state(self.slave._fmu_state_from_bytes(data))
+        self._drain()
+        if self.worst_status >= 3:
+            raise SlaveRefused(self.last_message or "restoring the state failed")
 
     def terminate(self) -> None:
         if self.slave is not None:

@@ -226,6 +226,19 @@ class Master:
         self.k = 0
         self._propagate()
 
+    def get_state(self) -> dict:
+        """The tick and every component's state (components need ``get_state``)."""
+        return {"k": self.k, "components": {
+            name: self._guard(c, self.k, c.get_state) for name, c in self.components.items()}}
+
+    def set_state(self, state: dict) -> None:
+        """Go back (or forward) to a state from :meth:`get_state`; observers are not told
+        again about the restored tick (they saw it when it was first reached)."""
+        self.k = int(state["k"])
+        for name, c in self.components.items():
+            self._guard(c, self.k, c.set_state, state["components"][name])
+        self._propagate(record=False)
+
     def _guard(self, comp, k, fn, *args):
         try:
             return fn(*args)
@@ -236,7 +249,7 @@ class Master:
             raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}"
                                   ) from exc
 
-    def _propagate(self) -> None:
+    def _propagate(self, record: bool = True) -> None:
         """Bring every output and input to the values of the current tick."""
         slots = self._slots
         k = self.k
@@ -253,10 +266,11 @@ class Master:
                 put(gather(slots))
         except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             self._fail(exc, k)
-        if self._observers:
-            t = self.time_of(k)
-            for record in self._observers:
-                record(k, t, slots)
+        if not record or not self._observers:
+            return
+        t = self.time_of(k)
+        for rec in self._observers:
+            rec(k, t, slots)
 
     def _fail(self, exc: Exception, k: int):
         culprit = next((c for c in self.components.values()
@@ -305,16 +319,25 @@ class Master:
 
 
 class Recorder:
-    """Observer that keeps selected outputs at every tick, for CSV and plots."""
+    """Observer that keeps selected outputs at every ``every``-th tick, for CSV and plots.
 
-    def __init__(self, master: Master, signals: Sequence[tuple[str, str]]):
+    It keeps every row it records (memory grows with the run); ``every > 1`` decimates a
+    long run. The components themselves keep bounded state only (README, "Reliability").
+    """
+
+    def __init__(self, master: Master, signals: Sequence[tuple[str, str]], every: int = 1):
+        if not (isinstance(every, int) and every >= 1):
+            raise ValueError(f"every = {every!r} is not allowed: must be a positive integer")
         self.names = [f"{i}.{v}" for i, v in signals]
         self._idx = [master.slot(i, v) for i, v in signals]
         self._gather = _gather(self._idx) or (lambda values: ())
+        self.every = every
         self.times: list[float] = []
         self.rows: list[Sequence[float]] = []
 
     def record(self, k: int, t: float, slots: Sequence[float]) -> None:
+        if k % self.every:
+            return
         self.times.append(t)
         self.rows.append(self._gather(slots))
 

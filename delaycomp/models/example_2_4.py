@@ -15,6 +15,7 @@ INPUTS = ("u",)
 CONTROL = "continuous"
 PARAMETERS = {"law": "corrected"}
 LAWS = ("corrected", "printed")
+CHOICES = {"law": LAWS}
 
 
 def f(x, u, p):

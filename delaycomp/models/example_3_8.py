@@ -17,6 +17,7 @@ INPUTS = ("u",)
 CONTROL = "zoh"
 PARAMETERS = {"p": "square"}
 SHAPES = ("square", "sin")
+CHOICES = {"p": SHAPES}
 
 
 def p_of(w, p):

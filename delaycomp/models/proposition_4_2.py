@@ -28,6 +28,7 @@ INPUTS = unicycle.INPUTS
 CONTROL = "zoh"
 PARAMETERS = {"law": "corrected"}
 LAWS = ("corrected", "printed")
+CHOICES = {"law": LAWS}
 SET_TOL = 1e-12
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.controller import ZOHController
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.lti import MODES, split_delay
 from delaycomp.names import indexed
 
@@ -80,9 +80,6 @@ class DelaycompControllerLTI(TableSlave):
                              depends_on=self.input_names,
                              variability=Fmi2Variability.discrete)
 
-    def setup_experiment(self, start_time, stop_time, tolerance):
-        self.t0 = float(start_time)
-
     def _setup(self):
         for name in ("T", "r", "tau"):
             check_finite(name, getattr(self, name))
@@ -104,16 +101,34 @@ class DelaycompControllerLTI(TableSlave):
         self._at_sample = True
         self._proposal = None
 
+    def _hidden_state(self) -> dict:
+        return {"ctrl": self.ctrl.get_state(), "next": self._next,
+                "at_sample": self._at_sample}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.ctrl.set_state(hidden["ctrl"])
+        self._next = int(hidden["next"])
+        self._at_sample = bool(hidden["at_sample"])
+        self._proposal = None  # a cache: recomputed from the restored state
+
     def _output(self) -> np.ndarray:
         if self.ctrl is None:  # not initialized, or refused its parameters
             return self.u0
         if not self._at_sample:
             return self.ctrl.held
         if self._proposal is None:
-            self._proposal = self.ctrl.propose(self.y)
+            with np.errstate(all="ignore"):  # checked below
+                u = self.ctrl.propose(self.y)
+            if not np.all(np.isfinite(u)) and np.all(np.isfinite(self.y)) \
+                    and self.error is None:
+                t = self.t0 + self._next * self.T
+                self._refuse(f"control {self.output_names} = {u.tolist()} at t = {t!r} is "
+                             "not allowed: must be finite (the feedback overflowed)")
+            self._proposal = u
         return self._proposal
 
     def _step(self, current_time: float, step_size: float) -> None:
+        check_inputs(self.input_names, self.y, current_time)
         if self._at_sample:
             self.ctrl.commit(self._output())
             self._next += 1

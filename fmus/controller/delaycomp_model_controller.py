@@ -11,10 +11,10 @@ import importlib
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer
 
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, check_model_parameters
 from delaycomp.model import CONTROLS, from_module
 from delaycomp.nlcontrol import make_controller
-from delaycomp.predictors import DEFAULT_TOL
+from delaycomp.predictors import DEFAULT_TOL, IntegrationError
 
 
 class ModelControllerSlave(TableSlave):
@@ -70,6 +70,7 @@ class ModelControllerSlave(TableSlave):
                            (lambda v, i=i: self.z0.__setitem__(i, v)),
                            f"continuous mode: initial predictor state for {s}")
         inputs = [f"y_{s}" for s in model.states]
+        self.input_names = inputs
 
         def set_y(i):
             return lambda v: self.y.__setitem__(i, v)
@@ -80,9 +81,6 @@ class ModelControllerSlave(TableSlave):
         for j, name in enumerate(model.inputs):
             self.real_output(name, (lambda j=j: float(self._output()[j])), "control",
                              depends_on=inputs)
-
-    def setup_experiment(self, start_time, stop_time, tolerance):
-        self.t0 = float(start_time)
 
     def _setup(self):
         for name in ("T", "r", "tau", "tolerance"):
@@ -95,6 +93,10 @@ class ModelControllerSlave(TableSlave):
                       f"{', '.join(CONTROLS)}")
         if not 0 < self.tolerance < 1:
             self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
+        check_model_parameters(self.model, self.values)
+        if self.predictor not in ("closed", "numerical"):
+            self.fail(f"predictor = {self.predictor!r} is not allowed: must be one of closed, "
+                      "numerical")
         try:
             self.ctrl = make_controller(self.model, self.values, self.T, self.r, self.tau,
                                         int(self.N), self.u0, self.z0, self.mode,
@@ -108,14 +110,30 @@ class ModelControllerSlave(TableSlave):
         if hasattr(self.ctrl, "t0"):
             self.ctrl.t0 = self.t0
 
+    def _hidden_state(self) -> dict:
+        return {"ctrl": self.ctrl.get_state()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.ctrl.set_state(hidden["ctrl"])
+
     def _output(self):
         if self.ctrl is None:
             return self.u0
         if self.error is None:
+            t = self.t0 + self.ctrl.k_tick * self.ctrl.h
             try:
-                return self.ctrl.output(self.y)
+                with np.errstate(all="ignore"):  # non-finite results are checked below
+                    u = self.ctrl.output(self.y)
             except Exception as exc:  # noqa: BLE001 - a getter must not raise into pythonfmu
-                self._refuse(f"computing the control failed: {type(exc).__name__}: {exc}")
+                self._refuse(f"computing the control at t = {t!r} failed: "
+                             f"{type(exc).__name__}: {exc}")
+            else:
+                # a non-finite measurement is refused by the next doStep, naming the input
+                if np.all(np.isfinite(u)) or not np.all(np.isfinite(self.y)):
+                    return u
+                self._refuse(f"control {list(self.model.inputs)} = {u.tolist()} at t = {t!r} "
+                             "is not allowed: must be finite (the predictor or the feedback "
+                             "diverged)")
         return np.full(self.model.m, np.nan)
 
     def _step(self, t, h):
@@ -124,7 +142,8 @@ class ModelControllerSlave(TableSlave):
                 self.T, abs(t)):
             self.fail(f"step ({t!r}, {h!r}) is not allowed: this controller steps from "
                       f"{expected!r} by exactly T/N = {self.ctrl.h!r}")
-        if not np.isfinite(self.y).all():
-            self.fail(f"measurement {self.y.tolist()} at t = {t!r} is not allowed: must be "
-                      "finite")
-        self.ctrl.advance(self.y)
+        check_inputs(self.input_names, self.y, t)
+        try:
+            self.ctrl.advance(self.y)
+        except IntegrationError as exc:
+            self.fail(f"predictor ODE solve at t = {t!r} failed: {exc}")

@@ -6,7 +6,7 @@ The maths is :class:`delaycomp.delayline.DelayLine`. See README.md beside this f
 from __future__ import annotations
 
 from delaycomp.delayline import DelayLine, steps_of
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.names import indexed
 
 
@@ -49,6 +49,17 @@ class DelaycompDelay(TableSlave):
         self.line = None
         self._h = None
 
+    def _hidden_state(self) -> dict:
+        if self.line is None:
+            return {"h": None}
+        return {"h": self._h, "D": self.line.D, "buffer": self.line.get_state()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        if hidden["h"] is not None:
+            self.line = DelayLine(self.n, int(hidden["D"]), self.u0)
+            self.line.set_state(hidden["buffer"])
+            self._h = float(hidden["h"])
+
     def _output(self):
         if self.line is not None:
             return self.line.output(self.u)
@@ -65,4 +76,5 @@ class DelaycompDelay(TableSlave):
         elif abs(step_size - self._h) > 1e-12 * self._h:
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
                       f"communication step, {self._h!r}")
+        check_inputs(self.input_names, self.u, t)
         self.line.push(self.u)

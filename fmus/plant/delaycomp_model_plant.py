@@ -7,13 +7,14 @@ under a name unique to the model's content). See README.md beside this file.
 from __future__ import annotations
 
 import importlib
+import math
 
 import numpy as np
 
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, check_model_parameters
 from delaycomp.model import from_module
 from delaycomp.nlcontrol import ModelPlant
-from delaycomp.predictors import DEFAULT_TOL
+from delaycomp.predictors import DEFAULT_TOL, IntegrationError
 
 
 class ModelPlantSlave(TableSlave):
@@ -56,10 +57,24 @@ class ModelPlantSlave(TableSlave):
         check_finite("tolerance", self.tolerance)
         if not 0 < self.tolerance < 1:
             self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
+        check_model_parameters(self.model, self.values)
         self.plant = ModelPlant(self.model, self.values, self.x0, self.tolerance)
 
+    def _hidden_state(self) -> dict:
+        return {"x": self.plant.x.tolist()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.plant.x = np.array(hidden["x"], dtype=float).reshape(self.model.n)
+
     def _step(self, t, h):
-        if not np.isfinite(self.u).all():
-            self.fail(f"input {list(self.model.inputs)} = {self.u.tolist()} at t = {t!r} is "
-                      "not allowed: must be finite")
-        self.plant.step(self.u, h)
+        if not (math.isfinite(h) and h > 0):
+            self.fail(f"step size {h!r} at t = {t!r} is not allowed: must be a finite "
+                      "number > 0")
+        check_inputs(self.model.inputs, self.u, t)
+        try:
+            self.plant.step(self.u, h)
+        except IntegrationError as exc:
+            self.fail(f"plant step at t = {t!r} failed: {exc}")
+        except ValueError as exc:
+            self.fail(f"state {list(self.model.states)} at t = {t + h!r} is not allowed: "
+                      f"must be finite (the plant diverged: {exc})")

@@ -6,9 +6,11 @@ See README.md beside this file for the equations and the variable table.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.lti import discretize
 from delaycomp.names import indexed
 
@@ -60,19 +62,27 @@ class DelaycompPlantLTI(TableSlave):
         self.x = self.x0.copy()
         self._h = None
 
+    def _hidden_state(self) -> dict:
+        return {"x": self.x.tolist()}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        self.x = np.array(hidden["x"], dtype=float).reshape(self.n)
+
     def _parameter_values(self):
         for v in self.vars.values():
             if v.causality.name == "parameter":
                 yield v.name, v.getter()
 
     def _step(self, t: float, step_size: float) -> None:
-        if not step_size > 0:
-            self.fail(f"step size {step_size!r} is not allowed: must be > 0")
+        if not (math.isfinite(step_size) and step_size > 0):
+            self.fail(f"step size {step_size!r} at t = {t!r} is not allowed: must be a "
+                      "finite number > 0")
+        check_inputs(self.input_names, self.u, t)
         if step_size != self._h:
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
             self._h = step_size
         x = self._Ad @ self.x + self._Bd @ self.u
         if not np.isfinite(x).all():
-            self.fail(f"state is not finite at t = {t + step_size!r} (input u = "
-                      f"{self.u.tolist()}): the plant diverged or an input is not finite")
+            self.fail(f"state {self.output_names} = {x.tolist()} at t = {t + step_size!r} "
+                      "is not allowed: must be finite (the plant diverged: overflow)")
         self.x = x
