@@ -161,26 +161,29 @@ def stop_ticks(stop_time: float, T: float, N: int) -> int:
 ENGINES = ("fmu", "inprocess")
 
 
-def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = None) -> list:
-    """The master components of ``spec`` for ``engine``."""
+def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = None,
+                    fp_guarded: bool = False) -> list:
+    """The master components of ``spec`` for ``engine``. ``fp_guarded`` (in-process only):
+    the caller steps them under ``np.errstate(all="ignore")``."""
     if engine == "fmu":
         return [FmuComponent(name, fmu_path(kind, config, fmu_dir))
                 for name, (kind, config, _) in spec.instances.items()]
     if engine == "inprocess":
         from orchestrator.inprocess import SlaveComponent
 
-        return [SlaveComponent(name, kind, config)
+        return [SlaveComponent(name, kind, config, fp_guarded)
                 for name, (kind, config, _) in spec.instances.items()]
     raise ParameterError(f"engine {engine!r} is not allowed: must be one of "
                          f"{', '.join(ENGINES)}")
 
 
 def make_master(spec: LoopSpec, fmu_dir: Path | None = None, t0: float = 0.0,
-                every: int = 1, engine: str = "fmu") -> tuple[Master, Recorder]:
+                every: int = 1, engine: str = "fmu",
+                fp_guarded: bool = False) -> tuple[Master, Recorder]:
     """A master over fresh components of ``spec`` (for ``engine``), with a recorder of its
     signals at every ``every``-th tick (not yet set up: call ``master.setup(stop_time,
     parameters_of(spec))``)."""
-    components = make_components(spec, engine, fmu_dir)
+    components = make_components(spec, engine, fmu_dir, fp_guarded)
     master = Master(components, [Connection.parse(c) for c in spec.connections],
                     spec.T, spec.N, t0)
     recorder = Recorder(master, spec.recorded, every)
@@ -220,13 +223,20 @@ def single_threaded_blas():
 
 def _run(spec: LoopSpec, ticks: int, stop_time: float, fmu_dir, t0: float,
          engine: str) -> Result:
-    master, recorder = make_master(spec, fmu_dir, t0, engine=engine)
+    # In-process, the slaves' floating-point guard is set once for the run, not per step
+    # (the FMUs keep their own: their host's numpy settings are not ours to assume).
+    guard = engine == "inprocess"
+    master, recorder = make_master(spec, fmu_dir, t0, engine=engine, fp_guarded=guard)
     components = list(master.components.values())
     success, message = True, ""
     try:
         master.setup(stop_time, parameters_of(spec))
         master.initialize()
-        master.run_until(ticks)
+        if guard:
+            with np.errstate(all="ignore"):
+                master.run_until(ticks)
+        else:
+            master.run_until(ticks)
     except SimulationError as exc:
         success, message = False, str(exc)
     finally:

@@ -74,13 +74,16 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
 class SlaveComponent:
     """One slave instance, with the master's component protocol (as ``FmuComponent``)."""
 
-    def __init__(self, name: str, kind: str, config: dict):
+    def __init__(self, name: str, kind: str, config: dict, fp_guarded: bool = False):
+        """``fp_guarded``: the caller runs every step under ``np.errstate(all="ignore")``
+        (as :func:`delaycomp.simulate.run_loop` does), so the slave need not."""
         self.name = name
         self._cls, self._config = slave_class(kind, config)
         self.messages: list[str] = []
         self.last_message: str | None = None
         self.worst_status = 0
         self.slave = self._cls(instance_name=name, resources=None, config=self._config)
+        self.slave.fp_guarded = fp_guarded
         by_causality = {}
         for v in self.slave.vars.values():
             by_causality.setdefault(v.causality, []).append(v)
