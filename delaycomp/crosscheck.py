@@ -49,6 +49,8 @@ import json
 import math
 import re
 import shutil
+import subprocess
+import sys
 import tempfile
 import zipfile
 from collections.abc import Iterable, Sequence
@@ -366,14 +368,31 @@ def run_alone(model: Path) -> AloneResult:
                        bool(np.all(err <= ALONE_TOL * (1.0 + np.abs(ref[:, 1:])))))
 
 
-def _run_alone_provider(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+def run_alone_batch(models: Sequence[Path]) -> list[AloneResult]:
+    """:func:`run_alone` on each model, in a fresh Python process.
+
+    ``fmpy.simulate_fmu`` frees each FMU's library after the run; with pythonfmu FMUs that
+    share bundled modules, later instances in the same process then failed (measured:
+    ``'NoneType' object is not callable`` in the next model controller). A child process
+    keeps the caller's interpreter clean.
+    """
+    proc = subprocess.run([sys.executable, "-m", "delaycomp.crosscheck",
+                           *(str(m) for m in models)], capture_output=True, text=True,
+                          timeout=600)
+    if proc.returncode != 0:
+        reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"running the FMUs alone failed: {reason}")
+    return [AloneResult(**r) for r in json.loads(proc.stdout.strip().splitlines()[-1])]
+
+
+def run_alone_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """Each FMU alone (fmpy.simulate_fmu with the ``_in.csv``) against its ``_ref.csv``."""
     tol = f"{ALONE_TOL:g} x (1 + abs(ref))"
     with tempfile.TemporaryDirectory(prefix="delaycomp-xc-") as tmp:
         for c in cases:
             try:
                 models = generate(Path(tmp), [c])
-                results = [run_alone(m) for m in models]
+                results = run_alone_batch(models)
             except Exception as exc:  # noqa: BLE001 - one failed case is one failed row
                 yield CheckRow(c.id, "fmu-alone", math.inf, tol, False,
                                f"{type(exc).__name__}: {exc}")
@@ -386,7 +405,14 @@ def _run_alone_provider(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
             shutil.rmtree(models_dir(Path(tmp)), ignore_errors=True)
 
 
-__all__ = ["ALONE_TOL", "PERIODS", "AloneResult", "Trace", "generate", "input_csv",
-           "model_name", "models_dir", "record_case", "ref_csv", "ref_opt", "run_alone",
-           "variant_fmu"]
+def _main(argv: list[str]) -> int:
+    """Child process of :func:`run_alone_batch`: one JSON list of results on stdout."""
+    from dataclasses import asdict
 
+    results = [asdict(run_alone(Path(m))) for m in argv]
+    print(json.dumps(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

@@ -6,7 +6,7 @@ The maths is :class:`delaycomp.controller.ZOHController`. See README.md beside t
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Fmi2Variability
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability
 
 from delaycomp.controller import ZOHController
 from delaycomp.fmuslave import TableSlave, check_finite
@@ -60,6 +60,15 @@ class DelaycompControllerLTI(TableSlave):
             self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
                            "controller output history, constant on [t0 - r - tau, t0)")
+        self.held_sample = False
+        self._y_held = None     # held_sample: the input held over the step that just ended
+        self.register_variable(Boolean(
+            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+            getter=lambda: self.held_sample,
+            setter=lambda v: setattr(self, "held_sample", bool(v)),
+            description="sample at t0 + iT the input held over the step ending there (no "
+                        "direct feedthrough; for masters that read outputs before setting "
+                        "inputs)"))
         self.input_names = indexed("y", n)
         self.output_names = indexed("u", m)
 
@@ -101,6 +110,14 @@ class DelaycompControllerLTI(TableSlave):
         self._next = 0
         self._at_sample = True
         self._proposal = None
+        self._y_held = None
+
+    def _sample(self) -> np.ndarray:
+        """The measurement the controller samples: the input now, or (``held_sample``) the
+        input held over the step that ended now (the current one before the first step)."""
+        if self.held_sample and self._y_held is not None:
+            return self._y_held
+        return self.y
 
     def _output(self) -> np.ndarray:
         if self.ctrl is None:  # not initialized, or refused its parameters
@@ -108,7 +125,7 @@ class DelaycompControllerLTI(TableSlave):
         if not self._at_sample:
             return self.ctrl.held
         if self._proposal is None:
-            self._proposal = self.ctrl.propose(self.y)
+            self._proposal = self.ctrl.propose(self._sample())
         return self._proposal
 
     def _step(self, current_time: float, step_size: float) -> None:
@@ -123,3 +140,5 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")
         self._at_sample = abs(t_end - t_sample) <= tol
+        self._y_held = self.y.copy()
+        self._proposal = None

@@ -69,6 +69,15 @@ class ModelControllerSlave(TableSlave):
             self.parameter(f"z0[{i + 1}]", (lambda i=i: float(self.z0[i])),
                            (lambda v, i=i: self.z0.__setitem__(i, v)),
                            f"continuous mode: initial predictor state for {s}")
+        self.held_sample = False
+        self._y_held = None     # held_sample: the input held over the step that just ended
+        self.register_variable(Boolean(
+            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+            getter=lambda: self.held_sample,
+            setter=lambda v: setattr(self, "held_sample", bool(v)),
+            description="sample at t0 + iT the input held over the step ending there (no "
+                        "direct feedthrough; for masters that read outputs before setting "
+                        "inputs)"))
         inputs = [f"y_{s}" for s in model.states]
 
         def set_y(i):
@@ -107,13 +116,21 @@ class ModelControllerSlave(TableSlave):
                      f"{self.ctrl.padding!r} s")
         if hasattr(self.ctrl, "t0"):
             self.ctrl.t0 = self.t0
+        self._y_held = None
+
+    def _sample(self) -> np.ndarray:
+        """The measurement the controller samples: the input now, or (``held_sample``) the
+        input held over the step that ended now (the current one before the first step)."""
+        if self.held_sample and self._y_held is not None:
+            return self._y_held
+        return self.y
 
     def _output(self):
         if self.ctrl is None:
             return self.u0
         if self.error is None:
             try:
-                return self.ctrl.output(self.y)
+                return self.ctrl.output(self._sample())
             except Exception as exc:  # noqa: BLE001 - a getter must not raise into pythonfmu
                 self._refuse(f"computing the control failed: {type(exc).__name__}: {exc}")
         return np.full(self.model.m, np.nan)
@@ -127,4 +144,5 @@ class ModelControllerSlave(TableSlave):
         if not np.all(np.isfinite(self.y)):
             self.fail(f"measurement {self.y.tolist()} at t = {t!r} is not allowed: must be "
                       "finite")
-        self.ctrl.advance(self.y)
+        self.ctrl.advance(self._sample())
+        self._y_held = self.y.copy()
