@@ -301,11 +301,10 @@ def write_model(c: RefCase, trace: Trace, folder: Path, fmu_src: Path | None) ->
     name = model_name(c, trace.instance)
     model = folder / name
     model.mkdir(parents=True, exist_ok=True)
-    ident = fmu_src.stem if fmu_src is not None else trace.kind
+    from .build import model_identifier
+
+    ident = model_identifier(trace.kind, trace.config)
     if fmu_src is not None:
-        with zipfile.ZipFile(fmu_src) as z:
-            md = z.read("modelDescription.xml").decode("utf-8")
-        ident = re.search(r'modelIdentifier="([^"]+)"', md).group(1)
         variant_fmu(fmu_src, trace.parameters, model / f"{name}.fmu")
     files = {"_in.csv": input_csv(trace), "_ref.csv": ref_csv(trace), "_ref.opt": ref_opt(trace)}
     for suffix, text in files.items():
