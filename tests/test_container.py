@@ -128,3 +128,25 @@ def test_check_prints_the_rows_of_both_providers():
     rows = [line for line in proc.stdout.splitlines() if line.startswith("| example-3.8")]
     assert [r.split("|")[2].strip() for r in rows] == ["fmu-alone", "container"]
     assert all(r.split("|")[5].strip().startswith("yes") for r in rows)
+
+
+@pytest.mark.parametrize("case_id", ["example-3.6/fig2", "example-3.8/delayed"])
+def test_held_sample_in_our_master_with_the_measurement_delay_one_step_shorter(case_id):
+    """held_sample alone, in our master: the controller samples at t_i the input held over
+    [t_i - h, t_i), so with the measurement delay r - h it receives x(t_i - r) again and
+    the loop reproduces the reference to round-off (1e-9 (1 + |ref|)). With the delay r it
+    would sample x(t_i - r - h): off by far more."""
+    c = check.case(case_id)
+    spec = _spec(c)
+    h = spec.T / spec.N
+    for shift, should_pass in ((h, True), (0.0, False)):
+        instances = dict(spec.instances)
+        kind, config, params = instances["controller"]
+        instances["controller"] = (kind, config, {**params, "held_sample": True})
+        kind, config, params = instances["meas_delay"]
+        instances["meas_delay"] = (kind, config, {**params, "delay": params["delay"] - shift})
+        res = run_loop(type(spec)(instances, spec.connections, spec.T, spec.N, spec.recorded),
+                       c.stop_time())
+        assert res.success, res.message
+        cmp = check.compare(c, res.names, res.times, res.data)
+        assert cmp.passed is should_pass, (shift, cmp.max_error)
