@@ -143,8 +143,8 @@ def test_repackaged_fmu_equals_a_pythonfmu_build_with_those_start_values(case_id
 @pytest.mark.fmu
 @pytest.mark.parametrize("c", COMMITTED, ids=[c.id for c in COMMITTED])
 def test_committed_tree_is_reproduced(c, tmp_path):
-    """``crosscheck/`` holds the files of the Example 3.6 cases (no .fmu: run ``delaycomp
-    crosscheck --out crosscheck`` to add them). The generator must give the same files:
+    """``crosscheck/`` holds the files of the Example 3.6 cases (no .fmu: ``delaycomp
+    crosscheck --out DIR`` writes them). The generator must give the same files:
     text identical but for the numbers, which may differ by round-off across machines
     (1e-12 (1 + |value|))."""
     crosscheck.generate(tmp_path, [c], with_fmus=False)
