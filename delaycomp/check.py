@@ -120,16 +120,18 @@ class Comparison:
 
 
 def compare(c: RefCase, names: list[str], times: np.ndarray, data: np.ndarray,
-            stride: int = 1) -> Comparison:
+            stride: int = 1, ref_stride: int = 1) -> Comparison:
     """Compare a recorded trajectory with the reference of ``c``, pointwise.
 
     ``names`` are the trajectory's columns (``plant.x``, ...), ``data[k, j]`` their values at
     ``times[k]``; every reference column must be present (none is skipped). ``stride`` takes
-    every ``stride``-th row of the trajectory (a run at a finer base step). For
+    every ``stride``-th row of the trajectory (a run at a finer base step), ``ref_stride``
+    every ``ref_stride``-th row of the reference (a run sampled at ``t0 + iT``). For
     ``first-order`` cases only the N = 100 bound is checked here (the halving needs a
     second run, see :func:`first_order_ratio`).
     """
     header, ref = c.reference()
+    ref = ref[::ref_stride]
     missing = [n for n in header[1:] if n not in names]
     if missing:
         raise ValueError(f"{c.id}: the run has no column {', '.join(missing)}")
@@ -183,6 +185,27 @@ def _run_ours(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
 
 
 PROVIDERS.register("delaycomp", _run_ours)
+
+
+def _run_alone(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """Each FMU alone against the ``_ref.csv`` of its cross-check model
+    (:mod:`delaycomp.crosscheck`)."""
+    from .crosscheck import run_alone_cases
+
+    return run_alone_cases(cases)
+
+
+PROVIDERS.register("fmu-alone", _run_alone)
+
+
+def _run_container(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """The loop as one container FMU (:mod:`delaycomp.container`), at ``t0 + iT``."""
+    from .container import run_container_cases
+
+    return run_container_cases(cases)
+
+
+PROVIDERS.register("container", _run_container)
 
 
 def run_checks(cases: Iterable[RefCase] = CASES,

@@ -14,6 +14,14 @@ The critical measurement delay of the uncompensated loop (k = 2, T = 1)::
 
     delaycomp critical-delay example-3.6
 
+Each FMU of the reference cases alone, in the FMI cross-check layout::
+
+    delaycomp crosscheck --out crosscheck
+
+The whole loop of Example 3.6 as one container FMU::
+
+    delaycomp export-loop example-3.6 --set r=0.3 --out loop.fmu
+
 List the scenarios and their parameters::
 
     delaycomp list
@@ -106,6 +114,24 @@ def _parser() -> argparse.ArgumentParser:
                    help="only this master (repeatable; default: all)")
     k.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
                    help="only this reference case (repeatable; default: all)")
+
+    x = sub.add_parser("crosscheck",
+                       help="write each FMU of the reference cases alone in the FMI "
+                            "cross-check layout")
+    x.add_argument("--out", required=True, type=Path, metavar="DIR",
+                   help="root of the tree (DIR/fmus/2.0/cs/linux64/delaycomp/<version>/...)")
+    x.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+                   help="only this reference case (repeatable; default: all)")
+    x.add_argument("--no-fmu", action="store_true",
+                   help="write the CSV, option and README files only (no .fmu)")
+    x.add_argument("--fmu-dir", type=Path, default=None,
+                   help="folder of built FMUs (default: a per-version cache, built on demand)")
+
+    e = sub.add_parser("export-loop",
+                       help="assemble a scenario's loop into one container FMU")
+    e.add_argument("scenario")
+    _common(e)
+    e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
     return p
@@ -224,6 +250,32 @@ def _cmd_check(args) -> int:
     return 1 if failed else 0
 
 
+def _cmd_crosscheck(args) -> int:
+    from . import check, crosscheck
+
+    try:
+        cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
+    except KeyError as exc:
+        raise UsageError(exc.args[0]) from None
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {str(args.out)!r} is not a folder")
+    made = crosscheck.generate(args.out, cases, args.fmu_dir, with_fmus=not args.no_fmu)
+    print(f"wrote {len(made)} cross-check models under {crosscheck.models_dir(args.out)}")
+    return 0
+
+
+def _cmd_export_loop(args) -> int:
+    from .container import export_loop
+
+    if args.out.suffix != ".fmu":
+        raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
+    scenario = scenarios.get(args.scenario)
+    params = scenario.resolve(args.set)
+    path = export_loop(scenario.make(params), args.out, args.fmu_dir)
+    print(path)
+    return 0
+
+
 def _cmd_list(args) -> int:
     for sc in scenarios.SCENARIOS.values():
         print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
@@ -244,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         args = _parser().parse_args(argv)
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
+                   "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
                    "list": _cmd_list}[args.command]
         return handler(args)
     except (UsageError, ParameterError, ModelError, BadFileError) as exc:

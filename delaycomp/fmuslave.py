@@ -10,6 +10,10 @@ module only declares its variable table and calls the maths:
    imported in the host would silently run other code);
 3. the GUID is pinned (a UUID5 of model name, version and configuration), so that a rebuild
    of the same sources gives the same modelDescription;
+3b. an optional ``start`` table in the configuration (parameter name -> value) replaces the
+   slave's own defaults at registration, so the FMU's start values (in modelDescription and
+   at run time) are those of one scenario: a self-contained FMU for the FMI cross-check
+   (:mod:`delaycomp.crosscheck`), where an importer sets no parameters;
 4. the ModelStructure lists each output's dependencies on inputs (direct feedthrough),
    which pythonfmu leaves undeclared;
 5. no Python exception leaves the slave for an expected fault. pythonfmu 0.7 turns every
@@ -89,6 +93,12 @@ def check_model_parameters(model, values: dict) -> None:
             check_finite(name, float(value))
 
 
+def pinned_guid(class_name: str, config: dict) -> uuid.UUID:
+    """The GUID of the slave class ``class_name`` built with ``config`` (see item 3)."""
+    key = json.dumps({"model": class_name, "config": config}, sort_keys=True)
+    return uuid.uuid5(_GUID_NAMESPACE, key)
+
+
 class TableSlave(Fmi2Slave):
     """Base of the project's slaves: configuration, pinned GUID, declared dependencies."""
 
@@ -125,8 +135,7 @@ class TableSlave(Fmi2Slave):
                 "version per process"
             )
             self._refuse(self.instantiation_error)
-        key = json.dumps({"model": type(self).__name__, "config": self.config}, sort_keys=True)
-        self.guid = uuid.uuid5(_GUID_NAMESPACE, key)
+        self.guid = pinned_guid(type(self).__name__, self.config)
         #: output name -> names of the inputs it depends on at the same instant
         self.dependencies: dict[str, list[str]] = {}
         self.t0 = 0.0
@@ -140,6 +149,12 @@ class TableSlave(Fmi2Slave):
             return json.load(fh)
 
     # -- registration helpers ----------------------------------------------------------
+    def register_variable(self, var, nested: bool = True):
+        super().register_variable(var, nested)
+        start = getattr(self, "config", {}).get("start", {})
+        if var.name in start:  # a start value of this build replaces the slave's default
+            var.setter(start[var.name])
+
     def parameter(
         self, name: str, getter: Callable[[], float], setter: Callable[[float], None],
         description: str,

@@ -53,6 +53,10 @@ class Component(Protocol):
     def get_outputs(self, names: Sequence[str]) -> list[float]: ...
     def do_step(self, t: float, h: float) -> None: ...
     def terminate(self) -> None: ...
+    # Optional, for the hot path: ``reader(names) -> (() -> values)`` and
+    # ``writer(names) -> ((values) -> None)``, bound once at construction; without them the
+    # master wraps ``get_outputs`` / ``set_inputs``. A wrapper that must see every value
+    # (a recorder of inputs) sets both to None.
 
 
 @dataclass(frozen=True)
@@ -136,7 +140,7 @@ class Master:
     def _getter(c, names):
         """``() -> values`` of the outputs ``names`` (the component's own if it has one)."""
         names = list(names)
-        if hasattr(c, "reader"):
+        if getattr(c, "reader", None) is not None:
             return c.reader(names)
         get_outputs = c.get_outputs
         return lambda: get_outputs(names)
@@ -145,7 +149,7 @@ class Master:
     def _setter(c, names):
         """``(values) -> None`` setting the inputs ``names``."""
         names = list(names)
-        if hasattr(c, "writer"):
+        if getattr(c, "writer", None) is not None:
             return c.writer(names)
         set_inputs = c.set_inputs
         return lambda values: set_inputs(names, values)

@@ -38,11 +38,11 @@ VARIANTS = {
     "model_controller-continuous": ("model_controller", MODELS / "example_2_4.py"),
 }
 #: parameters per variant (checked below, so that a new parameter cannot go unchecked)
-N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 8, "model_plant-zoh": 4,
-                "model_plant-continuous": 5, "model_controller-zoh": 12,
-                "model_controller-continuous": 13}
+N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 9, "model_plant-zoh": 4,
+                "model_plant-continuous": 5, "model_controller-zoh": 13,
+                "model_controller-continuous": 14}
 #: Boolean parameters have no bad value
-UNCHECKABLE = {"pad"}
+UNCHECKABLE = {"pad", "held_sample"}
 
 
 def variant_path(fmu_dir, variant):

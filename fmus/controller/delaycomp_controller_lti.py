@@ -6,7 +6,7 @@ The maths is :class:`delaycomp.controller.ZOHController`. See README.md beside t
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Fmi2Variability
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability
 
 from delaycomp.controller import ZOHController
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
@@ -62,6 +62,15 @@ class DelaycompControllerLTI(TableSlave):
             self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
                            "controller output history, constant on [t0 - r - tau, t0)")
+        self.held_sample = False
+        self._y_held = None     # held_sample: the input held over the step that just ended
+        self.register_variable(Boolean(
+            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+            getter=lambda: self.held_sample,
+            setter=lambda v: setattr(self, "held_sample", bool(v)),
+            description="sample at t0 + iT the input held over the step ending there (no "
+                        "direct feedthrough; for masters that read outputs before setting "
+                        "inputs)"))
         self.input_names = indexed("y", n)
         self.output_names = indexed("u", m)
 
@@ -100,15 +109,26 @@ class DelaycompControllerLTI(TableSlave):
         self._next = 0
         self._at_sample = True
         self._proposal = None
+        self._y_held = None
+
+    def _sample(self) -> np.ndarray:
+        """The measurement the controller samples: the input now, or (``held_sample``) the
+        input held over the step that ended now (the current one before the first step)."""
+        if self.held_sample and self._y_held is not None:
+            return self._y_held
+        return self.y
 
     def _hidden_state(self) -> dict:
         return {"ctrl": self.ctrl.get_state(), "next": self._next,
-                "at_sample": self._at_sample}
+                "at_sample": self._at_sample,
+                "y_held": None if self._y_held is None else self._y_held.tolist()}
 
     def _restore_hidden(self, hidden: dict) -> None:
         self.ctrl.set_state(hidden["ctrl"])
         self._next = int(hidden["next"])
         self._at_sample = bool(hidden["at_sample"])
+        held = hidden.get("y_held")
+        self._y_held = None if held is None else np.array(held, dtype=float)
         self._proposal = None  # a cache: recomputed from the restored state
 
     def _output(self) -> np.ndarray:
@@ -118,7 +138,7 @@ class DelaycompControllerLTI(TableSlave):
             return self.ctrl.held
         if self._proposal is None:
             with np.errstate(all="ignore"):  # checked below
-                u = self.ctrl.propose(self.y)
+                u = self.ctrl.propose(self._sample())
             if not np.all(np.isfinite(u)) and np.all(np.isfinite(self.y)) \
                     and self.error is None:
                 t = self.t0 + self._next * self.T
@@ -140,3 +160,6 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")
         self._at_sample = abs(t_end - t_sample) <= tol
+        if self.held_sample:
+            self._y_held = self.y.copy()
+            self._proposal = None

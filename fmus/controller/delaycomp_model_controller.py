@@ -69,6 +69,15 @@ class ModelControllerSlave(TableSlave):
             self.parameter(f"z0[{i + 1}]", (lambda i=i: float(self.z0[i])),
                            (lambda v, i=i: self.z0.__setitem__(i, v)),
                            f"continuous mode: initial predictor state for {s}")
+        self.held_sample = False
+        self._y_held = None     # held_sample: the input held over the step that just ended
+        self.register_variable(Boolean(
+            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+            getter=lambda: self.held_sample,
+            setter=lambda v: setattr(self, "held_sample", bool(v)),
+            description="sample at t0 + iT the input held over the step ending there (no "
+                        "direct feedthrough; for masters that read outputs before setting "
+                        "inputs)"))
         inputs = [f"y_{s}" for s in model.states]
         self.input_names = inputs
 
@@ -109,12 +118,23 @@ class ModelControllerSlave(TableSlave):
                      f"{self.ctrl.padding!r} s")
         if hasattr(self.ctrl, "t0"):
             self.ctrl.t0 = self.t0
+        self._y_held = None
+
+    def _sample(self) -> np.ndarray:
+        """The measurement the controller samples: the input now, or (``held_sample``) the
+        input held over the step that ended now (the current one before the first step)."""
+        if self.held_sample and self._y_held is not None:
+            return self._y_held
+        return self.y
 
     def _hidden_state(self) -> dict:
-        return {"ctrl": self.ctrl.get_state()}
+        return {"ctrl": self.ctrl.get_state(),
+                "y_held": None if self._y_held is None else self._y_held.tolist()}
 
     def _restore_hidden(self, hidden: dict) -> None:
         self.ctrl.set_state(hidden["ctrl"])
+        held = hidden.get("y_held")
+        self._y_held = None if held is None else np.array(held, dtype=float)
 
     def _output(self):
         if self.ctrl is None:
@@ -123,7 +143,7 @@ class ModelControllerSlave(TableSlave):
             t = self.t0 + self.ctrl.k_tick * self.ctrl.h
             try:
                 with np.errstate(all="ignore"):  # non-finite results are checked below
-                    u = self.ctrl.output(self.y)
+                    u = self.ctrl.output(self._sample())
             except Exception as exc:  # noqa: BLE001 - a getter must not raise into pythonfmu
                 self._refuse(f"computing the control at t = {t!r} failed: "
                              f"{type(exc).__name__}: {exc}")
@@ -144,6 +164,8 @@ class ModelControllerSlave(TableSlave):
                       f"{expected!r} by exactly T/N = {self.ctrl.h!r}")
         check_inputs(self.input_names, self.y, t)
         try:
-            self.ctrl.advance(self.y)
+            self.ctrl.advance(self._sample())
         except IntegrationError as exc:
             self.fail(f"predictor ODE solve at t = {t!r} failed: {exc}")
+        if self.held_sample:
+            self._y_held = self.y.copy()

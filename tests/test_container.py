@@ -1,0 +1,152 @@
+"""The whole loop as one container FMU (``delaycomp export-loop``, issue 4 item 6)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from delaycomp import check, container, scenarios
+from delaycomp.simulate import run_loop
+
+from .conftest import REPO
+
+pytestmark = pytest.mark.fmu
+
+#: the zero-order-hold scenarios (exact) and one continuous one (first order in h)
+CASES = ["example-3.6/fig2", "example-3.6/fig3", "example-3.8/delayed", "corollary-3.7/n2",
+         "proposition-4.2/nodelay_r", "example-2.4/sparse"]
+
+
+def _spec(c):
+    sc = scenarios.get(c.scenario)
+    return sc.make(sc.resolve(list(c.sets)))
+
+
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "delaycomp.cli", *args], capture_output=True,
+                          text=True, cwd=REPO, timeout=600, env=dict(os.environ))
+
+
+@pytest.mark.parametrize("case_id", CASES)
+def test_container_matches_the_reference_at_the_sampling_instants(case_id, tmp_path):
+    """fmpy.simulate_fmu(container, output_interval=T) against the reference trace at
+    t0 + iT with the tolerances of delaycomp.check (zero-order hold: 1e-9 (1 + |ref|),
+    round-off; continuous input: 2 % of the range, the O(h) of holding u over h). And,
+    stronger, against our master's loop at the same instants to 1e-9 (1 + |value|): every
+    FMU gets what it gets in our master, so only round-off separates them."""
+    c = check.case(case_id)
+    spec = _spec(c)
+    path = container.export_loop(spec, tmp_path / "loop.fmu")
+    names, times, data = container._simulate_in_child(path, c)
+    assert np.allclose(times, np.arange(len(times)) * spec.T, rtol=0, atol=1e-9)
+    cmp = check.compare(c, names, times, data, ref_stride=spec.N)
+    assert cmp.passed, (cmp.max_error, cmp.tolerance)
+    ours = run_loop(spec, c.stop_time())
+    cols = [ours.names.index(n) for n in names]
+    loop = ours.data[::spec.N][:, cols]
+    assert loop.shape == data.shape
+    assert np.all(np.abs(data - loop) <= 1e-9 * (1 + np.abs(loop)))
+
+
+def test_export_loop_cli_writes_an_fmu_that_fmpy_validates(tmp_path):
+    from fmpy import read_model_description
+
+    out = tmp_path / "sub" / "example-3.6.fmu"
+    proc = cli("export-loop", "example-3.6", "--set", "u0=4", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == str(out)
+    md = read_model_description(str(out), validate=True)
+    assert md.coSimulation.modelIdentifier == "example_3_6"
+    assert sorted(v.name for v in md.modelVariables if v.causality == "output") == ["u", "x"]
+    assert float(md.defaultExperiment.stepSize) == pytest.approx(0.01)
+
+
+def test_without_the_timing_fixes_the_container_is_off(tmp_path):
+    """What the container does to the plain loop (measured): its default (parallel, i.e.
+    Jacobi) stepping with the plain delays and a controller that samples its current input
+    misses the reference by far more than round-off (0.1 to 1 in x on Example 3.6, Figure
+    3). This is why export-loop changes the order, the delays and the sampling."""
+    from fmpy import simulate_fmu
+    from fmu_manipulation_toolbox.assembly import Assembly
+
+    from delaycomp.simulate import fmu_path
+
+    c = check.case("example-3.6/fig3")
+    spec = _spec(c)
+    files = {}
+    for inst, (kind, config, _) in spec.instances.items():
+        src = fmu_path(kind, config)
+        (tmp_path / src.name).write_bytes(src.read_bytes())
+        files[inst] = src.name
+    desc = container.description(spec, files, "plain.fmu")
+    h = spec.T / spec.N
+    desc["sequential"] = False
+    desc["start"] = [[f, k, v] for f, k, v in desc["start"] if k != "held_sample"]
+    for row in desc["start"]:
+        if row[1] == "delay":
+            row[2] = repr(float(row[2]) - h)
+    (tmp_path / "plain.json").write_text(json.dumps(desc), encoding="utf-8")
+    logging.getLogger("fmu_manipulation_toolbox").setLevel(logging.ERROR)
+    Assembly("plain.json", fmu_directory=tmp_path).make_fmu()
+    res = simulate_fmu(str(tmp_path / "plain.fmu"), stop_time=c.stop_time(),
+                       output_interval=spec.T, output=["x", "u"])
+    header, ref = c.reference()
+    err = np.abs(np.asarray(res["x"]) - ref[::spec.N, header.index("plant.x")])
+    assert err.max() > 1e-2
+
+
+@pytest.mark.parametrize("args, message", [
+    (["export-loop", "example-9.9", "--out", "x.fmu"], "unknown scenario 'example-9.9'"),
+    (["export-loop", "example-3.6", "--out", "x.zip"], "--out 'x.zip' is not allowed: must "
+                                                       "end in .fmu"),
+    (["export-loop", "example-3.6", "--set", "r=0", "--out", "x.fmu"],
+     "r = 0.0 is not allowed for export-loop: the measurement delay must be at least one "
+     "base step"),
+    (["export-loop", "example-3.6", "--set", "T=0", "--out", "x.fmu"], "T = '0' is not allowed"),
+    (["crosscheck", "--out", "xc", "--case", "example-3.6/fig9"],
+     "no reference case 'example-3.6/fig9'"),
+])
+def test_bad_input_is_one_line_exit_2(args, message, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "delaycomp.cli", *args], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("delaycomp: error: ")
+    assert message in proc.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_check_prints_the_rows_of_both_providers():
+    proc = cli("check", "--master", "fmu-alone", "--master", "container", "--case",
+               "example-3.8/default")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("| example-3.8")]
+    assert [r.split("|")[2].strip() for r in rows] == ["fmu-alone", "container"]
+    assert all(r.split("|")[5].strip().startswith("yes") for r in rows)
+
+
+@pytest.mark.parametrize("case_id", ["example-3.6/fig2", "example-3.8/delayed"])
+def test_held_sample_in_our_master_with_the_measurement_delay_one_step_shorter(case_id):
+    """held_sample alone, in our master: the controller samples at t_i the input held over
+    [t_i - h, t_i), so with the measurement delay r - h it receives x(t_i - r) again and
+    the loop reproduces the reference to round-off (1e-9 (1 + |ref|)). With the delay r it
+    would sample x(t_i - r - h): off by far more."""
+    c = check.case(case_id)
+    spec = _spec(c)
+    h = spec.T / spec.N
+    for shift, should_pass in ((h, True), (0.0, False)):
+        instances = dict(spec.instances)
+        kind, config, params = instances["controller"]
+        instances["controller"] = (kind, config, {**params, "held_sample": True})
+        kind, config, params = instances["meas_delay"]
+        instances["meas_delay"] = (kind, config, {**params, "delay": params["delay"] - shift})
+        res = run_loop(type(spec)(instances, spec.connections, spec.T, spec.N, spec.recorded),
+                       c.stop_time())
+        assert res.success, res.message
+        cmp = check.compare(c, res.names, res.times, res.data)
+        assert cmp.passed is should_pass, (shift, cmp.max_error)
