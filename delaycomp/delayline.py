@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from .lti import GRID_RTOL
+from .lti import GRID_RTOL, check_steps
 
 
 def steps_of(delay: float, h: float) -> int:
@@ -26,6 +26,7 @@ def steps_of(delay: float, h: float) -> int:
     if not delay >= 0:
         raise ValueError(f"delay must be >= 0, got {delay!r}")
     ratio = delay / h
+    check_steps("delay", delay, ratio, f"communication steps of {h!r}")
     D = round(ratio)
     if abs(ratio - D) > GRID_RTOL * max(1.0, ratio):
         raise ValueError(

@@ -38,6 +38,7 @@ import math
 import os
 import sys
 import uuid
+import warnings
 from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
 
@@ -217,7 +218,7 @@ class TableSlave(Fmi2Slave):
         self.error = None
         self.initialized = False
         try:
-            self._setup()
+            self._quiet_setup()
             self.initialized = True
         except ParameterError as exc:
             self._refuse(str(exc))
@@ -246,6 +247,13 @@ class TableSlave(Fmi2Slave):
 
     def _setup(self) -> None:
         raise NotImplementedError
+
+    def _quiet_setup(self) -> None:
+        # numpy/scipy warnings may be errors in the host (its warning filters): the slaves
+        # check their results for non-finite values instead
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self._setup()
 
     # -- FMU state -----------------------------------------------------------------------
     def _hidden_state(self) -> dict:
@@ -281,10 +289,12 @@ class TableSlave(Fmi2Slave):
             self.t0 = float(state["t0"])
             self.initialized = False
             if state["initialized"]:
-                self._setup()
+                self._quiet_setup()
                 self._restore_hidden(state["hidden"])
                 self.initialized = True
             self.error = state["error"]
+        except ParameterError as exc:
+            self._refuse(str(exc))
         except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
             self._refuse(f"restoring the FMU state failed: {type(exc).__name__}: {exc}")
 

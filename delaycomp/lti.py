@@ -24,6 +24,17 @@ MODES: tuple[str, ...] = ("compensated", "uncompensated")
 
 #: Relative slack used when deciding whether a delay is a multiple of a period.
 GRID_RTOL = 1e-9
+#: Longest buffer (delay line, input history, predictor window) in steps: a bad parameter
+#: (a huge delay, a tiny step) must be refused, not allocate until the host is killed.
+#: 10^6 steps of a scalar signal take about 80 MB once filled.
+MAX_STEPS = 1_000_000
+
+
+def check_steps(name: str, value: float, steps: float, unit: str) -> None:
+    """Refuse a window of more than :data:`MAX_STEPS` steps of ``unit``."""
+    if not steps <= MAX_STEPS:
+        raise ValueError(f"{name} = {value!r} is not allowed: must be at most {MAX_STEPS} "
+                         f"{unit} (it needs {steps:.6g})")
 
 
 def as_matrices(A, B) -> tuple[np.ndarray, np.ndarray]:
@@ -170,6 +181,7 @@ class LTIPredictor:
     def __init__(self, A, B, T: float, r: float, tau: float):
         A, B = as_matrices(A, B)
         self.n, self.m = B.shape
+        check_steps("r + tau", r + tau, (r + tau) / T, f"sampling periods of T = {T!r}")
         self.l = periods_in(tau, T)
         self.q, self.r_tilde = split_delay(r, T)
         self.L = self.l + self.q + 1

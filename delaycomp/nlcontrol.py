@@ -31,13 +31,14 @@ import numpy as np
 
 from .delayline import DelayLine
 from .history import InputHistory
-from .lti import GRID_RTOL, split_delay
+from .lti import GRID_RTOL, check_steps, split_delay
 from .model import Model
 from .predictors import DEFAULT_TOL, integrate, numerical_predictor
 
 
 def grid_steps(value: float, h: float, name: str) -> int:
     ratio = value / h
+    check_steps(name, value, ratio, f"base steps of h = {h!r}")
     steps = round(ratio)
     if abs(ratio - steps) > GRID_RTOL * max(1.0, ratio):
         raise ValueError(f"{name} = {value!r} is not allowed: must be a multiple of the base "
@@ -175,6 +176,7 @@ class ZOHModelController(_Base):
         self.padding = tau_eff - tau
         self.pad_line = DelayLine(model.m, grid_steps(self.padding, self.h, "padding"), self.u0)
         W = grid_steps(r, self.h, "r") + round(tau_eff / self.h)
+        check_steps("r + tau", r + tau_eff, W, f"base steps of h = {self.h!r}")
         self.history = InputHistory(W, self.h, self.u0)
         self.held = self.u0.copy()
         self._cache: tuple | None = None

@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Example budgets of the property-based tests (tests/test_fuzz.py): "ci" keeps the suite
+# quick; DELAYCOMP_HYPOTHESIS_PROFILE=sweep runs a larger one-off sweep.
+settings.register_profile("ci", max_examples=15, deadline=None, derandomize=True,
+                          print_blob=True)
+settings.register_profile("sweep", max_examples=400, deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("DELAYCOMP_HYPOTHESIS_PROFILE", "ci"))
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -10,7 +10,7 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability
 
 from delaycomp.controller import ZOHController
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
-from delaycomp.lti import MODES, split_delay
+from delaycomp.lti import MODES, check_steps, split_delay
 from delaycomp.names import indexed
 
 _EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times
@@ -99,13 +99,27 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"T = {self.T!r} is not allowed: must be > 0")
         if self.r < 0:
             self.fail(f"r = {self.r!r} is not allowed: must be >= 0")
+        try:
+            check_steps("r + tau", self.r + self.tau, (self.r + self.tau) / self.T,
+                        f"sampling periods of T = {self.T!r}")
+        except ValueError as exc:
+            self.fail(str(exc))
         if self.tau < 0 or split_delay(self.tau, self.T)[1] != 0.0:
             self.fail(f"tau = {self.tau!r} is not allowed: must be a multiple l*T, l >= 0, "
                       f"of T = {self.T!r}")
         if self.mode not in MODES:
             self.fail(f"mode = {self.mode!r} is not allowed: must be one of {', '.join(MODES)}")
-        self.ctrl = ZOHController(self.A, self.B, self.K, self.T, self.r, self.tau,
-                                  self.mode, self.u0)
+        try:
+            self.ctrl = ZOHController(self.A, self.B, self.K, self.T, self.r, self.tau,
+                                      self.mode, self.u0)
+        except ValueError as exc:
+            self.fail(str(exc))
+        pred = self.ctrl.predictor
+        if self.mode == "compensated" and not (np.all(np.isfinite(pred.E))
+                                               and np.all(np.isfinite(pred._QB_stack))):
+            self.fail(f"A = {self.A.tolist()} is not allowed: must keep the predictor "
+                      f"e^(A (r + tau)) finite for r + tau = {self.r + self.tau!r} (it "
+                      "overflows)")
         self._next = 0
         self._at_sample = True
         self._proposal = None
