@@ -95,14 +95,16 @@ def stop_ticks(stop_time: float, T: float, N: int) -> int:
 
 
 def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
-             t0: float = 0.0) -> Result:
+             t0: float = 0.0, fmus: dict[str, Path] | None = None) -> Result:
     """Co-simulate ``spec`` from ``t0`` to ``stop_time`` with one row per base step.
 
-    On a component failure the result so far is returned with ``success=False`` and the
-    failure in ``message``.
+    ``fmus`` gives the FMU file of some instances (e.g. from an SSP archive); the others
+    come from :func:`fmu_path`. On a component failure the result so far is returned with
+    ``success=False`` and the failure in ``message``.
     """
     ticks = stop_ticks(stop_time - t0, spec.T, spec.N)
-    components = [FmuComponent(name, fmu_path(kind, config, fmu_dir))
+    fmus = fmus or {}
+    components = [FmuComponent(name, fmus.get(name) or fmu_path(kind, config, fmu_dir))
                   for name, (kind, config, _) in spec.instances.items()]
     master = Master(components, [Connection.parse(c) for c in spec.connections],
                     spec.T, spec.N, t0)
