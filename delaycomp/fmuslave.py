@@ -43,6 +43,13 @@ CONFIG_NAME = "delaycomp_fmu.json"
 #: is freed after the first instance, and the next instantiation reads freed memory). Each
 #: instance therefore pins one reference; generated slave modules also pin one at import.
 _PINNED_MODULE_DICTS: list = []
+#: When a controller reads its measurement: ``instant`` (the value set at the sampling
+#: instant t_i: direct feedthrough, for a master that sets inputs before reading outputs) or
+#: ``previous-step`` (the value held over the base step [t_i - h, t_i): no feedthrough, what a
+#: Jacobi master delivers; the measurement delay is then shortened by h to compensate).
+SAMPLINGS = ("instant", "previous-step")
+SAMPLING_HELP = ("instant (y set at t_i) or previous-step (y held over [t_i - h, t_i), for "
+                 "Jacobi masters)")
 _GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.controller import ZOHController
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import SAMPLING_HELP, SAMPLINGS, TableSlave, check_finite
 from delaycomp.lti import MODES, split_delay
 from delaycomp.names import indexed
 
@@ -30,7 +30,9 @@ class DelaycompControllerLTI(TableSlave):
         self.u0 = np.zeros(m)
         self.T, self.r, self.tau = 1.0, 0.0, 0.0
         self.mode = "compensated"
+        self.sampling = "instant"
         self.y = np.zeros(n)
+        self._y_held = None     # the input held over the last base step (sampling)
         self.ctrl: ZOHController | None = None
         self.t0 = 0.0
         self._next = 0          # index of the next sampling instant t0 + i T
@@ -46,6 +48,8 @@ class DelaycompControllerLTI(TableSlave):
                            (lambda v, a=name: setattr(self, a, v)), text)
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
                               "compensated (u = K Phi) or uncompensated (u = K y)")
+        self.string_parameter("sampling", lambda: self.sampling,
+                              lambda v: setattr(self, "sampling", v), SAMPLING_HELP)
         for label, mat, rows, cols, text in (
             ("A", self.A, n, n, "plant matrix A used by the predictor"),
             ("B", self.B, n, m, "plant matrix B used by the predictor"),
@@ -96,11 +100,21 @@ class DelaycompControllerLTI(TableSlave):
                       f"of T = {self.T!r}")
         if self.mode not in MODES:
             self.fail(f"mode = {self.mode!r} is not allowed: must be one of {', '.join(MODES)}")
+        if self.sampling not in SAMPLINGS:
+            self.fail(f"sampling = {self.sampling!r} is not allowed: must be one of "
+                      f"{', '.join(SAMPLINGS)}")
         self.ctrl = ZOHController(self.A, self.B, self.K, self.T, self.r, self.tau,
                                   self.mode, self.u0)
         self._next = 0
         self._at_sample = True
         self._proposal = None
+        self._y_held = None
+
+    def _sample(self) -> np.ndarray:
+        """The measurement read at a sampling instant (see ``sampling``)."""
+        if self.sampling == "instant" or self._y_held is None:
+            return self.y
+        return self._y_held
 
     def _output(self) -> np.ndarray:
         if self.ctrl is None:  # not initialized, or refused its parameters
@@ -108,7 +122,7 @@ class DelaycompControllerLTI(TableSlave):
         if not self._at_sample:
             return self.ctrl.held
         if self._proposal is None:
-            self._proposal = self.ctrl.propose(self.y)
+            self._proposal = self.ctrl.propose(self._sample())
         return self._proposal
 
     def _step(self, current_time: float, step_size: float) -> None:
@@ -123,3 +137,5 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")
         self._at_sample = abs(t_end - t_sample) <= tol
+        self._y_held = self.y.copy()
+        self._proposal = None

@@ -11,7 +11,7 @@ import importlib
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer
 
-from delaycomp.fmuslave import TableSlave, check_finite
+from delaycomp.fmuslave import SAMPLING_HELP, SAMPLINGS, TableSlave, check_finite
 from delaycomp.model import CONTROLS, from_module
 from delaycomp.nlcontrol import make_controller
 from delaycomp.predictors import DEFAULT_TOL
@@ -34,6 +34,8 @@ class ModelControllerSlave(TableSlave):
         self.predictor = "closed" if model.predictor is not None else "numerical"
         self.tolerance = DEFAULT_TOL
         self.pad = False
+        self.sampling = "instant"
+        self._y_held = None  # the input held over the last base step (sampling)
         self.u0, self.z0, self.y = np.zeros(m), np.zeros(n), np.zeros(n)
         self.t0 = 0.0
         self.ctrl = None
@@ -59,6 +61,8 @@ class ModelControllerSlave(TableSlave):
             "pad", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
             getter=lambda: self.pad, setter=lambda v: setattr(self, "pad", bool(v)),
             description="zoh: pad tau up to the next multiple of T (Remark 3.3(b))"))
+        self.string_parameter("sampling", lambda: self.sampling,
+                              lambda v: setattr(self, "sampling", v), SAMPLING_HELP)
         self.values: dict = {}
         self.model_parameters(self.values, model.parameters)
         for j, s in enumerate(model.inputs):
@@ -93,6 +97,10 @@ class ModelControllerSlave(TableSlave):
         if self.mode not in CONTROLS:
             self.fail(f"mode = {self.mode!r} is not allowed: must be one of "
                       f"{', '.join(CONTROLS)}")
+        if self.sampling not in SAMPLINGS:
+            self.fail(f"sampling = {self.sampling!r} is not allowed: must be one of "
+                      f"{', '.join(SAMPLINGS)}")
+        self._y_held = None
         if not 0 < self.tolerance < 1:
             self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
         try:
@@ -113,7 +121,7 @@ class ModelControllerSlave(TableSlave):
             return self.u0
         if self.error is None:
             try:
-                return self.ctrl.output(self.y)
+                return self.ctrl.output(self._sample())
             except Exception as exc:  # noqa: BLE001 - a getter must not raise into pythonfmu
                 self._refuse(f"computing the control failed: {type(exc).__name__}: {exc}")
         return np.full(self.model.m, np.nan)
@@ -124,7 +132,15 @@ class ModelControllerSlave(TableSlave):
                 self.T, abs(t)):
             self.fail(f"step ({t!r}, {h!r}) is not allowed: this controller steps from "
                       f"{expected!r} by exactly T/N = {self.ctrl.h!r}")
-        if not np.all(np.isfinite(self.y)):
-            self.fail(f"measurement {self.y.tolist()} at t = {t!r} is not allowed: must be "
+        y = self._sample()
+        if not np.all(np.isfinite(y)):
+            self.fail(f"measurement {y.tolist()} at t = {t!r} is not allowed: must be "
                       "finite")
-        self.ctrl.advance(self.y)
+        self.ctrl.advance(y)
+        self._y_held = self.y.copy()
+
+    def _sample(self) -> np.ndarray:
+        """The measurement read at a sampling instant (see ``sampling``)."""
+        if self.sampling == "instant" or self._y_held is None:
+            return self.y
+        return self._y_held
