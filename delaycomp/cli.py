@@ -68,6 +68,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
                    help="write one row per base step")
     r.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos"), default="delaycomp",
+                   help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
+                        "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`)")
 
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
@@ -110,6 +113,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="pack this scenario into --out FILE.ssp (default: write the SSD and "
                         "SSVs of every scenario at its defaults into --out DIR/<scenario>/)")
     _common(x)
+    x.add_argument("--jacobi", action="store_true",
+                   help="pack the Jacobi variant, for libcosim and Ecos (see README)")
     x.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
@@ -142,13 +147,21 @@ def _cmd_ssp(args) -> int:
     from . import ssp
 
     if args.scenario is None:
-        if args.set:
-            raise UsageError("--set needs a scenario to pack")
+        if args.set or args.jacobi:
+            raise UsageError("--set and --jacobi need a scenario to pack")
         for path in ssp.write_all(args.out):
             print(path.parent)
         return 0
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
+    if args.jacobi:
+        from .thirdparty import CompensationError, pack_jacobi
+
+        try:
+            print(pack_jacobi(args.scenario, args.set, args.out, args.fmu_dir))
+        except CompensationError as exc:
+            raise UsageError(str(exc)) from None
+        return 0
     spec, info = ssp.scenario_system(args.scenario, args.set)
     print(ssp.pack(spec, info, args.out, args.fmu_dir))
     return 0
@@ -159,6 +172,8 @@ def _cmd_run(args) -> int:
 
     if args.scenario.endswith(".ssp"):
         return _run_ssp(args)
+    if args.master != "delaycomp":
+        raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
     scenario = scenarios.get(args.scenario)
     params = scenario.resolve(args.set)
     stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
@@ -170,7 +185,7 @@ def _cmd_run(args) -> int:
 
 
 def _run_ssp(args) -> int:
-    from .simulate import run_loop
+    from .simulate import run_loop, stop_ticks
     from .ssp import Archive, apply_sets
 
     with Archive(Path(args.scenario)) as archive:
@@ -179,8 +194,19 @@ def _run_ssp(args) -> int:
         stop = system.info.stop_time if args.stop_time is None else args.stop_time
         if stop is None:
             raise UsageError(f"{Path(args.scenario).name} has no stop time: give --stop-time")
+        stop_ticks(stop, spec.T, spec.N)  # a bad stop time is a usage error
         started = time.perf_counter()
-        result = run_loop(spec, stop, fmus=archive.fmus())
+        if args.master == "delaycomp":
+            result = run_loop(spec, stop, fmus=archive.fmus())
+        else:
+            if args.set:
+                raise UsageError("--set applies to our master only (libcosim and Ecos take "
+                                 "the parameters packed in the SSP)")
+            from .thirdparty import run_ssp
+
+            result = run_ssp(args.master, args.scenario, stop)
+            if not result.success:
+                raise RuntimeError(result.message)
         elapsed = time.perf_counter() - started
     title = f"{system.info.description or system.info.name}\n" + " ".join(args.set)
     return _report_run(args, result, elapsed, Path(args.scenario).name, title)
@@ -197,9 +223,10 @@ def _report_run(args, result, elapsed: float, name: str, title: str) -> int:
         plot_result(result, args.plot, title)
     for note in result.notes:
         print(f"note: {note}")
-    last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
-    print(f"{name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
-          f"in {elapsed:.2f} s; final {last}")
+    if len(result.times):  # none when a component refused to initialize
+        last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
+        print(f"{name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
+              f"in {elapsed:.2f} s; final {last}")
     if not result.success:
         print(f"delaycomp: error: {result.message}", file=sys.stderr)
         return 1

@@ -469,7 +469,8 @@ def write_all(folder: str | Path) -> list[Path]:
 
 
 def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Path]:
-    """``out_dir/<scenario>.ssp`` for every scenario at its defaults.
+    """``out_dir/<scenario>.ssp`` for every scenario at its defaults, and its Jacobi variant
+    ``out_dir/<scenario>-jacobi.ssp`` for libcosim and Ecos (:mod:`delaycomp.thirdparty`).
 
     The FMUs come from ``fmu_dir`` where they are (``delaycomp build`` has just built the
     LTI loop's there) and are otherwise built, two at a time, into the build cache.
@@ -490,11 +491,16 @@ def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Pat
     with ThreadPoolExecutor(max_workers=2) as pool:  # each build is its own process
         built = list(pool.map(lambda kc: fmu_path(*kc), missing))
     have.update({p.name: p for p in built})
+    from .thirdparty import jacobi_info, jacobi_variant
+
     out = []
     for spec, info in systems:
         fmus = {inst: have[fmu_file_name(kind, config)]
                 for inst, (kind, config, _) in spec.instances.items()}
         out.append(pack(spec, info, Path(out_dir) / f"{info.name}.ssp", fmus=fmus))
+        variant = jacobi_variant(spec)
+        out.append(pack(variant, jacobi_info(info), Path(out_dir) / f"{info.name}-jacobi.ssp",
+                        fmus={i: fmus[i] for i in variant.instances}))
     return out
 
 

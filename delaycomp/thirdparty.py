@@ -239,13 +239,19 @@ if __name__ == "__main__":  # the per-run process
 def pack_jacobi(name: str, assignments: list[str] | None, out: str | Path,
                 fmu_dir: Path | None = None, parameter_set: str | None = None) -> Path:
     """``out`` (``.ssp``): the Jacobi variant of scenario ``name`` with its FMUs."""
-    from .ssp import DEFAULT_SET, SystemInfo, pack, scenario_system
+    from .ssp import DEFAULT_SET, pack, scenario_system
 
     spec, info = scenario_system(name, assignments, parameter_set or DEFAULT_SET)
-    info = SystemInfo(info.name, f"{info.description} (Jacobi variant: measurement delay "
+    return pack(jacobi_variant(spec), jacobi_info(info), out, fmu_dir)
+
+
+def jacobi_info(info):
+    """The SSD header of a Jacobi variant: the description says what was changed."""
+    from .ssp import SystemInfo
+
+    return SystemInfo(info.name, f"{info.description} (Jacobi variant: measurement delay "
                       "shortened by h, controller samples the previous step)",
                       info.stop_time, info.parameter_set)
-    return pack(jacobi_variant(spec), info, out, fmu_dir)
 
 
 def provider(master: str):

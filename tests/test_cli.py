@@ -89,7 +89,8 @@ def test_build_writes_three_valid_fmus_and_an_ssp_per_scenario(tmp_path):
     names = sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu"))
     assert names == ["DelaycompControllerLTI.fmu", "DelaycompDelay.fmu", "DelaycompPlantLTI.fmu"]
     packed = sorted(p.name for p in (tmp_path / "fmus").glob("*.ssp"))
-    assert packed == sorted(f"{name}.ssp" for name in SCENARIOS)
+    assert packed == sorted(f"{name}{variant}.ssp" for name in SCENARIOS
+                            for variant in ("", "-jacobi"))
 
 
 def test_list_names_every_parameter():

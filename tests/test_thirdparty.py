@@ -150,3 +150,52 @@ def test_check_rows_for_both_masters():
     assert [(r.case, r.master) for r in rows] == [("example-3.6/fig2", "libcosim"),
                                                   ("example-3.6/fig2", "ecos")]
     assert all(r.passed for r in rows), check.format_table(rows)
+
+
+def test_cli_runs_a_jacobi_ssp_in_each_master(tmp_path):
+    """``delaycomp ssp --jacobi`` then ``run FILE.ssp --master M``: Ecos writes the very CSV
+    of ``run NAME`` (measured bit-identical); libcosim matches it to round-off."""
+    from .test_cli import cli
+
+    packed = tmp_path / "e38.ssp"
+    assert cli("ssp", "example-3.8", "--jacobi", "--out", str(packed)).returncode == 0
+    ref = cli("run", "example-3.8", "--stop-time", "4", "--out", str(tmp_path / "ours.csv"))
+    assert ref.returncode == 0, ref.stderr
+    for master in ("ecos", "libcosim", "delaycomp"):
+        out = tmp_path / f"{master}.csv"
+        proc = cli("run", str(packed), "--master", master, "--stop-time", "4", "--out", str(out))
+        assert proc.returncode == 0, proc.stderr
+        a = np.loadtxt(out, delimiter=",", skiprows=1)
+        b = np.loadtxt(tmp_path / "ours.csv", delimiter=",", skiprows=1)
+        assert np.all(np.abs(a - b) <= OURS_RTOL * (1 + np.abs(b))), master
+    assert (tmp_path / "ecos.csv").read_bytes() == (tmp_path / "ours.csv").read_bytes()
+
+
+BAD = [
+    (["ssp", "example-3.6", "--set", "r=0.01", "--jacobi", "--out", "x.ssp"],
+     "delay 0.01 < 2 h = 0.02"),
+    (["run", "example-3.6", "--master", "ecos"], "--master runs a FILE.ssp"),
+    (["ssp", "--jacobi", "--out", "folder"], "need a scenario"),
+]
+
+
+@pytest.mark.parametrize("args,message", BAD, ids=[" ".join(a[:3]) for a, _ in BAD])
+def test_bad_third_party_input_is_one_line_exit_2(tmp_path, args, message):
+    from .test_cli import cli
+
+    proc = cli(*args, cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("delaycomp: error: "), proc.stderr
+    assert message in lines[0]
+
+
+def test_controller_refuses_an_unknown_sampling(tmp_path):
+    from .test_cli import cli
+
+    packed = tmp_path / "x.ssp"
+    assert cli("ssp", "example-3.6", "--out", str(packed)).returncode == 0
+    proc = cli("run", str(packed), "--set", "controller.sampling=late", "--stop-time", "1")
+    assert proc.returncode == 1
+    assert "sampling = 'late' is not allowed: must be one of instant, previous-step" in (
+        proc.stderr)
