@@ -199,3 +199,27 @@ def test_controller_refuses_an_unknown_sampling(tmp_path):
     assert proc.returncode == 1
     assert "sampling = 'late' is not allowed: must be one of instant, previous-step" in (
         proc.stderr)
+
+
+@pytest.mark.parametrize("rel,accepted", [(2e-12, True), (1e-6, False)],
+                         ids=["round-off", "another-step"])
+def test_delay_takes_a_step_size_off_by_round_off_only(fmu_dir, rel, accepted):
+    """libcosim passes ``t_{k+1} - t_k`` of nanosecond times: at t = 58 s in Corollary 4.1
+    that is 0.005000000000009663 for h = 0.005 (measured), which a 1e-12 slack refused."""
+    from fmpy.fmi1 import FMICallException
+
+    from orchestrator.fmu import FmuComponent
+
+    comp = FmuComponent("d", fmu_dir / "DelaycompDelay.fmu")
+    try:
+        comp.setup(0.0, 1.0, {"delay": 0.01})
+        comp.initialize()
+        comp.do_step(0.0, 0.005)
+        if accepted:
+            comp.do_step(0.005, 0.005 * (1 + rel))
+        else:
+            with pytest.raises(FMICallException, match="fmi2DoStep"):
+                comp.do_step(0.005, 0.005 * (1 + rel))
+            assert "runs on a fixed communication step" in comp.last_message
+    finally:
+        comp.terminate()
