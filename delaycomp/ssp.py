@@ -365,8 +365,11 @@ def read_system(ssd_path: str | Path) -> System:
         raise SspError(f"{where}: dc:Master T and N must be numbers") from None
     exp = root.find("ssd:DefaultExperiment", NSMAP)
     stop = exp.get("stopTime") if exp is not None else None
-    info = SystemInfo(root.get("name", ""), system.get("description", ""),
-                      float(stop) if stop is not None else None,
+    try:
+        stop_time = float(stop) if stop is not None else None
+    except ValueError:
+        raise SspError(f"{where}: stopTime {stop!r} is not a number") from None
+    info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
                       master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
     return System(LoopSpec(instances, connections, T, N, recorded), info, sources)
 
