@@ -208,6 +208,20 @@ def _run_container(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
 PROVIDERS.register("container", _run_container)
 
 
+def _third_party(master: str) -> Provider:
+    def run(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+        from .thirdparty import provider
+
+        return provider(master)(cases)
+
+    return run
+
+
+#: libcosim and Ecos run each case's Jacobi variant (see :mod:`delaycomp.thirdparty`)
+PROVIDERS.register("libcosim", _third_party("libcosim"))
+PROVIDERS.register("ecos", _third_party("ecos"))
+
+
 def run_checks(cases: Iterable[RefCase] = CASES,
                masters: Iterable[str] | None = None) -> list[CheckRow]:
     """Every provider (or those named in ``masters``) over ``cases``."""

@@ -10,6 +10,11 @@ Reproduce Figure 3 of Karafyllis & Krstic (compensated, r = 0.3, u0 = 4)::
 
     delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
 
+Run a packed SSP (``delaycomp build`` writes one per scenario) in the same master, with an
+FMU parameter changed (``instance.parameter=value``)::
+
+    delaycomp run build/fmus/example-3.6.ssp --set controller.mode=uncompensated
+
 The critical measurement delay of the uncompensated loop (k = 2, T = 1)::
 
     delaycomp critical-delay example-3.6
@@ -39,6 +44,7 @@ from . import __version__, scenarios
 from .errors import BadFileError
 from .model import ModelError
 from .scenarios import ParameterError
+from .ssp import SspError
 
 #: suffix of the CSV of a failed run (rows up to the failure): never read as a result
 PARTIAL_SUFFIX = ".partial"
@@ -59,14 +65,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"delaycomp {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    b = sub.add_parser("build", help="build the FMUs into a folder")
+    b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
 
-    r = sub.add_parser("run", help="co-simulate a scenario")
-    r.add_argument("scenario")
+    r = sub.add_parser("run", help="co-simulate a scenario or an SSP file")
+    r.add_argument("scenario", help="a scenario name, or FILE.ssp (then --set takes "
+                                    "instance.parameter=value)")
     _common(r)
     r.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time in seconds (default: the scenario's)")
@@ -76,6 +83,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
+    r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos"), default="delaycomp",
+                   help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
+                        "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`)")
 
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
@@ -133,6 +143,16 @@ def _parser() -> argparse.ArgumentParser:
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
 
+    p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
+    p_ssp.add_argument("scenario", nargs="?", default=None,
+                       help="pack this scenario into --out FILE.ssp (default: write the SSD "
+                            "and SSVs of every scenario at its defaults into "
+                            "--out DIR/<scenario>/)")
+    _common(p_ssp)
+    p_ssp.add_argument("--jacobi", action="store_true",
+                       help="pack the Jacobi variant, for libcosim and Ecos (see README)")
+    p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
+
     sub.add_parser("list", help="list the scenarios and their parameters")
     return p
 
@@ -147,26 +167,96 @@ def _common(p: argparse.ArgumentParser) -> None:
 def _cmd_build(args) -> int:
     from .build import build_all, build_model
 
-    paths = build_model(args.model, args.out) if args.model else build_all(args.out)
+    if args.model:
+        paths = build_model(args.model, args.out)
+    else:
+        from .ssp import pack_scenarios
+
+        paths = build_all(args.out)
+        paths += pack_scenarios(args.out, args.out)
     for path in paths:
         print(path)
+    return 0
+
+
+def _cmd_ssp(args) -> int:
+    from . import ssp
+
+    if args.scenario is None:
+        if args.set or args.jacobi:
+            raise UsageError("--set and --jacobi need a scenario to pack")
+        for path in ssp.write_all(args.out):
+            print(path.parent)
+        return 0
+    if args.out.suffix != ".ssp":
+        raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
+    if args.jacobi:
+        from .thirdparty import CompensationError, pack_jacobi
+
+        try:
+            print(pack_jacobi(args.scenario, args.set, args.out, args.fmu_dir))
+        except CompensationError as exc:
+            raise UsageError(str(exc)) from None
+        return 0
+    spec, info = ssp.scenario_system(args.scenario, args.set)
+    print(ssp.pack(spec, info, args.out, args.fmu_dir))
     return 0
 
 
 def _cmd_run(args) -> int:
     from .simulate import run_loop
 
+    if args.scenario.endswith(".ssp"):
+        return _run_ssp(args)
+    if args.master != "delaycomp":
+        raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
     scenario = scenarios.get(args.scenario)
     params = scenario.resolve(args.set)
     stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
     started = time.perf_counter()
     result = run_loop(scenario.make(params), stop, args.fmu_dir, engine=args.engine)
     elapsed = time.perf_counter() - started
+    return _report_run(args, result, elapsed, scenario.name,
+                       f"{scenario.title}\n" + _describe(params))
+
+
+def _run_ssp(args) -> int:
+    from .simulate import run_loop, stop_ticks
+    from .ssp import Archive, apply_sets
+
+    if args.engine != "fmu":
+        raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
+                         "FMUs")
+    with Archive(Path(args.scenario)) as archive:
+        system = archive.system
+        spec = apply_sets(system.spec, args.set, archive.fmus())
+        stop = system.info.stop_time if args.stop_time is None else args.stop_time
+        if stop is None:
+            raise UsageError(f"{Path(args.scenario).name} has no stop time: give --stop-time")
+        stop_ticks(stop, spec.T, spec.N)  # a bad stop time is a usage error
+        started = time.perf_counter()
+        if args.master == "delaycomp":
+            result = run_loop(spec, stop, fmus=archive.fmus())
+        else:
+            if args.set:
+                raise UsageError("--set applies to our master only (libcosim and Ecos take "
+                                 "the parameters packed in the SSP)")
+            from .thirdparty import run_ssp
+
+            result = run_ssp(args.master, args.scenario, stop)
+            if not result.success:
+                raise RuntimeError(result.message)
+        elapsed = time.perf_counter() - started
+    title = f"{system.info.description or system.info.name}\n" + " ".join(args.set)
+    return _report_run(args, result, elapsed, Path(args.scenario).name, title)
+
+
+def _report_run(args, result, elapsed: float, name: str, title: str) -> int:
+    """Write the CSV and plot of a successful run; on failure nothing that looks like a
+    result (no FILE.csv, no plot): the rows recorded before it go to FILE.csv.partial."""
     for note in result.notes:
         print(f"note: {note}")
     if not result.success:
-        # Nothing that looks like a result: no FILE.csv, no plot. The rows recorded before
-        # the failure go to FILE.csv.partial, for diagnosis.
         where = ""
         if args.out and len(result.times):
             partial = args.out.with_name(args.out.name + PARTIAL_SUFFIX)
@@ -183,9 +273,9 @@ def _cmd_run(args) -> int:
         from .plotting import plot_result
 
         args.plot.parent.mkdir(parents=True, exist_ok=True)
-        plot_result(result, args.plot, f"{scenario.title}\n" + _describe(params))
+        plot_result(result, args.plot, title)
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
-    print(f"{scenario.name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
+    print(f"{name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")
     return 0
 
@@ -297,9 +387,9 @@ def main(argv: list[str] | None = None) -> int:
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
-                   "list": _cmd_list}[args.command]
+                   "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
         return handler(args)
-    except (UsageError, ParameterError, ModelError, BadFileError) as exc:
+    except (UsageError, ParameterError, ModelError, BadFileError, SspError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -162,12 +162,17 @@ ENGINES = ("fmu", "inprocess")
 
 
 def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = None,
-                    fp_guarded: bool = False) -> list:
+                    fp_guarded: bool = False, fmus: dict[str, Path] | None = None) -> list:
     """The master components of ``spec`` for ``engine``. ``fp_guarded`` (in-process only):
-    the caller steps them under ``np.errstate(all="ignore")``."""
+    the caller steps them under ``np.errstate(all="ignore")``. ``fmus`` (FMU engine only)
+    gives the FMU file of some instances (e.g. from an SSP archive); the others come from
+    :func:`fmu_path`."""
     if engine == "fmu":
-        return [FmuComponent(name, fmu_path(kind, config, fmu_dir))
+        fmus = fmus or {}
+        return [FmuComponent(name, fmus.get(name) or fmu_path(kind, config, fmu_dir))
                 for name, (kind, config, _) in spec.instances.items()]
+    if fmus:
+        raise ParameterError("FMU files are not allowed with the in-process engine")
     if engine == "inprocess":
         from orchestrator.inprocess import SlaveComponent
 
@@ -178,12 +183,12 @@ def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = 
 
 
 def make_master(spec: LoopSpec, fmu_dir: Path | None = None, t0: float = 0.0,
-                every: int = 1, engine: str = "fmu",
-                fp_guarded: bool = False) -> tuple[Master, Recorder]:
+                every: int = 1, engine: str = "fmu", fp_guarded: bool = False,
+                fmus: dict[str, Path] | None = None) -> tuple[Master, Recorder]:
     """A master over fresh components of ``spec`` (for ``engine``), with a recorder of its
     signals at every ``every``-th tick (not yet set up: call ``master.setup(stop_time,
     parameters_of(spec))``)."""
-    components = make_components(spec, engine, fmu_dir, fp_guarded)
+    components = make_components(spec, engine, fmu_dir, fp_guarded, fmus)
     master = Master(components, [Connection.parse(c) for c in spec.connections],
                     spec.T, spec.N, t0)
     recorder = Recorder(master, spec.recorded, every)
@@ -196,16 +201,18 @@ def parameters_of(spec: LoopSpec) -> dict[str, dict]:
 
 
 def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
-             t0: float = 0.0, engine: str = "fmu") -> Result:
+             t0: float = 0.0, engine: str = "fmu",
+             fmus: dict[str, Path] | None = None) -> Result:
     """Co-simulate ``spec`` from ``t0`` to ``stop_time`` with one row per base step.
 
     ``engine`` is ``fmu`` (the FMUs through fmpy) or ``inprocess`` (the same slaves without
-    the FMI layer). On a component failure the result so far is returned with
-    ``success=False`` and the failure in ``message``.
+    the FMI layer). ``fmus`` gives the FMU file of some instances (e.g. from an SSP
+    archive); the others come from :func:`fmu_path`. On a component failure the result so
+    far is returned with ``success=False`` and the failure in ``message``.
     """
     ticks = stop_ticks(stop_time - t0, spec.T, spec.N)
     with single_threaded_blas():
-        return _run(spec, ticks, stop_time, fmu_dir, t0, engine)
+        return _run(spec, ticks, stop_time, fmu_dir, t0, engine, fmus)
 
 
 def single_threaded_blas():
@@ -222,11 +229,12 @@ def single_threaded_blas():
 
 
 def _run(spec: LoopSpec, ticks: int, stop_time: float, fmu_dir, t0: float,
-         engine: str) -> Result:
+         engine: str, fmus: dict[str, Path] | None) -> Result:
     # In-process, the slaves' floating-point guard is set once for the run, not per step
     # (the FMUs keep their own: their host's numpy settings are not ours to assume).
     guard = engine == "inprocess"
-    master, recorder = make_master(spec, fmu_dir, t0, engine=engine, fp_guarded=guard)
+    master, recorder = make_master(spec, fmu_dir, t0, engine=engine, fp_guarded=guard,
+                                   fmus=fmus)
     components = list(master.components.values())
     success, message = True, ""
     try:

@@ -81,11 +81,16 @@ def test_critical_delay_prints_r_c_and_confirms(fmu_dir):
     assert any(line.startswith("confirmed above") and "(unstable)" in line for line in rest)
 
 
-def test_build_writes_three_valid_fmus(tmp_path):
+def test_build_writes_three_valid_fmus_and_an_ssp_per_scenario(tmp_path):
+    from delaycomp.scenarios import SCENARIOS
+
     proc = cli("build", "--out", str(tmp_path / "fmus"))
     assert proc.returncode == 0, proc.stderr
     names = sorted(p.name for p in (tmp_path / "fmus").glob("*.fmu"))
     assert names == ["DelaycompControllerLTI.fmu", "DelaycompDelay.fmu", "DelaycompPlantLTI.fmu"]
+    packed = sorted(p.name for p in (tmp_path / "fmus").glob("*.ssp"))
+    assert packed == sorted(f"{name}{variant}.ssp" for name in SCENARIOS
+                            for variant in ("", "-jacobi"))
 
 
 def test_list_names_every_parameter():

@@ -1,0 +1,550 @@
+"""SSP 1.0 description of a closed loop: ``SystemStructure.ssd``, ``.ssv`` files, ``.ssp``.
+
+The SSD and its parameter sets are written from the same :class:`~delaycomp.scenarios.
+LoopSpec` that the master runs, so the two cannot drift apart, and are read back into one.
+This module only does XML; there is no maths here.
+
+Layout of a system (a folder, or the zip archive ``<name>.ssp``)::
+
+    SystemStructure.ssd          components, connectors, connections, master settings
+    resources/<instance>.ssv     one parameter set per component (SSV 1.0)
+    resources/<Model>.fmu        the FMUs (in the archive only)
+
+The master settings go into the default experiment as two annotations:
+
+- ``org.delaycomp.master``: ``<dc:Master T= N= h= stopTime=>`` with the recorded signals,
+  in the namespace :data:`DC_NS`; each component also carries ``<dc:Fmu kind= config=>``,
+  what :func:`delaycomp.simulate.fmu_path` needs to rebuild its FMU;
+- ``com.opensimulationplatform``: ``<osp:FixedStepAlgorithm baseStepSize="h">``, which
+  libcosim reads (only when ``xmlns:osp`` is declared on the root, as here).
+
+Parameters are bound per component (``<ssd:ParameterBinding source="resources/plant.ssv">``)
+and named by the FMU variable, as libcosim and Ecos expect. Every parameter set of a
+system has the same name (:data:`DEFAULT_SET` unless told otherwise): Ecos applies the set
+named in its ``init()``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from lxml import etree
+
+from .scenarios import LoopSpec
+
+SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
+SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
+SSV_NS = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+OSP_NS = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+#: the project's own namespace for the master annotation
+DC_NS = "urn:delaycomp:ssp:1"
+NSMAP = {"ssd": SSD_NS, "ssc": SSC_NS, "ssv": SSV_NS, "osp": OSP_NS, "dc": DC_NS}
+
+#: annotation types
+DC_ANNOTATION = "org.delaycomp.master"
+OSP_ANNOTATION = "com.opensimulationplatform"
+
+SSD_NAME = "SystemStructure.ssd"
+RESOURCES = "resources"
+DEFAULT_SET = "default"
+FMU_MIME = "application/x-fmu-sharedlibrary"
+
+#: FMU kinds whose build config names a model file (``config["model"]``)
+_MODEL_PREFIX = "builtin:"
+
+
+class SspError(ValueError):
+    """An SSD, SSV or SSP archive that this module cannot read (one-line message)."""
+
+
+def tag(name: str) -> str:
+    """``"ssd:System"`` -> ``"{http://...SystemStructureDescription}System"``."""
+    prefix, _, local = name.partition(":")
+    return f"{{{NSMAP[prefix]}}}{local}"
+
+
+# -- values --------------------------------------------------------------------------------
+
+def _ssv_type(value) -> str:
+    if isinstance(value, bool):
+        return "Boolean"
+    if isinstance(value, int):
+        return "Integer"
+    if isinstance(value, float):
+        return "Real"
+    if isinstance(value, str):
+        return "String"
+    raise TypeError(f"parameter value {value!r} has no SSV type")
+
+
+def _format(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"parameter value {value!r} is not finite")
+        return repr(value)  # shortest repr: reads back bit-identically
+    return str(value)
+
+
+def _parse(kind: str, text: str):
+    if kind == "Real":
+        return float(text)
+    if kind == "Integer":
+        return int(text)
+    if kind == "Boolean":
+        if text not in ("true", "false", "1", "0"):
+            raise SspError(f"Boolean value {text!r} is not true/false")
+        return text in ("true", "1")
+    return text
+
+
+# -- model references ----------------------------------------------------------------------
+
+def _config_out(config: dict) -> dict:
+    """The build config with a model file named without a machine path."""
+    out = dict(config)
+    if "model" in out:
+        from .models import HERE
+
+        path = Path(out["model"]).resolve()
+        out["model"] = (f"{_MODEL_PREFIX}{path.stem}" if path.parent == HERE
+                        else path.name)
+    return out
+
+
+def _config_in(config: dict) -> dict:
+    out = dict(config)
+    model = out.get("model")
+    if isinstance(model, str) and model.startswith(_MODEL_PREFIX):
+        from .models import path
+
+        out["model"] = str(path(model[len(_MODEL_PREFIX):]))
+    return out
+
+
+# -- writing -------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SystemInfo:
+    """What an SSD says beyond the loop: its name, description, stop time, set name."""
+
+    name: str
+    description: str = ""
+    stop_time: float | None = None
+    parameter_set: str = DEFAULT_SET
+
+
+def ssv_document(name: str, parameters: dict) -> etree._ElementTree:
+    """An SSV 1.0 parameter set ``name`` with one typed value per parameter."""
+    root = etree.Element(tag("ssv:ParameterSet"), nsmap={"ssv": SSV_NS},
+                         attrib={"version": "1.0", "name": name})
+    params = etree.SubElement(root, tag("ssv:Parameters"))
+    for pname, value in parameters.items():
+        p = etree.SubElement(params, tag("ssv:Parameter"), name=pname)
+        etree.SubElement(p, tag(f"ssv:{_ssv_type(value)}"), value=_format(value))
+    return etree.ElementTree(root)
+
+
+def ssd_document(spec: LoopSpec, info: SystemInfo,
+                 fmu_files: dict[str, str]) -> etree._ElementTree:
+    """The SSD of ``spec``; ``fmu_files`` maps each instance to its FMU file name."""
+    connectors: dict[str, list[tuple[str, str]]] = {name: [] for name in spec.instances}
+    parsed = [_split_connection(c) for c in spec.connections]
+    for src, svar, dst, dvar in parsed:
+        for inst, var, kind in ((src, svar, "output"), (dst, dvar, "input")):
+            if inst not in spec.instances:
+                raise ValueError(f"connection {src}.{svar} -> {dst}.{dvar}: no instance {inst!r}")
+            if (var, kind) not in connectors[inst]:
+                connectors[inst].append((var, kind))
+    for inst, var in spec.recorded:
+        if (var, "output") not in connectors[inst] and (var, "input") not in connectors[inst]:
+            connectors[inst].append((var, "output"))
+
+    root = etree.Element(tag("ssd:SystemStructureDescription"), nsmap=NSMAP,
+                         attrib={"version": "1.0", "name": info.name})
+    system = etree.SubElement(root, tag("ssd:System"), name=info.name)
+    if info.description:
+        system.set("description", info.description)
+    elements = etree.SubElement(system, tag("ssd:Elements"))
+    for inst, (kind, config, params) in spec.instances.items():
+        comp = etree.SubElement(elements, tag("ssd:Component"), name=inst, type=FMU_MIME,
+                                source=f"{RESOURCES}/{fmu_files[inst]}")
+        conns = etree.SubElement(comp, tag("ssd:Connectors"))
+        for var, ckind in connectors[inst]:
+            c = etree.SubElement(conns, tag("ssd:Connector"), name=var, kind=ckind)
+            etree.SubElement(c, tag("ssc:Real"))
+        for pname, value in params.items():
+            c = etree.SubElement(conns, tag("ssd:Connector"), name=pname, kind="parameter")
+            etree.SubElement(c, tag(f"ssc:{_ssv_type(value)}"))
+        bindings = etree.SubElement(comp, tag("ssd:ParameterBindings"))
+        etree.SubElement(bindings, tag("ssd:ParameterBinding"),
+                         source=f"{RESOURCES}/{inst}.ssv")
+        anns = etree.SubElement(comp, tag("ssd:Annotations"))
+        ann = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
+        etree.SubElement(ann, tag("dc:Fmu"), kind=kind,
+                         config=json.dumps(_config_out(config), sort_keys=True))
+    connections = etree.SubElement(system, tag("ssd:Connections"))
+    for src, svar, dst, dvar in parsed:
+        etree.SubElement(connections, tag("ssd:Connection"), startElement=src,
+                         startConnector=svar, endElement=dst, endConnector=dvar)
+
+    h = spec.T / spec.N
+    exp = etree.SubElement(root, tag("ssd:DefaultExperiment"), startTime="0.0")
+    if info.stop_time is not None:
+        exp.set("stopTime", _format(float(info.stop_time)))
+    anns = etree.SubElement(exp, tag("ssd:Annotations"))
+    osp = etree.SubElement(anns, tag("ssc:Annotation"), type=OSP_ANNOTATION)
+    alg = etree.SubElement(osp, tag("osp:Algorithm"))
+    etree.SubElement(alg, tag("osp:FixedStepAlgorithm"), baseStepSize=_format(h))
+    dc = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
+    master = etree.SubElement(dc, tag("dc:Master"), T=_format(float(spec.T)), N=str(spec.N),
+                              h=_format(h), parameterSet=info.parameter_set)
+    for inst, var in spec.recorded:
+        etree.SubElement(master, tag("dc:Record"), element=inst, connector=var)
+    return etree.ElementTree(root)
+
+
+def _split_connection(text: str) -> tuple[str, str, str, str]:
+    left, right = (part.strip() for part in text.split("->"))
+    src, svar = left.split(".", 1)
+    dst, dvar = right.split(".", 1)
+    return src, svar, dst, dvar
+
+
+def _fmu_file_names(spec: LoopSpec) -> dict[str, str]:
+    from .simulate import fmu_file_name
+
+    return {inst: fmu_file_name(kind, config)
+            for inst, (kind, config, _) in spec.instances.items()}
+
+
+def _write(tree: etree._ElementTree, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(etree.tostring(tree, xml_declaration=True, encoding="UTF-8",
+                                    pretty_print=True))
+
+
+def write_system(spec: LoopSpec, info: SystemInfo, folder: str | Path) -> Path:
+    """Write ``SystemStructure.ssd`` and ``resources/<instance>.ssv`` into ``folder``."""
+    folder = Path(folder)
+    _write(ssd_document(spec, info, _fmu_file_names(spec)), folder / SSD_NAME)
+    for inst, (_, _, params) in spec.instances.items():
+        _write(ssv_document(info.parameter_set, params), folder / RESOURCES / f"{inst}.ssv")
+    return folder / SSD_NAME
+
+
+def pack(spec: LoopSpec, info: SystemInfo, out: str | Path,
+         fmu_dir: Path | None = None, fmus: dict[str, Path] | None = None) -> Path:
+    """Write the archive ``out`` (``.ssp``): the SSD, its SSVs and the FMUs.
+
+    The FMUs are taken from ``fmus`` (instance -> path) where given, else from
+    :func:`delaycomp.simulate.fmu_path` (built into ``fmu_dir`` or the cache if missing).
+    """
+    from .simulate import fmu_path
+
+    out = Path(out)
+    names = _fmu_file_names(spec)
+    with tempfile.TemporaryDirectory(prefix="delaycomp-ssp-") as tmp:
+        folder = Path(tmp)
+        write_system(spec, info, folder)
+        for inst, (kind, config, _) in spec.instances.items():
+            src = (fmus or {}).get(inst) or fmu_path(kind, config, fmu_dir)
+            target = folder / RESOURCES / names[inst]
+            if not target.exists():
+                shutil.copyfile(src, target)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        part = out.with_name(out.name + ".part")
+        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+            for f in sorted(folder.rglob("*")):
+                if f.is_file():
+                    zf.write(f, f.relative_to(folder).as_posix())
+        part.replace(out)
+    return out
+
+
+# -- reading -------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class System:
+    """An SSD read back: the loop, what else it says, and each instance's FMU file."""
+
+    spec: LoopSpec
+    info: SystemInfo
+    #: instance -> the component's ``source`` (relative to the SSD)
+    sources: dict[str, str]
+
+
+def _parse_xml(path: Path) -> etree._Element:
+    try:
+        return etree.parse(str(path)).getroot()
+    except (OSError, etree.XMLSyntaxError) as exc:
+        raise SspError(f"{path.name}: not readable XML: {exc}") from None
+
+
+def _attr(el: etree._Element, name: str, where: str) -> str:
+    value = el.get(name)
+    if value is None:
+        raise SspError(f"{where}: missing attribute {name!r}")
+    return value
+
+
+def read_ssv(path: str | Path) -> tuple[str, dict]:
+    """Name and parameters (typed values) of the SSV parameter set at ``path``."""
+    path = Path(path)
+    root = _parse_xml(path)
+    if root.tag != tag("ssv:ParameterSet"):
+        raise SspError(f"{path.name}: not an SSV 1.0 parameter set (root {root.tag})")
+    params = {}
+    for p in root.iterfind("ssv:Parameters/ssv:Parameter", NSMAP):
+        name = _attr(p, "name", path.name)
+        value = next(iter(p), None)
+        if value is None or not isinstance(value.tag, str):
+            raise SspError(f"{path.name}: parameter {name!r} has no value")
+        kind = etree.QName(value).localname
+        if kind not in ("Real", "Integer", "Boolean", "String"):
+            raise SspError(f"{path.name}: parameter {name!r} has unsupported type {kind}")
+        try:
+            params[name] = _parse(kind, _attr(value, "value", f"{path.name}: {name}"))
+        except ValueError:
+            raise SspError(f"{path.name}: parameter {name!r}: bad {kind} value "
+                           f"{value.get('value')!r}") from None
+    return _attr(root, "name", path.name), params
+
+
+def read_system(ssd_path: str | Path) -> System:
+    """Read an SSD written by :func:`write_system` (and its SSVs) back into a loop."""
+    ssd_path = Path(ssd_path)
+    root = _parse_xml(ssd_path)
+    where = ssd_path.name
+    if root.tag != tag("ssd:SystemStructureDescription"):
+        raise SspError(f"{where}: not an SSP 1.0 system structure (root {root.tag})")
+    system = root.find("ssd:System", NSMAP)
+    if system is None:
+        raise SspError(f"{where}: no ssd:System")
+    master = root.find(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation"
+                       f"[@type='{DC_ANNOTATION}']/dc:Master", NSMAP)
+    if master is None:
+        raise SspError(f"{where}: no {DC_ANNOTATION} annotation with dc:Master: not a "
+                       "delaycomp system")
+    instances, sources, set_names = {}, {}, set()
+    for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
+        name = _attr(comp, "name", where)
+        sources[name] = _attr(comp, "source", f"{where}: component {name}")
+        fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
+                        NSMAP)
+        if fmu is None:
+            raise SspError(f"{where}: component {name} has no dc:Fmu annotation")
+        try:
+            config = _config_in(json.loads(_attr(fmu, "config", f"{where}: {name}")))
+        except json.JSONDecodeError:
+            raise SspError(f"{where}: component {name}: dc:Fmu config is not JSON") from None
+        params: dict = {}
+        for binding in comp.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NSMAP):
+            source = _attr(binding, "source", f"{where}: component {name}")
+            set_name, values = read_ssv(ssd_path.parent / source)
+            set_names.add(set_name)
+            params.update(values)
+        instances[name] = (_attr(fmu, "kind", f"{where}: {name}"), config, params)
+    connections = []
+    for c in system.iterfind("ssd:Connections/ssd:Connection", NSMAP):
+        ends = [_attr(c, a, f"{where}: connection") for a in
+                ("startElement", "startConnector", "endElement", "endConnector")]
+        connections.append(f"{ends[0]}.{ends[1]} -> {ends[2]}.{ends[3]}")
+    recorded = [(_attr(r, "element", where), _attr(r, "connector", where))
+                for r in master.iterfind("dc:Record", NSMAP)]
+    try:
+        T, N = float(_attr(master, "T", where)), int(_attr(master, "N", where))
+    except ValueError:
+        raise SspError(f"{where}: dc:Master T and N must be numbers") from None
+    exp = root.find("ssd:DefaultExperiment", NSMAP)
+    stop = exp.get("stopTime") if exp is not None else None
+    try:
+        stop_time = float(stop) if stop is not None else None
+    except ValueError:
+        raise SspError(f"{where}: stopTime {stop!r} is not a number") from None
+    info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
+                      master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
+    return System(LoopSpec(instances, connections, T, N, recorded), info, sources)
+
+
+class Archive:
+    """An ``.ssp`` archive unpacked into a temporary folder (a context manager)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._tmp: tempfile.TemporaryDirectory | None = None
+        self.folder: Path | None = None
+        self.system: System | None = None
+
+    def __enter__(self) -> Archive:
+        if not self.path.is_file():
+            raise SspError(f"{self.path.name}: no such file")
+        self._tmp = tempfile.TemporaryDirectory(prefix="delaycomp-ssp-")
+        self.folder = Path(self._tmp.name)
+        try:
+            with zipfile.ZipFile(self.path) as zf:
+                for member in zf.namelist():
+                    target = (self.folder / member).resolve()
+                    if not target.is_relative_to(self.folder.resolve()):
+                        raise SspError(f"{self.path.name}: member {member!r} leaves the archive")
+                zf.extractall(self.folder)
+        except zipfile.BadZipFile:
+            self.close()
+            raise SspError(f"{self.path.name}: not an SSP archive (not a zip file)") from None
+        except SspError:
+            self.close()
+            raise
+        if not (self.folder / SSD_NAME).is_file():
+            self.close()
+            raise SspError(f"{self.path.name}: no {SSD_NAME} in the archive")
+        try:
+            self.system = read_system(self.folder / SSD_NAME)
+            for inst, source in self.system.sources.items():
+                if not (self.folder / source).is_file():
+                    raise SspError(f"{self.path.name}: component {inst}: {source} is missing")
+        except SspError:
+            self.close()
+            raise
+        return self
+
+    def fmu(self, instance: str) -> Path:
+        return self.folder / self.system.sources[instance]
+
+    def fmus(self) -> dict[str, Path]:
+        return {inst: self.fmu(inst) for inst in self.system.sources}
+
+    def close(self) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# -- validation ----------------------------------------------------------------------------
+
+def _schema(name: str) -> etree.XMLSchema:
+    import fmpy
+
+    return etree.XMLSchema(etree.parse(str(Path(fmpy.__file__).parent / "ssp" / "schema"
+                                           / name)))
+
+
+def validate(path: str | Path) -> list[str]:
+    """Errors of an SSD or SSV against fmpy's SSP 1.0 XSDs (empty when valid)."""
+    path = Path(path)
+    root = _parse_xml(path)
+    name = {tag("ssd:SystemStructureDescription"): "SystemStructureDescription.xsd",
+            tag("ssv:ParameterSet"): "SystemStructureParameterValues.xsd"}.get(root.tag)
+    if name is None:
+        return [f"{path.name}: neither an SSD nor an SSV (root {root.tag})"]
+    schema = _schema(name)
+    if schema.validate(root.getroottree()):
+        return []
+    return [f"{path.name}:{e.line}: {e.message}" for e in schema.error_log]
+
+
+# -- scenarios -----------------------------------------------------------------------------
+
+def scenario_system(name: str, assignments: list[str] | None = None,
+                    parameter_set: str = DEFAULT_SET) -> tuple[LoopSpec, SystemInfo]:
+    """The loop and SSD header of scenario ``name`` with ``NAME=VALUE`` assignments."""
+    from . import scenarios
+
+    sc = scenarios.get(name)
+    spec = sc.make(sc.resolve(list(assignments or [])))
+    return spec, SystemInfo(sc.name, sc.title, sc.default_stop_time, parameter_set)
+
+
+def write_all(folder: str | Path) -> list[Path]:
+    """``folder/<scenario>/`` with the SSD and SSVs of every scenario at its defaults."""
+    from .scenarios import SCENARIOS
+
+    return [write_system(*scenario_system(name), Path(folder) / name) for name in SCENARIOS]
+
+
+def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Path]:
+    """``out_dir/<scenario>.ssp`` for every scenario at its defaults, and its Jacobi variant
+    ``out_dir/<scenario>-jacobi.ssp`` for libcosim and Ecos (:mod:`delaycomp.thirdparty`).
+
+    The FMUs come from ``fmu_dir`` where they are (``delaycomp build`` has just built the
+    LTI loop's there) and are otherwise built, two at a time, into the build cache.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .scenarios import SCENARIOS
+    from .simulate import fmu_file_name, fmu_path
+
+    systems = [scenario_system(name) for name in SCENARIOS]
+    wanted = {}
+    for spec, _ in systems:
+        for kind, config, _ in spec.instances.values():
+            wanted.setdefault(fmu_file_name(kind, config), (kind, config))
+    have = {name: Path(fmu_dir) / name for name in wanted
+            if fmu_dir is not None and (Path(fmu_dir) / name).is_file()}
+    missing = [kc for name, kc in wanted.items() if name not in have]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # each build is its own process
+        built = list(pool.map(lambda kc: fmu_path(*kc), missing))
+    have.update({p.name: p for p in built})
+    from .thirdparty import jacobi_info, jacobi_variant
+
+    out = []
+    for spec, info in systems:
+        fmus = {inst: have[fmu_file_name(kind, config)]
+                for inst, (kind, config, _) in spec.instances.items()}
+        out.append(pack(spec, info, Path(out_dir) / f"{info.name}.ssp", fmus=fmus))
+        variant = jacobi_variant(spec)
+        out.append(pack(variant, jacobi_info(info), Path(out_dir) / f"{info.name}-jacobi.ssp",
+                        fmus={i: fmus[i] for i in variant.instances}))
+    return out
+
+
+def _fmu_parameter_type(fmu: Path, name: str) -> str | None:
+    from fmpy import read_model_description
+
+    for v in read_model_description(str(fmu)).modelVariables:
+        if v.name == name and v.causality == "parameter":
+            return {"Real": "Real", "Integer": "Integer", "Boolean": "Boolean",
+                    "String": "String", "Enumeration": "Integer"}[v.type]
+    return None
+
+
+def apply_sets(spec: LoopSpec, assignments: list[str], fmus: dict[str, Path]) -> LoopSpec:
+    """``spec`` with ``instance.parameter=value`` assignments applied to FMU parameters.
+
+    The value is parsed as the parameter's type (from the SSV, else the FMU's
+    modelDescription); an unknown instance or parameter, or a bad value, raises
+    :class:`SspError`.
+    """
+    instances = {k: (kind, config, dict(params))
+                 for k, (kind, config, params) in spec.instances.items()}
+    for text in assignments:
+        left, sep, value = text.partition("=")
+        inst, dot, pname = left.strip().partition(".")
+        if not sep or not dot or not pname:
+            raise SspError(f"--set {text!r}: an SSP takes instance.parameter=VALUE")
+        if inst not in instances:
+            raise SspError(f"--set {text!r}: no instance {inst!r}: allowed are "
+                           f"{', '.join(instances)}")
+        params = instances[inst][2]
+        kind = (_ssv_type(params[pname]) if pname in params
+                else _fmu_parameter_type(fmus[inst], pname))
+        if kind is None:
+            raise SspError(f"--set {text!r}: {inst} has no parameter {pname!r}")
+        try:
+            parsed = _parse(kind, value.strip().lower() if kind == "Boolean" else value.strip())
+            if kind == "Real" and not math.isfinite(parsed):
+                raise ValueError(value)
+        except (ValueError, SspError):
+            raise SspError(f"--set {text!r}: {inst}.{pname} must be a finite "
+                           f"{kind}") from None
+        params[pname] = parsed
+    return LoopSpec(instances, list(spec.connections), spec.T, spec.N, list(spec.recorded))
