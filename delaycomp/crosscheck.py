@@ -372,20 +372,23 @@ def run_alone(model: Path) -> AloneResult:
 
 
 def run_alone_batch(models: Sequence[Path]) -> list[AloneResult]:
-    """:func:`run_alone` on each model, in a fresh Python process.
+    """:func:`run_alone` on each model, each in a fresh Python process.
 
-    ``fmpy.simulate_fmu`` frees each FMU's library after the run; with pythonfmu FMUs that
-    share bundled modules, later instances in the same process then failed (measured:
-    ``'NoneType' object is not callable`` in the next model controller). A child process
-    keeps the caller's interpreter clean.
+    ``fmpy.simulate_fmu`` frees each FMU's library after the run, and pythonfmu's runtime
+    does not survive that within one process: a later pythonfmu FMU in the same process
+    failed (``'NoneType' object is not callable``) or the process aborted on a corrupted
+    heap (measured, intermittently, with four FMUs run one after another). One process per
+    FMU keeps every run clean, at about a second of start-up each.
     """
-    proc = subprocess.run([sys.executable, "-m", "delaycomp.crosscheck",
-                           *(str(m) for m in models)], capture_output=True, text=True,
-                          timeout=600)
-    if proc.returncode != 0:
-        reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(f"running the FMUs alone failed: {reason}")
-    return [AloneResult(**r) for r in json.loads(proc.stdout.strip().splitlines()[-1])]
+    results = []
+    for model in models:
+        proc = subprocess.run([sys.executable, "-m", "delaycomp.crosscheck", str(model)],
+                              capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+            raise RuntimeError(f"running {Path(model).name} alone failed: {reason}")
+        results += [AloneResult(**r) for r in json.loads(proc.stdout.strip().splitlines()[-1])]
+    return results
 
 
 def run_alone_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
