@@ -104,6 +104,10 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if config is None:
         config = dict(DEFAULT_CONFIG[kind])
     config = dict(config)
+    for key in ("n", "m"):
+        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
+            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
+                             "from 1 to 1000 (a dimension of the FMU)")
     config["version"] = delaycomp.__version__
     ident = model_identifier(kind, config)
     out_dir = Path(out_dir).resolve()

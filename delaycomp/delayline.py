@@ -30,7 +30,8 @@ def steps_of(delay: float, h: float) -> int:
     D = round(ratio)
     if abs(ratio - D) > GRID_RTOL * max(1.0, ratio):
         raise ValueError(
-            f"delay = {delay!r} is not a multiple of the communication step {h!r}"
+            f"delay = {delay!r} is not allowed: must be an integer multiple of the "
+            f"communication step {h!r}"
         )
     return int(D)
 

@@ -55,7 +55,6 @@ NAMED = re.compile(
     r"|computing the control at t = \S+ failed: IntegrationError: ODE solve failed"
     r"|predictor ODE solve at t = \S+ failed: ODE solve failed"
     r"|plant step at t = \S+ failed: ODE solve failed"
-    r"|delay: (?:step size|delay) .*(?:must be|is not a multiple)"
     r")"
 )
 

@@ -247,3 +247,13 @@ def test_connection_to_a_missing_variable_is_named(fmu_dir):
     plant = FmuComponent("plant", fmu_dir / "DelaycompPlantLTI.fmu")
     with pytest.raises(ValueError, match="plant has no input 'v'"):
         Master([plant], [Connection.parse("plant.x -> plant.v")], T=1.0, N=1)
+
+
+@pytest.mark.parametrize("config", [{"n": 0}, {"n": -1}, {"n": 1.5}, {"n": True}],
+                         ids=["zero", "negative", "float", "bool"])
+def test_bad_dimension_is_refused_before_building(tmp_path, config):
+    from delaycomp.build import build_fmu
+
+    with pytest.raises(ValueError, match=r"^n = .+ is not allowed: must be an integer from 1"):
+        build_fmu("delay", tmp_path, config)
+    assert list(tmp_path.iterdir()) == []

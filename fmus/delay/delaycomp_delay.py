@@ -5,6 +5,8 @@ The maths is :class:`delaycomp.delayline.DelayLine`. See README.md beside this f
 
 from __future__ import annotations
 
+import math
+
 from delaycomp.delayline import DelayLine, steps_of
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
 from delaycomp.lti import GRID_RTOL
@@ -67,11 +69,14 @@ class DelaycompDelay(TableSlave):
         return tuple(self.u) if self.delay == 0 else tuple(self.u0)
 
     def _step(self, t: float, step_size: float) -> None:
+        if not (math.isfinite(step_size) and step_size > 0):
+            self.fail(f"step size {step_size!r} at t = {t!r} is not allowed: must be a finite "
+                      "number > 0")
         if self.line is None:
             try:
                 D = steps_of(self.delay, step_size)
-            except ValueError as exc:
-                self.fail(f"delay: {exc}")
+            except ValueError as exc:  # names the delay, its value and what is allowed
+                self.fail(str(exc))
             self.line = DelayLine(self.n, D, self.u0)
             self._h = step_size
         elif abs(step_size - self._h) > GRID_RTOL * self._h:
