@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
@@ -324,3 +324,45 @@ class TableSlave(Fmi2Slave):
             for unknown in outputs.findall("Unknown"):
                 SubElement(initial, "Unknown", attrib={"index": unknown.get("index")})
         return root
+
+
+class HeldSampleMixin:
+    """The controllers' ``held_sample`` parameter (a :class:`TableSlave` with input ``y``).
+
+    With ``held_sample = true`` a controller samples at ``t_i`` the input held over the step
+    that ended at ``t_i`` (before the first step: the input set at ``t0``), so its output
+    does not depend on its input at the same instant. This is for masters that read every
+    output right after ``doStep`` and only then set inputs (libcosim, Ecos, the container
+    of ``delaycomp export-loop``); the loop shortens the measurement delay by one step to
+    compensate. The held input is hidden state (saved with the FMU state).
+    """
+
+    def register_held_sample(self) -> None:
+        self.held_sample = False
+        self._y_held = None  # the input held over the step that just ended
+        self.register_variable(Boolean(
+            "held_sample", causality=Fmi2Causality.parameter,
+            variability=Fmi2Variability.fixed, getter=lambda: self.held_sample,
+            setter=lambda v: setattr(self, "held_sample", bool(v)),
+            description="sample at t0 + iT the input held over the step ending there (no "
+                        "direct feedthrough; for masters that read outputs before setting "
+                        "inputs)"))
+
+    def _sample(self) -> np.ndarray:
+        """The measurement sampled now: the input, or (``held_sample``) the held one."""
+        if self.held_sample and self._y_held is not None:
+            return self._y_held
+        return self.y
+
+    def _hold(self) -> bool:
+        """At the end of a step: keep the input it was held at (``held_sample`` only)."""
+        if self.held_sample:
+            self._y_held = self.y.copy()
+            return True
+        return False
+
+    def _held_state(self) -> list | None:
+        return None if self._y_held is None else self._y_held.tolist()
+
+    def _restore_held(self, held: list | None) -> None:
+        self._y_held = None if held is None else np.array(held, dtype=float)

@@ -20,6 +20,8 @@ from fmpy.fmi2 import (
     fmi2CallbackLoggerTYPE,
 )
 
+from .master import ReaderWriterIO
+
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 FATAL = 4
 #: Callback structures handed to FMUs. The pythonfmu runtime outlives ``fmi2FreeInstance``
@@ -46,7 +48,7 @@ class FmuRefused(RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmuslave``)."""
 
 
-class FmuComponent:
+class FmuComponent(ReaderWriterIO):
     """One instance of a co-simulation FMU.
 
     Outputs that the modelDescription declares with an empty ``dependencies`` list have no
@@ -72,6 +74,8 @@ class FmuComponent:
         #: worst status an FMI call of this instance returned (0 = ok .. 4 = fatal)
         self.worst_status = 0
         self._vr_cache: dict[tuple[str, ...], list[int]] = {}
+        self._readers: dict[tuple[str, ...], object] = {}
+        self._writers: dict[tuple[str, ...], object] = {}
         self._unzipdir: str | None = None
         self.fmu: FMU2Slave | None = None
         self._env_id = next(_ENV_IDS)
@@ -158,23 +162,6 @@ class FmuComponent:
             raise
         if self.worst_status >= 3:  # it logged an error: it will refuse to step
             raise FmuRefused(self.last_message or "the FMU logged an error")
-
-    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
-        try:
-            self.fmu.setReal(self._vrs(names), values)
-        except FMICallException as exc:
-            self._failed(exc)
-            raise
-
-    def get_outputs(self, names: Sequence[str]) -> list[float]:
-        try:
-            values = self.fmu.getReal(self._vrs(names))
-        except FMICallException as exc:
-            self._failed(exc)
-            raise
-        if self.worst_status >= 3:  # it logged an error computing them: do not use them
-            raise FmuRefused(self.last_message or "the FMU logged an error")
-        return values
 
     def reader(self, names: Sequence[str]):
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""

@@ -24,6 +24,8 @@ from pythonfmu.enums import Fmi2Causality
 import delaycomp
 from delaycomp.build import FMUS, model_id, model_identifier
 
+from .master import ReaderWriterIO
+
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 _CLASSES: dict[tuple, type] = {}
 
@@ -71,7 +73,7 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
     return cls, cfg
 
 
-class SlaveComponent:
+class SlaveComponent(ReaderWriterIO):
     """One slave instance, with the master's component protocol (as ``FmuComponent``)."""
 
     def __init__(self, name: str, kind: str, config: dict, fp_guarded: bool = False):
@@ -92,8 +94,8 @@ class SlaveComponent:
         self.output_names = [v.name for v in by_causality.get(Fmi2Causality.output, [])]
         deps = self.slave.dependencies
         self.feedthrough_outputs = frozenset(o for o in self.output_names if deps.get(o))
-        self._setters: dict[tuple[str, ...], list] = {}
-        self._getters: dict[tuple[str, ...], list] = {}
+        self._readers: dict[tuple[str, ...], object] = {}
+        self._writers: dict[tuple[str, ...], object] = {}
 
     def _drain(self) -> None:
         queue = self.slave.log_queue
@@ -128,21 +130,6 @@ class SlaveComponent:
         self._drain()
         if self.worst_status >= 3:
             raise SlaveRefused(self.last_message or "the slave logged an error")
-
-    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
-        key = tuple(names)
-        setters = self._setters.get(key)
-        if setters is None:
-            setters = self._setters[key] = [self._var(n).setter for n in names]
-        for s, v in zip(setters, values):
-            s(v)
-
-    def get_outputs(self, names: Sequence[str]) -> list[float]:
-        key = tuple(names)
-        read = self._getters.get(key)
-        if read is None:
-            read = self._getters[key] = self.reader(names)
-        return read()
 
     def reader(self, names: Sequence[str]):
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""

@@ -59,6 +59,28 @@ class Component(Protocol):
     # (a recorder of inputs) sets both to None.
 
 
+class ReaderWriterIO:
+    """``get_outputs`` / ``set_inputs`` of a component that has ``reader`` and ``writer``:
+    one bound callable per name list, made once and cached."""
+
+    _readers: dict
+    _writers: dict
+
+    def get_outputs(self, names: Sequence[str]) -> list[float]:
+        key = tuple(names)
+        read = self._readers.get(key)
+        if read is None:
+            read = self._readers[key] = self.reader(names)
+        return read()
+
+    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
+        key = tuple(names)
+        write = self._writers.get(key)
+        if write is None:
+            write = self._writers[key] = self.writer(names)
+        write(values)
+
+
 @dataclass(frozen=True)
 class Connection:
     """``src.src_var -> dst.dst_var``."""

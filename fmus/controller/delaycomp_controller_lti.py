@@ -6,17 +6,17 @@ The maths is :class:`delaycomp.controller.ZOHController`. See README.md beside t
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability
+from pythonfmu import Fmi2Variability
 
 from delaycomp.controller import ZOHController
-from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
+from delaycomp.fmuslave import HeldSampleMixin, TableSlave, check_finite, check_inputs
 from delaycomp.lti import MODES, check_steps, split_delay
 from delaycomp.names import indexed
 
 _EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times
 
 
-class DelaycompControllerLTI(TableSlave):
+class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
     """u_i = K Phi(y_i, past inputs) (compensated) or u_i = K y_i, held over each period."""
 
     description = ("sampled-data ZOH controller with the LTI predictor of Corollary 3.4; "
@@ -62,15 +62,7 @@ class DelaycompControllerLTI(TableSlave):
             self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
                            "controller output history, constant on [t0 - r - tau, t0)")
-        self.held_sample = False
-        self._y_held = None     # held_sample: the input held over the step that just ended
-        self.register_variable(Boolean(
-            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-            getter=lambda: self.held_sample,
-            setter=lambda v: setattr(self, "held_sample", bool(v)),
-            description="sample at t0 + iT the input held over the step ending there (no "
-                        "direct feedthrough; for masters that read outputs before setting "
-                        "inputs)"))
+        self.register_held_sample()
         self.input_names = indexed("y", n)
         self.output_names = indexed("u", m)
 
@@ -125,24 +117,16 @@ class DelaycompControllerLTI(TableSlave):
         self._proposal = None
         self._y_held = None
 
-    def _sample(self) -> np.ndarray:
-        """The measurement the controller samples: the input now, or (``held_sample``) the
-        input held over the step that ended now (the current one before the first step)."""
-        if self.held_sample and self._y_held is not None:
-            return self._y_held
-        return self.y
-
     def _hidden_state(self) -> dict:
         return {"ctrl": self.ctrl.get_state(), "next": self._next,
                 "at_sample": self._at_sample,
-                "y_held": None if self._y_held is None else self._y_held.tolist()}
+                "y_held": self._held_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
         self.ctrl.set_state(hidden["ctrl"])
         self._next = int(hidden["next"])
         self._at_sample = bool(hidden["at_sample"])
-        held = hidden.get("y_held")
-        self._y_held = None if held is None else np.array(held, dtype=float)
+        self._restore_held(hidden.get("y_held"))
         self._proposal = None  # a cache: recomputed from the restored state
 
     def _output(self) -> np.ndarray:
@@ -174,6 +158,5 @@ class DelaycompControllerLTI(TableSlave):
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")
         self._at_sample = abs(t_end - t_sample) <= tol
-        if self.held_sample:
-            self._y_held = self.y.copy()
-            self._proposal = None
+        if self._hold():
+            self._proposal = None  # the held input is sampled at the next instant

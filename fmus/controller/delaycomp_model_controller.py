@@ -11,13 +11,19 @@ import importlib
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer
 
-from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, check_model_parameters
+from delaycomp.fmuslave import (
+    HeldSampleMixin,
+    TableSlave,
+    check_finite,
+    check_inputs,
+    check_model_parameters,
+)
 from delaycomp.model import CONTROLS, from_module
 from delaycomp.nlcontrol import make_controller
 from delaycomp.predictors import DEFAULT_TOL, IntegrationError
 
 
-class ModelControllerSlave(TableSlave):
+class ModelControllerSlave(HeldSampleMixin, TableSlave):
     """Controller of a user model; ``model_module`` is set by the generated subclass."""
 
     model_module = ""
@@ -69,15 +75,7 @@ class ModelControllerSlave(TableSlave):
             self.parameter(f"z0[{i + 1}]", (lambda i=i: float(self.z0[i])),
                            (lambda v, i=i: self.z0.__setitem__(i, v)),
                            f"continuous mode: initial predictor state for {s}")
-        self.held_sample = False
-        self._y_held = None     # held_sample: the input held over the step that just ended
-        self.register_variable(Boolean(
-            "held_sample", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-            getter=lambda: self.held_sample,
-            setter=lambda v: setattr(self, "held_sample", bool(v)),
-            description="sample at t0 + iT the input held over the step ending there (no "
-                        "direct feedthrough; for masters that read outputs before setting "
-                        "inputs)"))
+        self.register_held_sample()
         inputs = [f"y_{s}" for s in model.states]
         self.input_names = inputs
 
@@ -120,21 +118,13 @@ class ModelControllerSlave(TableSlave):
             self.ctrl.t0 = self.t0
         self._y_held = None
 
-    def _sample(self) -> np.ndarray:
-        """The measurement the controller samples: the input now, or (``held_sample``) the
-        input held over the step that ended now (the current one before the first step)."""
-        if self.held_sample and self._y_held is not None:
-            return self._y_held
-        return self.y
-
     def _hidden_state(self) -> dict:
         return {"ctrl": self.ctrl.get_state(),
-                "y_held": None if self._y_held is None else self._y_held.tolist()}
+                "y_held": self._held_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
         self.ctrl.set_state(hidden["ctrl"])
-        held = hidden.get("y_held")
-        self._y_held = None if held is None else np.array(held, dtype=float)
+        self._restore_held(hidden.get("y_held"))
 
     def _output(self):
         if self.ctrl is None:
@@ -167,5 +157,4 @@ class ModelControllerSlave(TableSlave):
             self.ctrl.advance(self._sample())
         except IntegrationError as exc:
             self.fail(f"predictor ODE solve at t = {t!r} failed: {exc}")
-        if self.held_sample:
-            self._y_held = self.y.copy()
+        self._hold()
