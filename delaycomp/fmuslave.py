@@ -76,6 +76,8 @@ def _plain(value):
 
 def check_inputs(names, values, t: float) -> None:
     """Refuse a non-finite input value, naming the input, its value and the time."""
+    if all(map(math.isfinite, values)):  # the per-step path: no names needed
+        return
     for name, value in zip(names, values):
         if not math.isfinite(value):
             raise ParameterError(f"input {name} = {float(value)!r} at t = {t!r} is not "

@@ -136,13 +136,26 @@ class SlaveComponent(ReaderWriterIO):
         getters = [self._var(n).getter for n in names]
         slave = self.slave
 
-        def read():
+        def refused():
+            self._drain()
+            return SlaveRefused(self.last_message or slave.error)
+
+        if len(getters) == 1:
+            g = getters[0]
+
+            def read():
+                values = [g()]
+                if slave.error is not None:  # it refused while computing: do not use it
+                    raise refused()
+                return values
+            return read
+
+        def read_all():
             values = [g() for g in getters]
             if slave.error is not None:  # it refused while computing them: do not use them
-                self._drain()
-                raise SlaveRefused(self.last_message or slave.error)
+                raise refused()
             return values
-        return read
+        return read_all
 
     def writer(self, names: Sequence[str]):
         """``(values) -> None`` setting the inputs ``names``: the master's hot path."""
