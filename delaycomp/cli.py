@@ -281,7 +281,9 @@ def _report_run(args, result, elapsed: float, name: str, title: str) -> int:
 
 
 def _describe(params: dict) -> str:
-    return ", ".join(f"{k}={v}" for k, v in params.items())
+    """``k=v, ...`` for a plot title; parameters left to their derived default (``None``,
+    such as ``r_true``) are omitted."""
+    return ", ".join(f"{k}={v}" for k, v in params.items() if v is not None)
 
 
 def _cmd_sweep(args) -> int:
