@@ -109,16 +109,36 @@ def bench_engines(names, Ns, repeats, fmu_dir):
     return rows
 
 
+_COLD = """
+import sys, time
+from delaycomp import scenarios
+from delaycomp.simulate import run_loop
+sc = scenarios.get("example-3.6")
+spec = sc.make(sc.resolve([]))
+t = time.perf_counter()
+run_loop(spec, 20.0, sys.argv[1])
+print(time.perf_counter() - t)
+"""
+
+
 def bench_example_3_6(repeats, fmu_dir):
+    """Repeated runs in one process (FMUs unpacked once, as in a sweep), and the first run
+    in a fresh process (unpacking the FMUs included, as a single `delaycomp run`)."""
+    import subprocess
+
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve([]))
     med = alternate({
         "fmu": lambda: run_loop(spec, 20.0, fmu_dir),
         "inprocess": lambda: run_loop(spec, 20.0, engine="inprocess"),
     }, repeats)
+    cold = statistics.median(
+        float(subprocess.run([sys.executable, "-c", _COLD, str(fmu_dir)], check=True,
+                             capture_output=True, text=True).stdout.split()[-1])
+        for _ in range(max(1, repeats // 2)))
     return dict(fmu=med["fmu"], inprocess=med["inprocess"], realtime=20.0 / med["fmu"],
                 realtime_inprocess=20.0 / med["inprocess"],
-                ratio=med["fmu"] / med["inprocess"])
+                ratio=med["fmu"] / med["inprocess"], cold=cold)
 
 
 # -- 2. master overhead ----------------------------------------------------------------------
@@ -313,8 +333,9 @@ def write_report(path, results, args) -> None:
          "## Targets", "",
          "| target | measured | status |", "|---|---|---|"]
     L.append(f"| Example 3.6 (20 s, N = 100, FMUs) >= {TARGET_REALTIME:g}x real time | "
-             f"{e36['realtime']:.0f}x ({e36['fmu'] * 1e3:.0f} ms) | "
-             f"{ok(e36['realtime'] >= TARGET_REALTIME)} |")
+             f"{e36['realtime']:.0f}x ({e36['fmu'] * 1e3:.0f} ms; the first run in a fresh "
+             f"process, unpacking the FMUs: {20.0 / e36['cold']:.0f}x, "
+             f"{e36['cold'] * 1e3:.0f} ms) | {ok(e36['realtime'] >= TARGET_REALTIME)} |")
     L.append(f"| in-process >= {TARGET_INPROCESS:g}x faster than the FMU loop (Example 3.6, "
              f"20 s) | {e36['ratio']:.1f}x ({e36['inprocess'] * 1e3:.1f} ms) | "
              f"{ok(e36['ratio'] >= TARGET_INPROCESS)} |")

@@ -110,8 +110,10 @@ class TableSlave(Fmi2Slave):
     license = "MIT"
     version = delaycomp.__version__
 
-    #: True when the caller already runs the steps under ``np.errstate(all="ignore")``
-    #: (the in-process engine does, once per run: the per-step context costs 1.5 us)
+    #: True when a step needs no ``np.errstate(all="ignore")`` of its own (1.5 us a step):
+    #: the caller provides it (the in-process engine, once per run), or the slave's step
+    #: does no floating-point arithmetic that could warn (the delay, the LTI controller,
+    #: whose numerical work is in an output getter guarded on its own)
     fp_guarded = False
 
     def __init__(self, **kwargs):

@@ -77,9 +77,28 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     return path
 
 
+#: FMU files already checked in this process, with their modification time and size
+_CHECKED: set[tuple] = set()
+
+
 def check_fmu(path: Path, kind: str, config: dict) -> None:
     """Refuse an FMU that is not a zip, has no readable modelDescription, is of another
-    model, or was built for other dimensions or another delaycomp version."""
+    model, or was built for other dimensions or another delaycomp version. A file checked
+    before and unchanged since is not read again (runs of a sweep look up the same FMUs)."""
+    try:
+        st = Path(path).stat()
+        key = (str(path), st.st_mtime_ns, st.st_size, kind,
+               json.dumps(config, sort_keys=True, default=str))
+    except OSError:
+        key = None
+    if key is not None and key in _CHECKED:
+        return
+    _check_fmu(path, kind, config)
+    if key is not None:
+        _CHECKED.add(key)
+
+
+def _check_fmu(path: Path, kind: str, config: dict) -> None:
     from fmpy import read_model_description
 
     ident = model_identifier(kind, config)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import atexit
 import itertools
 import shutil
 import tempfile
@@ -44,6 +45,29 @@ def _route(env, instance_name, status, category, message):
 _DISPATCH = fmi2CallbackLoggerTYPE(_route)
 
 
+#: FMUs unpacked in this process, by (path, modification time, size): unpacking costs
+#: about 40 ms per FMU (they carry two platforms' binaries), more than a short run of the
+#: loop; instances of one FMU, and later runs, share the folder. Removed at exit.
+_UNPACKED: dict[tuple[str, int, int], tuple[object, str]] = {}
+
+
+def _unpacked(path: Path) -> tuple[object, str]:
+    """The model description and unpacked folder of the FMU file ``path`` (cached)."""
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    hit = _UNPACKED.get(key)
+    if hit is None or not Path(hit[1]).is_dir():
+        md = read_model_description(str(path))
+        hit = _UNPACKED[key] = (md, extract(str(path), tempfile.mkdtemp(prefix="delaycomp-fmu-")))
+    return hit
+
+
+@atexit.register
+def _remove_unpacked() -> None:
+    for _, folder in _UNPACKED.values():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 class FmuRefused(RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmuslave``)."""
 
@@ -59,7 +83,7 @@ class FmuComponent(ReaderWriterIO):
     def __init__(self, name: str, path: str | Path):
         self.name = name
         self.path = Path(path)
-        self.md = read_model_description(str(self.path))
+        self.md, self._unzipdir = _unpacked(self.path)
         if self.md.coSimulation is None:
             raise ValueError(f"{self.path.name} is not a co-simulation FMU")
         self._vars = {v.name: v for v in self.md.modelVariables}
@@ -76,7 +100,6 @@ class FmuComponent(ReaderWriterIO):
         self._vr_cache: dict[tuple[str, ...], list[int]] = {}
         self._readers: dict[tuple[str, ...], object] = {}
         self._writers: dict[tuple[str, ...], object] = {}
-        self._unzipdir: str | None = None
         self.fmu: FMU2Slave | None = None
         self._env_id = next(_ENV_IDS)
         _COMPONENTS[self._env_id] = weakref.ref(self)
@@ -119,7 +142,6 @@ class FmuComponent(ReaderWriterIO):
             raise ValueError(f"{self.name}: no variable named {name!r}") from None
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
-        self._unzipdir = extract(str(self.path), tempfile.mkdtemp(prefix="delaycomp-fmu-"))
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                         instanceName=self.name)
@@ -237,6 +259,3 @@ class FmuComponent(ReaderWriterIO):
                     self.fmu = None
         finally:
             _COMPONENTS.pop(self._env_id, None)
-            if self._unzipdir:
-                shutil.rmtree(self._unzipdir, ignore_errors=True)
-                self._unzipdir = None

@@ -85,7 +85,8 @@ class SlaveComponent(ReaderWriterIO):
         self.last_message: str | None = None
         self.worst_status = 0
         self.slave = self._cls(instance_name=name, resources=None, config=self._config)
-        self.slave.fp_guarded = fp_guarded
+        if fp_guarded:  # else the slave class's own setting stands
+            self.slave.fp_guarded = True
         by_causality = {}
         for v in self.slave.vars.values():
             by_causality.setdefault(v.causality, []).append(v)

@@ -21,6 +21,7 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
 
     description = ("sampled-data ZOH controller with the LTI predictor of Corollary 3.4; "
                    "samples y at t0 + iT")
+    fp_guarded = True  # a step commits and compares times; propose() guards itself
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

@@ -17,6 +17,7 @@ class DelaycompDelay(TableSlave):
     """Transport delay, exact for signals piecewise constant on the communication grid."""
 
     description = "transport delay y(t) = u(t - delay), initial history u0 on [t0 - delay, t0)"
+    fp_guarded = True  # a step copies values: no arithmetic that could overflow
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
