@@ -47,6 +47,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -347,17 +348,34 @@ def read_table(path: Path) -> tuple[list[str], np.ndarray]:
     return rows[0], np.array(rows[1:], dtype=float)
 
 
+def simulate_kept(fmu_file: Path, **kwargs):
+    """``fmpy.simulate_fmu(fmu_file, **kwargs)`` on an FMU instance that is never freed.
+
+    For child processes only (:func:`run_alone_batch`). fmpy frees the FMU's library after
+    a run; pythonfmu's runtime does not survive that reliably (measured: intermittent heap
+    corruption, "corrupted double-linked list", in about one run in fifty). The child keeps
+    the instance and leaves with ``os._exit`` once it has printed its result.
+    """
+    from fmpy import extract, read_model_description, simulate_fmu
+    from fmpy.simulation import instantiate_fmu
+
+    unzipdir = extract(str(fmu_file))
+    md = read_model_description(unzipdir)
+    instance = instantiate_fmu(unzipdir, md, "CoSimulation")
+    return simulate_fmu(unzipdir, model_description=md, fmu_instance=instance, **kwargs)
+
+
 def run_alone(model: Path) -> AloneResult:
-    """``fmpy.simulate_fmu`` on ``<Model>.fmu`` with its ``_in.csv`` against ``_ref.csv``."""
-    from fmpy import simulate_fmu
+    """``fmpy.simulate_fmu`` on ``<Model>.fmu`` with its ``_in.csv`` against ``_ref.csv``
+    (in a child process: see :func:`simulate_kept`)."""
     from fmpy.util import read_csv, read_ref_opt_file
 
     name = model.name
     opt = read_ref_opt_file(str(model / f"{name}_ref.opt"))
     header, ref = read_table(model / f"{name}_ref.csv")
-    res = simulate_fmu(str(model / f"{name}.fmu"), start_time=opt["StartTime"],
-                       stop_time=opt["StopTime"], output_interval=opt["StepSize"],
-                       input=read_csv(str(model / f"{name}_in.csv")), output=header[1:])
+    res = simulate_kept(model / f"{name}.fmu", start_time=opt["StartTime"],
+                        stop_time=opt["StopTime"], output_interval=opt["StepSize"],
+                        input=read_csv(str(model / f"{name}_in.csv")), output=header[1:])
     got_t = np.asarray(res["time"], dtype=float)
     if len(got_t) != len(ref) or not np.allclose(got_t, ref[:, 0], rtol=0,
                                                  atol=1e-9 * opt["StepSize"]):
@@ -416,7 +434,8 @@ def _main(argv: list[str]) -> int:
     from dataclasses import asdict
 
     results = [asdict(run_alone(Path(m))) for m in argv]
-    print(json.dumps(results))
+    print(json.dumps(results), flush=True)
+    os._exit(0)  # no interpreter teardown with a pythonfmu FMU loaded (simulate_kept)
     return 0
 
 
