@@ -33,14 +33,27 @@ CASES = {
     "continuous-closed": ("example-2.4", ["N=10"], 3.0),
     "zoh-numerical": ("example-3.8", ["N=10", "tau=1", "predictor=numerical"], 4.0),
 }
+#: the same with the controllers sampling the held input (``held_sample``, the loop of
+#: :func:`delaycomp.thirdparty.jacobi_variant`): the held input is hidden state too
+HELD = {
+    "lti-held-sample": ("example-3.6", ["r=0.5", "tau=1", "u0=4", "N=4"], 6.0),
+    "zoh-held-sample": ("example-3.8", ["N=10", "tau=1"], 4.0),
+}
 
 
-def _run_with_restore(fmu_dir, name, settings, stop):
+def _run_with_restore(fmu_dir, name, settings, stop, held=False):
     sc = scenarios.get(name)
     spec = sc.make(sc.resolve(settings))
+    if held:
+        from delaycomp.thirdparty import jacobi_variant
+
+        spec = jacobi_variant(spec)
     ticks = stop_ticks(stop, spec.T, spec.N)
-    save_at = ticks // 2 + 1
-    assert save_at % spec.N != 0, "save between sampling instants"
+    if held:  # at a sampling instant, where the held input is what the controller samples
+        save_at = (ticks // 2) // spec.N * spec.N
+    else:
+        save_at = ticks // 2 + 1
+        assert save_at % spec.N != 0, "save between sampling instants"
     master, rec = make_master(spec, fmu_dir)
     try:
         master.setup(stop, parameters_of(spec))
@@ -78,6 +91,17 @@ def test_restored_run_continues_bit_identically(fmu_dir, case):
     # the saved state really carries hidden state (not only the FMI variables)
     hidden = [json.loads(s)["hidden"] for s in state["components"].values()]
     assert all(h for h in hidden)
+
+
+@pytest.mark.parametrize("case", sorted(HELD))
+def test_restored_run_with_held_sample_continues_bit_identically(fmu_dir, case):
+    state, first, second, third = _run_with_restore(fmu_dir, *HELD[case], held=True)
+    assert len(first[0]) > 5
+    assert second == first
+    assert third == first
+    controller = json.loads(state["components"]["controller"])
+    assert controller["values"]["held_sample"] is True
+    assert controller["hidden"]["y_held"] is not None  # saved, and restored above
 
 
 @pytest.mark.parametrize("kind", sorted(FMUS))
