@@ -21,9 +21,8 @@ from fmpy.fmi2 import (
     fmi2CallbackLoggerTYPE,
 )
 
-from .master import ReaderWriterIO
+from .master import ComponentBase
 
-_STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 FATAL = 4
 #: Callback structures handed to FMUs. The pythonfmu runtime outlives ``fmi2FreeInstance``
 #: (it keeps a thread and its interpreter state until the library is unloaded at exit), so a
@@ -72,7 +71,7 @@ class FmuRefused(RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmuslave``)."""
 
 
-class FmuComponent(ReaderWriterIO):
+class FmuComponent(ComponentBase):
     """One instance of a co-simulation FMU.
 
     Outputs that the modelDescription declares with an empty ``dependencies`` list have no
@@ -107,10 +106,7 @@ class FmuComponent(ReaderWriterIO):
     # -- logging -----------------------------------------------------------------------
     def _logger(self, status, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-        self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] {text}")
-        if status >= 2 and self.last_message is None:  # discard, error, fatal
-            self.last_message = text  # the first one names the cause
-        self.worst_status = max(self.worst_status, status)
+        self._note(status, text)
 
     def _callbacks(self) -> fmi2CallbackFunctions:
         cb = fmi2CallbackFunctions()
@@ -134,12 +130,6 @@ class FmuComponent(ReaderWriterIO):
             vrs = [self._var(n).valueReference for n in names]
             self._vr_cache[key] = vrs
         return vrs
-
-    def _var(self, name: str):
-        try:
-            return self._vars[name]
-        except KeyError:
-            raise ValueError(f"{self.name}: no variable named {name!r}") from None
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,

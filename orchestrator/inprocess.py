@@ -24,9 +24,8 @@ from pythonfmu.enums import Fmi2Causality
 import delaycomp
 from delaycomp.build import FMUS, model_id, model_identifier
 
-from .master import ReaderWriterIO
+from .master import ComponentBase
 
-_STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 _CLASSES: dict[tuple, type] = {}
 
 
@@ -73,7 +72,7 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
     return cls, cfg
 
 
-class SlaveComponent(ReaderWriterIO):
+class SlaveComponent(ComponentBase):
     """One slave instance, with the master's component protocol (as ``FmuComponent``)."""
 
     def __init__(self, name: str, kind: str, config: dict, fp_guarded: bool = False):
@@ -101,19 +100,8 @@ class SlaveComponent(ReaderWriterIO):
     def _drain(self) -> None:
         queue = self.slave.log_queue
         for msg in queue:
-            status = int(msg.status)
-            self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] "
-                                 f"{msg.msg}")
-            if status >= 2 and self.last_message is None:
-                self.last_message = msg.msg
-            self.worst_status = max(self.worst_status, status)
+            self._note(int(msg.status), msg.msg)
         queue.clear()
-
-    def _var(self, name: str):
-        try:
-            return self._vars[name]
-        except KeyError:
-            raise ValueError(f"{self.name}: no variable named {name!r}") from None
 
     # -- Component protocol ------------------------------------------------------------
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:

@@ -59,12 +59,36 @@ class Component(Protocol):
     # (a recorder of inputs) sets both to None.
 
 
-class ReaderWriterIO:
-    """``get_outputs`` / ``set_inputs`` of a component that has ``reader`` and ``writer``:
-    one bound callable per name list, made once and cached."""
+#: FMI status names, by value
+STATUS_NAMES = ("ok", "warning", "discard", "error", "fatal", "pending")
 
+
+class ComponentBase:
+    """What the project's components (FMUs, in-process slaves) share: variable lookup,
+    log bookkeeping, and ``get_outputs`` / ``set_inputs`` over their ``reader`` and
+    ``writer`` (one bound callable per name list, made once and cached)."""
+
+    name: str
+    _vars: dict
     _readers: dict
     _writers: dict
+    messages: list
+    last_message: str | None
+    worst_status: int
+
+    def _var(self, name: str):
+        try:
+            return self._vars[name]
+        except KeyError:
+            raise ValueError(f"{self.name}: no variable named {name!r}") from None
+
+    def _note(self, status: int, text: str) -> None:
+        """Record a logged message; the first discard/error/fatal one names the cause."""
+        label = STATUS_NAMES[status] if 0 <= status < len(STATUS_NAMES) else status
+        self.messages.append(f"[{label}] {text}")
+        if status >= 2 and self.last_message is None:
+            self.last_message = text
+        self.worst_status = max(self.worst_status, status)
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
         key = tuple(names)

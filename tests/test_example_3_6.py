@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from delaycomp import scenarios
+from delaycomp.check import CASES
 from delaycomp.critical import fitted_spectral_radius
 from delaycomp.lti import lifted_loop
 from delaycomp.scenarios import lti_loop
@@ -27,11 +28,8 @@ REF_DIR = REPO / "reference" / "example-3.6"
 # modelling error: a controller one base step late is off by ~1e-2.
 RTOL = ATOL = 1e-9
 
-FIGURES = {
-    "fig1": ["r=0.1", "mode=uncompensated"],
-    "fig2": ["r=0.3", "mode=uncompensated"],
-    "fig3": ["r=0.3", "mode=compensated", "u0=4"],
-}
+# the paper's Figures 1-3, from the one registry of reference cases
+FIGURES = {c.case: list(c.sets) for c in CASES if c.scenario == "example-3.6"}
 
 
 def read_ref(name):

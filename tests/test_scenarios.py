@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from delaycomp import scenarios
+from delaycomp.check import CASES
 from delaycomp.models import corollary_4_1, unicycle
 from delaycomp.simulate import run_loop
 
@@ -15,22 +16,12 @@ from .conftest import REPO
 
 pytestmark = pytest.mark.fmu
 
-# case id -> (scenario, --set assignments, reference case)
-ZOH_CASES = {
-    "example-3.8-default": ("example-3.8", [], "default"),
-    "example-3.8-delayed": ("example-3.8", ["tau=1", "r=1.5"], "delayed"),
-    "example-3.8-sin": ("example-3.8", ["p=sin"], "sin"),
-    "corollary-3.7-default": ("corollary-3.7", [], "default"),
-    "corollary-3.7-n2": ("corollary-3.7", ["n=2", "T=0.5", "r=0.75", "tau=0.5", "x0=1,-2",
-                                           "u0=0.7"], "n2"),
-    "proposition-4.2-default": ("proposition-4.2", [], "default"),
-    "proposition-4.2-nodelay_r": ("proposition-4.2", ["tau=0", "x0=-2,0.5,2.5"], "nodelay_r"),
-}
-CONTINUOUS_CASES = {
-    "example-2.4-default": ("example-2.4", [], "default"),
-    "example-2.4-sparse": ("example-2.4", ["T=2"], "sparse"),
-    "corollary-4.1-default": ("corollary-4.1", [], "default"),
-}
+# case id -> (scenario, --set assignments, reference case), from the one registry of
+# reference cases (Example 3.6 has its own tests)
+ZOH_CASES = {f"{c.scenario}-{c.case}": (c.scenario, list(c.sets), c.case)
+             for c in CASES if c.kind == "exact" and c.scenario != "example-3.6"}
+CONTINUOUS_CASES = {f"{c.scenario}-{c.case}": (c.scenario, list(c.sets), c.case)
+                    for c in CASES if c.kind == "first-order"}
 
 
 def reference(scenario, case):
