@@ -42,13 +42,13 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from delaycomp import __version__, check, scenarios  # noqa: E402
+from delaycomp.orchestrator.master import Connection, Master, Recorder  # noqa: E402
 from delaycomp.simulate import (  # noqa: E402
     fmu_path,
     make_components,
     run_loop,
     single_threaded_blas,
 )
-from orchestrator.master import Connection, Master, Recorder  # noqa: E402
 
 TARGET_REALTIME = 100.0
 TARGET_INPROCESS = 20.0

@@ -18,10 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import delaycomp
+import delaycomp.fmus
+from delaycomp.child import module_argv
 
 CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmuslave.CONFIG_NAME
 
-FMU_ROOT = Path(__file__).resolve().parent.parent / "fmus"
+#: The slave modules (``fmus/`` in the repository, installed as :mod:`delaycomp.fmus`).
+FMU_ROOT = Path(delaycomp.fmus.__file__).resolve().parent
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 #: Modules of :mod:`delaycomp` that run inside the FMUs (no CLI, no plotting, no fmpy).
@@ -152,7 +155,7 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
             "options": dict(spec.options),
         }
         proc = subprocess.run(
-            [sys.executable, "-m", "delaycomp.build", json.dumps(request)],
+            module_argv("delaycomp.build", json.dumps(request)),
             cwd=tmp, capture_output=True, text=True,
         )
         if proc.returncode != 0:

@@ -52,6 +52,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from .check import CheckRow, RefCase, compare
+from .child import module_argv
 from .scenarios import LoopSpec, ParameterError
 
 #: inner order of the container (see the module docstring)
@@ -208,11 +209,10 @@ def _simulate_in_child(path: Path, c: RefCase):
     """:func:`simulate_loop` in a fresh process (see
     :func:`delaycomp.crosscheck.run_alone_batch`)."""
     import subprocess
-    import sys
 
     import numpy as np
 
-    proc = subprocess.run([sys.executable, "-m", "delaycomp.container", str(path), c.id],
+    proc = subprocess.run(module_argv("delaycomp.container", str(path), c.id),
                           capture_output=True, text=True, timeout=1200)
     if proc.returncode != 0:
         reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]

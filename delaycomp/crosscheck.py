@@ -64,6 +64,7 @@ import numpy as np
 import delaycomp
 
 from .check import EXACT_TOL, CheckRow, RefCase
+from .child import module_argv
 
 #: tool folder of the cross-check tree
 TOOL = "delaycomp"
@@ -162,8 +163,8 @@ class _Tap:
 
 def record_case(c: RefCase, fmu_dir: Path | None = None) -> dict[str, Trace]:
     """Run the loop of ``c`` to :func:`stop_time` with every instance tapped."""
-    from orchestrator.fmu import FmuComponent
-    from orchestrator.master import Connection, Master, Recorder
+    from delaycomp.orchestrator.fmu import FmuComponent
+    from delaycomp.orchestrator.master import Connection, Master, Recorder
 
     from . import scenarios
     from .simulate import fmu_path, stop_ticks
@@ -400,7 +401,7 @@ def run_alone_batch(models: Sequence[Path]) -> list[AloneResult]:
     """
     results = []
     for model in models:
-        proc = subprocess.run([sys.executable, "-m", "delaycomp.crosscheck", str(model)],
+        proc = subprocess.run(module_argv("delaycomp.crosscheck", str(model)),
                               capture_output=True, text=True, timeout=600)
         if proc.returncode != 0:
             reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]

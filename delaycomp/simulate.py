@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 import delaycomp
-from orchestrator.fmu import FmuComponent
-from orchestrator.master import Connection, Master, Recorder, SimulationError
+from delaycomp.orchestrator.fmu import FmuComponent
+from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
 
 from .build import (
     BUNDLED_MODULES,
@@ -193,7 +193,7 @@ def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = 
     if fmus:
         raise ParameterError("FMU files are not allowed with the in-process engine")
     if engine == "inprocess":
-        from orchestrator.inprocess import SlaveComponent
+        from delaycomp.orchestrator.inprocess import SlaveComponent
 
         return [SlaveComponent(name, kind, config, fp_guarded)
                 for name, (kind, config, _) in spec.instances.items()]

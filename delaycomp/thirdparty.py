@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .child import module_argv
 from .scenarios import LoopSpec, on_grid
 from .simulate import Result
 
@@ -133,8 +134,8 @@ def run_ssp(master: str, ssp_path: str | Path, stop_time: float,
     with tempfile.TemporaryDirectory(prefix="delaycomp-3p-") as tmp:
         out = Path(tmp) / "result.npz"
         proc = subprocess.run(
-            [sys.executable, "-m", "delaycomp.thirdparty", master, str(Path(ssp_path)),
-             repr(float(stop_time)), str(out)],
+            module_argv("delaycomp.thirdparty", master, str(Path(ssp_path).resolve()),
+                        repr(float(stop_time)), str(out)),
             capture_output=True, text=True, timeout=timeout, cwd=tmp)
         if proc.returncode != 0 or not out.exists():
             lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]

@@ -57,7 +57,7 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
     spec = FMUS[kind]
     cfg = {**config, "version": delaycomp.__version__}
     key = (kind, tuple(sorted((k, str(v)) for k, v in cfg.items())))
-    module = importlib.import_module(f"fmus.{spec.kind}.{spec.script_path.stem}")
+    module = importlib.import_module(f"delaycomp.fmus.{spec.kind}.{spec.script_path.stem}")
     if not spec.template:
         return getattr(module, spec.model_identifier), cfg
     model_path = str(Path(cfg.pop("model")).resolve())

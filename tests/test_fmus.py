@@ -16,7 +16,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
 from delaycomp.build import FMUS, build_fmu
-from orchestrator.fmu import FmuComponent, FmuRefused
+from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
 pytestmark = pytest.mark.fmu
 

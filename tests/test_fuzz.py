@@ -30,16 +30,16 @@ from pythonfmu.variables import Boolean, Integer, Real, String
 import delaycomp
 from delaycomp import scenarios
 from delaycomp.delayline import DelayLine
+from delaycomp.fmus.controller.delaycomp_controller_lti import DelaycompControllerLTI
+from delaycomp.fmus.controller.delaycomp_model_controller import ModelControllerSlave
+from delaycomp.fmus.delay.delaycomp_delay import DelaycompDelay
+from delaycomp.fmus.plant.delaycomp_model_plant import ModelPlantSlave
+from delaycomp.fmus.plant.delaycomp_plant_lti import DelaycompPlantLTI
 from delaycomp.fmuslave import CONFIG_NAME
 from delaycomp.history import InputHistory
+from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.scenarios import ParameterError
 from delaycomp.simulate import run_loop
-from fmus.controller.delaycomp_controller_lti import DelaycompControllerLTI
-from fmus.controller.delaycomp_model_controller import ModelControllerSlave
-from fmus.delay.delaycomp_delay import DelaycompDelay
-from fmus.plant.delaycomp_model_plant import ModelPlantSlave
-from fmus.plant.delaycomp_plant_lti import DelaycompPlantLTI
-from orchestrator.fmu import FmuComponent, FmuRefused
 
 #: the forms of every message a slave logs with status error (README, "Reliability")
 NAMED = re.compile(

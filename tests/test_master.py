@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from orchestrator.master import Connection, Master, Recorder, SimulationError
+from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
 
 
 class Mock:

@@ -110,7 +110,7 @@ def test_repeated_instantiation_keeps_the_slave_module_intact(tmp_path):
     pins in delaycomp.fmuslave must keep every slave module whole (see its docstring)."""
     import sys
 
-    from orchestrator.fmu import FmuComponent
+    from delaycomp.orchestrator.fmu import FmuComponent
 
     model = write_model(tmp_path / "m", 1.0)
     fmus = tmp_path / "fmus"

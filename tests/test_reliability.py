@@ -19,10 +19,10 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 
 from delaycomp.build import DEFAULT_CONFIG, PACKAGE_DIR
+from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
+from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
 from delaycomp.scenarios import model_loop
 from delaycomp.simulate import fmu_path, run_loop
-from orchestrator.fmu import FmuComponent, FmuRefused
-from orchestrator.master import Connection, Master, Recorder, SimulationError
 
 pytestmark = pytest.mark.fmu
 

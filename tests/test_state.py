@@ -18,8 +18,8 @@ from fmpy import read_model_description
 
 from delaycomp import scenarios
 from delaycomp.build import DEFAULT_CONFIG, FMUS, PACKAGE_DIR
+from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.simulate import fmu_path, make_master, parameters_of, stop_ticks
-from orchestrator.fmu import FmuComponent, FmuRefused
 
 pytestmark = pytest.mark.fmu
 

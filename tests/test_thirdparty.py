@@ -207,7 +207,7 @@ def test_delay_takes_a_step_size_off_by_round_off_only(fmu_dir, rel, accepted):
     that is 0.005000000000009663 for h = 0.005 (measured), which a 1e-12 slack refused."""
     from fmpy.fmi1 import FMICallException
 
-    from orchestrator.fmu import FmuComponent
+    from delaycomp.orchestrator.fmu import FmuComponent
 
     comp = FmuComponent("d", fmu_dir / "DelaycompDelay.fmu")
     try:

@@ -13,10 +13,12 @@ import shutil
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
 from delaycomp.build import FMU_ROOT, PACKAGE_DIR
+from delaycomp.orchestrator import __file__ as orchestrator_init
 
 pytestmark = pytest.mark.fmu
 
@@ -26,7 +28,10 @@ def build_with_version(tmp_path, version: str):
     src = tmp_path / "src"
     shutil.copytree(PACKAGE_DIR, src / "delaycomp",
                     ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(FMU_ROOT, src / "fmus", ignore=shutil.ignore_patterns("__pycache__"))
+    # the repository's fmus/ and orchestrator/ install as delaycomp.fmus, .orchestrator
+    for folder in (FMU_ROOT, Path(orchestrator_init).parent):
+        shutil.copytree(folder, src / "delaycomp" / folder.name,
+                        ignore=shutil.ignore_patterns("__pycache__"))
     init = src / "delaycomp" / "__init__.py"
     text = init.read_text(encoding="utf-8")
     init.write_text(text.replace('__version__ = "', f'__version__ = "{version}" #'),
@@ -46,7 +51,7 @@ def test_second_fmu_with_another_bundled_version_is_refused(fmu_dir, tmp_path):
     other = build_with_version(tmp_path, "0.0.1-other")
     plant = fmu_dir / "DelaycompPlantLTI.fmu"
     code = textwrap.dedent(f'''
-        from orchestrator.fmu import FmuComponent, FmuRefused
+        from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
         plant = FmuComponent("plant", {str(plant)!r})
         delay = FmuComponent("delay", {other!r})
         try:
@@ -85,7 +90,7 @@ def test_second_fmu_with_another_bundled_version_is_refused(fmu_dir, tmp_path):
 def test_same_version_fmus_share_one_process(fmu_dir, tmp_path):
     """The control case: the default FMUs (one version) load side by side."""
     code = textwrap.dedent(f'''
-        from orchestrator.fmu import FmuComponent
+        from delaycomp.orchestrator.fmu import FmuComponent
         comps = [FmuComponent(p.stem, p) for p in
                  sorted(__import__("pathlib").Path({str(fmu_dir)!r}).glob("Delaycomp*.fmu"))]
         for c in comps:

@@ -1,0 +1,29 @@
+"""Child Python processes that run a module of this package, wherever they start.
+
+``python -m delaycomp.X`` puts the working folder first on ``sys.path``: a folder that holds
+a ``delaycomp/`` (a checkout, or a build's staging copy) would shadow the installed package.
+:func:`module_argv` puts the folder that holds *this* process's ``delaycomp`` first instead,
+so a child always runs the same code as its parent, from a wheel or an editable install.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import delaycomp
+
+
+def module_argv(module: str, *args: str) -> list[str]:
+    """The argv of a child that runs ``module`` as ``__main__`` with ``args``.
+
+    Examples
+    --------
+    >>> argv = module_argv("delaycomp.build", "{}")
+    >>> argv[0] == sys.executable and argv[-1] == "{}"
+    True
+    """
+    root = str(Path(delaycomp.__file__).resolve().parent.parent)
+    code = (f"import runpy, sys; sys.path.insert(0, {root!r}); "
+            f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
+    return [sys.executable, "-c", code, *args]
