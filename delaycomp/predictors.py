@@ -16,10 +16,12 @@ The closed forms of Example 2.4 and of the unicycle live with their models in
 
 from __future__ import annotations
 
+import threading
+import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy.integrate import ode
+from scipy.integrate import ode, solve_ivp
 from scipy.linalg import expm
 
 from .lti import flow, predict_by_integration
@@ -40,34 +42,147 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
 
     One solve per segment, so the integrator never steps over an input discontinuity.
     The solver is Hairer's DOP853 (explicit Runge-Kutta 8(5,3) with step control), through
-    scipy's Fortran binding, restarted at each segment: per segment it costs a few
+    scipy's compiled binding, restarted at each segment: per segment it costs a few
     microseconds plus the evaluations of ``f``, where ``solve_ivp``'s Python stepping cost
-    five to eight times more (measured). Raises :class:`IntegrationError` if a solve fails
-    or the state stops being finite.
+    five to eight times more (measured). One solver object per thread and tolerance pair
+    is reused for every call (see :func:`_solver`): a solver per call is never freed by
+    scipy and grew memory by about 1.5 KiB per call. Where the compiled DOP853 gives up
+    with "step size becomes too small" on a state whose scaled error underflows (a state
+    near 1e-150 with these tolerances; the band 2e-155 .. 3e-148 measured), the segment is
+    solved again by the same method in scipy's Python implementation
+    (``solve_ivp(method="DOP853")``, same tolerances). Raises :class:`IntegrationError`
+    if a solve fails or the state stops being finite.
+
+    Parameters
+    ----------
+    f : callable
+        Right-hand side ``f(x, u, p) -> dx/dt``.
+    p : dict
+        Parameters handed to ``f``.
+    x : array_like
+        Initial state.
+    segments : sequence of (float, array_like)
+        ``(duration, u)`` pairs, oldest first; non-positive durations are skipped.
+    rtol, atol : float
+        Relative and absolute tolerances of each solve.
+
+    Returns
+    -------
+    numpy.ndarray
+        The state at the end of the last segment.
     """
     z = np.array(x, dtype=float)
-    solver = ode(lambda _t, s, u: f(s, u, p)).set_integrator(
-        "dop853", rtol=rtol, atol=atol, nsteps=_MAX_STEPS)
+    slot = _solver(rtol, atol)
+    if slot.busy:
+        # f itself integrates: the compiled DOP853 is not re-entrant (measured: a nested
+        # call fails with "larger nsteps is needed"), so the inner solve is Python's
+        return _nested(f, p, z, segments, rtol, atol)
+    slot.busy = True
+    try:
+        slot.f, slot.p = f, p
+        elapsed = 0.0
+        for duration, u in segments:
+            if duration <= 0:
+                continue
+            u = np.asarray(u, dtype=float)
+            z = _segment(slot, z, duration, u, elapsed)
+            elapsed += duration
+    finally:
+        slot.f = slot.p = None  # hold no user objects between calls
+        slot.busy = False
+    return np.array(z, dtype=float)
+
+
+def _nested(f, p, z, segments, rtol, atol) -> np.ndarray:
+    """:func:`integrate` by scipy's Python DOP853 only (a solve inside a solve)."""
+    slot = _Slot.__new__(_Slot)
+    slot.f, slot.p, slot.rtol, slot.atol = f, p, rtol, atol
     elapsed = 0.0
     for duration, u in segments:
         if duration <= 0:
             continue
         u = np.asarray(u, dtype=float)
-        try:
-            solver.set_initial_value(z, 0.0).set_f_params(u)
-            z = solver.integrate(duration)
-            ok = solver.successful()
-            reason = _DOP853_MESSAGES.get(solver.get_return_code(), "unknown failure")
-        except Exception as exc:  # noqa: BLE001 - f raised, or a solver warning as error
-            ok, reason = False, f"{type(exc).__name__}: {exc}"
-        if ok and not np.isfinite(z).all():
+        ok, reason, z_end = _python_dop853(slot, z, duration, u)
+        if ok and not np.isfinite(z_end).all():
             ok, reason = False, "the state is not finite"
         if not ok:
             raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "
                                    f"(input {u.tolist()}): {reason}")
+        z = z_end
         elapsed += duration
     return np.array(z, dtype=float)
 
+
+def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
+             elapsed: float) -> np.ndarray:
+    solver = slot.solver
+    code = None
+    try:
+        with warnings.catch_warnings():
+            # scipy warns about a failed solve; the return code below says it too
+            warnings.simplefilter("ignore", UserWarning)
+            solver.set_initial_value(z, 0.0).set_f_params(u)
+            z_end = solver.integrate(duration)
+        code = solver.get_return_code()
+        ok = solver.successful()
+        reason = _DOP853_MESSAGES.get(code, "unknown failure")
+    except Exception as exc:  # noqa: BLE001 - f raised, or a solver warning as error
+        ok, reason = False, f"{type(exc).__name__}: {exc}"
+        z_end = z
+    if not ok and code == -3:  # step size too small: the scaled error underflowed
+        ok, reason, z_end = _python_dop853(slot, z, duration, u)
+    if ok and not np.isfinite(z_end).all():
+        ok, reason = False, "the state is not finite"
+    if not ok:
+        raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "
+                               f"(input {u.tolist()}): {reason}")
+    return z_end
+
+
+def _python_dop853(slot: _Slot, z, duration, u):
+    """The same segment by scipy's Python DOP853 (same tolerances)."""
+    f, p = slot.f, slot.p
+    try:
+        # its error norm may divide 0 by 0 on such states (a warning, then a smaller step)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sol = solve_ivp(lambda _t, s: f(s, u, p), (0.0, duration), z, method="DOP853",
+                            rtol=slot.rtol, atol=slot.atol)
+    except Exception as exc:  # noqa: BLE001 - f raised
+        return False, f"{type(exc).__name__}: {exc}", z
+    if not sol.success:
+        return False, sol.message, z
+    return True, "", sol.y[:, -1]
+
+
+class _Slot:
+    """A reusable DOP853 solver whose right-hand side reads ``f`` and ``p`` from here."""
+
+    def __init__(self, rtol: float, atol: float):
+        self.rtol, self.atol = rtol, atol
+        self.f: Callable | None = None
+        self.p: dict | None = None
+        self.busy = False
+        slot = self  # the closure holds the slot, not a bound method per call
+
+        def rhs(_t, s, u):
+            return slot.f(s, u, slot.p)
+
+        self.solver = ode(rhs).set_integrator("dop853", rtol=rtol, atol=atol,
+                                              nsteps=_MAX_STEPS)
+        # scipy (1.17 measured) hands ``self._solout``, a new bound method at every
+        # set_initial_value, to its compiled DOP853, which keeps a reference to it: about
+        # 64 bytes that are never freed per segment. One plain function instead.
+        integrator = getattr(self.solver, "_integrator", None)
+        if integrator is not None and hasattr(integrator, "_solout"):
+            integrator._solout = _no_output
+
+
+def _no_output(_x, _y):
+    return 1  # continue (DOP853's dense output is off: iout = 0)
+
+
+_SOLVERS = threading.local()
 
 #: DOP853's step budget per segment: a segment is at most a few sampling periods, so this
 #: bound is reached only by a solve that cannot progress (stiff or blowing up).
@@ -76,6 +191,17 @@ _DOP853_MESSAGES = {1: "computation successful", 2: "computation successful",
                     -1: "input is not consistent", -2: "larger nsteps is needed",
                     -3: "step size becomes too small",
                     -4: "problem is probably stiff (interrupted)"}
+
+
+def _solver(rtol: float, atol: float) -> _Slot:
+    """This thread's reusable solver for the tolerances ``(rtol, atol)``."""
+    cache = getattr(_SOLVERS, "by_tol", None)
+    if cache is None:
+        cache = _SOLVERS.by_tol = {}
+    slot = cache.get((rtol, atol))
+    if slot is None:
+        slot = cache[(rtol, atol)] = _Slot(rtol, atol)
+    return slot
 
 
 def numerical_predictor(f: Callable, rtol: float = DEFAULT_TOL,
