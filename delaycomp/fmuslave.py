@@ -18,7 +18,9 @@ module only declares its variable table and calls the maths:
    which pythonfmu leaves undeclared;
 5. no Python exception leaves the slave for an expected fault. pythonfmu 0.7 turns every
    exception into fmi2Fatal and drops the Python object (a later fmi2Terminate crashes the
-   host, and repeated fatal errors have crashed the interpreter). Instead a bad parameter
+   host, and repeated fatal errors have crashed the interpreter); no exception of any
+   kind (``SystemExit`` and ``KeyboardInterrupt`` from a user model included) leaves an
+   FMI entry point of this class. Instead a bad parameter
    is logged with status error when initialization ends, and every later ``doStep``
    returns fmi2Discard with the reason logged; a fault during a step does the same;
 6. the FMU state (``fmi2GetFMUstate`` and its serialization) holds every registered
@@ -26,6 +28,24 @@ module only declares its variable table and calls the maths:
    error, and the hidden state of the maths objects (delay buffers, input histories,
    controller states and tick counters) that each subclass returns from ``_hidden_state``.
    The state is plain JSON (floats written with ``repr``, so a round trip is exact).
+
+7. the FMI 2.0 call sequence is enforced (FMI 2.0, 4.2.4, the co-simulation state
+   machine): a set of an output, of an unknown or mistyped value reference, of a
+   parameter after ``fmi2ExitInitializationMode``, or of anything after ``fmi2Terminate``
+   is refused (status error logged; the instance then refuses to step); a ``doStep``
+   before initialization, after termination, with a step that is not finite and > 0, a
+   time that is not finite, or a time that is not where the last step ended (time going
+   backwards or jumping) returns fmi2Discard with the reason. pythonfmu 0.7 cannot return
+   fmi2Error from a set call (an exception would be fmi2Fatal), so a refused set returns
+   fmi2OK with the error logged, and every later ``doStep`` returns fmi2Discard;
+8. an FMU state handed to the host is a small handle whose state lives in this module
+   (:class:`_StateHandle`): pythonfmu 0.7's ``fmi2FreeFMUstate`` drops one reference to
+   the object it got and never clears the host's pointer, so a second free of the same
+   state would free it twice and crash the host. Each handle is pinned (32 references
+   held here), so repeated frees only lower the pin count; the state's data is dropped
+   once no one but the pins holds the handle, and a freed handle restored later is a
+   named refusal. Each saved state leaves its handle (about 350 bytes) behind; a state
+   blob that is not ours (not JSON, another model, no data) is a named refusal too.
 
 Subclasses implement ``_setup()`` (check parameters, build the maths objects) and
 ``_step(t, h)`` (the maths of one communication step).
@@ -43,7 +63,8 @@ from collections.abc import Callable, Iterable
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu import (Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real,
+                       String)
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
@@ -102,6 +123,55 @@ def pinned_guid(class_name: str, config: dict) -> uuid.UUID:
     return uuid.uuid5(_GUID_NAMESPACE, key)
 
 
+class _StateHandle:
+    """What ``fmi2GetFMUstate`` hands the host: a pinned token for a state kept here.
+
+    See point 8 of the module docstring: pythonfmu frees a state by dropping one
+    reference to this object, so each handle holds :data:`PINS` references to itself
+    (through ``_pins``), and a handle that only its pins and the registry hold has been
+    freed by the host: its data is dropped at the next :meth:`new`.
+    """
+
+    PINS = 32
+    _registry: dict[int, tuple[_StateHandle, dict]] = {}
+    __slots__ = ("_pins", "__weakref__")
+
+    def __init__(self):
+        self._pins = [self] * self.PINS
+
+    #: references a handle has with no owner: its pins, the registry tuple, and the
+    #: argument and loop variable of :meth:`_sweep` (measured by ``sys.getrefcount``)
+    _UNOWNED = PINS + 1 + 2
+
+    @classmethod
+    def new(cls, state: dict) -> _StateHandle:
+        cls._sweep()
+        handle = cls()
+        cls._registry[id(handle)] = (handle, state)
+        return handle
+
+    @classmethod
+    def _sweep(cls) -> None:
+        for key, entry in list(cls._registry.items()):
+            handle = entry[0]
+            del entry
+            if sys.getrefcount(handle) <= cls._UNOWNED:
+                del cls._registry[key]  # the handle (and its pins) stays: see point 8
+                _FREED_HANDLES.append(handle)
+
+    @classmethod
+    def data_of(cls, handle) -> dict:
+        entry = cls._registry.get(id(handle))
+        if entry is None or entry[0] is not handle:
+            raise ParameterError("FMU state is not allowed: it was freed "
+                                 "(fmi2FreeFMUstate) or was not made by this FMU")
+        return entry[1]
+
+
+#: handles whose data was dropped: kept so that a further free of one cannot reach zero
+_FREED_HANDLES: list[_StateHandle] = []
+
+
 class TableSlave(Fmi2Slave):
     """Base of the project's slaves: configuration, pinned GUID, declared dependencies."""
 
@@ -146,6 +216,10 @@ class TableSlave(Fmi2Slave):
         self.t0 = 0.0
         #: has exitInitializationMode built the maths objects?
         self.initialized = False
+        #: FMI phase: instantiated, initialization, stepping, terminated
+        self.phase = "instantiated"
+        #: where the next doStep must start (None: not known yet)
+        self.t_next: float | None = None
 
     def _read_config(self) -> dict:
         if self.resources is None:
@@ -213,9 +287,33 @@ class TableSlave(Fmi2Slave):
 
     # -- FMI entry points ----------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time, tolerance):
-        self.t0 = float(start_time)
+        try:
+            if self.phase != "instantiated":
+                self._refuse(f"fmi2SetupExperiment is not allowed in the {self.phase} "
+                             "phase: only after fmi2Instantiate")
+                return
+            start = float(start_time)
+            if not math.isfinite(start):
+                self._refuse(f"start time {start!r} is not allowed: must be a finite "
+                             "number")
+                return
+            self.t0 = start
+        except BaseException as exc:  # noqa: BLE001 - nothing may reach pythonfmu
+            self._refuse(f"fmi2SetupExperiment failed: {type(exc).__name__}: {exc}")
+
+    def enter_initialization_mode(self):
+        if self.phase != "instantiated":
+            self._refuse(f"fmi2EnterInitializationMode is not allowed in the {self.phase} "
+                         "phase: only after fmi2Instantiate")
+            return
+        self.phase = "initialization"
 
     def exit_initialization_mode(self):
+        if self.phase != "initialization":
+            self._refuse(f"fmi2ExitInitializationMode is not allowed in the {self.phase} "
+                         "phase: only after fmi2EnterInitializationMode")
+            return
+        self.phase = "stepping"
         if self.instantiation_error is not None:
             self._refuse(self.instantiation_error)
             return
@@ -224,14 +322,25 @@ class TableSlave(Fmi2Slave):
         try:
             self._quiet_setup()
             self.initialized = True
+            self.t_next = self.t0
         except ParameterError as exc:
             self._refuse(str(exc))
-        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             self._refuse(f"initialization failed: {type(exc).__name__}: {exc}")
+
+    def terminate(self):
+        if self.phase == "terminated":
+            self._refuse("fmi2Terminate is not allowed: the instance is already terminated")
+            return
+        self.phase = "terminated"
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         if self.error is not None:
             self.log(f"refusing to step: {self.error}", Fmi2Status.discard)
+            return False
+        reason = self._step_refusal(current_time, step_size)
+        if reason is not None:
+            self._refuse(reason)
             return False
         try:
             # The host's warning filters may turn numpy's overflow warnings into exceptions;
@@ -244,10 +353,116 @@ class TableSlave(Fmi2Slave):
         except ParameterError as exc:
             self._refuse(str(exc))
             return False
-        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             self._refuse(f"step at t = {current_time!r} failed: {type(exc).__name__}: {exc}")
             return False
+        self.t_next = current_time + step_size
         return True
+
+    def _step_refusal(self, t: float, h: float) -> str | None:
+        """Why the FMI state machine forbids ``doStep(t, h)`` now (None: allowed)."""
+        if self.phase != "stepping":
+            return (f"fmi2DoStep is not allowed in the {self.phase} phase: only between "
+                    "fmi2ExitInitializationMode and fmi2Terminate")
+        if not self.initialized:
+            return ("fmi2DoStep is not allowed: the instance is not initialized (a restored "
+                    "FMU state was saved before initialization ended)")
+        if not (math.isfinite(t) and math.isfinite(h) and h > 0):
+            return (f"step size {h!r} at t = {t!r} is not allowed: must be a finite number "
+                    "> 0 from a finite time")
+        expected = self.t_next
+        # libcosim keeps time in integer nanoseconds: its t differs from the sum of the
+        # steps by about 1e-12 relative; a jump or a step back is many orders larger
+        if expected is not None and abs(t - expected) > 1e-9 * max(abs(expected), h, 1.0):
+            direction = "goes backwards" if t < expected else "jumps ahead"
+            return (f"step from t = {t!r} is not allowed: time {direction}; the last step "
+                    f"ended at {expected!r} (a step must start where the last one ended)")
+        return None
+
+    # -- value access: the FMI rules on what may be set when -----------------------------
+    def _set_refusal(self, var) -> str | None:
+        if self.phase == "terminated":
+            return f"setting {var.name} is not allowed: the instance is terminated"
+        causality = var.causality
+        if causality not in (Fmi2Causality.parameter, Fmi2Causality.input) \
+                or var.setter is None:
+            return (f"setting {var.name} is not allowed: it is an {causality.name}, not a "
+                    "parameter or an input")
+        if causality == Fmi2Causality.parameter and self.phase == "stepping" and \
+                var.variability != Fmi2Variability.tunable:
+            return (f"setting {var.name} is not allowed after initialization: it is a "
+                    f"{var.variability.name} parameter (set it before "
+                    "fmi2ExitInitializationMode)")
+        return None
+
+    def _set(self, vrs, values, kind, convert) -> None:
+        try:
+            vrs, values = list(vrs), list(values)
+            if len(vrs) != len(values):
+                self._refuse(f"set{kind.__name__} with {len(vrs)} value references and "
+                             f"{len(values)} values is not allowed")
+                return
+            for vr, value in zip(vrs, values):
+                var = self.vars.get(vr)
+                if var is None:
+                    self._refuse(f"value reference {vr!r} is not allowed: this FMU has "
+                                 f"0 .. {len(self.vars) - 1}")
+                    return
+                if not isinstance(var, kind):
+                    self._refuse(f"set{kind.__name__} of {var.name} is not allowed: it is "
+                                 f"a {type(var).__name__}")
+                    return
+                reason = self._set_refusal(var)
+                if reason is not None:
+                    self._refuse(reason)
+                    return
+                var.setter(convert(value))
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            self._refuse(f"set{kind.__name__} failed: {type(exc).__name__}: {exc}")
+
+    def set_real(self, vrs, values):
+        self._set(vrs, values, Real, float)
+
+    def set_integer(self, vrs, values):
+        self._set(vrs, values, Integer, int)
+
+    def set_boolean(self, vrs, values):
+        self._set(vrs, values, Boolean, bool)
+
+    def set_string(self, vrs, values):
+        self._set(vrs, values, String, str)
+
+    def _get(self, vrs, kind, convert, missing) -> list:
+        out = []
+        for vr in vrs:
+            try:
+                var = self.vars.get(vr)
+                if var is None:
+                    self._refuse(f"value reference {vr!r} is not allowed: this FMU has "
+                                 f"0 .. {len(self.vars) - 1}")
+                    out.append(missing)
+                elif not isinstance(var, kind):
+                    self._refuse(f"get{kind.__name__} of {var.name} is not allowed: it is "
+                                 f"a {type(var).__name__}")
+                    out.append(missing)
+                else:
+                    out.append(convert(var.getter()))
+            except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
+                self._refuse(f"get{kind.__name__} failed: {type(exc).__name__}: {exc}")
+                out.append(missing)
+        return out
+
+    def get_real(self, vrs):
+        return self._get(vrs, Real, float, math.nan)
+
+    def get_integer(self, vrs):
+        return self._get(vrs, Integer, int, 0)
+
+    def get_boolean(self, vrs):
+        return self._get(vrs, Boolean, bool, False)
+
+    def get_string(self, vrs):
+        return self._get(vrs, String, str, "")
 
     def _setup(self) -> None:
         raise NotImplementedError
@@ -267,30 +482,41 @@ class TableSlave(Fmi2Slave):
     def _restore_hidden(self, hidden: dict) -> None:
         """Inverse of :meth:`_hidden_state`, called after ``_setup`` rebuilt the maths."""
 
-    def _get_fmu_state(self) -> dict:
+    def _get_fmu_state(self) -> _StateHandle:
         try:
             values = {v.name: v.getter() for v in self.vars.values() if v.setter is not None}
             state = {"model": type(self).__name__, "values": values, "t0": self.t0,
-                     "initialized": self.initialized, "error": self.error,
+                     "t_next": self.t_next, "initialized": self.initialized,
+                     "error": self.error,
                      "hidden": self._hidden_state() if self.initialized else None}
             # a deep copy: later steps must not change a saved state
-            return json.loads(json.dumps(state, default=_plain))
-        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            return _StateHandle.new(json.loads(json.dumps(state, default=_plain)))
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             message = f"saving the FMU state failed: {type(exc).__name__}: {exc}"
             self.log(message, Fmi2Status.error)
-            return {"model": None, "invalid": message}
+            return _StateHandle.new({"model": None, "invalid": message})
 
-    def _set_fmu_state(self, state: dict) -> None:
+    def _set_fmu_state(self, handle) -> None:
         try:
+            if self.phase == "terminated":
+                raise ParameterError("fmi2SetFMUstate is not allowed: the instance is "
+                                     "terminated")
+            state = _StateHandle.data_of(handle)
             if "invalid" in state:
                 raise ParameterError(state["invalid"])
             if state.get("model") != type(self).__name__:
                 raise ParameterError(f"FMU state of model {state.get('model')!r} is not "
                                      f"allowed: this FMU is {type(self).__name__}")
             by_name = {v.name: v for v in self.vars.values()}
+            unknown = sorted(set(state["values"]) - set(by_name))
+            if unknown:
+                raise ParameterError(f"FMU state with variables {unknown} is not allowed: "
+                                     "this FMU has no such variables (another build)")
             for name, value in state["values"].items():
                 by_name[name].setter(value)
             self.t0 = float(state["t0"])
+            t_next = state.get("t_next")
+            self.t_next = None if t_next is None else float(t_next)
             self.initialized = False
             if state["initialized"]:
                 self._quiet_setup()
@@ -299,16 +525,28 @@ class TableSlave(Fmi2Slave):
             self.error = state["error"]
         except ParameterError as exc:
             self._refuse(str(exc))
-        except Exception as exc:  # noqa: BLE001 - never let it reach pythonfmu
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             self._refuse(f"restoring the FMU state failed: {type(exc).__name__}: {exc}")
 
     @staticmethod
-    def _fmu_state_to_bytes(state: dict) -> bytes:
-        return json.dumps(state, sort_keys=True).encode("utf-8")
+    def _fmu_state_to_bytes(handle) -> bytes:
+        try:
+            return json.dumps(_StateHandle.data_of(handle), sort_keys=True).encode("utf-8")
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            return json.dumps({"model": None, "invalid": f"serializing the FMU state "
+                               f"failed: {type(exc).__name__}: {exc}"}).encode("utf-8")
 
     @staticmethod
-    def _fmu_state_from_bytes(state: bytes) -> dict:
-        return json.loads(state.decode("utf-8"))
+    def _fmu_state_from_bytes(data: bytes) -> _StateHandle:
+        try:
+            state = json.loads(bytes(data).decode("utf-8"))
+            if not isinstance(state, dict) or not isinstance(state.get("values"), dict) \
+                    and "invalid" not in state:
+                raise ValueError("not a delaycomp FMU state")
+        except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
+            state = {"model": None, "invalid": f"FMU state of {len(data)} bytes is not "
+                     f"allowed: it is not a state saved by a delaycomp FMU ({exc})"}
+        return _StateHandle.new(state)
 
     def _step(self, t: float, h: float) -> None:
         raise NotImplementedError
