@@ -44,7 +44,7 @@ module only declares its variable table and calls the maths:
    state would free it twice and crash the host. Each handle is pinned (32 references
    held here), so repeated frees only lower the pin count; the state's data is dropped
    once no one but the pins holds the handle, and a freed handle restored later is a
-   named refusal. Each saved state leaves its handle (about 350 bytes) behind; a state
+   named refusal. Each saved state leaves its handle and pins (about 350 bytes); a state
    blob that is not ours (not JSON, another model, no data) is a named refusal too.
 
 Subclasses implement ``_setup()`` (check parameters, build the maths objects) and
@@ -126,50 +126,50 @@ def pinned_guid(class_name: str, config: dict) -> uuid.UUID:
 class _StateHandle:
     """What ``fmi2GetFMUstate`` hands the host: a pinned token for a state kept here.
 
-    See point 8 of the module docstring: pythonfmu frees a state by dropping one
-    reference to this object, so each handle holds :data:`PINS` references to itself
-    (through ``_pins``), and a handle that only its pins and the registry hold has been
-    freed by the host: its data is dropped at the next :meth:`new`.
+    See point 8 of the module docstring. The token is a fresh ``int`` object (ints hold no
+    references, so the garbage collector never examines them: pins that were lists or
+    objects pointing back at the token made the collector crash once a double free left
+    the count below the references it can see). pythonfmu frees a state by dropping one
+    reference to the token; :data:`PINS` references held here absorb further frees. A
+    token that only its pins and the registry hold was freed by the host: its data is
+    dropped at the next :meth:`new`.
     """
 
     PINS = 32
-    _registry: dict[int, tuple[_StateHandle, dict]] = {}
-    __slots__ = ("_pins", "__weakref__")
-
-    def __init__(self):
-        self._pins = [self] * self.PINS
-
-    #: references a handle has with no owner: its pins, the registry tuple, and the
+    #: id(token) -> (token, pins, state)
+    _registry: dict[int, tuple[int, list, dict]] = {}
+    _serial = 0
+    #: references a token has with no owner: its pins, the registry tuple, and the
     #: argument and loop variable of :meth:`_sweep` (measured by ``sys.getrefcount``)
     _UNOWNED = PINS + 1 + 2
 
     @classmethod
-    def new(cls, state: dict) -> _StateHandle:
+    def new(cls, state: dict) -> int:
         cls._sweep()
-        handle = cls()
-        cls._registry[id(handle)] = (handle, state)
-        return handle
+        cls._serial += 1
+        token = (1 << 62) + cls._serial  # computed: a new int object, never a cached one
+        cls._registry[id(token)] = (token, [token] * cls.PINS, state)
+        return token
 
     @classmethod
     def _sweep(cls) -> None:
         for key, entry in list(cls._registry.items()):
-            handle = entry[0]
+            token = entry[0]
             del entry
-            if sys.getrefcount(handle) <= cls._UNOWNED:
-                del cls._registry[key]  # the handle (and its pins) stays: see point 8
-                _FREED_HANDLES.append(handle)
+            if sys.getrefcount(token) <= cls._UNOWNED:
+                _FREED_PINS.append(cls._registry.pop(key)[1])  # keep the pins: point 8
 
     @classmethod
-    def data_of(cls, handle) -> dict:
-        entry = cls._registry.get(id(handle))
-        if entry is None or entry[0] is not handle:
+    def data_of(cls, token) -> dict:
+        entry = cls._registry.get(id(token))
+        if entry is None or entry[0] is not token:
             raise ParameterError("FMU state is not allowed: it was freed "
                                  "(fmi2FreeFMUstate) or was not made by this FMU")
-        return entry[1]
+        return entry[2]
 
 
-#: handles whose data was dropped: kept so that a further free of one cannot reach zero
-_FREED_HANDLES: list[_StateHandle] = []
+#: pins of tokens whose data was dropped: a further free of one cannot reach zero
+_FREED_PINS: list[list] = []
 
 
 class TableSlave(Fmi2Slave):
@@ -482,7 +482,7 @@ class TableSlave(Fmi2Slave):
     def _restore_hidden(self, hidden: dict) -> None:
         """Inverse of :meth:`_hidden_state`, called after ``_setup`` rebuilt the maths."""
 
-    def _get_fmu_state(self) -> _StateHandle:
+    def _get_fmu_state(self) -> int:
         try:
             values = {v.name: v.getter() for v in self.vars.values() if v.setter is not None}
             state = {"model": type(self).__name__, "values": values, "t0": self.t0,
@@ -537,7 +537,7 @@ class TableSlave(Fmi2Slave):
                                f"failed: {type(exc).__name__}: {exc}"}).encode("utf-8")
 
     @staticmethod
-    def _fmu_state_from_bytes(data: bytes) -> _StateHandle:
+    def _fmu_state_from_bytes(data: bytes) -> int:
         try:
             state = json.loads(bytes(data).decode("utf-8"))
             if not isinstance(state, dict) or not isinstance(state.get("values"), dict) \
