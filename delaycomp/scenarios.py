@@ -7,6 +7,7 @@ its parameter values, the connections and the recorded signals. It does not run 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,7 +33,16 @@ class Param:
     ok: Callable[[object], bool]
 
 
+#: ASCII decimal literals only: Python's float() and int() also take other scripts'
+#: digits ('١' is 1, '２' is 2) and underscores ('1_000'), which a user did not mean
+_REAL_TEXT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:inf|nan)",
+                        re.ASCII | re.IGNORECASE)
+_INT_TEXT = re.compile(r"[+-]?\d+", re.ASCII)
+
+
 def _real(text: str) -> float:
+    if not _REAL_TEXT.fullmatch(text.strip()):
+        raise ValueError("not an ASCII decimal number")
     value = float(text)
     if not math.isfinite(value):
         raise ValueError("not finite")
@@ -40,6 +50,8 @@ def _real(text: str) -> float:
 
 
 def _positive_int(text: str) -> int:
+    if not _INT_TEXT.fullmatch(text.strip()):
+        raise ValueError("not an ASCII decimal integer")
     return int(text)
 
 
