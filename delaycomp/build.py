@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import shutil
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import delaycomp
 import delaycomp.fmus
 from delaycomp.child import module_argv
+from delaycomp.tmpfiles import temp_dir
 
 CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmuslave.CONFIG_NAME
 
@@ -116,7 +117,10 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / (file_name or f"{ident}.fmu")
-    with tempfile.TemporaryDirectory(prefix="delaycomp-build-") as tmp:
+    # pythonfmu writes into a folder of ours; the finished file is renamed into place:
+    # a reader never sees a half-written FMU, and a link at the target is replaced, never
+    # written through
+    with temp_dir("delaycomp-build-") as tmp:
         tmp_path = Path(tmp)
         pkg = tmp_path / "delaycomp"
         for name in BUNDLED_MODULES:
@@ -147,9 +151,11 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
         doc = tmp_path / "documentation"
         doc.mkdir()
         shutil.copy2(spec.folder / "README.md", doc / "README.md")
+        staged = tmp_path / "out"
+        staged.mkdir()
         request = {
             "script": str(script),
-            "dest": str(target),
+            "dest": str(staged / target.name),
             "project_files": [str(p) for p in project],
             "documentation_folder": str(doc),
             "options": dict(spec.options),
@@ -160,7 +166,26 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
         )
         if proc.returncode != 0:
             raise RuntimeError(f"building the {kind} FMU failed:\n{proc.stderr.strip()}")
+        built = staged / target.name
+        if not built.is_file():
+            raise RuntimeError(f"building the {kind} FMU failed: pythonfmu wrote no "
+                               f"{target.name}")
+        _publish(built, target)
     return target
+
+
+def _publish(built: Path, target: Path) -> None:
+    """Move ``built`` to ``target`` atomically (same file system: a copy beside the target
+    first, then a rename over it)."""
+    part = target.parent / f".{target.name}.{os.getpid()}.part"
+    if part.is_symlink() or part.exists():
+        part.unlink()
+    try:
+        shutil.copyfile(built, part)
+        os.replace(part, target)
+    finally:
+        if part.exists():
+            part.unlink()
 
 
 def build_model(model_path: str | Path, out_dir: Path) -> list[Path]:

@@ -7,6 +7,7 @@ import hashlib
 import json
 import math
 import os
+import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from .build import (
 )
 from .errors import BadFileError
 from .scenarios import LoopSpec, ParameterError, on_grid
+from .tmpfiles import build_lock
 
 __all__ = ["ENGINES", "Result", "SimulationError", "default_fmu_dir", "fmu_path",
            "make_components", "make_master", "parameters_of", "run_loop"]
@@ -70,11 +72,32 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     if fmu_dir.exists() and not fmu_dir.is_dir():
         raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
     path = fmu_dir / fmu_file_name(kind, config)
+    _regular_or_missing(path)
     if not path.exists():
-        build_fmu(kind, fmu_dir, config, path.name)
-    else:
-        check_fmu(path, kind, config)
+        fmu_dir.mkdir(parents=True, exist_ok=True)
+        with build_lock(path):  # parallel first runs: one builds, the others wait
+            if not path.exists():
+                build_fmu(kind, fmu_dir, config, path.name)
+    check_fmu(path, kind, config)
     return path
+
+
+def _regular_or_missing(path: Path) -> None:
+    """Refuse a link, a FIFO, a device or a folder where an FMU file belongs: reading one
+    could hang (a FIFO) or never end (``/dev/zero``), and building through a link would
+    write outside the folder."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise BadFileError(path, f"cannot be read: {exc.strerror}") from None
+    if stat.S_ISLNK(mode):
+        raise BadFileError(path, "is a symbolic link: FMUs in --fmu-dir must be regular "
+                                 "files (copy the file there)")
+    if not stat.S_ISREG(mode):
+        raise BadFileError(path, "is not a regular file: FMUs in --fmu-dir must be regular "
+                                 "files")
 
 
 #: FMU files already checked in this process, with their modification time and size
@@ -93,6 +116,7 @@ def check_fmu(path: Path, kind: str, config: dict) -> None:
         key = None
     if key is not None and key in _CHECKED:
         return
+    _regular_or_missing(Path(path))
     _check_fmu(path, kind, config)
     if key is not None:
         _CHECKED.add(key)

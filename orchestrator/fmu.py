@@ -5,7 +5,6 @@ from __future__ import annotations
 import atexit
 import itertools
 import shutil
-import tempfile
 import weakref
 from collections.abc import Sequence
 from ctypes import byref
@@ -20,6 +19,8 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
 )
+
+from delaycomp.tmpfiles import mkdtemp
 
 from .master import ComponentBase
 
@@ -57,7 +58,8 @@ def _unpacked(path: Path) -> tuple[object, str]:
     hit = _UNPACKED.get(key)
     if hit is None or not Path(hit[1]).is_dir():
         md = read_model_description(str(path))
-        hit = _UNPACKED[key] = (md, extract(str(path), tempfile.mkdtemp(prefix="delaycomp-fmu-")))
+        # named after this process: a later process removes it if this one was killed
+        hit = _UNPACKED[key] = (md, extract(str(path), mkdtemp("delaycomp-fmu-")))
     return hit
 
 

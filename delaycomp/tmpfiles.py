@@ -1,0 +1,87 @@
+"""Temporary folders that a killed process does not leave behind, and atomic writes.
+
+A folder made by :func:`temp_dir` is named ``<prefix><pid>-<random>``; :func:`sweep`
+removes the folders of a prefix whose process is gone (killed before its cleanup ran).
+:func:`build_lock` lets one process build a cache entry while the others wait.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+try:  # POSIX; elsewhere the atomic rename alone keeps readers safe
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def sweep(prefix: str, folder: str | Path | None = None) -> int:
+    """Remove ``<prefix><pid>-*`` folders of processes that no longer run; return how many.
+
+    Parameters
+    ----------
+    prefix : str
+        The prefix given to :func:`temp_dir`.
+    folder : path, optional
+        Where to look (default: the system's temporary folder).
+    """
+    root = Path(folder or tempfile.gettempdir())
+    removed = 0
+    try:
+        entries = list(root.glob(f"{prefix}*"))
+    except OSError:
+        return 0
+    for entry in entries:
+        pid_text = entry.name[len(prefix):].split("-", 1)[0]
+        if not pid_text.isdigit() or int(pid_text) == os.getpid() or _alive(int(pid_text)):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+            removed += 1
+    return removed
+
+
+@contextlib.contextmanager
+def temp_dir(prefix: str) -> Iterator[str]:
+    """A temporary folder ``<prefix><pid>-*``, removed on exit (stale ones swept first)."""
+    sweep(prefix)
+    with tempfile.TemporaryDirectory(prefix=f"{prefix}{os.getpid()}-") as tmp:
+        yield tmp
+
+
+def mkdtemp(prefix: str) -> str:
+    """:func:`tempfile.mkdtemp` named ``<prefix><pid>-*`` (stale ones swept first)."""
+    sweep(prefix)
+    return tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-")
+
+
+@contextlib.contextmanager
+def build_lock(target: Path) -> Iterator[None]:
+    """Hold an exclusive lock named after ``target`` (``.<name>.lock`` beside it) while
+    building it: concurrent first runs wait for the one that builds, then find the file."""
+    if fcntl is None:  # pragma: no cover - Windows
+        yield
+        return
+    lock = target.parent / f".{target.name}.lock"
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
