@@ -48,7 +48,8 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
     is reused for every call (see :func:`_solver`): a solver per call is never freed by
     scipy and grew memory by about 1.5 KiB per call. Where the compiled DOP853 gives up
     with "step size becomes too small" on a state whose scaled error underflows (a state
-    near 1e-150 with these tolerances; the band 2e-155 .. 3e-148 measured), the segment is
+    near 1e-150 with these tolerances; the band 2e-155 .. 3e-148 measured), or spends its
+    step budget on a state below 1e-100 (seen at 1e-156 in a long run), the segment is
     solved again by the same method in scipy's Python implementation
     (``solve_ivp(method="DOP853")``, same tolerances). Raises :class:`IntegrationError`
     if a solve fails or the state stops being finite.
@@ -129,7 +130,9 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
     except Exception as exc:  # noqa: BLE001 - f raised, or a solver warning as error
         ok, reason = False, f"{type(exc).__name__}: {exc}"
         z_end = z
-    if not ok and code == -3:  # step size too small: the scaled error underflowed
+    if not ok and (code == -3 or code == -2 and np.max(np.abs(z), initial=0.0) < _TINY):
+        # step size too small, or the step budget spent on a tiny state: the scaled error
+        # underflowed (a failure of a solve that can progress is retried in vain, fast)
         ok, reason, z_end = _python_dop853(slot, z, duration, u)
     if ok and not np.isfinite(z_end).all():
         ok, reason = False, "the state is not finite"
@@ -184,6 +187,8 @@ def _no_output(_x, _y):
 
 _SOLVERS = threading.local()
 
+#: below this size a state's scaled error (squares of state / tolerance) can underflow
+_TINY = 1e-100
 #: DOP853's step budget per segment: a segment is at most a few sampling periods, so this
 #: bound is reached only by a solve that cannot progress (stiff or blowing up).
 _MAX_STEPS = 100_000
