@@ -318,6 +318,27 @@ def read_ssv(path: str | Path) -> tuple[str, dict]:
     return _attr(root, "name", path.name), params
 
 
+#: largest dc:Master N read from an SSD (base steps per sampling period)
+MAX_N = 10**6
+#: what an archive may unpack to: members and bytes (the sizes the zip declares, which
+#: zipfile enforces while extracting); our archives hold a few FMUs of about 0.5 MB
+MAX_MEMBERS = 1000
+MAX_UNPACKED = 512 * 2**20
+
+
+def _inside(ssd_path: Path, source: str, where: str) -> str:
+    """``source`` if it names a file under the SSD's folder; else a refusal (an absolute
+    path, a URI, ``../`` climbing out)."""
+    if not source or "://" in source or source.startswith(("/", "\\")) or (
+            len(source) > 1 and source[1] == ":"):
+        raise SspError(f"{where}: source {source!r} is not allowed: must be a path relative "
+                       "to the SSD, inside the archive")
+    root = ssd_path.parent.resolve()
+    if not (root / source).resolve().is_relative_to(root):
+        raise SspError(f"{where}: source {source!r} is not allowed: it leaves the archive")
+    return source
+
+
 def read_system(ssd_path: str | Path) -> System:
     """Read an SSD written by :func:`write_system` (and its SSVs) back into a loop."""
     ssd_path = Path(ssd_path)
@@ -336,7 +357,8 @@ def read_system(ssd_path: str | Path) -> System:
     instances, sources, set_names = {}, {}, set()
     for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
         name = _attr(comp, "name", where)
-        sources[name] = _attr(comp, "source", f"{where}: component {name}")
+        sources[name] = _inside(ssd_path, _attr(comp, "source", f"{where}: component {name}"),
+                                f"{where}: component {name}")
         fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
                         NSMAP)
         if fmu is None:
@@ -347,7 +369,8 @@ def read_system(ssd_path: str | Path) -> System:
             raise SspError(f"{where}: component {name}: dc:Fmu config is not JSON") from None
         params: dict = {}
         for binding in comp.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NSMAP):
-            source = _attr(binding, "source", f"{where}: component {name}")
+            source = _inside(ssd_path, _attr(binding, "source", f"{where}: component {name}"),
+                             f"{where}: component {name}")
             set_name, values = read_ssv(ssd_path.parent / source)
             set_names.add(set_name)
             params.update(values)
@@ -363,15 +386,45 @@ def read_system(ssd_path: str | Path) -> System:
         T, N = float(_attr(master, "T", where)), int(_attr(master, "N", where))
     except ValueError:
         raise SspError(f"{where}: dc:Master T and N must be numbers") from None
+    if not (math.isfinite(T) and T > 0):
+        raise SspError(f"{where}: dc:Master T = {T!r} is not allowed: must be a finite "
+                       "number > 0")
+    if not 1 <= N <= MAX_N:
+        raise SspError(f"{where}: dc:Master N = {N!r} is not allowed: must be an integer "
+                       f"from 1 to {MAX_N}")
     exp = root.find("ssd:DefaultExperiment", NSMAP)
     stop = exp.get("stopTime") if exp is not None else None
     try:
         stop_time = float(stop) if stop is not None else None
     except ValueError:
         raise SspError(f"{where}: stopTime {stop!r} is not a number") from None
+    if stop_time is not None and not (math.isfinite(stop_time) and stop_time >= 0):
+        raise SspError(f"{where}: stopTime = {stop!r} is not allowed: must be a finite "
+                       "number >= 0")
     info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
                       master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
     return System(LoopSpec(instances, connections, T, N, recorded), info, sources)
+
+
+def _check_member_fmu(path: Path, where: str) -> None:
+    """Refuse an FMU inside an archive that is not a zip with a readable
+    modelDescription (one line, instead of fmpy's traceback at the first run)."""
+    from fmpy import read_model_description
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            if "modelDescription.xml" not in zf.namelist():
+                raise SspError(f"{where} is not an FMU: it has no modelDescription.xml")
+        md = read_model_description(str(path), validate=False)
+    except SspError:
+        raise
+    except zipfile.BadZipFile:
+        raise SspError(f"{where} is not an FMU: not a zip archive") from None
+    except Exception as exc:  # noqa: BLE001 - any parse failure is a bad file
+        raise SspError(f"{where} is not a readable FMU: {type(exc).__name__}: "
+                       f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    if md.coSimulation is None:
+        raise SspError(f"{where} is not a co-simulation FMU")
 
 
 class Archive:
@@ -390,6 +443,12 @@ class Archive:
         self.folder = Path(self._tmp.name)
         try:
             with zipfile.ZipFile(self.path) as zf:
+                infos = zf.infolist()
+                total = sum(i.file_size for i in infos)
+                if len(infos) > MAX_MEMBERS or total > MAX_UNPACKED:
+                    raise SspError(f"{self.path.name}: unpacks to {len(infos)} files of "
+                                   f"{total} bytes: at most {MAX_MEMBERS} files and "
+                                   f"{MAX_UNPACKED} bytes are allowed")
                 for member in zf.namelist():
                     target = (self.folder / member).resolve()
                     if not target.is_relative_to(self.folder.resolve()):
@@ -409,6 +468,8 @@ class Archive:
             for inst, source in self.system.sources.items():
                 if not (self.folder / source).is_file():
                     raise SspError(f"{self.path.name}: component {inst}: {source} is missing")
+                _check_member_fmu(self.folder / source, f"{self.path.name}: component "
+                                  f"{inst}: {source}")
         except SspError:
             self.close()
             raise
