@@ -16,6 +16,7 @@ The closed forms of Example 2.4 and of the unicycle live with their models in
 
 from __future__ import annotations
 
+import math
 import threading
 import warnings
 from collections.abc import Callable, Sequence
@@ -115,7 +116,10 @@ def _nested(f, p, z, segments, rtol, atol) -> np.ndarray:
 
 
 def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
-             elapsed: float) -> np.ndarray:
+             elapsed: float, rescale: bool = True) -> np.ndarray:
+    size = max(np.max(np.abs(z), initial=0.0), np.max(np.abs(u), initial=0.0))
+    if rescale and 0.0 < size < _TINY:
+        return _scaled_segment(slot, z, duration, u, elapsed, size)
     solver = slot.solver
     code = None
     try:
@@ -140,6 +144,27 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "
                                f"(input {u.tolist()}): {reason}")
     return z_end
+
+
+def _scaled_segment(slot: _Slot, z, duration, u, elapsed, size) -> np.ndarray:
+    """A segment whose state and input are all below :data:`_TINY`, solved for ``y = z /
+    s`` with ``s`` the power of two nearest ``size``: ``y' = f(s y, u) / s`` is the same
+    ODE (multiplying and dividing by a power of two is exact above the subnormals), and
+    its tolerances, applied to ``y``, are tighter than the caller's on ``z``. Both DOP853
+    implementations square the scaled error of a step; for a state near 1e-150 with
+    tolerances near 1e-10 those squares underflow to 0 and the step control breaks down
+    ("step size becomes too small", "larger nsteps is needed", a 0/0 error norm)."""
+    s = 2.0 ** round(math.log2(size))
+    f = slot.f
+
+    def scaled(y, u_, p_):
+        return np.asarray(f(y * s, u_, p_), dtype=float) / s
+    slot.f = scaled
+    try:
+        y_end = _segment(slot, z / s, duration, u, elapsed, rescale=False)
+    finally:
+        slot.f = f
+    return y_end * s
 
 
 def _python_dop853(slot: _Slot, z, duration, u):

@@ -128,3 +128,12 @@ def test_tiny_state_of_a_nonlinear_plant_integrates():
         got = integrate(f, {}, [x0], [(0.01, np.array([u]))])[0]
         exact = x0 * math.exp(-0.01) + u * (1 - math.exp(-0.01))
         assert abs(got - exact) <= 1e-8 * abs(exact)
+
+
+@pytest.mark.parametrize("u", [1e-156, -3e-200, 1e-300])
+def test_zero_state_with_a_tiny_input(u):
+    """x' = -x + u from 0 over 0.5 s: exact u (1 - e^-0.5), to 1e-8 relative (rtol
+    1e-10)."""
+    got = integrate(_decay, {"a": 1.0}, [0.0], [(0.5, np.array([u]))])[0]
+    exact = u * (1 - math.exp(-0.5))
+    assert abs(got - exact) <= 1e-8 * abs(exact)
