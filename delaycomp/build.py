@@ -7,7 +7,6 @@ dimensions and the package version).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -20,6 +19,7 @@ from pathlib import Path
 import delaycomp
 import delaycomp.fmus
 from delaycomp.child import module_argv
+from delaycomp.model import model_id  # noqa: F401  (re-exported)
 from delaycomp.tmpfiles import temp_dir
 
 CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmuslave.CONFIG_NAME
@@ -80,13 +80,6 @@ FMUS: dict[str, FmuSpec] = {
 #: Dimensions of the default build: the scalar loop of Example 3.6.
 DEFAULT_CONFIG = {"plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
                   "controller": {"n": 1, "m": 1}}
-
-
-def model_id(model_path: str | Path) -> str:
-    """Identifier of a model file: its name and a digest of its content and our version."""
-    path = Path(model_path)
-    digest = hashlib.sha256(path.read_bytes() + delaycomp.__version__.encode()).hexdigest()
-    return f"{re.sub(r'[^A-Za-z0-9_]', '_', path.stem)}_{digest[:8]}"
 
 
 def model_identifier(kind: str, config: dict) -> str:

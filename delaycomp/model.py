@@ -105,29 +105,70 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
     if arity != (3 if control == "continuous" else 2):
         form = "k(t, x, p)" if control == "continuous" else "k(x, p)"
         raise ModelError(f"model {label}: CONTROL = {control!r} needs {form}")
+    _check_shapes(label, f, k, control, len(states), len(inputs), params)
     return Model(label, states, inputs, control, f, k, params,
                  getattr(module, "predictor", None), getattr(module, "step", None),
                  Path(module.__file__) if getattr(module, "__file__", None) else None,
                  choices)
 
 
+def _check_shapes(label, f, k, control, n, m, params) -> None:
+    """``f`` must return ``n`` entries and ``k`` ``m``: checked once, at ``x = 0``,
+    ``u = 0``, ``t = 0`` and the default parameters (with ``T = 1``). A function that
+    raises there is not judged here (a model may be undefined at 0): its own exception is
+    reported where a run calls it."""
+    import numpy as np
+
+    p = {**params, "T": 1.0}
+    x, u = np.zeros(n), np.zeros(m)
+    for what, call, want in (
+            ("f(x, u, p)", lambda: f(x, u, p), n),
+            ("k(t, x, p)" if control == "continuous" else "k(x, p)",
+             (lambda: k(0.0, x, p)) if control == "continuous" else (lambda: k(x, p)), m)):
+        try:
+            with np.errstate(all="ignore"):
+                shape = np.shape(call())
+        except BaseException:  # noqa: BLE001 - see the docstring (SystemExit included)
+            continue
+        if shape != (want,):
+            raise ModelError(f"model {label}: {what} returned shape {shape}, must be "
+                             f"({want},): one entry per "
+                             f"{'state' if want == n and what.startswith('f') else 'input'}")
+
+
+def model_id(model_path: str | Path) -> str:
+    """Identifier of a model file: its name and a digest of its content and our version."""
+    import delaycomp
+
+    path = Path(model_path)
+    digest = hashlib.sha256(path.read_bytes() + delaycomp.__version__.encode()).hexdigest()
+    return f"{_slug(path.stem)}_{digest[:8]}"
+
+
+def module_name(model_path: str | Path) -> str:
+    """The name a model file is imported under, here and inside its FMUs
+    (``delaycomp_model_<model id>``): one import per process, whoever asks first."""
+    return f"delaycomp_model_{model_id(model_path)}"
+
+
 def load_model(path: str | Path) -> Model:
-    """Import a model file under a name unique to its content, and check it."""
+    """Import a model file (once per process: under :func:`module_name`, the name its FMUs
+    import it by) and check it."""
     path = Path(path)
     if not path.is_file() or path.suffix != ".py":
         raise ModelError(f"--model {path}: not a Python file")
-    source = path.read_bytes()
-    mod_name = f"delaycomp_usermodel_{_slug(path.stem)}_{hashlib.sha256(source).hexdigest()[:10]}"
+    mod_name = module_name(path)
     module = sys.modules.get(mod_name)
     if module is None:
         spec = importlib.util.spec_from_file_location(mod_name, path)
         module = importlib.util.module_from_spec(spec)
+        sys.modules[mod_name] = module
         try:
             spec.loader.exec_module(module)
-        except Exception as exc:  # noqa: BLE001 - the user's code: report it in one line
+        except BaseException as exc:  # noqa: BLE001 - the user's code: one line
+            del sys.modules[mod_name]
             raise ModelError(f"--model {path}: importing it failed: {type(exc).__name__}: "
                              f"{exc}") from None
-        sys.modules[mod_name] = module
     return from_module(module, path.stem)
 
 

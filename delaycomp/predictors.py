@@ -122,6 +122,7 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         return _scaled_segment(slot, z, duration, u, elapsed, size)
     solver = slot.solver
     code = None
+    slot.raised = None
     try:
         with warnings.catch_warnings():
             # scipy warns about a failed solve; the return code below says it too
@@ -131,8 +132,11 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         code = solver.get_return_code()
         ok = solver.successful()
         reason = _DOP853_MESSAGES.get(code, "unknown failure")
-    except Exception as exc:  # noqa: BLE001 - f raised, or a solver warning as error
-        ok, reason = False, f"{type(exc).__name__}: {exc}"
+    except BaseException as exc:  # noqa: BLE001 - f raised, or a solver warning as error
+        raised = slot.raised if slot.raised is not None else exc
+        ok, reason = False, f"{type(raised).__name__}: {raised}"
+        if slot.raised is not None:
+            reason = f"the model's f raised {reason}"
         z_end = z
     if not ok and (code == -3 or code == -2 and np.max(np.abs(z), initial=0.0) < _TINY):
         # step size too small, or the step budget spent on a tiny state: the scaled error
@@ -176,8 +180,8 @@ def _python_dop853(slot: _Slot, z, duration, u):
             warnings.simplefilter("ignore", RuntimeWarning)
             sol = solve_ivp(lambda _t, s: f(s, u, p), (0.0, duration), z, method="DOP853",
                             rtol=slot.rtol, atol=slot.atol)
-    except Exception as exc:  # noqa: BLE001 - f raised
-        return False, f"{type(exc).__name__}: {exc}", z
+    except BaseException as exc:  # noqa: BLE001 - f raised
+        return False, f"the model's f raised {type(exc).__name__}: {exc}", z
     if not sol.success:
         return False, sol.message, z
     return True, "", sol.y[:, -1]
@@ -191,10 +195,19 @@ class _Slot:
         self.f: Callable | None = None
         self.p: dict | None = None
         self.busy = False
+        #: the exception the model's f raised in the current solve, if any
+        self.raised: BaseException | None = None
         slot = self  # the closure holds the slot, not a bound method per call
 
         def rhs(_t, s, u):
-            return slot.f(s, u, slot.p)
+            try:
+                return slot.f(s, u, slot.p)
+            except BaseException as exc:
+                # scipy reports its own error ("Function to integrate must not return a
+                # tuple"); the caller reports this one instead
+                if slot.raised is None:  # the first one: later calls see scipy's state
+                    slot.raised = exc
+                raise
 
         self.solver = ode(rhs).set_integrator("dop853", rtol=rtol, atol=atol,
                                               nsteps=_MAX_STEPS)

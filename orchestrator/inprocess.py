@@ -35,7 +35,7 @@ class SlaveRefused(RuntimeError):
 
 def _load_model_module(model_path: str) -> str:
     """Import a model file under the unique name its FMUs bundle it as; return that name."""
-    name = f"delaycomp_model_{model_id(model_path)}"
+    name = f"delaycomp_model_{model_id(model_path)}"  # = delaycomp.model.module_name
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, model_path)
         module = importlib.util.module_from_spec(spec)

@@ -134,7 +134,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             try:
                 with np.errstate(all="ignore"):  # non-finite results are checked below
                     u = self.ctrl.output(self._sample())
-            except Exception as exc:  # noqa: BLE001 - a getter must not raise into pythonfmu
+            except BaseException as exc:  # noqa: BLE001 - nothing may raise into pythonfmu
                 self._refuse(f"computing the control at t = {t!r} failed: "
                              f"{type(exc).__name__}: {exc}")
             else:
