@@ -133,10 +133,14 @@ def run_ssp(master: str, ssp_path: str | Path, stop_time: float,
         raise ValueError(f"unknown master {master!r}: allowed are {', '.join(MASTERS)}")
     with tempfile.TemporaryDirectory(prefix="delaycomp-3p-") as tmp:
         out = Path(tmp) / "result.npz"
+        # the child leaves with os._exit (see the end of this module), so the folders
+        # its master unpacks into (Ecos: a 2.2 MB ecos_ssp_* per run) are never removed
+        # by their owners: they go into this folder, removed with it
+        env = {**os.environ, "TMPDIR": tmp, "TEMP": tmp, "TMP": tmp}
         proc = subprocess.run(
             module_argv("delaycomp.thirdparty", master, str(Path(ssp_path).resolve()),
                         repr(float(stop_time)), str(out)),
-            capture_output=True, text=True, timeout=timeout, cwd=tmp)
+            capture_output=True, text=True, timeout=timeout, cwd=tmp, env=env)
         if proc.returncode != 0 or not out.exists():
             lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
             reason = lines[-1] if lines else f"exit status {proc.returncode}"
