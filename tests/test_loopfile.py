@@ -270,7 +270,7 @@ def test_check_against_the_reference_csv_a_loop_file_names(lti_case, tmp_path):
         w = csv.writer(fh)
         w.writerow(["time", *cols])
         for t, x, u in zip(times, xs, us):
-            w.writerow([repr(t), *map(repr, x), *map(repr, u)])
+            w.writerow([repr(float(v)) for v in (t, *x, *u)])
     path = write_lti_loop(tmp_path, K, extra="")
     text = path.read_text().replace("stop_time = 12.0", "stop_time = 4.0")
     path.write_text(text + '\n[reference]\ncsv = "ref.csv"\n')
