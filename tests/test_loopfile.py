@@ -239,21 +239,27 @@ def _delay_free(K):
     return F[:3, :3] + F[:3, 3:] @ K
 
 
+def simulate_container(fmu, stop: float, interval: float) -> dict:
+    """fmpy.simulate_fmu on a container FMU at the sampling period, in a child process (a
+    pythonfmu FMU is not unloaded in this one, see delaycomp/crosscheck.py)."""
+    code = ("import sys, json, os; from fmpy import simulate_fmu; "
+            "r = simulate_fmu(sys.argv[1], stop_time=float(sys.argv[2]), "
+            "output_interval=float(sys.argv[3])); "
+            "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}), flush=True); "
+            "os._exit(0)")
+    proc = subprocess.run([sys.executable, "-c", code, str(fmu), repr(stop),
+                           repr(interval)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def test_export_loop_of_a_loop_file(lti_case, tmp_path):
     folder, K = lti_case
     path = write_lti_loop(folder, K)
     fmu = tmp_path / "plant3_loop.fmu"
     proc = cli("export-loop", path, "--out", fmu)
     assert proc.returncode == 0, proc.stderr
-    code = ("import sys, json, os; from fmpy import simulate_fmu; "
-            "r = simulate_fmu(sys.argv[1], stop_time=6.0, output_interval=0.2); "
-            "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}), flush=True); "
-            "os._exit(0)")
-    # in a child: a pythonfmu FMU is not unloaded in this process (see crosscheck.py)
-    proc = subprocess.run([sys.executable, "-c", code, str(fmu)], capture_output=True,
-                          text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    res = simulate_container(fmu, 6.0, T)
     _times, xs, _ = lti_reference(K, True, stop=6.0)
     for i in range(3):
         got = np.array(res[f"x{i + 1}"])
@@ -479,14 +485,7 @@ def test_user_model_loop_file_through_ssp_masters_sweep_and_export(tmp_path, mod
     fmu = tmp_path / "pend_loop.fmu"
     proc = cli("export-loop", path, "--out", fmu)
     assert proc.returncode == 0, proc.stderr
-    code = ("import sys, json, os; from fmpy import simulate_fmu; "
-            "r = simulate_fmu(sys.argv[1], stop_time=4.0, output_interval=0.25); "
-            "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}), flush=True); "
-            "os._exit(0)")
-    proc = subprocess.run([sys.executable, "-c", code, str(fmu)], capture_output=True,
-                          text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    res = simulate_container(fmu, 4.0, 0.25)
     got = np.column_stack([res["x1"], res["x2"]])
     err = np.abs(got - ref[1][::10]) / (1 + np.abs(ref[1][::10]))
     assert err.max() <= 1e-6, err.max()
