@@ -129,9 +129,10 @@ def test_a_killed_build_leaves_nothing_after_the_next_build(tmp_path, monkeypatc
 def test_ecos_runs_leave_no_unpacked_archive(tmp_path, monkeypatch, fmu_dir):
     """Each Ecos run left a 2.2 MB ``ecos_ssp_*`` folder in the temporary folder (its
     process leaves with ``os._exit``): it now unpacks inside the run's own folder."""
-    from delaycomp import thirdparty
+    from delaycomp import scenarios, thirdparty
 
-    packed = thirdparty.pack_jacobi("example-3.6", None, tmp_path / "j.ssp", fmu_dir)
+    packed = thirdparty.pack_jacobi(scenarios.get("example-3.6").loop(), tmp_path / "j.ssp",
+                                    fmu_dir)
     temp = tmp_path / "temp"
     temp.mkdir()
     monkeypatch.setenv("TMPDIR", str(temp))
