@@ -52,8 +52,11 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
     near 1e-150 with these tolerances; the band 2e-155 .. 3e-148 measured), or spends its
     step budget on a state below 1e-100 (seen at 1e-156 in a long run), the segment is
     solved again by the same method in scipy's Python implementation
-    (``solve_ivp(method="DOP853")``, same tolerances). Raises :class:`IntegrationError`
-    if a solve fails or the state stops being finite.
+    (``solve_ivp(method="DOP853")``, same tolerances). A segment whose state and input
+    are all below 1e-100 is solved for ``z / 2^k`` instead (:func:`_scaled_segment`),
+    where neither implementation's error norm underflows. Raises
+    :class:`IntegrationError` if a solve fails or the state stops being finite; the
+    message names the model's own exception when ``f`` raised.
 
     Parameters
     ----------
