@@ -391,8 +391,11 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
     Dr = _ticks("r_true", r_true, h)
     Dt = _ticks("tau_true", tau_true, h)
     _ticks("r", r, h)
-    for p in range(P):
-        periods_in(float(tau[p]), float(T[p]))  # ValueError naming tau if not l T
+    for p in _unique_rows(tau, T)[0]:
+        try:
+            periods_in(float(tau[p]), float(T[p]))
+        except ValueError as exc:
+            raise BatchError(f"{exc} (point {p})") from None
     # exact discretization, once per distinct (A, B, h)
     first, inv = _unique_rows(A, B, h)
     Ad_u, Bd_u = zip(*(discretize(A[i], B[i], float(h[i])) for i in first))
@@ -426,64 +429,70 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
                          f"predictor e^(A (r + tau)) finite for r + tau = "
                          f"{float(r[p] + tau[p])!r} (it overflows)")
     kmax = int(stop_k.max())
-    periods = stop_k // N
-    Rx = int(Dr.max()) + 1
+    nb = int(Dr.max()) // N + 2  # blocks of N ticks kept for the measurement delay
     Ru = max(Lmax, int(Dt.max()) // N + 1) + 2
-    # device arrays, points on the last axis
     dev = be.asarray
-    Ad_d = [[dev(np.ascontiguousarray(Ad[:, i, j])) for j in range(n)] for i in range(n)]
-    Bd_d = [[dev(np.ascontiguousarray(Bd[:, i, j])) for j in range(m)] for i in range(n)]
-    K_d = [[dev(np.ascontiguousarray(K[:, c, i])) for i in range(n)] for c in range(m)]
-    E_d = [[dev(np.ascontiguousarray(E[:, i, j])) for j in range(n)] for i in range(n)]
-    QB_d = [[[dev(np.ascontiguousarray(QB[q, :, i, j])) for j in range(m)] for i in range(n)]
+    is_np = be.name == "numpy"
+    # per-point coefficients as contiguous (P,) arrays, points on the last axis
+    Ad_d = [[dev(np.ascontiguousarray(Ad[:, a, b])) for b in range(n)] for a in range(n)]
+    Bd_d = [[dev(np.ascontiguousarray(Bd[:, a, c])) for c in range(m)] for a in range(n)]
+    K_d = [[dev(np.ascontiguousarray(K[:, c, a])) for a in range(n)] for c in range(m)]
+    E_d = [[dev(np.ascontiguousarray(E[:, a, b])) for b in range(n)] for a in range(n)]
+    QB_d = [[[dev(np.ascontiguousarray(QB[q, :, a, c])) for c in range(m)] for a in range(n)]
             for q in range(Lmax)]
     x0_d = dev(np.ascontiguousarray(x0.T))
     u0_d = dev(np.ascontiguousarray(u0.T))
-    Dr_d, Dt_d = dev(Dr), dev(Dt)
     pidx = dev(np.arange(P))
+    Dr_uniform = bool(np.all(Dr == Dr[0]))
     Dt_uniform = bool(np.all(Dt == Dt[0]))
-    x = [x0_d[i] for i in range(n)]
-    xring = xp.zeros((Rx, n, P))
-    U = xp.zeros((Ru, m, P))
+    Dr_d, Dt_d = dev(Dr), dev(Dt)
+    xb = xp.zeros((nb, N, n, P))  # states of the last nb blocks of N ticks
+    U = xp.zeros((Ru, m, P))  # controller outputs, one per period
+    x = [x0_d[a] for a in range(n)]
     v = u0_d
     held = u0_d
-    metrics = _Metrics(xp, P, N, stop_k, int(periods.max()))
-    failed = np.zeros(P, dtype=bool)
-    fail_norm = np.zeros(P)
-    fail_peak = np.zeros(P)
-    messages = [""] * P
-    norm_prev = xp.zeros(P)
+    tmp = np.empty(P) if is_np else None
+    acc = _BlockMetrics(be, P, N, stop_k, int((stop_k // N).max()))
     states = inputs = None
     if record:
         states = np.full((P, kmax + 1, n), np.nan)
         inputs = np.full((P, kmax + 1, m), np.nan)
+    # the plant input changes at the ticks k with (k - Dt) % N == 0: rows Dt % N of a block
+    change_rows = {int(c) for c in np.unique(Dt % N)}
+    Dt_rows = Dt % N
 
-    def fail(mask_host, norm_dev, why, k):
-        nonlocal x, held, v, U
-        new = mask_host & ~failed
-        if not new.any():
-            return
-        norms = be.to_numpy(norm_dev)
-        fail_norm[new] = norms[new]
-        fail_peak[new] = np.maximum(be.to_numpy(metrics.peak)[new], 0.0)
-        t = (k // N) * T + (k % N) * h
-        for p in np.flatnonzero(new):
-            messages[p] = f"{why} at t = {float(t[p])!r}"
-        failed[new] = True
-        keep = dev(~failed)
-        # a failed point is frozen: zeros from here on never trigger again
-        x = [xp.where(keep, xi, 0.0) for xi in x]
-        held = xp.where(keep, held, 0.0)
-        v = xp.where(keep, v, 0.0)
-        U = xp.where(keep, U, 0.0)
+    def plant_input(k, row, v):
+        """``v`` at tick ``k``: the controller output of tick ``k - Dt``."""
+        if row not in change_rows:
+            return v, False
+        if Dt_uniform:
+            s = k - int(Dt[0])
+            return (U[(s // N) % Ru], True) if s >= 0 else (v, False)
+        due = (Dt_rows == row) & (k - Dt >= 0)
+        if not due.any():
+            return v, False
+        s = np.maximum(k - Dt, 0)
+        return xp.where(dev(due), U[dev((s // N) % Ru), :, pidx].T, v), True
 
-    for k in range(kmax + 1):
+    def forced(v):
+        return [_dot(Bd_d[a], v) for a in range(n)]
+
+    bv = forced(v)
+    scalar = is_np and n == 1
+    A00 = Ad_d[0][0]
+    with np.errstate(all="ignore"):  # overflow is detected per block, as the FMUs refuse
         for a in range(n):
-            xring = put(xring, (k % Rx, a), x[a])
-        if k % N == 0:
-            i = k // N
-            src = k - Dr_d
-            y = xp.where(src >= 0, xring[src % Rx, :, pidx].T, x0_d)
+            xb = be.put(xb, (0, 0, a), x[a])
+        for i in range(kmax // N + 1):
+            k0 = i * N
+            bi = i % nb
+            # the controller at the sampling instant k0
+            if Dr_uniform:
+                src = k0 - int(Dr[0])
+                y = xb[(src // N) % nb, src % N] if src >= 0 else x0_d
+            else:
+                src = k0 - Dr_d
+                y = xp.where(src >= 0, xb[(src // N) % nb, src % N, :, pidx].T, x0_d)
             phi = [_dot(E_d[a], y) for a in range(n)]
             for q in range(Lmax):
                 past = U[(i - q - 1) % Ru] if i - q - 1 >= 0 else u0_d
@@ -492,45 +501,170 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
             held = xp.stack([_dot(K_d[c], phi) for c in range(m)])
             bad = ~xp.all(xp.isfinite(held), axis=0) & xp.all(xp.isfinite(y), axis=0)
             if bool(xp.any(bad)):
-                fail(be.to_numpy(bad), norm_prev, "the control is not finite (the feedback "
-                     "overflowed)", k)
-            U = put(U, i % Ru, held)
-        s = k - Dt_d if not Dt_uniform else k - int(Dt[0])
-        if Dt_uniform:
-            if s >= 0 and s % N == 0:
-                v = U[(s // N) % Ru]
-        else:
-            due = (s >= 0) & (s % N == 0)
-            if bool(xp.any(due)):
-                v = xp.where(due, U[(s // N) % Ru, :, pidx].T, v)
-        sq = x[0] * x[0]
-        for a in range(1, n):
-            sq = sq + x[a] * x[a]
-        norm = xp.sqrt(sq)
-        metrics.record(k, norm, put)
-        if record:
-            states[:, k] = be.to_numpy(xp.stack(x)).T
-            inputs[:, k] = be.to_numpy(held).T
-            if failed.any():
-                states[failed, k] = np.nan
-                inputs[failed, k] = np.nan
-        if k == kmax:
-            break
-        x = [_dot(Ad_d[a], x) + _dot(Bd_d[a], v) for a in range(n)]
-        total = x[0].sum() if n == 1 else xp.stack(x).sum()
-        if not bool(xp.isfinite(total)):
-            bad = ~xp.all(xp.isfinite(xp.stack(x)), axis=0)
-            if bool(xp.any(bad)):
-                fail(be.to_numpy(bad), norm, "the plant state is not finite (the plant "
-                     "diverged: overflow)", k + 1)
-        norm_prev = norm
+                acc.cut(be.to_numpy(bad), k0, "the control is not finite (the feedback "
+                        "overflowed)", T, h)
+            U = be.put(U, i % Ru, held)
+            rows = min(N, kmax - k0 + 1)
+            for row in range(rows):
+                k = k0 + row
+                v, changed = plant_input(k, row, v)
+                if changed:
+                    bv = forced(v)
+                if record:
+                    states[:, k] = be.to_numpy(xp.stack(x)).T
+                    inputs[:, k] = be.to_numpy(held).T
+                if k == kmax:
+                    break
+                # the plant's step to tick k + 1, into its row of the block ring
+                bi1, row1 = (bi, row + 1) if row + 1 < N else ((i + 1) % nb, 0)
+                if scalar:  # n = 1 on numpy: the hot path, two ufunc calls a tick
+                    out = xb[bi1, row1, 0]
+                    np.multiply(A00, x[0], out=out)
+                    np.add(out, bv[0], out=out)
+                    x = [out]
+                elif is_np:
+                    for a in range(n):
+                        out = xb[bi1, row1, a]
+                        np.multiply(Ad_d[a][0], x[0], out=out)
+                        for b in range(1, n):
+                            np.multiply(Ad_d[a][b], x[b], out=tmp)
+                            np.add(out, tmp, out=out)
+                        np.add(out, bv[a], out=out)
+                    x = [xb[bi1, row1, a] for a in range(n)]
+                else:
+                    x = [_dot(Ad_d[a], x) + bv[a] for a in range(n)]
+                    for a in range(n):
+                        xb = be.put(xb, (bi1, row1, a), x[a])
+            acc.block(xb[bi, :rows], k0, T, h)
+    res = acc.finish(T, h)
     if record:
-        for p in range(P):
-            states[p, stop_k[p] + 1:] = np.nan
-            inputs[p, stop_k[p] + 1:] = np.nan
-    res = _finish(metrics, be, failed, fail_norm, fail_peak, T, h, N, messages)
+        for p, (c, e) in enumerate(zip(acc.cut_at, stop_k)):
+            states[p, min(int(c), int(e) + 1):] = np.nan
+            inputs[p, min(int(c), int(e) + 1):] = np.nan
     res.states, res.inputs = states, inputs
     return res
+
+
+class _BlockMetrics:
+    """The sweep's metrics, from blocks of ticks (norms computed a block at a time).
+
+    Per point, ticks from ``end = min(cut, ticks + 1)`` on are not recorded: ``cut`` is the
+    first tick a component refused (a control that is not finite), or the first tick whose
+    state is not finite (the plant's step to it failed).
+    """
+
+    def __init__(self, be: Backend, P: int, N: int, ticks: np.ndarray, periods_max: int):
+        xp = be.xp
+        self.be, self.xp, self.P, self.N = be, xp, P, N
+        self.ticks = ticks
+        self.cut_at = np.full(P, np.iinfo(np.int64).max, dtype=np.int64)
+        self.messages = [""] * P
+        self.peak = xp.zeros(P)
+        self.final = np.full(P, np.nan)
+        self.last_above = xp.full(P, -1, dtype=xp.int64)
+        self.envsq = np.zeros((max(periods_max, 1), P))
+        self.periods_max = periods_max
+        self.prev_last = np.full(P, np.nan)  # norm of the tick before the current block
+
+    def cut(self, mask: np.ndarray, k: int, why: str, T, h) -> None:
+        new = mask & (self.cut_at > k)
+        if not new.any():
+            return
+        self.cut_at[new] = k
+        t = (k // self.N) * T + (k % self.N) * h
+        for p in np.flatnonzero(new):
+            self.messages[p] = f"{why} at t = {float(t[p])!r}"
+
+    def block(self, xs, start: int, T, h) -> None:
+        """Rows ``xs[j]`` (shape ``(n, P)``) are the states of ticks ``start + j``."""
+        xp = self.xp
+        R = xs.shape[0]
+        sq = xs[:, 0] * xs[:, 0]
+        for a in range(1, xs.shape[1]):
+            sq = sq + xs[:, a] * xs[:, a]
+        norms = xp.sqrt(sq)
+        if not bool(xp.isfinite(xp.sum(norms))):  # rare: find the rows that are not finite
+            bad = ~xp.isfinite(norms)
+            has = self.be.to_numpy(xp.any(bad, axis=0))
+            first = self.be.to_numpy(xp.argmax(bad, axis=0))
+            for p in np.flatnonzero(has):
+                self.cut(np.arange(self.P) == p, start + int(first[p]),
+                         "the plant state is not finite (the plant diverged: overflow)", T, h)
+        end = np.minimum(self.cut_at, self.ticks + 1)
+        if np.any(end < start + R):
+            rows = xp.asarray(start + np.arange(R))[:, None]
+            incl = rows < xp.asarray(end)[None, :]
+            norms_in = xp.where(incl, norms, 0.0)
+            sq = xp.where(incl, sq, 0.0)
+            above = incl & ~(norms < ZERO)
+        else:
+            norms_in = norms
+            above = norms >= ZERO
+        self.peak = xp.maximum(self.peak, xp.max(norms_in, axis=0))
+        # the last tick with |x| >= ZERO: the block's last row for most points; a search
+        # only where some earlier row is above and the last is not
+        last_row = above[R - 1]
+        self.last_above = xp.where(last_row, start + R - 1, self.last_above)
+        need = self.be.to_numpy(xp.any(above, axis=0) & ~last_row)
+        if need.any():
+            sel = np.flatnonzero(need)
+            sub = above[:, self.be.asarray(sel)]
+            last = (R - 1) - self.be.to_numpy(xp.argmax(sub[::-1], axis=0))
+            host = self.be.to_numpy(self.last_above).copy()
+            host[sel] = start + last
+            self.last_above = self.be.asarray(host)
+        j = start // self.N
+        if j < self.periods_max and R == self.N:
+            self.envsq[j] = self.be.to_numpy(xp.sum(sq, axis=0))
+        # the last recorded norm of points whose record ends in this block (or just before)
+        hit = (end - 1 >= start) & (end - 1 < start + R)
+        host = None
+        if hit.any():
+            host = self.be.to_numpy(norms)
+            sel = np.flatnonzero(hit)
+            self.final[sel] = host[end[sel] - 1 - start, sel]
+        at_start = end == start
+        if at_start.any():
+            self.final[at_start] = self.prev_last[at_start]
+        self.prev_last = self.be.to_numpy(norms[R - 1]) if host is None else host[R - 1]
+
+    def finish(self, T, h) -> BatchResult:
+        to = self.be.to_numpy
+        N = self.N
+        peak = to(self.peak).copy()
+        last = to(self.last_above)
+        failed = self.cut_at <= self.ticks
+        peak[failed & (self.cut_at == 0)] = np.nan  # nothing recorded
+        nxt = last + 1
+        db = (nxt // N) * T + (nxt % N) * h
+        db = np.where(last < 0, 0.0, np.where(last < self.ticks, db, np.nan))
+        rho = _rates(self.envsq, self.ticks // N)
+        bad = failed | ~np.isfinite(peak)
+        rho[bad] = np.inf
+        db[bad] = np.nan
+        stable = (rho < 1.0).astype(np.int64)
+        return BatchResult(rho, stable, self.final.copy(), peak, db, ~bad,
+                           list(self.messages))
+
+
+def _rates(envsq: np.ndarray, periods: np.ndarray) -> np.ndarray:
+    """``rho`` per point from the per-period sums of ``|x|^2`` (``envsq[j, p]``)."""
+    P = len(periods)
+    rho = np.full(P, np.nan)
+    for S in np.unique(periods):
+        sel = np.flatnonzero(periods == S)
+        start = max(1, int(S) // 5)
+        tail = np.sqrt(envsq[start:S, sel]).T  # (points, tail length)
+        if tail.shape[1] < 2:
+            continue  # too few periods to estimate a rate: nan, as the per-point metric
+        zero = np.any(tail == 0.0, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            y = np.log(tail)
+            t = np.arange(tail.shape[1], dtype=float)
+            tc = t - t.mean()
+            slope = ((y - y.mean(axis=1, keepdims=True)) @ tc) / (tc @ tc)
+            rho[sel] = np.where(zero, 0.0, np.exp(slope))
+    return rho
 
 
 # -- model loops ------------------------------------------------------------------------
