@@ -16,7 +16,9 @@ LTI scenarios). Per point the sweep reports
 
 Points run one after another, on local worker processes, or on a Dask cluster; every
 point is computed by the same deterministic function, so the results do not depend on how
-they are distributed.
+they are distributed. With ``engine="batch"`` the points are advanced together, vectorized
+(:mod:`delaycomp.batch`, :mod:`delaycomp.sweep_batch`), in chunks spread the same way;
+points it cannot take run on the per-point in-process engine, and ``notes`` says which.
 """
 
 from __future__ import annotations
@@ -167,10 +169,23 @@ class _Progress:
             sys.stderr.flush()
 
 
+#: engines of :func:`run_sweep`: ``batch`` advances all points together (vectorized);
+#: ``inprocess`` and ``fmu`` run point by point (:data:`delaycomp.simulate.ENGINES`)
+SWEEP_ENGINES = ("batch", "inprocess", "fmu")
+
+
 def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
-              fmu_dir: str | None = None, exact: bool = False) -> list[dict]:
-    """Run the grid; return one row (grid values + metrics) per point, in grid order."""
+              fmu_dir: str | None = None, exact: bool = False,
+              array_backend: str = "numpy", chunk: int | None = None,
+              notes: list[str] | None = None) -> list[dict]:
+    """Run the grid; return one row (grid values + metrics) per point, in grid order.
+
+    ``engine="batch"`` advances the points together on ``array_backend`` (numpy, cupy,
+    jax or auto; :func:`delaycomp.batch.get_backend`) in chunks of at most ``chunk``
+    points (default: from the available memory); what it did, and which points fell back
+    to the per-point in-process engine and why, is appended to ``notes``.
+    """
     sc = scenarios.get(scenario)
     if exact and sc.lti is None:
         raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
@@ -179,19 +194,80 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     names = [a.name for a in axes]
     if len(set(names)) != len(names):
         raise ParameterError("--grid: each parameter may be swept once")
+    if engine not in SWEEP_ENGINES:
+        raise ParameterError(f"--engine {engine!r} is not allowed: must be one of "
+                             f"{', '.join(SWEEP_ENGINES)}")
+    if chunk is not None and chunk < 1:
+        raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
     stop = sc.default_stop_time if stop is None else stop
     jobs = []
+    resolved = []
     for values in points(axes):
         point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
         try:
-            sc.resolve(list(point_sets))  # validate every point before running any
+            # validate every point before running any
+            resolved.append(sc.resolve(list(point_sets)))
         except ParameterError as exc:
             where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
             raise ParameterError(f"grid point {where}: {exc}") from None
-        jobs.append(Job(scenario, point_sets, float(stop), engine, fmu_dir, exact))
+        jobs.append(Job(scenario, point_sets, float(stop),
+                        "inprocess" if engine == "batch" else engine, fmu_dir, exact))
+    if engine == "batch" and not exact:
+        results = _run_batch(sc, jobs, resolved, float(stop), workers, scheduler,
+                             array_backend, chunk, notes if notes is not None else [])
+        return [{**dict(zip(names, values)), **res}
+                for values, res in zip(points(axes), results)]
     if not exact and engine == "fmu":
         _prebuild(jobs)
+    return [{**dict(zip(names, values)), **res}
+            for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler))]
+
+
+def _run_batch(sc, jobs: list[Job], resolved: list[dict], stop: float, workers: int,
+               scheduler: str | None, backend: str, chunk: int | None,
+               notes: list[str]) -> list[dict]:
+    """The batch engine for the points it takes, the per-point engine for the others."""
+    from . import batch, sweep_batch
+    from .scenarios import on_grid
+
+    if not (math.isfinite(stop) and stop > 0):
+        raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
+    for h in {p["T"] / p["N"] for p in resolved}:  # as the per-point engine's stop_ticks
+        if not on_grid(stop, h):
+            raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a multiple "
+                                 f"of the base step h = T/N = {h!r}")
+    try:
+        be = batch.get_backend(backend)
+    except batch.BatchError as exc:
+        raise ParameterError(f"--array-backend: {exc}") from None
+    chunks, fallback, msgs = sweep_batch.prepare(sc, resolved, stop, be.name, workers, chunk)
+    notes.extend(msgs)
     progress = _Progress(len(jobs))
+    results: list[dict | None] = [None] * len(jobs)
+    try:
+        for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(chunks, workers, scheduler,
+                                                                 progress)):
+            for i, row in zip(idx, rows):
+                results[i] = row
+    except batch.BatchError as exc:
+        raise ParameterError(str(exc)) from None
+    done = sum(len(idx) for idx, _ in chunks)
+    notes.append(f"batch engine ({be.name}, {be.device}): {done} of {len(jobs)} points in "
+                 f"{len(chunks)} chunk{'s' if len(chunks) != 1 else ''}")
+    if fallback:
+        reasons = sorted({why for _, why in fallback})
+        notes.append(f"per-point engine (inprocess): {len(fallback)} points, because "
+                     + "; ".join(reasons))
+        rest = _run_jobs([jobs[i] for i, _ in fallback], workers, scheduler, progress)
+        for (i, _), row in zip(fallback, rest):
+            results[i] = row
+    return results
+
+
+def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
+              progress: _Progress | None = None) -> list[dict]:
+    """Per-point jobs, one after another, on worker processes or on Dask."""
+    progress = progress or _Progress(len(jobs))
     if scheduler:
         results = _run_dask(jobs, scheduler, progress)
     elif workers > 1:
@@ -204,7 +280,7 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
             for job in jobs:
                 results.append(evaluate(job))
                 progress.tick()
-    return [{**dict(zip(names, values)), **res} for values, res in zip(points(axes), results)]
+    return results
 
 
 def _run_processes(jobs: list[Job], workers: int, progress: _Progress) -> list[dict]:
