@@ -260,29 +260,13 @@ def _finish(metrics: _Metrics, backend: Backend, failed: np.ndarray, fail_norm: 
     last = to(metrics.last_above)
     envsq = to(metrics.envsq)
     ticks = metrics.ticks
-    P = len(ticks)
     peak[failed] = fail_peak[failed]
     final[failed] = fail_norm[failed]
     # deadbeat: the time of the tick after the last one with |x| >= ZERO
     nxt = last + 1
     db = (nxt // N) * T + (nxt % N) * h
     db = np.where(last < 0, 0.0, np.where(last < ticks, db, np.nan))
-    periods = ticks // N
-    rho = np.full(P, np.nan)
-    for S in np.unique(periods):
-        sel = np.flatnonzero(periods == S)
-        start = max(1, int(S) // 5)
-        tail = np.sqrt(envsq[start:S, sel]).T  # (points, tail length)
-        if tail.shape[1] < 2:
-            continue  # too few periods to estimate a rate: nan, as the per-point metric
-        zero = np.any(tail == 0.0, axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            y = np.log(tail)
-        t = np.arange(tail.shape[1], dtype=float)
-        tc = t - t.mean()
-        slope = ((y - y.mean(axis=1, keepdims=True)) @ tc) / (tc @ tc)
-        with np.errstate(over="ignore"):
-            rho[sel] = np.where(zero, 0.0, np.exp(slope))
+    rho = _rates(envsq, ticks // N)
     bad = failed | ~np.isfinite(peak)
     rho[bad] = np.inf
     db[bad] = np.nan
@@ -388,9 +372,9 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
     P, n, m = B.shape
     h = T / N
     stop_k = _ticks("stop", np.full(P, stop), h)
+    _ticks("r", r, h)
     Dr = _ticks("r_true", r_true, h)
     Dt = _ticks("tau_true", tau_true, h)
-    _ticks("r", r, h)
     for p in _unique_rows(tau, T)[0]:
         try:
             periods_in(float(tau[p]), float(T[p]))
@@ -583,8 +567,8 @@ class _BlockMetrics:
         for a in range(1, xs.shape[1]):
             sq = sq + xs[:, a] * xs[:, a]
         norms = xp.sqrt(sq)
-        if not bool(xp.isfinite(xp.sum(norms))):  # rare: find the rows that are not finite
-            bad = ~xp.isfinite(norms)
+        if not bool(xp.isfinite(xp.sum(norms))):  # rare: find the states that are not finite
+            bad = ~xp.all(xp.isfinite(xs), axis=1)  # (a norm may overflow, finite states)
             has = self.be.to_numpy(xp.any(bad, axis=0))
             first = self.be.to_numpy(xp.argmax(bad, axis=0))
             for p in np.flatnonzero(has):
