@@ -26,6 +26,8 @@ from . import batch
 #: Points per chunk at most: arrays of this many float64 (128 KiB) stay in a core's L2
 #: cache, where one ufunc call costs the least per point (measured in bench/batch.py).
 CHUNK_MAX = 16384
+#: Points per chunk at most on a GPU library: there a launch costs the same for any size.
+CHUNK_MAX_GPU = 1 << 20
 #: Share of the available memory the chunks of all workers may use together.
 MEMORY_SHARE = 0.25
 
@@ -145,7 +147,8 @@ def prepare(sc, points: list[dict], stop: float, backend: str,
             ring = int(np.max(np.rint((arr["r_true"] + arr["tau_true"] + arr["r"]
                                        + arr["tau"] + arr["T"]) / h)))
             per = 8 * 4 * (ring * (n + 2) + int(stop / float(arr["T"].min())) + 64)
-        size = chunk_size(per, workers, limit)
+        size = chunk_size(per, workers, limit or (
+            CHUNK_MAX if key[0] == "model" or backend == "numpy" else CHUNK_MAX_GPU))
         for s in range(0, P, size):
             sel = slice(s, s + size)
             part = {k: v[sel] for k, v in arr.items()}
