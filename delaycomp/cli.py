@@ -311,7 +311,13 @@ def _cmd_sweep(args) -> int:
         print(note)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
-        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set))
+        from .critical import critical_curve
+        from .scenarios import get
+
+        curve = critical_curve(get(args.scenario), args.set, [a.name for a in axes],
+                               [a.values for a in axes])
+        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set),
+                         curve)
     stable = sum(r["stable"] for r in rows)
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
           f"{stable} stable; wrote {args.out}")

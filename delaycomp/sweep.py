@@ -338,8 +338,13 @@ def _cell(value) -> str:
     return repr(float(value))
 
 
-def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str) -> None:
-    """A curve of ``rho`` for one grid parameter, a heat map of it for two."""
+def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str,
+               critical: np.ndarray | None = None) -> None:
+    """A curve of ``rho`` for one grid parameter, a heat map of it for two.
+
+    ``critical``: rows ``(a, r)`` where the exact lifted model has ``rho = 1``
+    (:func:`delaycomp.critical.critical_curve`), drawn over the map and labelled.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -365,6 +370,8 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str)
         ax.set_ylabel(axes[0].name)
     else:
         raise ParameterError("--plot draws one or two grid parameters")
+    if critical is not None:
+        _draw_critical(ax, axes, critical)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
     path = Path(path)
@@ -373,3 +380,18 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str)
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
     tmp.replace(path)
+
+
+def _draw_critical(ax, axes: list[Axis], points: np.ndarray) -> None:
+    label = "exact lifted model: rho = 1 (critical delays)"
+    if len(points) == 0:
+        return
+    if len(axes) == 1:
+        for j, r in enumerate(points[:, 1]):
+            ax.axvline(r, color="tab:blue", ls="--", lw=1.2,
+                       label=f"{label}: r = {r:.6g}" if j < 3 else None)
+    elif axes[1].name == "r":  # r on the horizontal axis
+        ax.plot(points[:, 1], points[:, 0], "o", color="tab:blue", ms=3.5, label=label)
+    else:
+        ax.plot(points[:, 0], points[:, 1], "o", color="tab:blue", ms=3.5, label=label)
+    ax.legend(fontsize=8, loc="upper right")

@@ -308,3 +308,37 @@ def test_cli_array_backend_without_its_library_is_a_usage_error(tmp_path):
     assert proc.returncode == 2
     assert "--array-backend" in proc.stderr and "cupy" in proc.stderr
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+
+
+# -- the exact critical delays over a map ------------------------------------------------
+
+def test_critical_curve_is_the_lifted_models_critical_delay():
+    """k = 2, T = 1: r_c = 0.203267055 (README, critical-delay --grid; (3.20)); k = 2.5 is
+    unstable at r = 0 (2.5 > 1 + 2/(e - 1)) and a band of delays stabilizes it: two
+    crossings around the band the simulated map shows."""
+    from delaycomp.critical import critical_curve
+
+    sc = scenarios.get("example-3.6")
+    r_axis = np.linspace(0, 0.98, 50)
+    rows = critical_curve(sc, ["mode=uncompensated"], ["k", "r"], [[2.0, 2.5], r_axis])
+    at2 = rows[rows[:, 0] == 2.0][:, 1]
+    assert at2.tolist() == pytest.approx([0.203267055], abs=1e-8)
+    at25 = rows[rows[:, 0] == 2.5][:, 1]
+    assert len(at25) == 2 and 0 < at25[0] < at25[1] < 0.2
+    b = sweep.run_sweep("example-3.6", [sweep.parse_grid("r=0:0.2:21")],
+                        ["k=2.5", "mode=uncompensated"], engine="batch")
+    inside = [row["stable"] for row in b if at25[0] + 0.01 < row["r"] < at25[1] - 0.01]
+    outside = [row["stable"] for row in b if row["r"] < at25[0] - 0.01
+               or row["r"] > at25[1] + 0.01]
+    assert inside and all(inside) and outside and not any(outside)
+    assert critical_curve(sc, ["mode=compensated"], ["k", "r"], [[2.0], r_axis]) is None
+    assert critical_curve(sc, ["mode=uncompensated"], ["k", "T"], [[2.0], [1.0]]) is None
+
+
+def test_map_plot_carries_the_critical_delays(tmp_path):
+    png = tmp_path / "map.png"
+    proc = cli("sweep", "example-3.6", "--grid", "k=1.5:2.5:5", "--grid", "r=0:0.5:6",
+               "--set", "mode=uncompensated", "--stop-time", "10",
+               "--out", str(tmp_path / "m.csv"), "--plot", str(png))
+    assert proc.returncode == 0, proc.stderr
+    assert png.read_bytes()[:4] == b"\x89PNG"
