@@ -72,7 +72,7 @@ def per_point_rows(name: str, point_sets: list[list[str]], stop: float) -> tuple
 def sample(count: int, P: int, k: int) -> list[int]:
     if k <= 0 or k >= P:
         return list(range(P))
-    return sorted({int(round(i)) for i in np.linspace(0, P - 1, k)})
+    return sorted({round(float(i)) for i in np.linspace(0, P - 1, k)})
 
 
 def rho_diff(a: list[dict], b: list[dict]) -> float:
@@ -207,6 +207,8 @@ def bench_million(side, gpu):
 def report(rows, million, gpu, args, cores) -> str:
     import scipy
 
+    sampled = ("every point" if args.per_point_sample <= 0
+               else f"{args.per_point_sample} points per grid, scaled")
     lines = [
         "# Batch engine benchmark",
         "",
@@ -219,7 +221,7 @@ def report(rows, million, gpu, args, cores) -> str:
         f"{scipy.__version__}",
         f"- GPU: {gpu or 'none seen by CuPy or JAX (no GPU column)'}",
         f"- repeats: {args.repeats} (medians); per-point engine: "
-        f"{'every point' if args.per_point_sample <= 0 else f'{args.per_point_sample} points per grid, scaled'}",
+        f"{sampled}",
         "",
         "| grid | points | per-point, 1 worker [s] | batch, 1 core [s] | batch, all cores [s] "
         "| batch, GPU [s] | 1 core vs per-point | target | max rel. rho diff |",

@@ -368,7 +368,7 @@ def _unique_rows(*arrays) -> tuple[np.ndarray, np.ndarray]:
 
 def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, comp,
                stop, record) -> BatchResult:
-    xp, put = be.xp, be.put
+    xp = be.xp
     P, n, m = B.shape
     h = T / N
     stop_k = _ticks("stop", np.full(P, stop), h)
@@ -429,7 +429,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
     pidx = dev(np.arange(P))
     Dr_uniform = bool(np.all(Dr == Dr[0]))
     Dt_uniform = bool(np.all(Dt == Dt[0]))
-    Dr_d, Dt_d = dev(Dr), dev(Dt)
+    Dr_d = dev(Dr)
     xb = xp.zeros((nb, N, n, P))  # states of the last nb blocks of N ticks
     U = xp.zeros((Ru, m, P))  # controller outputs, one per period
     x = [x0_d[a] for a in range(n)]

@@ -204,8 +204,9 @@ def critical_curve(scenario: Scenario, sets: list[str], names: list[str],
     map where the lifted loop's spectral radius crosses 1 (bracketed on the map's ``r``
     values, refined by Brent's method to 1e-9). From a loop stable at ``r = 0`` the first
     crossing is the critical delay ``r_c``; a loop unstable without delay may have a band
-    of delays that stabilize it, bounded by two crossings. ``None`` where no curve applies (not LTI, no ``r`` axis, the
-    compensated mode, whose spectrum does not depend on the delay it knows).
+    of delays that stabilize it, bounded by two crossings. ``None`` where no curve applies
+    (not LTI, no ``r`` axis, the compensated mode, whose spectrum does not depend on the
+    delay it knows).
     """
     if scenario.lti is None or "r" not in names or len(names) > 2:
         return None

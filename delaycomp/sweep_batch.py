@@ -138,7 +138,7 @@ def prepare(sc, points: list[dict], stop: float, backend: str,
             h = arr["T"] / arr["N"]
             ring = int(np.max(np.rint(np.maximum(arr["r_true"], arr["tau_true"]) / h)))
             L = int(np.max(np.floor((arr["r"] + arr["tau"]) / arr["T"]))) + 2
-            periods = int(math.ceil(stop / float(arr["T"].min())))
+            periods = math.ceil(stop / float(arr["T"].min()))
             per = _lti_bytes(n, m, Nmax, periods, ring, L)
         else:
             arr = _model_arrays([points[i] for i in idx])
