@@ -560,14 +560,19 @@ class _BlockMetrics:
             self.messages[p] = f"{why} at t = {float(t[p])!r}"
 
     def block(self, xs, start: int, T, h) -> None:
-        """Rows ``xs[j]`` (shape ``(n, P)``) are the states of ticks ``start + j``."""
+        """Rows ``xs[j]`` (shape ``(n, P)``) are the states of ticks ``start + j``.
+
+        Three passes over the block in the common case (squares, their column maxima and
+        sums): ``sqrt`` is monotonic, so the largest norm is the root of the largest square,
+        and norms are taken only on the rows a metric reads.
+        """
         xp = self.xp
         R = xs.shape[0]
         sq = xs[:, 0] * xs[:, 0]
         for a in range(1, xs.shape[1]):
             sq = sq + xs[:, a] * xs[:, a]
-        norms = xp.sqrt(sq)
-        if not bool(xp.isfinite(xp.sum(norms))):  # rare: find the states that are not finite
+        colmax = xp.max(sq, axis=0)
+        if not bool(xp.isfinite(xp.max(colmax))):  # rare: states not finite, or |x|^2 overflow
             bad = ~xp.all(xp.isfinite(xs), axis=1)  # (a norm may overflow, finite states)
             has = self.be.to_numpy(xp.any(bad, axis=0))
             first = self.be.to_numpy(xp.argmax(bad, axis=0))
@@ -575,42 +580,46 @@ class _BlockMetrics:
                 self.cut(np.arange(self.P) == p, start + int(first[p]),
                          "the plant state is not finite (the plant diverged: overflow)", T, h)
         end = np.minimum(self.cut_at, self.ticks + 1)
-        if np.any(end < start + R):
+        if np.any(end < start + R) or not bool(xp.isfinite(xp.max(colmax))):
+            norms = xp.sqrt(sq)
             rows = xp.asarray(start + np.arange(R))[:, None]
             incl = rows < xp.asarray(end)[None, :]
-            norms_in = xp.where(incl, norms, 0.0)
-            sq = xp.where(incl, sq, 0.0)
+            sq_in = xp.where(incl, sq, 0.0)
             above = incl & ~(norms < ZERO)
+            self.peak = xp.maximum(self.peak, xp.max(xp.where(incl, norms, 0.0), axis=0))
+            last_row = above[R - 1]
+            need = self.be.to_numpy(xp.any(above, axis=0) & ~last_row)
         else:
-            norms_in = norms
-            above = norms >= ZERO
-        self.peak = xp.maximum(self.peak, xp.max(norms_in, axis=0))
+            sq_in = sq
+            above = None
+            self.peak = xp.maximum(self.peak, xp.sqrt(colmax))
+            last_row = xp.sqrt(sq[R - 1]) >= ZERO
+            need = self.be.to_numpy((xp.sqrt(colmax) >= ZERO) & ~last_row)
         # the last tick with |x| >= ZERO: the block's last row for most points; a search
         # only where some earlier row is above and the last is not
-        last_row = above[R - 1]
         self.last_above = xp.where(last_row, start + R - 1, self.last_above)
-        need = self.be.to_numpy(xp.any(above, axis=0) & ~last_row)
         if need.any():
             sel = np.flatnonzero(need)
-            sub = above[:, self.be.asarray(sel)]
+            cols = self.be.asarray(sel)
+            sub = above[:, cols] if above is not None else xp.sqrt(sq[:, cols]) >= ZERO
             last = (R - 1) - self.be.to_numpy(xp.argmax(sub[::-1], axis=0))
             host = self.be.to_numpy(self.last_above).copy()
             host[sel] = start + last
             self.last_above = self.be.asarray(host)
         j = start // self.N
         if j < self.periods_max and R == self.N:
-            self.envsq[j] = self.be.to_numpy(xp.sum(sq, axis=0))
+            self.envsq[j] = self.be.to_numpy(xp.sum(sq_in, axis=0))
         # the last recorded norm of points whose record ends in this block (or just before)
         hit = (end - 1 >= start) & (end - 1 < start + R)
-        host = None
         if hit.any():
-            host = self.be.to_numpy(norms)
             sel = np.flatnonzero(hit)
-            self.final[sel] = host[end[sel] - 1 - start, sel]
+            rows_sel = end[sel] - 1 - start
+            self.final[sel] = np.sqrt(self.be.to_numpy(sq[self.be.asarray(rows_sel),
+                                                          self.be.asarray(sel)]))
         at_start = end == start
         if at_start.any():
             self.final[at_start] = self.prev_last[at_start]
-        self.prev_last = self.be.to_numpy(norms[R - 1]) if host is None else host[R - 1]
+        self.prev_last = np.sqrt(self.be.to_numpy(sq[R - 1]))
 
     def finish(self, T, h) -> BatchResult:
         to = self.be.to_numpy
