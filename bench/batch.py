@@ -63,7 +63,7 @@ def per_point_rows(name: str, point_sets: list[list[str]], stop: float) -> tuple
             p = sc.resolve(sets)
             spec = sc.make(p)
             dt, res = timed(lambda spec=spec: run_loop(spec, stop, engine="inprocess"))
-            n = sum(1 for inst, _ in spec.recorded if inst == "plant")
+            n = sum(1 for port in spec.recorded if port.instance == "plant")
             rows.append(sweep.metrics_of(res.times, res.data[:, :n], p["N"], res.success))
             times.append(dt)
     return statistics.median(times), rows
@@ -116,10 +116,10 @@ def bench_sweep(label, name, sets, grids, stop, repeats, k_sample, cores, gpu):
                                                     array_backend=gpu)
     from delaycomp import sweep_batch
 
-    resolved = [scenarios.get(name).resolve(
-        [*sets, *(f"{n}={sweep._fmt(v)}" for n, v in zip(names, pt))]) for pt in pts]
-    chunks, fallback, _ = sweep_batch.prepare(scenarios.get(name), resolved, stop, "numpy",
-                                              1, None)
+    sc = scenarios.get(name)
+    loops = [sc.loop([*sets, *(f"{n}={sweep._fmt(v)}" for n, v in zip(names, pt))])
+             for pt in pts]
+    chunks, fallback, _ = sweep_batch.prepare(loops, stop, "numpy", 1, None)
     assert not fallback
     samples = {key: [] for key in (*runs, "per_point", "engine_1")}
     results = {}

@@ -49,7 +49,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .lti import GRID_RTOL, MODES, LTIPredictor, discretize, periods_in, split_delay
+from .grid import GRID_RTOL
+from .grid import split as split_delay
+from .lti import MODES, LTIPredictor, discretize, periods_in
 
 #: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.sweep.ZERO``).
 ZERO = 1e-9

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import ParameterError
 from .lti import critical_delay, lifted_loop
-from .scenarios import ParameterError, Scenario
+from .system import Loop, LtiDesign, lti_loop
 
 #: Half-width of the bracket confirmed by co-simulation, as a fraction of T.
 CONFIRM_OFFSET = 0.005
@@ -53,29 +54,41 @@ def fitted_spectral_radius(result, n: int, m: int, T: float, N: int, r: float,
     return float(np.max(np.abs(np.linalg.eigvals(M))))
 
 
-def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
+def _design(source, sets: list[str]) -> tuple[Loop, LtiDesign]:
+    """The loop of ``source`` (a scenario or a loop file) with ``sets``, and its LTI design.
+
+    ``r`` is what the search varies: it is resolved as 0 (on every grid) before ``sets``,
+    so a default ``r`` off a new base grid does not stop the search.
+    """
+    loop = source.loop(["r=0", *sets])
+    if loop.lti is None:
+        raise ParameterError(f"critical-delay needs an LTI loop; {source.name} is not")
+    return loop, loop.lti
+
+
+def critical_delay_report(source, sets: list[str], periods: int,
                           fmu_dir: Path | None = None) -> CriticalDelayReport:
+    """``r_c`` of the uncompensated loop from the lifted model, confirmed by co-simulation
+    just below and just above it (``source``: a scenario or a loop file)."""
     from .simulate import run_loop
 
-    if scenario.lti is None:
-        raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
-    params = scenario.resolve(sets)
-    A, B, K = scenario.lti(params)
-    T, tau = params["T"], params["tau"]
+    loop, d = _design(source, sets)
+    A, B, K = d.A, d.B, d.K
+    T, tau = loop.T, d.tau
 
     def rho(r: float) -> float:
         return lifted_loop(A, B, K, T, r, tau, "uncompensated").spectral_radius
 
     r_c = critical_delay(rho, r_max=50 * T, step=T / 100)
     report = CriticalDelayReport(r_c)
-    N = max(int(params["N"]), CONFIRM_N)
+    N = max(loop.N, CONFIRM_N)
     h = T / N
     r_lo = max(math.floor((r_c - CONFIRM_OFFSET * T) / h) * h, 0.0)
     r_hi = math.ceil((r_c + CONFIRM_OFFSET * T) / h) * h
     ok = []
     for r, side in ((r_lo, "below"), (r_hi, "above")):
-        p = scenario.resolve([*sets, f"r={r!r}", f"N={N}", "mode=uncompensated"])
-        result = run_loop(scenario.make(p), periods * T, fmu_dir)
+        confirm = lti_loop(A, B, K, T, r, tau, N, "uncompensated", d.x0, d.u0)
+        result = run_loop(confirm, periods * T, fmu_dir)
         lifted = lifted_loop(A, B, K, T, r, tau, "uncompensated")
         g_exact = lifted.spectral_radius
         g_sim = fitted_spectral_radius(result, lifted.n, lifted.m, T, N, r, lifted.L)
@@ -112,7 +125,7 @@ def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:
         return "stable"
 
 
-def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
+def critical_delay_table(source, sets: list[str], grid: str,
                          out: Path | None = None, plot: Path | None = None) -> list[str]:
     """``r_c`` of the uncompensated and of the compensated loop along one parameter.
 
@@ -124,18 +137,14 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
     """
     from .sweep import _fmt, parse_grid
 
-    if scenario.lti is None:
-        raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
     axis = parse_grid(grid)
     lines = [f"{axis.name:>10} {'r_c uncompensated':>18} {'r_c compensated':>18}"]
     table = []
     for value in axis.values:
-        # r is what is searched: resolve with r = 0, which is on every grid
-        p = scenario.resolve(["r=0", *sets, f"{axis.name}={_fmt(value)}"])
-        A, B, K = scenario.lti(p)
-        r_max = max(R_MAX_PERIODS * p["T"], R_MAX_MIN)
-        uncomp = _r_c(A, B, K, p["T"], p["tau"], "uncompensated", r_max)
-        comp = _r_c(A, B, K, p["T"], p["tau"], "compensated", r_max)
+        loop, d = _design(source, [*sets, f"{axis.name}={_fmt(value)}"])
+        r_max = max(R_MAX_PERIODS * loop.T, R_MAX_MIN)
+        uncomp = _r_c(d.A, d.B, d.K, loop.T, d.tau, "uncompensated", r_max)
+        comp = _r_c(d.A, d.B, d.K, loop.T, d.tau, "compensated", r_max)
         table.append((value, uncomp, comp, r_max))
         cells = [f"{v:.9f}" if isinstance(v, float) else
                  {"unstable": "unstable at r=0", "stable": f"stable r<={r_max:g}"}.get(v, v)
@@ -154,7 +163,7 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
                                            for v in (uncomp, comp))])
         tmp.replace(out)
     if plot:
-        _plot_table(table, axis.name, plot, scenario.name + " " + " ".join(sets))
+        _plot_table(table, axis.name, plot, source.name + " " + " ".join(sets))
     return lines
 
 
@@ -194,11 +203,12 @@ def _plot_table(table, name: str, path: Path, title: str) -> None:
 CURVE_POINTS = 40
 
 
-def critical_curve(scenario: Scenario, sets: list[str], names: list[str],
+def critical_curve(source, sets: list[str], names: list[str],
                    values: list) -> np.ndarray | None:
     """The exact lifted model's critical delays over a stability map: where ``rho = 1``.
 
-    For an LTI scenario swept over ``r`` (and at most one other parameter) in the
+    For an LTI loop (``source``: a scenario or a loop file) swept over ``r`` (and at most
+    one other parameter) in the
     uncompensated mode: rows ``(a, r)`` at up to :data:`CURVE_POINTS` values ``a`` of the
     other axis (``a = nan`` for a map over ``r`` alone), one row for every ``r`` on the
     map where the lifted loop's spectral radius crosses 1 (bracketed on the map's ``r``
@@ -208,10 +218,10 @@ def critical_curve(scenario: Scenario, sets: list[str], names: list[str],
     (not LTI, no ``r`` axis, the compensated mode, whose spectrum does not depend on the
     delay it knows).
     """
-    if scenario.lti is None or "r" not in names or len(names) > 2:
+    if "r" not in names or len(names) > 2:
         return None
-    base = scenario.resolve(["r=0", *sets])
-    if base.get("mode") != "uncompensated" or base.get("r_true") is not None:
+    d = source.loop(["r=0", *sets]).lti
+    if d is None or d.mode != "uncompensated" or d.r_true is not None:
         return None
     r_axis = np.unique(np.asarray(values[names.index("r")], dtype=float))
     others = [n for n in names if n != "r"]
@@ -224,10 +234,10 @@ def critical_curve(scenario: Scenario, sets: list[str], names: list[str],
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):  # tiny matrices: no BLAS threads
-        return _curve(scenario, sets, others, grid, r_axis)
+        return _curve(source, sets, others, grid, r_axis)
 
 
-def _curve(scenario: Scenario, sets: list[str], others: list[str], grid: np.ndarray,
+def _curve(source, sets: list[str], others: list[str], grid: np.ndarray,
            r_axis: np.ndarray) -> np.ndarray:
     """``(a, r)`` rows: every crossing of ``rho = 1`` at each value ``a``."""
     from .sweep import _fmt
@@ -236,11 +246,11 @@ def _curve(scenario: Scenario, sets: list[str], others: list[str], grid: np.ndar
     for a in grid:
         extra = [] if np.isnan(a) else [f"{others[0]}={_fmt(float(a))}"]
         try:
-            p = scenario.resolve(["r=0", *sets, *extra])
+            loop = source.loop(["r=0", *sets, *extra])
         except ValueError:
-            continue  # a value the scenario refuses at r = 0 (the map then has none either)
-        A, B, K = scenario.lti(p)
-        for r in _crossings(A, B, K, p["T"], p["tau"], r_axis):
+            continue  # a value the loop refuses at r = 0 (the map then has none either)
+        d = loop.lti
+        for r in _crossings(d.A, d.B, d.K, loop.T, d.tau, r_axis):
             points.append((float(a), r))
     return np.array(points, dtype=float).reshape(-1, 2)
 

@@ -1,4 +1,5 @@
-"""Parameter sweeps and stability maps: many runs of one scenario over a grid.
+"""Parameter sweeps and stability maps: many runs of one loop (a scenario or a loop file)
+over a grid.
 
 Each grid point is one run (or, with ``exact``, one lifted-model eigenvalue computation for
 LTI scenarios). Per point the sweep reports
@@ -32,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenarios
-from .scenarios import ParameterError
+from .errors import ParameterError
+from .scenarios import open_source
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -78,6 +79,7 @@ def points(axes: list[Axis]) -> list[tuple[float, ...]]:
 class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
+    #: a scenario name or a loop file's path
     scenario: str
     sets: tuple[str, ...]
     stop: float
@@ -120,21 +122,19 @@ def evaluate(job: Job) -> dict:
     """Metrics of one grid point (a top-level function, for processes and Dask)."""
     from .simulate import run_loop
 
-    sc = scenarios.get(job.scenario)
-    p = sc.resolve(list(job.sets))
+    spec = open_source(job.scenario).loop(list(job.sets))
     if job.exact:
         from .lti import lifted_loop
 
-        A, B, K = sc.lti(p)
-        loop = lifted_loop(A, B, K, p["T"], p["r"], p["tau"], p["mode"], p.get("r_true"),
-                           p.get("tau_true"))
-        rho = loop.spectral_radius
+        d = spec.lti
+        lifted = lifted_loop(d.A, d.B, d.K, spec.T, d.r, d.tau, d.mode, d.r_true, d.tau_true)
+        rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
                 "deadbeat_time": None}
-    spec = sc.make(p)
     kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
     res = run_loop(spec, job.stop, job.fmu_dir, **kwargs)
-    n_states = sum(1 for inst, _ in spec.recorded if inst == "plant")
+    plant = spec.by_role("plant").name
+    n_states = sum(1 for port in spec.recorded if port.instance == plant)
     return metrics_of(res.times, res.data[:, :n_states], spec.N, res.success)
 
 
@@ -144,11 +144,14 @@ def _prebuild(jobs: list[Job]) -> None:
 
     seen = set()
     for job in jobs:
-        sc = scenarios.get(job.scenario)
-        for kind, config, _ in sc.make(sc.resolve(list(job.sets))).instances.values():
-            key = (kind, tuple(sorted(config.items())))
-            if key not in seen:
-                seen.add(key)
+        for inst in open_source(job.scenario).loop(list(job.sets)).instances:
+            key = inst.source.build_key()
+            if key is None:
+                continue
+            kind, config = key
+            ident = (kind, tuple(sorted(config.items())))
+            if ident not in seen:
+                seen.add(ident)
                 fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
 
 
@@ -181,14 +184,15 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
               notes: list[str] | None = None) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
-    ``engine="batch"`` advances the points together on ``array_backend`` (numpy, cupy,
-    jax or auto; :func:`delaycomp.batch.get_backend`) in chunks of at most ``chunk``
-    points (default: from the available memory); what it did, and which points fell back
-    to the per-point in-process engine and why, is appended to ``notes``.
+    ``scenario`` is a scenario name or a loop file's path (``.toml``). ``engine="batch"``
+    advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
+    :func:`delaycomp.batch.get_backend`) in chunks of at most ``chunk`` points (default:
+    from the available memory); what it did, and which points fell back to the per-point
+    in-process engine and why, is appended to ``notes``.
     """
-    sc = scenarios.get(scenario)
-    if exact and sc.lti is None:
-        raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
+    sc = open_source(scenario)
+    if exact and sc.loop(list(sets)).lti is None:
+        raise ParameterError(f"--exact needs an LTI loop; {scenario} is not")
     if workers < 1:
         raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     names = [a.name for a in axes]
@@ -200,21 +204,24 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     if chunk is not None and chunk < 1:
         raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
     stop = sc.default_stop_time if stop is None else stop
+    if stop is None:
+        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
     jobs = []
-    resolved = []
+    loops = []
     for values in points(axes):
         point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
         try:
             # validate every point before running any
-            resolved.append(sc.resolve(list(point_sets)))
+            loops.append(sc.make(sc.resolve(list(point_sets))))
         except ParameterError as exc:
             where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
             raise ParameterError(f"grid point {where}: {exc}") from None
-        jobs.append(Job(scenario, point_sets, float(stop),
+        jobs.append(Job(str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
+                        else scenario, point_sets, float(stop),
                         "inprocess" if engine == "batch" else engine, fmu_dir, exact))
     if engine == "batch" and not exact:
-        results = _run_batch(sc, jobs, resolved, float(stop), workers, scheduler,
-                             array_backend, chunk, notes if notes is not None else [])
+        results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
+                             chunk, notes if notes is not None else [])
         return [{**dict(zip(names, values)), **res}
                 for values, res in zip(points(axes), results)]
     if not exact and engine == "fmu":
@@ -223,24 +230,21 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
             for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler))]
 
 
-def _run_batch(sc, jobs: list[Job], resolved: list[dict], stop: float, workers: int,
+def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
                scheduler: str | None, backend: str, chunk: int | None,
                notes: list[str]) -> list[dict]:
     """The batch engine for the points it takes, the per-point engine for the others."""
     from . import batch, sweep_batch
-    from .scenarios import on_grid
 
     if not (math.isfinite(stop) and stop > 0):
         raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
-    for h in {p["T"] / p["N"] for p in resolved}:  # as the per-point engine's stop_ticks
-        if not on_grid(stop, h):
-            raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a multiple "
-                                 f"of the base step h = T/N = {h!r}")
+    for timing in {loop.timing for loop in loops}:  # as the per-point engine asks
+        timing.ticks(stop)
     try:
         be = batch.get_backend(backend)
     except batch.BatchError as exc:
         raise ParameterError(f"--array-backend: {exc}") from None
-    chunks, fallback, msgs = sweep_batch.prepare(sc, resolved, stop, be.name, workers, chunk)
+    chunks, fallback, msgs = sweep_batch.prepare(loops, stop, be.name, workers, chunk)
     notes.extend(msgs)
     progress = _Progress(len(jobs))
     results: list[dict | None] = [None] * len(jobs)

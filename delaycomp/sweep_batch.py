@@ -1,16 +1,16 @@
 """The batch engine behind ``delaycomp sweep``: grid points turned into batch ingredients.
 
-Today's scenarios describe a loop as a :class:`~delaycomp.scenarios.LoopSpec`; this module
-takes from each resolved point what :mod:`delaycomp.batch` needs (matrices and timing for
-LTI scenarios; the model file, its parameters and timing for model scenarios), groups the
+Each grid point is a typed loop (:class:`delaycomp.system.Loop`, from a scenario or a loop
+file); this module takes from it what :mod:`delaycomp.batch` needs (the LTI design and
+timing; or the model file, its parameters and timing), groups the
 points that can share a batch (same dimensions, same model and string parameters), cuts the
 groups into chunks that fit in memory, and runs the chunks here, on local worker processes
 or on a Dask cluster. Every point of a chunk is computed independently of the others, so
 the results do not depend on the chunking or on where a chunk runs (tested).
 
 A point that cannot be batched (a model without ``BATCH = True`` or without an exact
-``step``, or ``predictor=numerical``, which asks for the ODE-solved predictor) is returned
-as ``None`` with the reason, for the per-point engine.
+``step``, ``predictor=numerical``, which asks for the ODE-solved predictor, a loop with an
+FMU file or ``held_sample``) is returned with the reason, for the per-point engine.
 """
 
 from __future__ import annotations
@@ -92,38 +92,102 @@ def _lti_bytes(n: int, m: int, N: int, periods: int, ring_ticks: int, L: int) ->
     return 8 * floats * 2
 
 
-def prepare(sc, points: list[dict], stop: float, backend: str,
-            workers: int, limit: int | None) -> tuple[list, list[tuple[int, str]], list[str]]:
+def lti_point(loop) -> dict | str:
+    """The batch ingredients of an LTI loop (:class:`delaycomp.system.Loop`), or why not."""
+    from .system import BuiltinFmu
+
+    why = _standard(loop, BuiltinFmu)
+    if why:
+        return why
+    d = loop.lti
+    md, idl = loop.by_role("meas_delay"), loop.by_role("input_delay")
+    return dict(A=np.atleast_2d(d.A), B=np.atleast_2d(d.B),
+                K=np.atleast_2d(d.K).reshape(d.m, d.n), T=loop.T, N=loop.N, r=d.r, tau=d.tau,
+                r_true=float(md.parameters["delay"]), tau_true=float(idl.parameters["delay"]),
+                x0=np.ravel(d.x0), u0=np.ravel(d.u0), mode=d.mode)
+
+
+def model_point(loop) -> tuple[dict, tuple, object] | str:
+    """The batch ingredients of a model loop, its group key and model, or why not."""
+    from .model import load_model
+    from .system import ModelFmu
+
+    why = _standard(loop, ModelFmu)
+    if why:
+        return why
+    plant, ctrl = loop.by_role("plant"), loop.by_role("controller")
+    if plant.source.model != ctrl.source.model:
+        return "the plant and the controller are of different models"
+    model = load_model(plant.source.model)
+    why = batch.batchable(model)
+    if why:
+        return why
+    cp = ctrl.parameters
+    predictor = cp.get("predictor", "closed" if model.predictor is not None else "numerical")
+    if predictor != "closed":
+        return f"predictor={predictor} asks for the ODE-solved predictor"
+    if cp.get("mode", model.control) != model.control:
+        return f"mode={cp['mode']} is not the model's {model.control} control"
+    x0 = [float(plant.parameters[f"x0[{i + 1}]"]) for i in range(model.n)]
+    u0 = [float(cp[f"u0[{j + 1}]"]) for j in range(model.m)]
+    z0 = [float(cp.get(f"z0[{i + 1}]", x0[i])) for i in range(model.n)]
+    if model.control == "continuous" and z0 != x0:
+        return "z0 differs from x0 (the batch starts the controller's copy at x0)"
+    params = tuple(sorted((k, cp[k]) for k in model.parameters if k in cp))
+    md, idl = loop.by_role("meas_delay"), loop.by_role("input_delay")
+    point = dict(T=loop.T, N=loop.N, r=float(cp["r"]), tau=float(cp["tau"]),
+                 r_true=float(md.parameters["delay"]),
+                 tau_true=float(idl.parameters["delay"]), x0=x0, u0=u0)
+    return point, (str(plant.source.model), params, bool(cp.get("pad", False))), model
+
+
+def _standard(loop, kind) -> str | None:
+    """Why ``loop`` is not the standard four-instance loop the batch engine runs."""
+    from .system import BuiltinFmu
+
+    roles = {i.role: i for i in loop.instances}
+    if len(loop.instances) != 4 or len(roles) != 4:
+        return "the loop is not the standard plant, delays and controller"
+    for role in ("meas_delay", "input_delay"):
+        if not isinstance(roles[role].source, BuiltinFmu):
+            return f"the {role} is an FMU file"
+    for role in ("plant", "controller"):
+        if not isinstance(roles[role].source, kind):
+            return f"the {role} is an FMU file"
+    if roles["controller"].parameters.get("held_sample"):
+        return "held_sample is set (a third-party master's timing)"
+    return None
+
+
+def prepare(loops: list, stop: float, backend: str, workers: int,
+            limit: int | None) -> tuple[list, list[tuple[int, str]], list[str]]:
     """Chunks for the batchable points, and ``(index, reason)`` for the others.
 
-    Returns ``(chunks, fallback, notes)`` where each chunk comes with the point indices it
-    covers: ``[(indices, Chunk), ...]``.
+    ``loops`` are the grid's points (:class:`delaycomp.system.Loop`). Returns ``(chunks,
+    fallback, notes)`` where each chunk comes with the point indices it covers:
+    ``[(indices, Chunk), ...]``.
     """
     groups: dict[tuple, list[int]] = {}
     fallback: list[tuple[int, str]] = []
     notes: list[str] = []
-    extra: dict[tuple, dict] = {}
-    mats: dict[int, list] = {}
-    for i, p in enumerate(points):
-        if sc.lti is not None:
-            mats[i] = [np.atleast_2d(np.asarray(M, dtype=float)) for M in sc.lti(p)]
-            key = ("lti", mats[i][0].shape, mats[i][1].shape)
-            extra.setdefault(key, {})
-        else:
-            spec = sc.make(p)
-            path = spec.instances["plant"][1]["model"]
-            from .model import load_model
-
-            model = load_model(path)
-            why = batch.batchable(model)
-            if why is None and p.get("predictor") == "numerical":
-                why = "predictor=numerical asks for the ODE-solved predictor"
-            if why is not None:
-                fallback.append((i, why))
+    data: dict[int, dict] = {}
+    models: dict[tuple, object] = {}
+    for i, loop in enumerate(loops):
+        if loop.lti is not None:
+            got = lti_point(loop)
+            if isinstance(got, str):
+                fallback.append((i, got))
                 continue
-            params = tuple(sorted((k, p[k]) for k in ("law", "p") if k in p))
-            key = ("model", str(path), params, bool(p.get("pad", False)))
-            extra.setdefault(key, {"model": model})
+            data[i] = got
+            key = ("lti", got["A"].shape, got["B"].shape)
+        else:
+            got = model_point(loop)
+            if isinstance(got, str):
+                fallback.append((i, got))
+                continue
+            data[i], mkey, model = got
+            key = ("model", *mkey)
+            models[key] = model
         groups.setdefault(key, []).append(i)
     if backend != "numpy" and any(k[0] == "model" for k in groups):
         notes.append(f"array backend {backend}: model loops run on numpy (their f, k and "
@@ -131,19 +195,17 @@ def prepare(sc, points: list[dict], stop: float, backend: str,
     chunks = []
     for key, idx in groups.items():
         P = len(idx)
+        arr = _arrays([data[i] for i in idx], key[0] == "lti")
+        h = arr["T"] / arr["N"]
         if key[0] == "lti":
-            arr = _lti_arrays([mats[i] for i in idx], [points[i] for i in idx])
             n, m = key[1][0], key[2][1]
             Nmax = int(arr["N"].max())
-            h = arr["T"] / arr["N"]
             ring = int(np.max(np.rint(np.maximum(arr["r_true"], arr["tau_true"]) / h)))
             L = int(np.max(np.floor((arr["r"] + arr["tau"]) / arr["T"]))) + 2
             periods = math.ceil(stop / float(arr["T"].min()))
             per = _lti_bytes(n, m, Nmax, periods, ring, L)
         else:
-            arr = _model_arrays([points[i] for i in idx])
-            n = extra[key]["model"].n
-            h = arr["T"] / arr["N"]
+            n = models[key].n
             ring = int(np.max(np.rint((arr["r_true"] + arr["tau_true"] + arr["r"]
                                        + arr["tau"] + arr["T"]) / h)))
             per = 8 * 4 * (ring * (n + 2) + int(stop / float(arr["T"].min())) + 64)
@@ -160,38 +222,18 @@ def prepare(sc, points: list[dict], stop: float, backend: str,
     return chunks, fallback, notes
 
 
-def _lti_arrays(mats: list, points: list[dict]) -> dict:
-    n, m = mats[0][1].shape
-    return {
-        "A": np.stack([M[0] for M in mats]), "B": np.stack([M[1] for M in mats]),
-        "K": np.stack([M[2].reshape(m, n) for M in mats]),
-        "T": np.array([p["T"] for p in points], dtype=float),
-        "N": np.array([p["N"] for p in points], dtype=np.int64),
-        "r": np.array([p["r"] for p in points], dtype=float),
-        "tau": np.array([p["tau"] for p in points], dtype=float),
-        "r_true": np.array([p["r"] if p.get("r_true") is None else p["r_true"]
-                            for p in points], dtype=float),
-        "tau_true": np.array([p["tau"] if p.get("tau_true") is None else p["tau_true"]
-                              for p in points], dtype=float),
-        "x0": np.array([np.ravel(p["x0"]) for p in points], dtype=float).reshape(-1, n),
-        "u0": np.array([np.ravel(p["u0"]) for p in points], dtype=float).reshape(-1, m),
-        "mode": np.array([p["mode"] for p in points], dtype=object),
-    }
-
-
-def _model_arrays(points: list[dict]) -> dict:
-    return {
-        "T": np.array([p["T"] for p in points], dtype=float),
-        "N": np.array([p["N"] for p in points], dtype=np.int64),
-        "r": np.array([p["r"] for p in points], dtype=float),
-        "tau": np.array([p["tau"] for p in points], dtype=float),
-        "r_true": np.array([p["r"] if p.get("r_true") is None else p["r_true"]
-                            for p in points], dtype=float),
-        "tau_true": np.array([p["tau"] if p.get("tau_true") is None else p["tau_true"]
-                              for p in points], dtype=float),
-        "x0": np.array([np.ravel(p["x0"]) for p in points], dtype=float),
-        "u0": np.array([np.ravel(p["u0"]) for p in points], dtype=float),
-    }
+def _arrays(points: list[dict], lti: bool) -> dict:
+    """Per-point ingredients stacked into arrays (a leading axis of points)."""
+    out = {key: np.array([p[key] for p in points], dtype=float)
+           for key in ("T", "r", "tau", "r_true", "tau_true")}
+    out["N"] = np.array([p["N"] for p in points], dtype=np.int64)
+    out["x0"] = np.array([p["x0"] for p in points], dtype=float).reshape(len(points), -1)
+    out["u0"] = np.array([p["u0"] for p in points], dtype=float).reshape(len(points), -1)
+    if lti:
+        for key in ("A", "B", "K"):
+            out[key] = np.stack([p[key] for p in points])
+        out["mode"] = np.array([p["mode"] for p in points], dtype=object)
+    return out
 
 
 def run_chunks(chunks: list, workers: int, scheduler: str | None, progress) -> list[list]:

@@ -27,7 +27,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from delaycomp import batch, scenarios, sweep
+from delaycomp import batch, scenarios, sweep, sweep_batch
 from delaycomp.model import load_model
 from delaycomp.models import path
 from delaycomp.simulate import run_loop
@@ -62,8 +62,9 @@ def assert_close(x: np.ndarray, ref: np.ndarray, rel: float) -> None:
 
 
 def per_point(sc, p: dict, stop: float):
-    res = run_loop(sc.make(p), stop, engine="inprocess")
-    n = sum(1 for inst, _ in sc.make(p).recorded if inst == "plant")
+    loop = sc.make(p)
+    res = run_loop(loop, stop, engine="inprocess")
+    n = sum(1 for port in loop.recorded if port.instance == "plant")
     return res, sweep.metrics_of(res.times, res.data[:, :n], p["N"], res.success), n
 
 
@@ -81,18 +82,10 @@ LTI_GRIDS = {
 
 
 def lti_ingredients(sc, ps):
-    mats = [[np.atleast_2d(np.asarray(M, dtype=float)) for M in sc.lti(p)] for p in ps]
-    n, m = mats[0][1].shape
-    return dict(
-        A=np.stack([M[0] for M in mats]), B=np.stack([M[1] for M in mats]),
-        K=np.stack([M[2].reshape(m, n) for M in mats]),
-        T=np.array([p["T"] for p in ps]), N=np.array([p["N"] for p in ps]),
-        r=np.array([p["r"] for p in ps]), tau=np.array([p["tau"] for p in ps]),
-        x0=np.array([np.ravel(p["x0"]) for p in ps]).reshape(-1, n),
-        u0=np.array([np.ravel(p["u0"]) for p in ps]).reshape(-1, m),
-        mode=[p["mode"] for p in ps],
-        r_true=np.array([p["r"] if p["r_true"] is None else p["r_true"] for p in ps]),
-        tau_true=np.array([p["tau"] if p["tau_true"] is None else p["tau_true"] for p in ps]))
+    """The batch ingredients of resolved points, as the sweep takes them from the loops."""
+    arr = sweep_batch._arrays([sweep_batch.lti_point(sc.make(p)) for p in ps], lti=True)
+    arr["mode"] = list(arr["mode"])
+    return arr
 
 
 @pytest.mark.parametrize("name", list(LTI_GRIDS))
@@ -141,8 +134,7 @@ def test_model_batch_equals_per_point(name):
     stop, grid = MODEL_GRIDS[name]
     sc = scenarios.get(name)
     ps = [sc.resolve({k: str(v) for k, v in point.items()}) for point in grid]
-    spec = sc.make(ps[0])
-    model = load_model(spec.instances["plant"][1]["model"])
+    model = load_model(sc.make(ps[0]).by_role("plant").source.model)
     assert batch.batchable(model) is None
     params = model.params(**{k: ps[0][k] for k in ("law", "p") if k in ps[0]})
     res = batch.simulate_model(
