@@ -333,3 +333,18 @@ def test_map_plot_carries_the_critical_delays(tmp_path):
                "--out", str(tmp_path / "m.csv"), "--plot", str(png))
     assert proc.returncode == 0, proc.stderr
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_loop_file_sweeps_on_the_batch_engine():
+    """A loop file (the shipped example-3.6.toml) runs batched, as its scenario does."""
+    from delaycomp.scenarios import loop_file
+
+    axes = [sweep.parse_grid("r=0:0.9:4")]
+    notes: list[str] = []
+    b = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0, engine="batch",
+                        notes=notes)
+    s = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0,
+                        engine="inprocess")
+    assert any("4 of 4 points" in n for n in notes), notes
+    for x, y in zip(b, s):
+        assert_same(x, y, LTI_REL)
