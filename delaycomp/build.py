@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -19,7 +18,7 @@ from pathlib import Path
 import delaycomp
 import delaycomp.fmus
 from delaycomp.child import module_argv
-from delaycomp.model import model_id  # noqa: F401  (re-exported)
+from delaycomp.model import model_id
 from delaycomp.tmpfiles import temp_dir
 
 CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmuslave.CONFIG_NAME

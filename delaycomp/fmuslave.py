@@ -60,11 +60,11 @@ import sys
 import uuid
 import warnings
 from collections.abc import Callable, Iterable
+from typing import ClassVar
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
-from pythonfmu import (Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real,
-                       String)
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
@@ -137,7 +137,7 @@ class _StateHandle:
 
     PINS = 32
     #: id(token) -> (token, pins, state)
-    _registry: dict[int, tuple[int, list, dict]] = {}
+    _registry: ClassVar[dict[int, tuple[int, list, dict]]] = {}
     _serial = 0
     #: references a token has with no owner: its pins, the registry tuple, and the
     #: argument and loop variable of :meth:`_sweep` (measured by ``sys.getrefcount``)
@@ -540,8 +540,8 @@ class TableSlave(Fmi2Slave):
     def _fmu_state_from_bytes(data: bytes) -> int:
         try:
             state = json.loads(bytes(data).decode("utf-8"))
-            if not isinstance(state, dict) or not isinstance(state.get("values"), dict) \
-                    and "invalid" not in state:
+            if not isinstance(state, dict) or (not isinstance(state.get("values"), dict) \
+                    and "invalid" not in state):
                 raise ValueError("not a delaycomp FMU state")
         except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             state = {"model": None, "invalid": f"FMU state of {len(data)} bytes is not "

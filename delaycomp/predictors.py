@@ -141,7 +141,7 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         if slot.raised is not None:
             reason = f"the model's f raised {reason}"
         z_end = z
-    if not ok and (code == -3 or code == -2 and np.max(np.abs(z), initial=0.0) < _TINY):
+    if not ok and (code == -3 or (code == -2 and np.max(np.abs(z), initial=0.0) < _TINY)):
         # step size too small, or the step budget spent on a tiny state: the scaled error
         # underflowed (a failure of a solve that can progress is retried in vain, fast)
         ok, reason, z_end = _python_dop853(slot, z, duration, u)

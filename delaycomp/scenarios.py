@@ -49,7 +49,7 @@ class Param:
 
 
 #: ASCII decimal literals only: Python's float() and int() also take other scripts'
-#: digits ('١' is 1, '２' is 2) and underscores ('1_000'), which a user did not mean
+#: digits ('١' is 1, '２' is 2) and underscores ('1_000'), which a user did not mean  # noqa: RUF003
 _REAL_TEXT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:inf|nan)",
                         re.ASCII | re.IGNORECASE)
 _INT_TEXT = re.compile(r"[+-]?\d+", re.ASCII)
