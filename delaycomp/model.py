@@ -33,6 +33,8 @@ from pathlib import Path
 from types import ModuleType
 
 CONTROLS = ("continuous", "zoh")
+#: predictor maps of a model controller: the model's closed form or an ODE solve
+PREDICTORS = ("closed", "numerical")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 

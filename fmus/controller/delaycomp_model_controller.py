@@ -18,7 +18,7 @@ from delaycomp.fmuslave import (
     check_inputs,
     check_model_parameters,
 )
-from delaycomp.model import CONTROLS, from_module
+from delaycomp.model import CONTROLS, PREDICTORS, from_module
 from delaycomp.nlcontrol import make_controller
 from delaycomp.predictors import DEFAULT_TOL, IntegrationError
 
@@ -54,10 +54,11 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             getter=lambda: self.N, setter=lambda v: setattr(self, "N", v),
             description="communication steps per sampling period; every step is T/N"))
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
-                              "continuous (Theorem 2.1) or zoh (Theorem 3.2)")
+                              "continuous (Theorem 2.1) or zoh (Theorem 3.2)", CONTROLS)
         self.string_parameter("predictor", lambda: self.predictor,
                               lambda v: setattr(self, "predictor", v),
-                              "closed (the model's closed form) or numerical (ODE solve)")
+                              "closed (the model's closed form) or numerical (ODE solve)",
+                              PREDICTORS)
         self.parameter("tolerance", lambda: self.tolerance,
                        lambda v: setattr(self, "tolerance", v),
                        "rtol = atol of numerical solves, in (0, 1)")
@@ -66,7 +67,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             getter=lambda: self.pad, setter=lambda v: setattr(self, "pad", bool(v)),
             description="zoh: pad tau up to the next multiple of T (Remark 3.3(b))"))
         self.values: dict = {}
-        self.model_parameters(self.values, model.parameters)
+        self.model_parameters(self.values, model.parameters, model.choices)
         for j, s in enumerate(model.inputs):
             self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
