@@ -80,8 +80,8 @@ def locate() -> Install:
         root = Path(folder).expanduser().resolve()
         pkg = root / PACKAGE_SUBDIR
         if not (pkg / "OMSimulator" / "__init__.py").is_file():
-            raise NotInstalled(f"{ENV}={folder}: no {PACKAGE_SUBDIR.as_posix()}/OMSimulator/"
-                               f" there; it must name an OMSimulator install folder")
+            raise NotInstalled(f"{ENV}={folder} holds no {PACKAGE_SUBDIR.as_posix()}/"
+                               "OMSimulator/ (it must name an OMSimulator install folder)")
         cli = root / CLI_SUBPATH
         return Install(pkg, cli if cli.is_file() else None)
     spec = importlib.util.find_spec("OMSimulator")
@@ -240,3 +240,34 @@ def read_cli_result(path: str | Path, system: str, recorded: list[tuple[str, str
     keep = np.append(table[1:, 0] != table[:-1, 0], True)
     table = table[keep]
     return table[:, 0], table[:, cols]
+
+
+# -- the cross-check -------------------------------------------------------------------------
+
+def missing() -> list[str]:
+    """``[]`` when OMSimulator is found, else why not (for :mod:`delaycomp.check`)."""
+    try:
+        locate()
+    except NotInstalled as exc:
+        return [str(exc) if os.environ.get(ENV) else "OMSimulator"]
+    return []
+
+
+def provider(cases):
+    """The ``omsimulator`` rows of :mod:`delaycomp.check`: each case's plain archive (no
+    Jacobi variant: OMSimulator orders the feedthrough chain itself) through the Python
+    API, against the case's reference trace, with the tolerances of every master."""
+    from .check import CheckRow, compare
+    from .ssp import pack, scenario_system
+
+    for c in cases:
+        with tempfile.TemporaryDirectory(prefix="delaycomp-check-") as tmp:
+            spec, info = scenario_system(c.scenario, list(c.sets), c.case)
+            path = pack(spec, info, Path(tmp) / "case.ssp")
+            res = run_ssp(path, c.stop_time())
+        if not res.success:
+            yield CheckRow(c.id, "omsimulator", float("inf"), "-", False, res.message)
+            continue
+        cmp = compare(c, res.names, res.times, res.data)
+        yield CheckRow(c.id, "omsimulator", cmp.max_error, cmp.tolerance, cmp.passed,
+                       "plain archive, Python API")
