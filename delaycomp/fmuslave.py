@@ -70,6 +70,17 @@ class ParameterError(ValueError):
     """A parameter value outside its allowed range; the message names both."""
 
 
+#: a step shorter than this fraction of a slave's fixed step is the master's round-off, not
+#: a step: masters that add ``h`` to their time (OMSimulator: ``t += h``) fall behind the
+#: grid by ~1e-13 s and then take a sliver step to the stop time
+ROUNDOFF_STEP_FRACTION = 1e-6
+
+
+def is_roundoff_step(step_size: float, h: float) -> bool:
+    """Is ``step_size`` a round-off sliver of the fixed step ``h`` (a zero-length step)?"""
+    return 0 < step_size <= ROUNDOFF_STEP_FRACTION * h
+
+
 def check_finite(name: str, value: float) -> float:
     if not math.isfinite(value):
         raise ParameterError(f"{name} = {value!r} is not allowed: must be a finite number")
