@@ -122,13 +122,18 @@ def run_ssp(ssp_path: str | Path, stop_time: float, timeout: float = 900.0) -> R
                           bool(z["success"]), str(z["message"]))
 
 
-def _last_error(log: Path) -> str:
+def _logged_error(log: Path) -> str:
+    """The first error OMSimulator logged (the cause; later ones repeat it), without its
+    time stamp."""
     try:
         lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
     except OSError:
         return ""
-    errors = [ln.strip() for ln in lines if ln.lstrip().startswith("error:")]
-    return errors[-1] if errors else ""
+    for line in lines:
+        text = line.split(" | ", 1)[-1].strip()
+        if text.startswith("error:"):
+            return text
+    return ""
 
 
 def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None:
@@ -176,11 +181,11 @@ def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None
                     now.value, tk, rel_tol=0, abs_tol=1e-6 * h):
                 message = (f"omsimulator: the run stopped at t = {now.value!r} before "
                            f"t = {float(tk)!r} (status {status.name}): "
-                           f"{_last_error(log) or 'no error logged'}")
+                           f"{_logged_error(log) or 'no error logged'}")
                 break
             rows.append([model.getValue(r) for r in refs])
     except RuntimeError as exc:  # the Python API raises on a non-ok status
-        message = f"omsimulator: {exc}: {_last_error(log) or 'no error logged'}"
+        message = f"omsimulator: {exc}: {_logged_error(log) or 'no error logged'}"
     data = np.array(rows, dtype=float).reshape(len(rows), len(refs))
     np.savez(out, names=json.dumps([f"{i}.{v}" for i, v in spec.recorded]),
              times=grid[:len(rows)], data=data, success=not message, message=message)
