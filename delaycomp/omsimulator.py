@@ -160,7 +160,7 @@ def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None
     model.setResultFile("")
     model.setFixedStepSize(h)
     model.setStopTime(float(stop_time))
-    refs = [CRef(system, inst, var) for inst, var in spec.recorded]
+    refs = [CRef(system, port.instance, port.variable) for port in spec.recorded]
     k = np.arange(ticks + 1)
     grid = (k // spec.N) * spec.T + (k % spec.N) * h  # the times of our master
     rows, message = [], ""
@@ -187,7 +187,7 @@ def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None
     except RuntimeError as exc:  # the Python API raises on a non-ok status
         message = f"omsimulator: {exc}: {_logged_error(log) or 'no error logged'}"
     data = np.array(rows, dtype=float).reshape(len(rows), len(refs))
-    np.savez(out, names=json.dumps([f"{i}.{v}" for i, v in spec.recorded]),
+    np.savez(out, names=json.dumps([str(port) for port in spec.recorded]),
              times=grid[:len(rows)], data=data, success=not message, message=message)
 
 
@@ -230,9 +230,10 @@ def cli_command(ssp_path: str | Path, stop_time: float, result_file: str | Path
              f"--resultFile={result_file}", str(ssp_path)], cli_env())
 
 
-def read_cli_result(path: str | Path, system: str, recorded: list[tuple[str, str]]
+def read_cli_result(path: str | Path, system: str, recorded
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Times and recorded columns of a command-line result CSV. OMSimulator writes each
+    """Times and the ``recorded`` ports' columns (:class:`delaycomp.system.Port`) of a
+    command-line result CSV of the SSD system ``system``. OMSimulator writes each
     communication point twice (before and after the input update): the last row of each
     time is kept, the state our master records."""
     import csv
@@ -240,7 +241,7 @@ def read_cli_result(path: str | Path, system: str, recorded: list[tuple[str, str
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh, skipinitialspace=True))
     header = rows[0]
-    cols = [header.index(f"{system}.{system}.{inst}.{var}") for inst, var in recorded]
+    cols = [header.index(f"{system}.{system}.{p.instance}.{p.variable}") for p in recorded]
     table = np.array(rows[1:], dtype=float)
     keep = np.append(table[1:, 0] != table[:-1, 0], True)
     table = table[keep]
@@ -262,13 +263,12 @@ def provider(cases):
     """The ``omsimulator`` rows of :mod:`delaycomp.check`: each case's plain archive (no
     Jacobi variant: OMSimulator orders the feedthrough chain itself) through the Python
     API, against the case's reference trace, with the tolerances of every master."""
-    from .check import CheckRow, compare
-    from .ssp import pack, scenario_system
+    from .cases import CheckRow, compare
+    from .ssp import loop_system, pack
 
     for c in cases:
         with tempfile.TemporaryDirectory(prefix="delaycomp-check-") as tmp:
-            spec, info = scenario_system(c.scenario, list(c.sets), c.case)
-            path = pack(spec, info, Path(tmp) / "case.ssp")
+            path = pack(*loop_system(c.loop(), c.case), Path(tmp) / "case.ssp")
             res = run_ssp(path, c.stop_time())
         if not res.success:
             yield CheckRow(c.id, "omsimulator", float("inf"), "-", False, res.message)

@@ -34,7 +34,7 @@ from delaycomp import omsimulator, scenarios, ssp
 from delaycomp.cli import main
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
 from delaycomp.simulate import run_loop
-from delaycomp.thirdparty import CompensationError, jacobi_info, jacobi_variant
+from delaycomp.system.jacobi import CompensationError, jacobi_variant
 from tests.conftest import REPO
 
 IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -49,7 +49,7 @@ def _systems():
         spec, info = ssp.scenario_system(name)
         out.append(pytest.param(spec, info, id=name))
         try:
-            out.append(pytest.param(jacobi_variant(spec), jacobi_info(info),
+            out.append(pytest.param(jacobi_variant(spec), ssp.jacobi_info(info),
                                     id=f"{name}-jacobi"))
         except CompensationError:  # pragma: no cover - every shipped scenario has one
             pass
@@ -121,7 +121,7 @@ def test_string_choices_become_their_integer_twins_and_come_back():
 
 def test_archive_of_the_earlier_layout_still_reads(tmp_path):
     """Archives written before kept ``dc:Fmu`` in each component and no dc:Component."""
-    spec, info = ssp.scenario_system("example-3.6")
+    spec, info = ssp.scenario_system("example-3.8")
     ssd_path = ssp.write_system(spec, info, tmp_path)
     tree = etree.parse(str(ssd_path))
     root = tree.getroot()
@@ -132,13 +132,13 @@ def test_archive_of_the_earlier_layout_still_reads(tmp_path):
                          f"'{desc.get('element')}']", ssp.NSMAP)
         ann = etree.SubElement(etree.SubElement(comp, ssp.tag("ssd:Annotations")),
                                ssp.tag("ssc:Annotation"), type=ssp.DC_ANNOTATION)
-        etree.SubElement(ann, ssp.tag("dc:Fmu"), kind=desc.get("kind"),
-                         config=desc.get("config"))
+        etree.SubElement(ann, ssp.tag("dc:Fmu"), role=desc.get("role"),
+                         kind=desc.get("kind"), config=desc.get("config"))
         master.remove(desc)
     tree.write(str(ssd_path))
     back = ssp.read_system(ssd_path)
-    assert {i: (k, c) for i, (k, c, _) in back.spec.instances.items()} == \
-           {i: (k, c) for i, (k, c, _) in spec.instances.items()}
+    assert [(i.name, i.role, i.source) for i in back.spec.instances] == \
+           [(i.name, i.role, i.source) for i in spec.instances]
 
 
 # -- the Integer twins in the FMU slaves --------------------------------------------------------
