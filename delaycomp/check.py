@@ -147,6 +147,34 @@ PROVIDERS.register("ecos", _third_party("ecos"),
                    Requirement(("ecospy",), "pip install 'delaycomp[masters]'"))
 
 
+@dataclass(frozen=True)
+class _OMSimulatorRequirement(Requirement):
+    """OMSimulator is found by ``$DELAYCOMP_OMSIMULATOR`` or as a package
+    (:func:`delaycomp.omsimulator.locate`), not by a module name alone."""
+
+    def missing(self) -> list[str]:
+        from .omsimulator import missing
+
+        return missing()
+
+
+def _run_omsimulator(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """Each case's plain archive in OMSimulator's Python API (:mod:`delaycomp.omsimulator`)."""
+    from .omsimulator import provider
+
+    return provider(cases)
+
+
+def _omsimulator_hint() -> str:
+    from .omsimulator import INSTALL_HINT
+
+    return INSTALL_HINT
+
+
+PROVIDERS.register("omsimulator", _run_omsimulator,
+                   _OMSimulatorRequirement(("OMSimulator",), _omsimulator_hint()))
+
+
 def run_checks(cases: Iterable[RefCase] = CASES, masters: Iterable[str] | None = None,
                require_all: bool = False) -> list[CheckRow]:
     """Every master (or those named in ``masters``) over ``cases``.

@@ -84,9 +84,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
-    r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos"), default="delaycomp",
+    r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos", "omsimulator"),
+                   default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
-                        "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`)")
+                        "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`; "
+                        "omsimulator runs either, see README: Run in OpenModelica)")
 
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
@@ -281,15 +283,22 @@ def _run_ssp(args) -> int:
             result = run_loop(spec, stop, fmus=archive.fmus())
         else:
             if args.set:
-                raise UsageError("--set applies to our master only (libcosim and Ecos take "
+                raise UsageError("--set applies to our master only (libcosim, Ecos and "
+                                 "OMSimulator take "
                                  "the parameters packed in the SSP)")
             from .check import PROVIDERS
-            from .thirdparty import run_ssp
 
             absent = PROVIDERS.masters[args.master].unavailable()
             if absent is not None:
                 raise UsageError(f"--master {args.master}: {absent}")
-            result = run_ssp(args.master, args.scenario, stop)
+            if args.master == "omsimulator":
+                from .omsimulator import run_ssp as run_oms
+
+                result = run_oms(args.scenario, stop)
+            else:
+                from .thirdparty import run_ssp
+
+                result = run_ssp(args.master, args.scenario, stop)
             if not result.success:
                 raise RuntimeError(result.message)
         elapsed = time.perf_counter() - started

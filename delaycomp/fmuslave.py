@@ -45,7 +45,13 @@ module only declares its variable table and calls the maths:
    held here), so repeated frees only lower the pin count; the state's data is dropped
    once no one but the pins holds the handle, and a freed handle restored later is a
    named refusal. Each saved state leaves its handle and pins (about 350 bytes); a state
-   blob that is not ours (not JSON, another model, no data) is a named refusal too.
+   blob that is not ours (not JSON, another model, no data) is a named refusal too;
+9. a String parameter with a fixed set of choices (``mode``, ``predictor``, a model's
+   ``CHOICES``) has an Integer twin ``<name>_index`` for importers that cannot set String
+   parameters (OMSimulator's command line, many SSP tools): ``0`` (its start) leaves the
+   String in charge, ``k = 1 .. n`` selects the k-th choice. When initialization ends a
+   nonzero index sets the String; a String changed from its start value to another choice
+   than the index names is refused, as is an index outside ``0 .. n``.
 
 Subclasses implement ``_setup()`` (check parameters, build the maths objects) and
 ``_step(t, h)`` (the maths of one communication step).
@@ -70,6 +76,8 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 import delaycomp
 
 CONFIG_NAME = "delaycomp_fmu.json"
+#: suffix of the Integer twin of a String parameter with a fixed set of choices (item 7)
+INDEX_SUFFIX = "_index"
 #: pythonfmu 0.7's runtime releases one reference to the slave module's ``__dict__`` each
 #: time it instantiates the slave class (measured: a module whose dict nothing else holds
 #: is freed after the first instance, and the next instantiation reads freed memory). Each
@@ -80,6 +88,17 @@ _GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
 
 class ParameterError(ValueError):
     """A parameter value outside its allowed range; the message names both."""
+
+
+#: a step shorter than this fraction of a slave's fixed step is the master's round-off, not
+#: a step: masters that add ``h`` to their time (OMSimulator: ``t += h``) fall behind the
+#: grid by ~1e-13 s and then take a sliver step to the stop time
+ROUNDOFF_STEP_FRACTION = 1e-6
+
+
+def is_roundoff_step(step_size: float, h: float) -> bool:
+    """Is ``step_size`` a round-off sliver of the fixed step ``h`` (a zero-length step)?"""
+    return 0 < step_size <= ROUNDOFF_STEP_FRACTION * h
 
 
 def check_finite(name: str, value: float) -> float:
@@ -245,21 +264,60 @@ class TableSlave(Fmi2Slave):
 
     def string_parameter(
         self, name: str, getter: Callable[[], str], setter: Callable[[str], None],
-        description: str,
+        description: str, choices: Iterable[str] | None = None,
     ) -> None:
+        """A String parameter; with ``choices``, also its Integer twin ``<name>_index``
+        (module docstring, item 7), registered right after it."""
         self.register_variable(
             String(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                    getter=getter, setter=setter, description=description)
         )
+        if choices is None:
+            return
+        choices = tuple(choices)
+        box = [0]
+        if not hasattr(self, "_choice_twins"):
+            self._choice_twins: dict = {}
+        # the String's start value, after a build's start table (register_variable) applied
+        self._choice_twins[name] = (choices, getter(), getter, setter, box)
+        listed = ", ".join(f"{k} = {c}" for k, c in enumerate(choices, 1))
+        self.register_variable(Integer(
+            f"{name}{INDEX_SUFFIX}", causality=Fmi2Causality.parameter,
+            variability=Fmi2Variability.fixed, getter=lambda: box[0],
+            setter=lambda v: box.__setitem__(0, int(v)),
+            description=f"{name} as an Integer, for importers without String parameters: "
+                        f"0 = as {name} says, {listed}"))
 
-    def model_parameters(self, values: dict, defaults: dict) -> None:
-        """One FMU parameter per model parameter (Real for numbers, String for strings),
-        stored in ``values``."""
+    def _resolve_choice_twins(self) -> None:
+        """Apply each nonzero ``<name>_index`` to its String (module docstring, item 7)."""
+        for name, (choices, start, getter, setter, box) in getattr(
+                self, "_choice_twins", {}).items():
+            k = box[0]
+            if k == 0:
+                continue
+            if not 1 <= k <= len(choices):
+                raise ParameterError(
+                    f"{name}{INDEX_SUFFIX} = {k} is not allowed: must be 0 (as {name} says) "
+                    f"or 1 .. {len(choices)} ({', '.join(choices)})")
+            current = getter()
+            if current not in (start, choices[k - 1]):
+                raise ParameterError(
+                    f"{name} = {current!r} and {name}{INDEX_SUFFIX} = {k} "
+                    f"({choices[k - 1]!r}) disagree: set one of them")
+            setter(choices[k - 1])
+
+    def model_parameters(self, values: dict, defaults: dict,
+                         choices: dict | None = None) -> None:
+        """One FMU parameter per model parameter (Real for numbers, String for strings,
+        with its Integer twin where ``choices`` lists its values), stored in ``values``."""
         for name, default in defaults.items():
             values[name] = default if isinstance(default, str) else float(default)
-            register = self.string_parameter if isinstance(default, str) else self.parameter
-            register(name, (lambda n=name: values[n]),
-                     (lambda v, n=name: values.__setitem__(n, v)), "model parameter")
+            get, put = (lambda n=name: values[n]), (lambda v, n=name: values.__setitem__(n, v))
+            if isinstance(default, str):
+                self.string_parameter(name, get, put, "model parameter",
+                                      (choices or {}).get(name))
+            else:
+                self.parameter(name, get, put, "model parameter")
 
     def real_input(self, name: str, getter, setter, description: str) -> None:
         self.register_variable(
@@ -320,6 +378,7 @@ class TableSlave(Fmi2Slave):
         self.error = None
         self.initialized = False
         try:
+            self._resolve_choice_twins()
             self._quiet_setup()
             self.initialized = True
             self.t_next = self.t0

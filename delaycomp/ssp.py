@@ -10,24 +10,39 @@ Layout of a system (a folder, or the zip archive ``<name>.ssp``)::
     resources/<instance>.ssv     one parameter set per component (SSV 1.0)
     resources/<Model>.fmu        the FMUs (in the archive only)
 
-The master settings go into the default experiment as two annotations:
+The archive is written so that every SSP tool we know reads it as it is (our master,
+libcosim, Ecos, OMSimulator's Python API and its command line):
 
-- ``org.delaycomp.master``: ``<dc:Master T= N= h= stopTime=>`` with the recorded signals,
-  in the namespace :data:`DC_NS`; each component also carries ``<dc:Fmu kind= config=>``,
-  what :func:`delaycomp.simulate.fmu_path` needs to rebuild its FMU;
-- ``com.opensimulationplatform``: ``<osp:FixedStepAlgorithm baseStepSize="h">``, which
-  libcosim reads (only when ``xmlns:osp`` is declared on the root, as here).
+- model and system are named by an identifier (:func:`ssd_identifier`: ``example_3_6``; the
+  archive file keeps the loop's name, ``example-3.6.ssp``);
+- the master settings go into three vendor annotations:
+
+  - ``org.openmodelica`` on the root system: ``<oms:FixedStepMaster stepSize="h">``, which
+    OMSimulator needs (its command line refuses a system without it);
+  - ``com.opensimulationplatform`` in the default experiment:
+    ``<osp:FixedStepAlgorithm baseStepSize="h">``, which libcosim reads (only when
+    ``xmlns:osp`` is declared on the root, as here);
+  - ``org.delaycomp.master`` in the default experiment: ``<dc:Master T= N= h= name=>``
+    with the recorded signals and one ``<dc:Component element= role= kind= config=
+    choices=>`` per component, what :func:`delaycomp.simulate.source_fmu` needs to rebuild
+    its FMU (namespace :data:`DC_NS`). Components carry no annotation: OMSimulator's schema
+    check refuses ``ssd:Annotations`` there. (Archives written before kept ``<dc:Fmu>`` in
+    each component; they are still read.)
 
 Parameters are bound per component (``<ssd:ParameterBinding source="resources/plant.ssv">``)
 and named by the FMU variable, as libcosim and Ecos expect. Every parameter set of a
 system has the same name (:data:`DEFAULT_SET` unless told otherwise): Ecos applies the set
-named in its ``init()``.
+named in its ``init()``. The sets hold only Real, Integer and Boolean values, which every
+importer applies: a String parameter with a fixed set of choices (the controller's
+``mode``, ...) is written as its FMU's Integer twin ``<name>_index`` (1 = the first choice,
+...; see :func:`foreign_parameters`) and read back as the String.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 import tempfile
 import zipfile
@@ -43,13 +58,19 @@ SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 SSV_NS = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 OSP_NS = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+#: OMSimulator's namespace (the one its own writer declares)
+OMS_NS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
 #: the project's own namespace for the master annotation
 DC_NS = "urn:delaycomp:ssp:1"
-NSMAP = {"ssd": SSD_NS, "ssc": SSC_NS, "ssv": SSV_NS, "osp": OSP_NS, "dc": DC_NS}
+NSMAP = {"ssd": SSD_NS, "ssc": SSC_NS, "ssv": SSV_NS, "osp": OSP_NS, "oms": OMS_NS,
+         "dc": DC_NS}
 
 #: annotation types
 DC_ANNOTATION = "org.delaycomp.master"
 OSP_ANNOTATION = "com.opensimulationplatform"
+OMS_ANNOTATION = "org.openmodelica"
+#: suffix of a String parameter's Integer twin (:mod:`delaycomp.fmuslave`, item 7)
+INDEX_SUFFIX = "_index"
 
 SSD_NAME = "SystemStructure.ssd"
 RESOURCES = "resources"
@@ -104,6 +125,79 @@ def _parse(kind: str, text: str):
             raise SspError(f"Boolean value {text!r} is not true/false")
         return text in ("true", "1")
     return text
+
+
+# -- names and parameters a foreign importer can apply -------------------------------------
+
+def ssd_identifier(name: str) -> str:
+    """``name`` as an identifier for the SSD's model and system (OMSimulator's command line
+    refuses any other): each character outside ``[A-Za-z0-9_]`` becomes ``_``, and a name
+    that starts with a digit gets a leading ``_``.
+
+    Examples
+    --------
+    >>> ssd_identifier("example-3.6")
+    'example_3_6'
+    >>> ssd_identifier("2-loops")
+    '_2_loops'
+    """
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
+    return f"_{ident}" if ident[0].isdigit() else ident
+
+
+def parameter_choices(key: tuple[str, dict] | None) -> dict[str, tuple[str, ...]]:
+    """The String parameters with a fixed set of choices of the FMU built from ``key``
+    (``source.build_key()``: kind and config; None for a user's FMU file, whose Strings
+    are left as they are), in the order of their Integer twins (index 1 = the first
+    choice)."""
+    if key is None:
+        return {}
+    kind, config = key
+    if kind == "controller":
+        from .lti import MODES
+
+        return {"mode": tuple(MODES)}
+    if kind in ("model_plant", "model_controller") and "model" in config:
+        from .model import CONTROLS, load_model
+        from .nlcontrol import PREDICTORS
+
+        choices = dict(load_model(config["model"]).choices)
+        if kind == "model_controller":
+            choices = {"mode": CONTROLS, "predictor": PREDICTORS, **choices}
+        return {k: tuple(v) for k, v in choices.items()}
+    return {}
+
+
+def foreign_parameters(params: dict, choices: dict[str, tuple[str, ...]]) -> dict:
+    """``params`` as an importer without String parameters can apply them: each String
+    with ``choices`` becomes its Integer twin ``<name>_index`` (1-based), in its place.
+    A String without choices, or with a value outside them, stays a String (the FMU then
+    reports the bad value)."""
+    out = {}
+    for name, value in params.items():
+        if isinstance(value, str) and value in choices.get(name, ()):
+            out[f"{name}{INDEX_SUFFIX}"] = choices[name].index(value) + 1
+        else:
+            out[name] = value
+    return out
+
+
+def native_parameters(params: dict, choices: dict[str, tuple[str, ...]], where: str) -> dict:
+    """The inverse of :func:`foreign_parameters`: each Integer twin back into its String
+    (an index 0 leaves the String to its FMU default, so the String is omitted)."""
+    out = {}
+    for name, value in params.items():
+        base = name[:-len(INDEX_SUFFIX)] if name.endswith(INDEX_SUFFIX) else None
+        if base is None or base not in choices or isinstance(value, bool) \
+                or not isinstance(value, int):
+            out[name] = value
+            continue
+        if not 0 <= value <= len(choices[base]):
+            raise SspError(f"{where}: {name} = {value} is not allowed: must be 0 .. "
+                           f"{len(choices[base])} ({', '.join(choices[base])})")
+        if value:
+            out[base] = choices[base][value - 1]
+    return out
 
 
 # -- model references ----------------------------------------------------------------------
@@ -166,12 +260,14 @@ def ssd_document(spec: Loop, info: SystemInfo,
         if (port.variable, "output") not in have and (port.variable, "input") not in have:
             have.append((port.variable, "output"))
 
+    ident = ssd_identifier(info.name)
     root = etree.Element(tag("ssd:SystemStructureDescription"), nsmap=NSMAP,
-                         attrib={"version": "1.0", "name": info.name})
-    system = etree.SubElement(root, tag("ssd:System"), name=info.name)
+                         attrib={"version": "1.0", "name": ident})
+    system = etree.SubElement(root, tag("ssd:System"), name=ident)
     if info.description:
         system.set("description", info.description)
     elements = etree.SubElement(system, tag("ssd:Elements"))
+    choices = {i.name: parameter_choices(i.source.build_key()) for i in spec.instances}
     for inst in spec.instances:
         comp = etree.SubElement(elements, tag("ssd:Component"), name=inst.name, type=FMU_MIME,
                                 source=f"{RESOURCES}/{fmu_files[inst.name]}")
@@ -179,19 +275,12 @@ def ssd_document(spec: Loop, info: SystemInfo,
         for var, ckind in connectors[inst.name]:
             c = etree.SubElement(conns, tag("ssd:Connector"), name=var, kind=ckind)
             etree.SubElement(c, tag("ssc:Real"))
-        for pname, value in inst.parameters.items():
+        for pname, value in foreign_parameters(inst.parameters, choices[inst.name]).items():
             c = etree.SubElement(conns, tag("ssd:Connector"), name=pname, kind="parameter")
             etree.SubElement(c, tag(f"ssc:{_ssv_type(value)}"))
         bindings = etree.SubElement(comp, tag("ssd:ParameterBindings"))
         etree.SubElement(bindings, tag("ssd:ParameterBinding"),
                          source=f"{RESOURCES}/{inst.name}.ssv")
-        anns = etree.SubElement(comp, tag("ssd:Annotations"))
-        ann = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
-        key = inst.source.build_key()
-        fmu = etree.SubElement(ann, tag("dc:Fmu"), role=inst.role)
-        if key is not None:
-            fmu.set("kind", key[0])
-            fmu.set("config", json.dumps(_config_out(key[1]), sort_keys=True))
     connections = etree.SubElement(system, tag("ssd:Connections"))
     for con in spec.connections:
         etree.SubElement(connections, tag("ssd:Connection"), startElement=con.src.instance,
@@ -199,6 +288,7 @@ def ssd_document(spec: Loop, info: SystemInfo,
                          endConnector=con.dst.variable)
 
     h = spec.T / spec.N
+    _oms_annotation(system, h)
     exp = etree.SubElement(root, tag("ssd:DefaultExperiment"), startTime="0.0")
     if info.stop_time is not None:
         exp.set("stopTime", _format(float(info.stop_time)))
@@ -208,11 +298,36 @@ def ssd_document(spec: Loop, info: SystemInfo,
     etree.SubElement(alg, tag("osp:FixedStepAlgorithm"), baseStepSize=_format(h))
     dc = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
     master = etree.SubElement(dc, tag("dc:Master"), T=_format(float(spec.T)), N=str(spec.N),
-                              h=_format(h), parameterSet=info.parameter_set)
+                              h=_format(h), parameterSet=info.parameter_set,
+                              name=info.name)
     for port in spec.recorded:
         etree.SubElement(master, tag("dc:Record"), element=port.instance,
                          connector=port.variable)
+    for inst in spec.instances:
+        _component_annotation(master, inst, choices[inst.name])
     return etree.ElementTree(root)
+
+
+def _component_annotation(master: etree._Element, inst: Instance,
+                          choices: dict[str, tuple[str, ...]]) -> None:
+    """``<dc:Component element= role= kind= config= choices=>``: which FMU an instance is
+    (no kind and config for a user's FMU file) and its String choices."""
+    comp = etree.SubElement(master, tag("dc:Component"), element=inst.name, role=inst.role)
+    key = inst.source.build_key()
+    if key is not None:
+        comp.set("kind", key[0])
+        comp.set("config", json.dumps(_config_out(key[1]), sort_keys=True))
+    comp.set("choices", json.dumps(choices, sort_keys=True))
+
+
+def _oms_annotation(system: etree._Element, h: float) -> None:
+    """OMSimulator's master settings on the root system (its command line needs them)."""
+    anns = etree.SubElement(system, tag("ssd:Annotations"))
+    ann = etree.SubElement(anns, tag("ssc:Annotation"), type=OMS_ANNOTATION)
+    info = etree.SubElement(etree.SubElement(ann, tag("oms:Annotations")),
+                            tag("oms:SimulationInformation"))
+    etree.SubElement(info, tag("oms:FixedStepMaster"), description="oms-ma",
+                     stepSize=_format(h))
 
 
 def _fmu_file_names(spec: Loop) -> dict[str, str]:
@@ -233,8 +348,8 @@ def write_system(spec: Loop, info: SystemInfo, folder: str | Path) -> Path:
     folder = Path(folder)
     _write(ssd_document(spec, info, _fmu_file_names(spec)), folder / SSD_NAME)
     for inst in spec.instances:
-        _write(ssv_document(info.parameter_set, dict(inst.parameters)),
-               folder / RESOURCES / f"{inst.name}.ssv")
+        ssv = foreign_parameters(inst.parameters, parameter_choices(inst.source.build_key()))
+        _write(ssv_document(info.parameter_set, ssv), folder / RESOURCES / f"{inst.name}.ssv")
     return folder / SSD_NAME
 
 
@@ -352,15 +467,24 @@ def read_system(ssd_path: str | Path) -> System:
     if master is None:
         raise SspError(f"{where}: no {DC_ANNOTATION} annotation with dc:Master: not a "
                        "delaycomp system")
+    described = {c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
     instances, sources, set_names = [], {}, set()
     for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
         name = _attr(comp, "name", where)
         sources[name] = _inside(ssd_path, _attr(comp, "source", f"{where}: component {name}"),
                                 f"{where}: component {name}")
-        fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
-                        NSMAP)
+        fmu = described.get(name)
+        if fmu is None:  # an archive of an earlier layout: the description in the component
+            fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
+                            NSMAP)
         if fmu is None:
-            raise SspError(f"{where}: component {name} has no dc:Fmu annotation")
+            raise SspError(f"{where}: component {name} has no dc:Component (nor dc:Fmu) "
+                           "annotation")
+        try:
+            choices = {k: tuple(v) for k, v in json.loads(fmu.get("choices", "{}")).items()}
+        except (json.JSONDecodeError, AttributeError, TypeError):
+            raise SspError(f"{where}: component {name}: choices is not a JSON object of "
+                           "lists") from None
         role = fmu.get("role") or name  # archives before roles named instances by role
         if role not in ROLES:
             raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
@@ -383,6 +507,7 @@ def read_system(ssd_path: str | Path) -> System:
             set_name, values = read_ssv(ssd_path.parent / bsource)
             set_names.add(set_name)
             params.update(values)
+        params = native_parameters(params, choices, f"{where}: component {name}")
         instances.append(Instance(name, role, source, params))
     connections = []
     for c in system.iterfind("ssd:Connections/ssd:Connection", NSMAP):
@@ -410,7 +535,8 @@ def read_system(ssd_path: str | Path) -> System:
     if stop_time is not None and not (math.isfinite(stop_time) and stop_time >= 0):
         raise SspError(f"{where}: stopTime = {stop!r} is not allowed: must be a finite "
                        "number >= 0")
-    info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
+    info = SystemInfo(master.get("name", root.get("name", "")), system.get("description", ""),
+                      stop_time,
                       master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
     try:
         loop = Loop(instances, connections, Timing(T, N), recorded, info.name,

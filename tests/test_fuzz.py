@@ -205,8 +205,13 @@ def test_fmu_never_fatal_and_names_every_refusal(fmu_dir, kind, data):
     params = {}
     for var in comp.md.modelVariables:
         if var.causality == "parameter":
-            value = data.draw(st.one_of(st.none(), reals)) if var.type == "Real" else \
-                data.draw(st.one_of(st.none(), st.sampled_from(["compensated", "bogus"])))
+            if var.type == "Real":
+                value = data.draw(st.one_of(st.none(), reals))
+            elif var.type == "Integer":  # mode_index: 0 .. 2 are allowed, the rest refused
+                value = data.draw(st.one_of(st.none(), st.integers(-3, 5)))
+            else:
+                value = data.draw(st.one_of(st.none(),
+                                            st.sampled_from(["compensated", "bogus"])))
             if value is not None:
                 params[var.name] = value
     h = data.draw(st.sampled_from([0.25, 0.5, 1.0, 0.3]))

@@ -29,7 +29,7 @@ LAYERS = {
     "delaycomp.sweep": 3, "delaycomp.critical": 3, "delaycomp.sweep_batch": 3,
     # 4: verification
     "delaycomp.cases": 4, "delaycomp.check": 4, "delaycomp.crosscheck": 4,
-    "delaycomp.container": 4, "delaycomp.thirdparty": 4,
+    "delaycomp.container": 4, "delaycomp.thirdparty": 4, "delaycomp.omsimulator": 4,
     # 5: the faces
     "delaycomp.cli": 5, "delaycomp.api": 5, "delaycomp.__main__": 5,
 }

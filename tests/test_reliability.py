@@ -38,9 +38,10 @@ VARIANTS = {
     "model_controller-continuous": ("model_controller", MODELS / "example_2_4.py"),
 }
 #: parameters per variant (checked below, so that a new parameter cannot go unchecked)
-N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 9, "model_plant-zoh": 4,
-                "model_plant-continuous": 5, "model_controller-zoh": 13,
-                "model_controller-continuous": 14}
+#: (with the Integer twin <name>_index of each String choice: mode, predictor, p, law)
+N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 10, "model_plant-zoh": 5,
+                "model_plant-continuous": 6, "model_controller-zoh": 16,
+                "model_controller-continuous": 17}
 #: Boolean parameters have no bad value
 UNCHECKABLE = {"pad", "held_sample"}
 
@@ -54,6 +55,8 @@ def variant_path(fmu_dir, variant):
 def bad_value(var):
     if var.type == "Real":
         return float("nan")
+    if var.type == "Integer" and var.name.endswith("_index"):
+        return 99  # a String's Integer twin: 0 .. number of choices
     if var.type == "Integer":
         return 0
     if var.type == "String":
@@ -80,7 +83,7 @@ def refusal(fmu_dir, variant, params):
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
 def test_every_parameter_is_checked(fmu_dir, variant):
-    """Each parameter in turn gets a bad value (NaN, N = 0, an unknown string): the FMU
+    """Each parameter in turn gets a bad value (NaN, N = 0, an index 99, an unknown string): the FMU
     refuses it with a one-line message naming it, its value and the allowed values."""
     md = read_model_description(str(variant_path(fmu_dir, variant)))
     params = [v for v in md.modelVariables if v.causality == "parameter"]

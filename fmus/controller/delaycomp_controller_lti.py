@@ -48,7 +48,7 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
             self.parameter(name, (lambda a=name: getattr(self, a)),
                            (lambda v, a=name: setattr(self, a, v)), text)
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
-                              "compensated (u = K Phi) or uncompensated (u = K y)")
+                              "compensated (u = K Phi) or uncompensated (u = K y)", MODES)
         for label, mat, rows, cols, text in (
             ("A", self.A, n, n, "plant matrix A used by the predictor"),
             ("B", self.B, n, m, "plant matrix B used by the predictor"),

@@ -17,6 +17,7 @@ from delaycomp.fmuslave import (
     check_finite,
     check_inputs,
     check_model_parameters,
+    is_roundoff_step,
 )
 from delaycomp.model import CONTROLS, from_module
 from delaycomp.nlcontrol import PREDICTORS, make_controller
@@ -54,11 +55,11 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             getter=lambda: self.N, setter=lambda v: setattr(self, "N", v),
             description="communication steps per sampling period; every step is T/N"))
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
-                              "continuous (Theorem 2.1) or zoh (Theorem 3.2)")
+                              "continuous (Theorem 2.1) or zoh (Theorem 3.2)", CONTROLS)
         self.string_parameter("predictor", lambda: self.predictor,
                               lambda v: setattr(self, "predictor", v),
                               "closed (the model's closed form), numerical (ODE solve) or "
-                              "none (no prediction: the uncompensated baseline)")
+                              "none (no prediction: the uncompensated baseline)", PREDICTORS)
         self.parameter("tolerance", lambda: self.tolerance,
                        lambda v: setattr(self, "tolerance", v),
                        "rtol = atol of numerical solves, in (0, 1)")
@@ -67,7 +68,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             getter=lambda: self.pad, setter=lambda v: setattr(self, "pad", bool(v)),
             description="zoh: pad tau up to the next multiple of T (Remark 3.3(b))"))
         self.values: dict = {}
-        self.model_parameters(self.values, model.parameters)
+        self.model_parameters(self.values, model.parameters, model.choices)
         for j, s in enumerate(model.inputs):
             self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
@@ -149,6 +150,9 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
 
     def _step(self, t, h):
         expected = self.t0 + self.ctrl.k_tick * self.ctrl.h
+        if is_roundoff_step(h, self.ctrl.h) and abs(t + h - expected) <= 1e-9 * max(
+                self.T, abs(t)):
+            return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
         if abs(h - self.ctrl.h) > 1e-9 * self.ctrl.h or abs(t - expected) > 1e-9 * max(
                 self.T, abs(t)):
             self.fail(f"step ({t!r}, {h!r}) is not allowed: this controller steps from "

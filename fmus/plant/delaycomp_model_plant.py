@@ -29,7 +29,7 @@ class ModelPlantSlave(TableSlave):
         self.description = f"plant of model {self.model.name}: x' = f(x, u)"
         n, m = self.model.n, self.model.m
         self.values: dict = {}
-        self.model_parameters(self.values, self.model.parameters)
+        self.model_parameters(self.values, self.model.parameters, self.model.choices)
         self.x0 = np.zeros(n)
         self.tolerance = DEFAULT_TOL
         self.u = np.zeros(m)
