@@ -10,6 +10,11 @@ Reproduce Figure 3 of Karafyllis & Krstic (compensated, r = 0.3, u0 = 4)::
 
     delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
 
+The same FMUs of the LTI loop written in C (no Python in the host), and a run with them::
+
+    delaycomp build --native --out build/native
+    delaycomp run example-3.6 --set r=0.3 --set u0=4 --native
+
 Run a packed SSP (``delaycomp build`` writes one per scenario) in the same master, with an
 FMU parameter changed (``instance.parameter=value``)::
 
@@ -67,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
+    b.add_argument("--native", action="store_true",
+                   help="build the delay, LTI plant and LTI controller as C FMUs (no Python "
+                        "needed in the host; needs a C compiler)")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
@@ -83,6 +91,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
+    r.add_argument("--native", action="store_true",
+                   help="LTI loops: run the native C FMUs (`delaycomp build --native`) in our "
+                        "master instead of the Python FMUs; with --fmu-dir DIR they are "
+                        "built into DIR/native")
     r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos"), default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
                         "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`)")
@@ -167,7 +179,14 @@ def _common(p: argparse.ArgumentParser) -> None:
 def _cmd_build(args) -> int:
     from .build import build_all, build_model
 
-    if args.model:
+    if args.native:
+        from .native import build_native
+
+        if args.model:
+            raise UsageError("--native builds the LTI loop's FMUs; --model is not allowed "
+                             "with it")
+        paths = build_native(args.out)  # no compiler: one line naming what to install
+    elif args.model:
         paths = build_model(args.model, args.out)
     else:
         from .ssp import pack_scenarios
@@ -207,14 +226,27 @@ def _cmd_run(args) -> int:
     from .simulate import run_loop
 
     if args.scenario.endswith(".ssp"):
+        if args.native:
+            raise UsageError("--native is not allowed with a FILE.ssp: the archive's FMUs run")
         return _run_ssp(args)
     if args.master != "delaycomp":
         raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
     scenario = scenarios.get(args.scenario)
     params = scenario.resolve(args.set)
     stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
+    spec = scenario.make(params)
+    fmus = None
+    if args.native:
+        from .native import native_fmus
+
+        if args.engine != "fmu":
+            raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
+        try:
+            fmus = native_fmus(spec, args.fmu_dir / "native" if args.fmu_dir else None)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     started = time.perf_counter()
-    result = run_loop(scenario.make(params), stop, args.fmu_dir, engine=args.engine)
+    result = run_loop(spec, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
     elapsed = time.perf_counter() - started
     return _report_run(args, result, elapsed, scenario.name,
                        f"{scenario.title}\n" + _describe(params))

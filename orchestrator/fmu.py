@@ -165,6 +165,9 @@ class FmuComponent(ComponentBase):
 
     def _failed(self, exc: FMICallException) -> None:
         self.worst_status = max(self.worst_status, exc.status)
+        #: a call returned fmi2Error (native FMUs): FMI 2.0 then allows only
+        #: fmi2Reset and fmi2FreeInstance, so terminate() skips fmi2Terminate
+        self.call_failed = True
 
     def initialize(self) -> None:
         try:
@@ -241,8 +244,9 @@ class FmuComponent(ComponentBase):
             if self.fmu is not None:
                 try:
                     # After fmi2Fatal only fmi2FreeInstance is allowed (pythonfmu 0.7 has
-                    # dropped the Python object then, and fmi2Terminate would crash the host).
-                    if self.worst_status < FATAL:
+                    # dropped the Python object then, and fmi2Terminate would crash the host);
+                    # after fmi2Error only fmi2Reset and fmi2FreeInstance (FMI 2.0, 2.1.3).
+                    if self.worst_status < FATAL and not getattr(self, "call_failed", False):
                         self.fmu.terminate()
                 finally:
                     self.fmu.freeInstance()
