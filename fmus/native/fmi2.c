@@ -82,11 +82,18 @@ Num num(double v) {
     Num n;
     if (isnan(v)) { snprintf(n.s, sizeof n.s, "nan"); return n; }
     if (isinf(v)) { snprintf(n.s, sizeof n.s, v > 0 ? "inf" : "-inf"); return n; }
-    for (int p = 1; p <= 17; p++) {  /* the shortest text that reads back exactly */
-        snprintf(n.s, sizeof n.s, "%.*g", p, v);
+    int p = 1;  /* the fewest significant digits that read back exactly */
+    for (; p < 17; p++) {
+        snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
         if (strtod(n.s, NULL) == v) break;
     }
-    if (strpbrk(n.s, ".e") == NULL) strcat(n.s, ".0");  /* Python writes 1.0, not 1 */
+    snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
+    int exp10 = atoi(strchr(n.s, 'e') + 1);
+    if (exp10 >= -4 && exp10 < 16) {  /* Python's repr: positional in this range */
+        int decimals = p - 1 - exp10;
+        snprintf(n.s, sizeof n.s, "%.*f", decimals > 0 ? decimals : 0, v);
+        if (strchr(n.s, '.') == NULL) strcat(n.s, ".0");  /* Python writes 1.0, not 1 */
+    }
     return n;
 }
 
