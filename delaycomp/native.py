@@ -42,7 +42,8 @@ import delaycomp.fmus
 from .build import CONFIG_NAME, DEFAULT_CONFIG, FMUS
 
 __all__ = ["NATIVE_KINDS", "NativeBuildError", "build_native", "build_native_fmu",
-           "compiler", "native_fmu_dir", "native_fmu_path", "native_fmus"]
+           "compile_host", "compiler", "host_argv", "native_fmu_dir", "native_fmu_path",
+           "native_fmus", "unpack"]
 
 #: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
 SOURCE_DIR = Path(delaycomp.fmus.__file__).resolve().parent / "native"
@@ -318,6 +319,37 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Pat
             raise BadFileError(path, "is a Python FMU, not a native one (use another "
                                      "--fmu-dir, or delete it to rebuild)")
     return path
+
+
+def compile_host(exe: Path) -> Path:
+    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``."""
+    proc = subprocess.run([*compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-I",
+                           str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"), "-o",
+                           str(exe), "-ldl", "-lm"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
+    return Path(exe)
+
+
+def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
+    """Unpack each FMU of ``fmus`` (instance -> file) into ``into/<instance>``."""
+    dirs = {}
+    for name, path in fmus.items():
+        dirs[name] = Path(into) / name
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(dirs[name])
+    return dirs
+
+
+def host_argv(exe: Path, spec, stop: float, dirs: dict[str, Path],
+              timing: bool = False) -> list[str]:
+    """The C host's command line for the scalar loop ``spec`` with the FMUs unpacked in
+    ``dirs`` (instance -> folder): stop time, base step, folders, every parameter."""
+    sets = [f"{inst}.{k}={str(v).lower() if isinstance(v, bool) else v}"
+            for inst, (_, _, params) in spec.instances.items() for k, v in params.items()]
+    return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(spec.T / spec.N),
+            *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
+            *sets]
 
 
 def native_fmus(spec, fmu_dir: Path | None = None) -> dict[str, Path]:

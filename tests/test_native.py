@@ -40,9 +40,12 @@ from delaycomp.native import (
     NativeBuildError,
     build_native,
     build_native_fmu,
+    compile_host,
     compiler,
     fmi_header_dir,
+    host_argv,
     native_fmus,
+    unpack,
 )
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
@@ -201,28 +204,7 @@ def test_native_equals_inprocess_on_a_random_mimo_loop(native_dir):
 # -- the C host, no Python in the process ---------------------------------------------------
 @pytest.fixture(scope="module")
 def chost(tmp_path_factory) -> Path:
-    exe = tmp_path_factory.mktemp("chost") / "host"
-    src = SOURCE_DIR / "host" / "host.c"
-    subprocess.run([*compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-I",
-                    str(fmi_header_dir()), str(src), "-o", str(exe), "-ldl", "-lm"], check=True)
-    return exe
-
-
-def host_argv(exe: Path, spec, stop: float, dirs: dict[str, Path]) -> list[str]:
-    sets = [f"{inst}.{k}={str(v).lower() if isinstance(v, bool) else v}"
-            for inst, params in parameters_of(spec).items() for k, v in params.items()]
-    return [str(exe), repr(stop), repr(spec.T / spec.N),
-            *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
-            *sets]
-
-
-def _unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
-    dirs = {}
-    for name, path in fmus.items():
-        dirs[name] = into / name
-        with zipfile.ZipFile(path) as zf:
-            zf.extractall(dirs[name])
-    return dirs
+    return compile_host(tmp_path_factory.mktemp("chost") / "host")
 
 
 @pytest.mark.parametrize("c", LTI_CASES[:3], ids=lambda c: c.id)
@@ -230,7 +212,7 @@ def test_c_host_without_python_equals_our_master(native_dir, chost, tmp_path, c)
     spec = _spec(c)
     stop = c.stop_time()
     fmus = native_fmus(spec, native_dir / "cache")
-    dirs = _unpack(fmus, tmp_path)
+    dirs = unpack(fmus, tmp_path)
     proc = subprocess.run(["env", "-i", *host_argv(chost, spec, stop, dirs)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr

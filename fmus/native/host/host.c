@@ -6,19 +6,22 @@
  * folder's modelDescription.xml. The step order is delaycomp's master (Gauss-Seidel along
  * the signal chain, orchestrator/master.py): at t_k = t0 + k h the plant's state is read,
  * passed through the measurement delay to the controller, the control through the input
- * delay to the plant; then every FMU steps from t_k to t_k + h. One CSV row per tick:
- * time, plant.x, controller.u (%.17g, exact).
+ * delay to the plant; then every FMU steps from t_k to t_k + h. One CSV row per tick,
+ * written to stdout after the run: time, plant.x, controller.u (%.17g, exact).
  *
- * usage: host STOP_TIME H plant=DIR meas_delay=DIR controller=DIR input_delay=DIR
+ * usage: host [--timing] STOP_TIME H plant=DIR meas_delay=DIR controller=DIR input_delay=DIR
  *             [INSTANCE.VARIABLE=VALUE ...]
+ * --timing: print the wall time of the stepping loop (initialization excluded) to stderr.
  * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl
  */
+#define _POSIX_C_SOURCE 200809L
 #include <dlfcn.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "fmi2Functions.h"
 
@@ -160,7 +163,18 @@ static void put(Fmu *f, fmi2ValueReference vr, double v) {
     CHECK(f->set_real(f->c, &vr, 1, &v), "fmi2SetReal");
 }
 
+static double now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 int main(int argc, char **argv) {
+    int timing = argc > 1 && strcmp(argv[1], "--timing") == 0;
+    if (timing) {
+        argv++;
+        argc--;
+    }
     if (argc < 7) die("usage: host STOP_TIME H plant=DIR meas_delay=DIR controller=DIR "
                       "input_delay=DIR [INSTANCE.VARIABLE=VALUE ...]");
     double stop = strtod(argv[1], NULL), h = strtod(argv[2], NULL);
@@ -204,7 +218,9 @@ int main(int argc, char **argv) {
     fmi2ValueReference cy = lookup(&fmu[2], "y", &type), cu = lookup(&fmu[2], "u", &type);
     fmi2ValueReference iu = lookup(&fmu[3], "u", &type), iy = lookup(&fmu[3], "y", &type);
     long ticks = lround(stop / h);
-    printf("time,plant.x,controller.u\n");
+    double *rows = malloc(3 * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
+    if (rows == NULL) die("out of memory");
+    double started = now();
     for (long k = 0;; k++) {
         double t = (double)k * h;  /* t_k = t0 + k h, t0 = 0 */
         double xv = get(&fmu[0], x);
@@ -213,10 +229,17 @@ int main(int argc, char **argv) {
         double uv = get(&fmu[2], cu);
         put(&fmu[3], iu, uv);
         put(&fmu[0], pu, get(&fmu[3], iy));
-        printf("%.17g,%.17g,%.17g\n", t, xv, uv);
+        rows[3 * k] = t;
+        rows[3 * k + 1] = xv;
+        rows[3 * k + 2] = uv;
         if (k == ticks) break;
         for (int i = 0; i < NI; i++) CHECK(fmu[i].do_step(fmu[i].c, t, h, fmi2True), "fmi2DoStep");
     }
+    if (timing) fprintf(stderr, "host: %ld ticks in %.9f s\n", ticks, now() - started);
+    printf("time,plant.x,controller.u\n");
+    for (long k = 0; k <= ticks; k++)
+        printf("%.17g,%.17g,%.17g\n", rows[3 * k], rows[3 * k + 1], rows[3 * k + 2]);
+    free(rows);
     for (int i = 0; i < NI; i++) {
         CHECK(fmu[i].terminate(fmu[i].c), "fmi2Terminate");
         fmu[i].free_instance(fmu[i].c);
