@@ -154,6 +154,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("scenario")
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
+    e.add_argument("--native", action="store_true",
+                   help="LTI loops: the container holds the native C FMUs (see Native C FMUs)")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -163,6 +165,8 @@ def _parser() -> argparse.ArgumentParser:
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
+    p_ssp.add_argument("--native", action="store_true",
+                       help="LTI loops: pack the native C FMUs instead of the Python ones")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
@@ -202,8 +206,8 @@ def _cmd_ssp(args) -> int:
     from . import ssp
 
     if args.scenario is None:
-        if args.set or args.jacobi:
-            raise UsageError("--set and --jacobi need a scenario to pack")
+        if args.set or args.jacobi or args.native:
+            raise UsageError("--set, --jacobi and --native need a scenario to pack")
         for path in ssp.write_all(args.out):
             print(path.parent)
         return 0
@@ -213,12 +217,21 @@ def _cmd_ssp(args) -> int:
         from .thirdparty import CompensationError, pack_jacobi
 
         try:
-            print(pack_jacobi(args.scenario, args.set, args.out, args.fmu_dir))
+            path = pack_jacobi(args.scenario, args.set, args.out, args.fmu_dir)
         except CompensationError as exc:
             raise UsageError(str(exc)) from None
-        return 0
-    spec, info = ssp.scenario_system(args.scenario, args.set)
-    print(ssp.pack(spec, info, args.out, args.fmu_dir))
+    else:
+        spec, info = ssp.scenario_system(args.scenario, args.set)
+        path = ssp.pack(spec, info, args.out, args.fmu_dir)
+    if args.native:  # the same archive with the native twins of its FMUs
+        from .native import native_archive
+
+        try:
+            native_archive(path, path)
+        except ValueError as exc:
+            path.unlink()
+            raise UsageError(str(exc)) from None
+    print(path)
     return 0
 
 
@@ -237,14 +250,9 @@ def _cmd_run(args) -> int:
     spec = scenario.make(params)
     fmus = None
     if args.native:
-        from .native import native_fmus
-
         if args.engine != "fmu":
             raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
-        try:
-            fmus = native_fmus(spec, args.fmu_dir / "native" if args.fmu_dir else None)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        fmus = _native_fmus(spec, args.fmu_dir)
     started = time.perf_counter()
     result = run_loop(spec, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
     elapsed = time.perf_counter() - started
@@ -394,10 +402,22 @@ def _cmd_export_loop(args) -> int:
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
     scenario = scenarios.get(args.scenario)
-    params = scenario.resolve(args.set)
-    path = export_loop(scenario.make(params), args.out, args.fmu_dir)
+    spec = scenario.make(scenario.resolve(args.set))
+    fmus = _native_fmus(spec, args.fmu_dir) if args.native else None
+    path = export_loop(spec, args.out, args.fmu_dir, fmus)
     print(path)
     return 0
+
+
+def _native_fmus(spec, fmu_dir):
+    """The native FMUs of ``spec`` (``--native``); a loop without native twins is a usage
+    error."""
+    from .native import native_fmus
+
+    try:
+        return native_fmus(spec, fmu_dir / "native" if fmu_dir else None)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _cmd_list(args) -> int:

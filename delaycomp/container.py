@@ -134,8 +134,11 @@ def _identifier(path: Path) -> str:
     return ident if ident and not ident[0].isdigit() else f"loop_{ident}"
 
 
-def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None) -> Path:
-    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``."""
+def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None,
+                fmus: dict[str, Path] | None = None) -> Path:
+    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
+    gives the FMU file of some instances (e.g. the native ones of
+    :func:`delaycomp.native.native_fmus`); the others come from the build cache."""
     from .simulate import fmu_path
 
     Assembly = _toolbox()
@@ -146,7 +149,7 @@ def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None) -> Path:
         files = {}
         for inst in ORDER:
             kind, config, _ = spec.instances[inst]
-            src = fmu_path(kind, config, fmu_dir)
+            src = Path((fmus or {}).get(inst) or fmu_path(kind, config, fmu_dir))
             if not (work / src.name).exists():
                 shutil.copy2(src, work / src.name)
             files[inst] = src.name

@@ -42,7 +42,8 @@ import delaycomp.fmus
 from .build import CONFIG_NAME, DEFAULT_CONFIG, FMUS
 
 __all__ = ["NATIVE_KINDS", "NativeBuildError", "build_native", "build_native_fmu",
-           "compile_host", "compiler", "host_argv", "native_fmu_dir", "native_fmu_path",
+           "compile_host", "compiler", "host_argv", "native_archive", "native_fmu_dir",
+           "native_fmu_path",
            "native_fmus", "unpack"]
 
 #: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
@@ -350,6 +351,48 @@ def host_argv(exe: Path, spec, stop: float, dirs: dict[str, Path],
     return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(spec.T / spec.N),
             *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
             *sets]
+
+
+def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
+    """Copy the SSP archive ``src`` to ``dest`` with each delaycomp FMU of ``resources/``
+    replaced by its native twin (same file name, variables and value references, built
+    for the configuration the FMU carries). The SSD, the parameter sets and any other file
+    are copied unchanged, so libcosim, Ecos and our master run the archive as before.
+
+    Raises
+    ------
+    ValueError
+        An FMU of the archive has no native twin (a user model's plant or controller).
+    """
+    kinds = {spec.model_identifier: kind for kind, spec in FMUS.items()
+             if kind in NATIVE_KINDS}
+    src, dest = Path(src), Path(dest)
+    part = dest.with_name(dest.name + ".part")
+    with tempfile.TemporaryDirectory(prefix="delaycomp-native-ssp-") as tmp, \
+            zipfile.ZipFile(src) as zin, \
+            zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename.startswith("resources/") and item.filename.endswith(".fmu"):
+                inner = Path(tmp) / Path(item.filename).name
+                inner.write_bytes(data)
+                from fmpy import read_model_description
+
+                ident = read_model_description(str(inner)).coSimulation.modelIdentifier
+                if ident not in kinds:
+                    raise ValueError(f"{item.filename} ({ident}) is not allowed in a native "
+                                     "archive: native FMUs exist for the delay, the LTI "
+                                     "plant and the LTI controller only")
+                with zipfile.ZipFile(inner) as zf:
+                    config = json.loads(zf.read(f"resources/{CONFIG_NAME}"))
+                config.pop("version", None)
+                config.pop("native", None)
+                built = build_native_fmu(kinds[ident], Path(tmp) / "native", config,
+                                         inner.name)
+                data = built.read_bytes()
+            zout.writestr(item, data)
+    part.replace(dest)
+    return dest
 
 
 def native_fmus(spec, fmu_dir: Path | None = None) -> dict[str, Path]:
