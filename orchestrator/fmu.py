@@ -15,12 +15,12 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
-    fmi2Real,
-    fmi2ValueReference,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2Real,
+    fmi2ValueReference,
 )
 
 from .master import ComponentBase
