@@ -21,14 +21,18 @@ Tolerances, from the maths:
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-#: the repository's reference traces (present in a clone or an editable install)
-REFERENCE_DIR = Path(__file__).resolve().parent.parent / "reference"
+import delaycomp.reference
+
+#: the reference traces: ``reference/`` of the repository, installed as package data of
+#: :mod:`delaycomp.reference`
+REFERENCE_DIR = Path(delaycomp.reference.__file__).resolve().parent
 
 #: zero-order-hold tolerance: ``|error| <= EXACT_TOL (1 + |ref|)``
 EXACT_TOL = 1e-9
@@ -62,8 +66,8 @@ class RefCase:
         """Header (``time`` first) and the rows of the reference trace."""
         if not self.csv_path.exists():
             raise FileNotFoundError(
-                f"reference trace {self.csv_path.name} of {self.id} not found: the reference "
-                "traces come with a clone of the repository")
+                f"reference trace {self.csv_path} of {self.id} not found: the installed "
+                "package is incomplete (reinstall delaycomp)")
         with open(self.csv_path, newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
         return rows[0], np.array(rows[1:], dtype=float)
@@ -108,7 +112,8 @@ class CheckRow:
     max_error: float
     #: what ``max_error`` is held to, as text (``1e-09 x (1 + abs(ref))``, ...)
     tolerance: str
-    passed: bool
+    #: ``None``: not run (an optional master that is not installed and not required)
+    passed: bool | None
     note: str = ""
 
 
@@ -156,14 +161,51 @@ def compare(c: RefCase, names: list[str], times: np.ndarray, data: np.ndarray,
 Provider = Callable[[Iterable[RefCase]], Iterable[CheckRow]]
 
 
+@dataclass(frozen=True)
+class Requirement:
+    """What an optional master needs: importable ``modules`` and the command that installs
+    them (``hint``)."""
+
+    modules: tuple[str, ...]
+    hint: str
+
+    def missing(self) -> list[str]:
+        """The modules of :attr:`modules` that cannot be imported here."""
+        import importlib.util
+
+        return [m for m in self.modules if importlib.util.find_spec(m) is None]
+
+
+@dataclass(frozen=True)
+class Master:
+    """A registered master: its provider and, for an optional one, what it needs."""
+
+    provider: Provider
+    requires: Requirement | None = None
+
+    def unavailable(self) -> str | None:
+        """Why this master cannot run here (``"not installed: ..."``), else ``None``."""
+        if self.requires is None:
+            return None
+        missing = self.requires.missing()
+        if not missing:
+            return None
+        return f"not installed ({', '.join(missing)}): {self.requires.hint}"
+
+
 @dataclass
 class Registry:
-    """Named providers, in the order their rows are printed."""
+    """Named masters, in the order their rows are printed."""
 
-    providers: dict[str, Provider] = field(default_factory=dict)
+    masters: dict[str, Master] = field(default_factory=dict)
 
-    def register(self, name: str, provider: Provider) -> None:
-        self.providers[name] = provider
+    def register(self, name: str, provider: Provider,
+                 requires: Requirement | None = None) -> None:
+        self.masters[name] = Master(provider, requires)
+
+    @property
+    def providers(self) -> dict[str, Provider]:
+        return {name: m.provider for name, m in self.masters.items()}
 
 
 PROVIDERS = Registry()
@@ -205,7 +247,10 @@ def _run_container(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     return run_container_cases(cases)
 
 
-PROVIDERS.register("container", _run_container)
+#: the extra that brings fmu-manipulation-toolbox
+CONTAINER = Requirement(("fmu_manipulation_toolbox",),
+                        "pip install 'delaycomp[container]'")
+PROVIDERS.register("container", _run_container, CONTAINER)
 
 
 #: native FMUs against the Python FMUs: ``max |native - python| <= NATIVE_RTOL * max |python|``
@@ -245,7 +290,24 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
                        f"{NATIVE_RTOL:g} x max abs(python) (relative)", rel <= NATIVE_RTOL)
 
 
-PROVIDERS.register("native", _run_native)
+@dataclass(frozen=True)
+class CompilerRequirement(Requirement):
+    """The native FMUs need a C compiler (:func:`delaycomp.native.compiler`)."""
+
+    modules: tuple[str, ...] = ()
+    hint: str = "install a C compiler, e.g. `apt-get install gcc`, or set CC"
+
+    def missing(self) -> list[str]:
+        from .native import NativeBuildError, compiler
+
+        try:
+            compiler()
+        except NativeBuildError:
+            return ["a C compiler"]
+        return []
+
+
+PROVIDERS.register("native", _run_native, CompilerRequirement())
 
 
 def _third_party(master: str) -> Provider:
@@ -258,22 +320,36 @@ def _third_party(master: str) -> Provider:
 
 
 #: libcosim and Ecos run each case's Jacobi variant (see :mod:`delaycomp.thirdparty`)
-PROVIDERS.register("libcosim", _third_party("libcosim"))
-PROVIDERS.register("ecos", _third_party("ecos"))
+PROVIDERS.register("libcosim", _third_party("libcosim"),
+                   Requirement(("libcosimpy",), "pip install 'delaycomp[masters]'"))
+PROVIDERS.register("ecos", _third_party("ecos"),
+                   Requirement(("ecospy", "tbb"), "pip install 'delaycomp[masters]'"))
 
 
-def run_checks(cases: Iterable[RefCase] = CASES,
-               masters: Iterable[str] | None = None) -> list[CheckRow]:
-    """Every provider (or those named in ``masters``) over ``cases``."""
+def run_checks(cases: Iterable[RefCase] = CASES, masters: Iterable[str] | None = None,
+               require_all: bool = False) -> list[CheckRow]:
+    """Every master (or those named in ``masters``) over ``cases``.
+
+    An optional master that is not installed gives one row with ``passed=None`` (not run,
+    not a failure of the software) and the command that installs it; it is a failed row
+    (``passed=False``) when it was named in ``masters`` or ``require_all`` is set.
+    """
     cases = list(cases)
-    names = list(PROVIDERS.providers) if masters is None else list(masters)
+    names = list(PROVIDERS.masters) if masters is None else list(masters)
     rows: list[CheckRow] = []
     for name in names:
-        if name not in PROVIDERS.providers:
+        if name not in PROVIDERS.masters:
             raise KeyError(f"unknown master {name!r}: allowed are "
-                           f"{', '.join(PROVIDERS.providers)}")
+                           f"{', '.join(PROVIDERS.masters)}")
+        master = PROVIDERS.masters[name]
+        absent = master.unavailable()
+        if absent is not None:
+            required = require_all or masters is not None
+            rows.append(CheckRow("*", name, math.nan, "-", False if required else None,
+                                 absent))
+            continue
         try:
-            rows.extend(PROVIDERS.providers[name](cases))
+            rows.extend(master.provider(cases))
         except Exception as exc:  # noqa: BLE001 - a broken master is a failed row, not a crash
             rows.append(CheckRow("*", name, float("inf"), "-", False,
                                  f"{type(exc).__name__}: {exc}"))
@@ -286,6 +362,7 @@ def format_table(rows: list[CheckRow]) -> str:
              "|---|---|---|---|---|"]
     for r in rows:
         note = f" ({r.note})" if r.note else ""
-        lines.append(f"| {r.case} | {r.master} | {r.max_error:.3g} | {r.tolerance} | "
-                     f"{'yes' if r.passed else 'NO'}{note} |")
+        verdict = {True: "yes", False: "NO", None: "skipped"}[r.passed]
+        error = "-" if math.isnan(r.max_error) else f"{r.max_error:.3g}"
+        lines.append(f"| {r.case} | {r.master} | {error} | {r.tolerance} | {verdict}{note} |")
     return "\n".join(lines)

@@ -71,7 +71,7 @@ def _toolbox():
     except ImportError:
         raise ContainerError(
             "export-loop needs fmu-manipulation-toolbox >= 2.0: pip install "
-            "'fmu-manipulation-toolbox>=2.0'") from None
+            "'delaycomp[container]'") from None
     return Assembly
 
 
