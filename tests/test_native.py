@@ -577,3 +577,52 @@ def test_container_with_native_fmus(tmp_path):
     names, times, data = simulate_loop(path, spec, c.stop_time())
     cmp = compare(c, names, times, data, stride=1, ref_stride=spec.N)
     assert cmp.passed, cmp
+
+
+# -- fuzz: the native FMUs refuse and accept exactly what the Python slaves do --------------
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_WEIRD = [0.0, -0.0, 1e-300, 1e300, -1e300, float("nan"), float("inf"), -float("inf")]
+_reals = st.one_of(st.floats(-3, 3), st.sampled_from(_WEIRD))
+_inputs = st.one_of(st.floats(-100, 100), st.sampled_from(_WEIRD))
+
+
+@given(T=st.one_of(st.sampled_from([0.5, 1.0, 0.1]), _reals),
+       r=st.one_of(st.sampled_from([0.0, 0.3, 1.0, 1.25]), _reals),
+       tau=st.one_of(st.sampled_from([0.0, 0.5, 1.0]), _reals),
+       a=_reals, k=_reals, mode=st.sampled_from(["compensated", "uncompensated", "x"]),
+       held=st.booleans(), ys=st.lists(_inputs, min_size=6, max_size=6))
+def test_fuzz_native_controller_behaves_as_the_python_slave(native_dir, T, r, tau, a, k,
+                                                            mode, held, ys):
+    """Random parameters and inputs (finite, huge, non-finite): the native controller and
+    the Python slave refuse the same calls with the same message, and otherwise give the
+    same outputs to 1e-12 relative (the predictor's exponentials differ in rounding)."""
+    params = {"T": T, "r": r, "tau": tau, "A[1,1]": a, "B[1,1]": 1.0, "K[1,1]": k,
+              "u0[1]": 0.5, "mode": mode, "held_sample": held}
+    slave = SlaveComponent("x", "controller", {"n": 1, "m": 1})
+    comp = _component(native_dir, "controller")
+    try:
+        outcome = []
+        for c, refused in ((slave, (SlaveRefused,)), (comp, (FMICallException, FmuRefused))):
+            got = []
+            try:
+                c.setup(0.0, 100.0, params)
+                c.initialize()
+                h = T / 2
+                for i, y in enumerate(ys):
+                    c.set_inputs(["y"], [y])
+                    got.append(c.get_outputs(["u"])[0])
+                    c.do_step(i * h, h)
+            except refused:
+                got.append(("refused", c.last_message))
+            outcome.append(got)
+        py, nat = outcome
+        assert len(py) == len(nat)
+        for p, n in zip(py, nat):
+            if isinstance(p, tuple):
+                assert p == n
+            else:
+                assert (np.isnan(p) and np.isnan(n)) or abs(p - n) <= 1e-12 * max(1.0, abs(p))
+    finally:
+        comp.terminate()
