@@ -78,6 +78,27 @@ void log_info(Instance *c, const char *fmt, ...) {
 }
 
 /* ---- helpers shared by the models ----------------------------------------------------- */
+/* "d.ddde+XX" with its last mantissa digit one up or one down, if that reads back as v
+ * (printf rounds an exact decimal tie to even; the shortest repr may be the other side) */
+static int nudge_last_digit(char *text, double v) {
+    char *e = strchr(text, 'e');
+    if (e == NULL || e == text) return 0;
+    for (int dir = 1; dir >= -1; dir -= 2) {
+        char trial[40];
+        snprintf(trial, sizeof trial, "%s", text);
+        char *d = trial + (e - text) - 1;
+        if (*d == '.') d--;
+        if (dir > 0 && *d == '9') continue;  /* would carry: not a tie neighbour here */
+        if (dir < 0 && *d == '0') continue;
+        *d = (char)(*d + dir);
+        if (strtod(trial, NULL) == v) {
+            memcpy(text, trial, strlen(trial) + 1);
+            return 1;
+        }
+    }
+    return 0;
+}
+
 Num num(double v) {
     Num n;
     if (isnan(v)) { snprintf(n.s, sizeof n.s, "nan"); return n; }
@@ -86,8 +107,9 @@ Num num(double v) {
     for (; p < 17; p++) {
         snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
         if (strtod(n.s, NULL) == v) break;
+        if (nudge_last_digit(n.s, v)) break;  /* an exact tie rounded the other way */
     }
-    snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
+    if (p == 17) snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
     int exp10 = atoi(strchr(n.s, 'e') + 1);
     if (exp10 >= -4 && exp10 < 16) {  /* Python's repr: positional in this range */
         int decimals = p - 1 - exp10;
