@@ -653,3 +653,45 @@ def test_hugely_negative_a_native_is_exact_where_scipy_overflows(native_dir):
         assert 0.0 <= u <= 1e-299  # K (e^{-inf} y + G(T) u0) with G(T) = 1e-300
     finally:
         comp.terminate()
+
+
+_moderate = st.one_of(st.floats(-3, 3), st.sampled_from([0.0, float("nan"), float("inf")]))
+
+
+@given(kind=st.sampled_from(["delay", "plant"]),
+       p1=st.one_of(st.sampled_from([0.0, 0.2, 0.25, 1.0]), _reals), p2=_moderate,
+       p3=_moderate, h=st.one_of(st.sampled_from([0.1, 0.05]), _reals),
+       us=st.lists(_inputs, min_size=5, max_size=5))
+def test_fuzz_native_delay_and_plant_behave_as_the_python_slaves(native_dir, kind, p1, p2,
+                                                                 p3, h, us):
+    """As above for the delay (delay, u0, step size) and the plant (A, B, x0 with moderate
+    A: a hugely negative one is exact in C and overflows in scipy, see the test above)."""
+    params = ({"delay": p1, "u0[1]": p2} if kind == "delay"
+              else {"A[1,1]": p2, "B[1,1]": p3, "x0[1]": p1})
+    slave = SlaveComponent("x", kind, dict(DEFAULT_CONFIG[kind]))
+    comp = _component(native_dir, kind)
+    inp, out = ("u", "y") if kind == "delay" else ("u", "x")
+    try:
+        outcome = []
+        for c, refused in ((slave, (SlaveRefused,)), (comp, (FMICallException, FmuRefused))):
+            got = []
+            try:
+                c.setup(0.0, 100.0, params)
+                c.initialize()
+                for i, u in enumerate(us):
+                    c.set_inputs([inp], [u])
+                    got.append(c.get_outputs([out])[0])
+                    c.do_step(i * h, h)
+            except refused:
+                got.append(("refused", c.last_message))
+            outcome.append(got)
+        py, nat = outcome
+        assert len(py) == len(nat)
+        for p, n in zip(py, nat):
+            if isinstance(p, tuple):
+                assert p == n
+            else:
+                assert p == n or (np.isnan(p) and np.isnan(n)) or \
+                    abs(p - n) <= 1e-12 * max(1.0, abs(p))
+    finally:
+        comp.terminate()

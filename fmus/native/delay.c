@@ -7,12 +7,16 @@
 #include "native.h"
 
 int model_setup(Instance *c) {
-    if (check_real_parameters_finite(c) != 0) return -1;
-    double delay = c->d.real[VR_DELAY];
+    double delay = c->d.real[VR_DELAY];  /* checked in the Python slave's order */
+    if (!isfinite(delay)) {
+        log_error(c, "delay = %s is not allowed: must be a finite number", num(delay).s);
+        return -1;
+    }
     if (delay < 0) {
         log_error(c, "delay = %s is not allowed: must be >= 0", num(delay).s);
         return -1;
     }
+    if (check_real_parameters_finite(c) != 0) return -1;  /* u0 */
     c->d.m.has_line = 0;
     c->d.m.D = 0;
     c->d.m.h = 0.0;
