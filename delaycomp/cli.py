@@ -79,9 +79,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
 
-    r = sub.add_parser("run", help="co-simulate a scenario or an SSP file")
-    r.add_argument("scenario", help="a scenario name, or FILE.ssp (then --set takes "
-                                    "instance.parameter=value)")
+    r = sub.add_parser("run", help="co-simulate a scenario, a loop file or an SSP file")
+    r.add_argument("scenario", help="a scenario name, a LOOP.toml (then --set takes the "
+                                    "file's keys: r=0.4, plant.x0=1,0, controller.K=...), "
+                                    "or FILE.ssp (then --set takes instance.parameter=value)")
     _common(r)
     r.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time in seconds (default: the scenario's)")
@@ -102,7 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
                             "is stable")
-    c.add_argument("scenario")
+    c.add_argument("scenario", help="an LTI scenario name or LOOP.toml")
     _common(c)
     c.add_argument("--periods", type=int, default=40,
                    help="periods of each confirming co-simulation (default 40)")
@@ -112,8 +113,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--out", type=Path, default=None, metavar="FILE.csv")
     c.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
 
-    s = sub.add_parser("sweep", help="run a scenario over a parameter grid")
-    s.add_argument("scenario")
+    s = sub.add_parser("sweep", help="run a scenario or a loop file over a parameter grid")
+    s.add_argument("scenario", help="a scenario name or LOOP.toml")
     _common(s)
     s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
                    help="a swept parameter (repeatable)")
@@ -132,6 +133,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
 
     k = sub.add_parser("check", help="cross-check every reference case in every master")
+    k.add_argument("loop", nargs="?", default=None, metavar="LOOP.toml",
+                   help="check this loop file against the reference CSV it names "
+                        "([reference] csv = ...) instead of the built-in cases")
+    k.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="with LOOP.toml: override one of its keys (repeatable)")
     k.add_argument("--master", action="append", default=None, metavar="NAME",
                    help="only this master (repeatable; default: all)")
     k.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
@@ -153,8 +159,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="folder of built FMUs (default: a per-version cache, built on demand)")
 
     e = sub.add_parser("export-loop",
-                       help="assemble a scenario's loop into one container FMU")
-    e.add_argument("scenario")
+                       help="assemble a scenario's or a loop file's loop into one container "
+                            "FMU")
+    e.add_argument("scenario", help="a scenario name or LOOP.toml")
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
     e.add_argument("--native", action="store_true",
@@ -162,8 +169,8 @@ def _parser() -> argparse.ArgumentParser:
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
-                       help="pack this scenario into --out FILE.ssp (default: write the SSD "
-                            "and SSVs of every scenario at its defaults into "
+                       help="pack this scenario or LOOP.toml into --out FILE.ssp (default: "
+                            "write the SSD and SSVs of every scenario at its defaults into "
                             "--out DIR/<scenario>/)")
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
@@ -178,9 +185,27 @@ def _parser() -> argparse.ArgumentParser:
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="set a scenario parameter (repeatable)")
+                   help="set a scenario parameter or a loop file's key (repeatable)")
+    p.add_argument("--allow-unstable", action="store_true",
+                   help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
+                        "loop is unstable (the sign guard; see README: loop files)")
     p.add_argument("--fmu-dir", type=Path, default=None,
                    help="folder of built FMUs (default: a per-version cache, built on demand)")
+
+
+def _source(args):
+    """The scenario or loop file named on the command line, and its ``--set`` list (with
+    ``--allow-unstable`` as the loop file's key)."""
+    source = scenarios.open_source(args.scenario)
+    sets = list(args.set)
+    if getattr(args, "allow_unstable", False) and str(args.scenario).endswith(".toml"):
+        sets.append("controller.allow_unstable=true")
+    return source, sets
+
+
+def _loop(args):
+    source, sets = _source(args)
+    return source, sets, source.loop(sets)
 
 
 def _cmd_build(args) -> int:
@@ -216,23 +241,23 @@ def _cmd_ssp(args) -> int:
         return 0
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
+    _, _, loop = _loop(args)
     if args.jacobi:
         from .thirdparty import CompensationError, pack_jacobi
 
         try:
-            path = pack_jacobi(args.scenario, args.set, args.out, args.fmu_dir)
+            path = pack_jacobi(loop, args.out, args.fmu_dir)
         except CompensationError as exc:
             raise UsageError(str(exc)) from None
     else:
-        spec, info = ssp.scenario_system(args.scenario, args.set)
-        path = ssp.pack(spec, info, args.out, args.fmu_dir)
+        path = ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir)
     if args.native:  # the same archive with the native twins of its FMUs
         from .native import native_archive
 
         try:
             native_archive(path, path)
         except ValueError as exc:
-            path.unlink()
+            Path(path).unlink()
             raise UsageError(str(exc)) from None
     print(path)
     return 0
@@ -247,20 +272,24 @@ def _cmd_run(args) -> int:
         return _run_ssp(args)
     if args.master != "delaycomp":
         raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
-    scenario = scenarios.get(args.scenario)
-    params = scenario.resolve(args.set)
-    stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
-    spec = scenario.make(params)
+    source, sets = _source(args)
+    params = source.resolve(sets)
+    loop = source.make(params)
+    stop = source.default_stop_time if args.stop_time is None else args.stop_time
+    if stop is None:
+        raise UsageError(f"{source.name} has no stop time: give --stop-time (or stop_time "
+                         "in the loop file)")
     fmus = None
     if args.native:
         if args.engine != "fmu":
             raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
-        fmus = _native_fmus(spec, args.fmu_dir)
+        fmus = _native_fmus(loop, args.fmu_dir)
     started = time.perf_counter()
-    result = run_loop(spec, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
+    result = run_loop(loop, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
     elapsed = time.perf_counter() - started
-    return _report_run(args, result, elapsed, scenario.name,
-                       f"{scenario.title}\n" + _describe(params))
+    detail = _describe(params) if isinstance(params, dict) and not str(
+        args.scenario).endswith(".toml") else " ".join(args.set)
+    return _report_run(args, result, elapsed, source.name, f"{source.title}\n" + detail)
 
 
 def _run_ssp(args) -> int:
@@ -340,7 +369,8 @@ def _cmd_sweep(args) -> int:
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
     started = time.perf_counter()
-    rows = sweep.run_sweep(args.scenario, axes, args.set, args.stop_time, args.engine,
+    _, sets = _source(args)
+    rows = sweep.run_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
                            args.workers, args.scheduler,
                            str(args.fmu_dir) if args.fmu_dir else None, args.exact)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
@@ -355,15 +385,15 @@ def _cmd_sweep(args) -> int:
 def _cmd_critical_delay(args) -> int:
     from .critical import critical_delay_report, critical_delay_table
 
-    scenario = scenarios.get(args.scenario)
+    scenario, sets = _source(args)
     if args.grid:
-        rows = critical_delay_table(scenario, args.set, args.grid, args.out, args.plot)
+        rows = critical_delay_table(scenario, sets, args.grid, args.out, args.plot)
         for line in rows:
             print(line)
         return 0
     if args.periods < 10:
         raise UsageError(f"--periods {args.periods} is not allowed: must be an integer >= 10")
-    report = critical_delay_report(scenario, args.set, args.periods, args.fmu_dir)
+    report = critical_delay_report(scenario, sets, args.periods, args.fmu_dir)
     print(f"r_c = {report.r_c:.9f}")
     for line in report.lines:
         print(line)
@@ -374,7 +404,14 @@ def _cmd_check(args) -> int:
     from . import check
 
     try:
-        cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
+        if args.loop is not None:
+            if args.case:
+                raise KeyError("--case and LOOP.toml exclude each other")
+            cases = [check.loop_case(args.loop, args.set)]
+        elif args.set:
+            raise KeyError("--set applies to a LOOP.toml")
+        else:
+            cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
         if args.master:
             for name in args.master:
                 if name not in check.PROVIDERS.masters:
@@ -414,10 +451,9 @@ def _cmd_export_loop(args) -> int:
 
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
-    scenario = scenarios.get(args.scenario)
-    spec = scenario.make(scenario.resolve(args.set))
-    fmus = _native_fmus(spec, args.fmu_dir) if args.native else None
-    path = export_loop(spec, args.out, args.fmu_dir, fmus)
+    _, _, loop = _loop(args)
+    fmus = _native_fmus(loop, args.fmu_dir) if args.native else None
+    path = export_loop(loop, args.out, args.fmu_dir, fmus)
     print(path)
     return 0
 

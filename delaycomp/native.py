@@ -342,13 +342,14 @@ def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
     return dirs
 
 
-def host_argv(exe: Path, spec, stop: float, dirs: dict[str, Path],
+def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
               timing: bool = False) -> list[str]:
-    """The C host's command line for the scalar loop ``spec`` with the FMUs unpacked in
-    ``dirs`` (instance -> folder): stop time, base step, folders, every parameter."""
-    sets = [f"{inst}.{k}={str(v).lower() if isinstance(v, bool) else v}"
-            for inst, (_, _, params) in spec.instances.items() for k, v in params.items()]
-    return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(spec.T / spec.N),
+    """The C host's command line for the scalar loop ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`) with the FMUs unpacked in ``dirs`` (instance ->
+    folder): stop time, base step, folders, every parameter."""
+    sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
+            for inst in loop.instances for k, v in inst.parameters.items()]
+    return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(loop.T / loop.N),
             *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
             *sets]
 
@@ -395,22 +396,24 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
     return dest
 
 
-def native_fmus(spec, fmu_dir: Path | None = None) -> dict[str, Path]:
-    """Native FMU files for every instance of the loop ``spec`` (a
-    :class:`~delaycomp.scenarios.LoopSpec`), to pass as ``fmus=`` to
+def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:
+    """Native FMU files for every instance of ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`), to pass as ``fmus=`` to
     :func:`delaycomp.simulate.run_loop`.
 
     Raises
     ------
     ValueError
-        An instance has no native twin (a user model's plant or controller).
+        An instance has no native twin (a user model's plant or controller, a user's FMU).
     """
-    missing = {name: kind for name, (kind, _, _) in spec.instances.items()
-               if kind not in NATIVE_KINDS}
-    if missing:
-        name, kind = next(iter(missing.items()))
-        raise ValueError(f"--native is not allowed for this loop: instance {name!r} is a "
-                         f"{kind} FMU; native FMUs exist for LTI loops only (the delay, the "
-                         "LTI plant and the LTI controller)")
-    return {name: native_fmu_path(kind, config, fmu_dir)
-            for name, (kind, config, _) in spec.instances.items()}
+    from .system.loop import BuiltinFmu
+
+    for inst in loop.instances:
+        src = inst.source
+        if not (isinstance(src, BuiltinFmu) and src.kind in NATIVE_KINDS):
+            what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
+            raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
+                             f"is {what}; native FMUs exist for LTI loops only (the delay, "
+                             "the LTI plant and the LTI controller)")
+    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir)
+            for inst in loop.instances}

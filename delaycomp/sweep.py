@@ -1,4 +1,5 @@
-"""Parameter sweeps and stability maps: many runs of one scenario over a grid.
+"""Parameter sweeps and stability maps: many runs of one loop (a scenario or a loop file)
+over a grid.
 
 Each grid point is one run (or, with ``exact``, one lifted-model eigenvalue computation for
 LTI scenarios). Per point the sweep reports
@@ -30,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenarios
-from .scenarios import ParameterError
+from .errors import ParameterError
+from .scenarios import open_source
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -76,6 +77,7 @@ def points(axes: list[Axis]) -> list[tuple[float, ...]]:
 class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
+    #: a scenario name or a loop file's path
     scenario: str
     sets: tuple[str, ...]
     stop: float
@@ -118,21 +120,19 @@ def evaluate(job: Job) -> dict:
     """Metrics of one grid point (a top-level function, for processes and Dask)."""
     from .simulate import run_loop
 
-    sc = scenarios.get(job.scenario)
-    p = sc.resolve(list(job.sets))
+    spec = open_source(job.scenario).loop(list(job.sets))
     if job.exact:
         from .lti import lifted_loop
 
-        A, B, K = sc.lti(p)
-        loop = lifted_loop(A, B, K, p["T"], p["r"], p["tau"], p["mode"], p.get("r_true"),
-                           p.get("tau_true"))
-        rho = loop.spectral_radius
+        d = spec.lti
+        lifted = lifted_loop(d.A, d.B, d.K, spec.T, d.r, d.tau, d.mode, d.r_true, d.tau_true)
+        rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
                 "deadbeat_time": None}
-    spec = sc.make(p)
     kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
     res = run_loop(spec, job.stop, job.fmu_dir, **kwargs)
-    n_states = sum(1 for inst, _ in spec.recorded if inst == "plant")
+    plant = spec.by_role("plant").name
+    n_states = sum(1 for port in spec.recorded if port.instance == plant)
     return metrics_of(res.times, res.data[:, :n_states], spec.N, res.success)
 
 
@@ -142,11 +142,14 @@ def _prebuild(jobs: list[Job]) -> None:
 
     seen = set()
     for job in jobs:
-        sc = scenarios.get(job.scenario)
-        for kind, config, _ in sc.make(sc.resolve(list(job.sets))).instances.values():
-            key = (kind, tuple(sorted(config.items())))
-            if key not in seen:
-                seen.add(key)
+        for inst in open_source(job.scenario).loop(list(job.sets)).instances:
+            key = inst.source.build_key()
+            if key is None:
+                continue
+            kind, config = key
+            ident = (kind, tuple(sorted(config.items())))
+            if ident not in seen:
+                seen.add(ident)
                 fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
 
 
@@ -170,25 +173,31 @@ class _Progress:
 def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
               fmu_dir: str | None = None, exact: bool = False) -> list[dict]:
-    """Run the grid; return one row (grid values + metrics) per point, in grid order."""
-    sc = scenarios.get(scenario)
-    if exact and sc.lti is None:
-        raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
+    """Run the grid; return one row (grid values + metrics) per point, in grid order.
+
+    ``scenario`` is a scenario name or a loop file's path (``.toml``).
+    """
+    sc = open_source(scenario)
+    if exact and sc.loop(list(sets)).lti is None:
+        raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
     if workers < 1:
         raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     names = [a.name for a in axes]
     if len(set(names)) != len(names):
         raise ParameterError("--grid: each parameter may be swept once")
     stop = sc.default_stop_time if stop is None else stop
+    if stop is None:
+        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
     jobs = []
     for values in points(axes):
         point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
         try:
-            sc.resolve(list(point_sets))  # validate every point before running any
+            sc.make(sc.resolve(list(point_sets)))  # validate every point before running any
         except ParameterError as exc:
             where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
             raise ParameterError(f"grid point {where}: {exc}") from None
-        jobs.append(Job(scenario, point_sets, float(stop), engine, fmu_dir, exact))
+        jobs.append(Job(str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
+                        else scenario, point_sets, float(stop), engine, fmu_dir, exact))
     if not exact and engine == "fmu":
         _prebuild(jobs)
     progress = _Progress(len(jobs))

@@ -167,8 +167,7 @@ def test_flow_in_c_matches_scipy(linalg, n, m, s):
 
 # -- the FMUs in our master ---------------------------------------------------------------
 def _spec(c):
-    sc = scenarios.get(c.scenario)
-    return sc.make(sc.resolve(list(c.sets)))
+    return c.loop()
 
 
 @pytest.mark.parametrize("c", LTI_CASES, ids=lambda c: c.id)
@@ -504,8 +503,7 @@ def test_python_fmus_in_the_c_host_with_the_three_settings(chost, fmu_dir, tmp_p
     spec = sc.make(sc.resolve(["r=0.3", "u0=4", "mode=compensated"]))
     from delaycomp.simulate import fmu_path
 
-    fmus = {name: fmu_path(kind, config, fmu_dir / "cache")
-            for name, (kind, config, _) in spec.instances.items()}
+    fmus = {i.name: fmu_path(*i.source.build_key(), fmu_dir / "cache") for i in spec.instances}
     libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
     assert libpython.exists(), "this Python has no shared libpython: the recipe needs one"
     settings = [f"LD_PRELOAD={libpython}", f"PYTHONHOME={sys.base_prefix}",
@@ -534,7 +532,7 @@ def test_jacobi_archive_with_native_fmus_in_every_master(tmp_path, master):
     from delaycomp.thirdparty import pack_jacobi, run_ssp
 
     c = case("example-3.6/fig3")
-    python = pack_jacobi(c.scenario, list(c.sets), tmp_path / "case.ssp", parameter_set=c.case)
+    python = pack_jacobi(c.loop(), tmp_path / "case.ssp", parameter_set=c.case)
     native = native_archive(python, tmp_path / "native.ssp")
     with zipfile.ZipFile(native) as zf:
         inner = [n for n in zf.namelist() if n.endswith(".fmu")]
