@@ -36,18 +36,20 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
-/* delaycomp.delayline.steps_of: D with delay = D h, or -1 with a logged error */
+/* delaycomp.delayline.steps_of (delaycomp.grid.steps_of): D with delay = D h, or -1
+ * with a logged error */
 static long steps_of(Instance *c, double delay, double h) {
     double ratio = delay / h;
     if (!(ratio <= MAX_STEPS)) {
-        log_error(c, "delay = %s is not allowed: must be at most %.0f communication steps of "
-                  "%s (it needs %.6g)", num(delay).s, MAX_STEPS, num(h).s, ratio);
+        log_error(c, "delay = %s is not allowed: must be at most %.0f steps of the "
+                  "communication step %s (it needs %.6g)", num(delay).s, MAX_STEPS, num(h).s,
+                  ratio);
         return -1;
     }
     double D = nearbyint(ratio);
     if (fabs(ratio - D) > GRID_RTOL * fmax(1.0, ratio)) {
-        log_error(c, "delay = %s is not allowed: must be an integer multiple of the "
-                  "communication step %s", num(delay).s, num(h).s);
+        log_error(c, "delay = %s is not allowed: must be a multiple of the communication "
+                  "step %s", num(delay).s, num(h).s);
         return -1;
     }
     return (long)D;
