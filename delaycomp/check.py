@@ -24,6 +24,8 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .cases import (  # noqa: F401 - the cases are part of this module's interface
     CASES,
     EXACT_TOL,
