@@ -10,6 +10,11 @@ Reproduce Figure 3 of Karafyllis & Krstic (compensated, r = 0.3, u0 = 4)::
 
     delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
 
+The same FMUs of the LTI loop written in C (no Python in the host), and a run with them::
+
+    delaycomp build --native --out build/native
+    delaycomp run example-3.6 --set r=0.3 --set u0=4 --native
+
 Run a packed SSP (``delaycomp build`` writes one per scenario) in the same master, with an
 FMU parameter changed (``instance.parameter=value``)::
 
@@ -67,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
+    b.add_argument("--native", action="store_true",
+                   help="build the delay, LTI plant and LTI controller as C FMUs (no Python "
+                        "needed in the host; needs a C compiler)")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
@@ -84,6 +92,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
+    r.add_argument("--native", action="store_true",
+                   help="LTI loops: run the native C FMUs (`delaycomp build --native`) in our "
+                        "master instead of the Python FMUs; with --fmu-dir DIR they are "
+                        "built into DIR/native")
     r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos", "omsimulator"),
                    default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
@@ -163,6 +175,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("scenario", help="a scenario name or LOOP.toml")
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
+    e.add_argument("--native", action="store_true",
+                   help="LTI loops: the container holds the native C FMUs (see Native C FMUs)")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -172,6 +186,8 @@ def _parser() -> argparse.ArgumentParser:
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
+    p_ssp.add_argument("--native", action="store_true",
+                       help="LTI loops: pack the native C FMUs instead of the Python ones")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
@@ -206,7 +222,14 @@ def _loop(args):
 def _cmd_build(args) -> int:
     from .build import build_all, build_model
 
-    if args.model:
+    if args.native:
+        from .native import build_native
+
+        if args.model:
+            raise UsageError("--native builds the LTI loop's FMUs; --model is not allowed "
+                             "with it")
+        paths = build_native(args.out)  # no compiler: one line naming what to install
+    elif args.model:
         paths = build_model(args.model, args.out)
     else:
         from .ssp import pack_scenarios
@@ -222,8 +245,8 @@ def _cmd_ssp(args) -> int:
     from . import ssp
 
     if args.scenario is None:
-        if args.set or args.jacobi:
-            raise UsageError("--set and --jacobi need a scenario to pack")
+        if args.set or args.jacobi or args.native:
+            raise UsageError("--set, --jacobi and --native need a scenario to pack")
         for path in ssp.write_all(args.out):
             print(path.parent)
         return 0
@@ -234,11 +257,20 @@ def _cmd_ssp(args) -> int:
         from .thirdparty import CompensationError, pack_jacobi
 
         try:
-            print(pack_jacobi(loop, args.out, args.fmu_dir))
+            path = pack_jacobi(loop, args.out, args.fmu_dir)
         except CompensationError as exc:
             raise UsageError(str(exc)) from None
-        return 0
-    print(ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir))
+    else:
+        path = ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir)
+    if args.native:  # the same archive with the native twins of its FMUs
+        from .native import native_archive
+
+        try:
+            native_archive(path, path)
+        except ValueError as exc:
+            Path(path).unlink()
+            raise UsageError(str(exc)) from None
+    print(path)
     return 0
 
 
@@ -246,6 +278,8 @@ def _cmd_run(args) -> int:
     from .simulate import run_loop
 
     if args.scenario.endswith(".ssp"):
+        if args.native:
+            raise UsageError("--native is not allowed with a FILE.ssp: the archive's FMUs run")
         return _run_ssp(args)
     if args.master != "delaycomp":
         raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
@@ -256,8 +290,13 @@ def _cmd_run(args) -> int:
     if stop is None:
         raise UsageError(f"{source.name} has no stop time: give --stop-time (or stop_time "
                          "in the loop file)")
+    fmus = None
+    if args.native:
+        if args.engine != "fmu":
+            raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
+        fmus = _native_fmus(loop, args.fmu_dir)
     started = time.perf_counter()
-    result = run_loop(loop, stop, args.fmu_dir, engine=args.engine)
+    result = run_loop(loop, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
     elapsed = time.perf_counter() - started
     detail = _describe(params) if isinstance(params, dict) and not str(
         args.scenario).endswith(".toml") else " ".join(args.set)
@@ -440,9 +479,21 @@ def _cmd_export_loop(args) -> int:
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
     _, _, loop = _loop(args)
-    path = export_loop(loop, args.out, args.fmu_dir)
+    fmus = _native_fmus(loop, args.fmu_dir) if args.native else None
+    path = export_loop(loop, args.out, args.fmu_dir, fmus)
     print(path)
     return 0
+
+
+def _native_fmus(spec, fmu_dir):
+    """The native FMUs of ``spec`` (``--native``); a loop without native twins is a usage
+    error."""
+    from .native import native_fmus
+
+    try:
+        return native_fmus(spec, fmu_dir / "native" if fmu_dir else None)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _cmd_list(args) -> int:

@@ -139,8 +139,11 @@ def _identifier(path: Path) -> str:
     return ident if ident and not ident[0].isdigit() else f"loop_{ident}"
 
 
-def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None) -> Path:
-    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``."""
+def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
+                fmus: dict[str, Path] | None = None) -> Path:
+    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
+    gives the FMU file of some instances (e.g. the native ones of
+    :func:`delaycomp.native.native_fmus`); the others come from their sources."""
     from .simulate import source_fmu
 
     Assembly = _toolbox()
@@ -150,7 +153,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None) -> Path:
         work = Path(tmp)
         files = {}
         for inst in _ordered(spec):
-            src = source_fmu(inst.source, fmu_dir)
+            src = Path((fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir))
             if not (work / src.name).exists():
                 shutil.copy2(src, work / src.name)
             files[inst.name] = src.name

@@ -68,6 +68,10 @@ def test_wheel_holds_every_package_and_the_data_commands_read(wheel):
         assert f"delaycomp/fmus/{readme.parent.name}/README.md" in names
     for loop in (REPO / "delaycomp" / "loops").glob("*.toml"):  # the scenarios as data
         assert f"delaycomp/loops/{loop.name}" in names
+    # the C sources that `build --native` compiles, and the C host
+    for source in (REPO / "fmus" / "native").rglob("*.[ch]"):
+        rel = source.relative_to(REPO / "fmus").as_posix()
+        assert f"delaycomp/fmus/{rel}" in names, f"fmus/{rel} is not in the wheel"
 
 
 def test_python_m_delaycomp_is_the_command(tmp_path):

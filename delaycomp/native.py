@@ -1,0 +1,422 @@
+"""Native C FMUs: the delay, the LTI plant and the LTI predictor-controller without Python.
+
+``delaycomp build --native --out DIR`` (:func:`build_native`) writes FMI 2.0 co-simulation
+FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs of
+:data:`delaycomp.build.FMUS`:
+
+1. **Same table.** The modelDescription is the Python FMU's own (the slave class, with the
+   same build configuration, writes its variables, value references, start values and
+   dependencies), with the co-simulation attributes of a C FMU, a pinned GUID of its own
+   and ``<SourceFiles>``. A generated ``config.h`` carries that table into C (value
+   references, names, types, causalities, start values written as hexadecimal floats).
+2. **Same maths and messages.** ``fmus/native/`` holds one FMI layer (``fmi2.c``: the
+   FMI 2.0 state machine, getters and setters, FMU state with buffers, serialization),
+   the linear algebra (``linalg.c``: the matrix exponential by scaling and squaring with
+   Pade approximants, and the exact flow of ``x' = A x + B u``), and one file per model.
+   A fault returns ``fmi2Error`` with the Python FMU's message logged.
+3. **Sources inside.** Each FMU carries its C sources and the FMI headers under
+   ``sources/`` (listed in modelDescription), so an importer can compile it for another
+   platform, and a binary for this one built with the system C compiler
+   (``$CC``, else ``cc``, ``gcc`` or ``clang``), ``-Wall -Wextra -Werror``.
+
+The FMI 2.0 headers are fmpy's copy (``fmpy/c-code``; fmpy is a dependency, so a wheel
+install has them) and go into each FMU's ``sources/``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from pathlib import Path
+from xml.etree.ElementTree import Element, SubElement, tostring
+
+import delaycomp
+import delaycomp.fmus
+
+from .build import CONFIG_NAME, DEFAULT_CONFIG, FMUS
+
+__all__ = ["NATIVE_KINDS", "NativeBuildError", "build_native", "build_native_fmu",
+           "compile_host", "compiler", "host_argv", "native_archive", "native_fmu_dir",
+           "native_fmu_path",
+           "native_fmus", "unpack"]
+
+#: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
+SOURCE_DIR = Path(delaycomp.fmus.__file__).resolve().parent / "native"
+#: FMU kind -> the model's C file; the FMI layer and the linear algebra are common
+NATIVE_KINDS: dict[str, str] = {"delay": "delay.c", "plant": "plant.c",
+                                "controller": "controller.c"}
+COMMON_SOURCES = ("fmi2.c", "linalg.c")
+COMMON_HEADERS = ("native.h",)
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+          "-Werror")
+
+
+class NativeBuildError(RuntimeError):
+    """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
+
+
+def compiler() -> list[str]:
+    """The C compiler command: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang``.
+
+    Raises
+    ------
+    NativeBuildError
+        No compiler found; the message names what to install.
+    """
+    cc = os.environ.get("CC")
+    if cc:
+        argv = shlex.split(cc)
+        if argv and shutil.which(argv[0]):
+            return argv
+        raise NativeBuildError(f"CC = {cc!r} is not allowed: no such program on PATH "
+                               "(set CC to a C compiler, or unset it)")
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return [path]
+    raise NativeBuildError("no C compiler found (looked for $CC, cc, gcc, clang): install "
+                           "one, e.g. `apt-get install gcc` (Debian/Ubuntu) or "
+                           "`xcode-select --install` (macOS), or set CC")
+
+
+def fmi_header_dir() -> Path:
+    """fmpy's copy of the FMI 2.0 headers."""
+    import fmpy
+
+    return Path(fmpy.__file__).resolve().parent / "c-code"
+
+
+def sources_digest() -> str:
+    """Digest of the C sources and this version (names the native build cache)."""
+    h = hashlib.sha256(delaycomp.__version__.encode())
+    for name in (*COMMON_SOURCES, *COMMON_HEADERS, *NATIVE_KINDS.values(), "README.md"):
+        h.update((SOURCE_DIR / name).read_bytes())
+    h.update(Path(__file__).read_bytes())
+    return h.hexdigest()[:12]
+
+
+def _c_string(text: str) -> str:
+    return json.dumps(text)  # a JSON string literal of ASCII text is a C string literal
+
+
+def _python_table(kind: str, config: dict) -> Element:
+    """The Python FMU's modelDescription for ``kind`` and ``config`` (not written to disk)."""
+    from delaycomp.orchestrator.inprocess import slave_class
+
+    cls, cfg = slave_class(kind, config)
+    slave = cls(instance_name="native-build", resources=None, config=cfg)
+    return slave.to_xml(dict(FMUS[kind].options))
+
+
+def _variables(root: Element) -> list[dict]:
+    out = []
+    for sv in root.find("ModelVariables"):
+        typ = next(iter(sv))
+        out.append({"name": sv.get("name"), "vr": int(sv.get("valueReference")),
+                    "causality": sv.get("causality"), "type": typ.tag,
+                    "start": typ.get("start")})
+    if [v["vr"] for v in out] != list(range(len(out))):
+        raise NativeBuildError("value references are not 0 .. N-1 in table order")
+    return out
+
+
+def _config_h(kind: str, config: dict, root: Element, guid: str) -> str:
+    variables = _variables(root)
+    n = int(config.get("n", 1))
+    m = int(config.get("m", n if kind == "delay" else 1))
+    ins = [v for v in variables if v["causality"] == "input"]
+    outs = [v for v in variables if v["causality"] == "output"]
+    code = {"Real": "r", "Integer": "i", "Boolean": "b", "String": "s"}
+    caus = {"parameter": "p", "input": "i", "output": "o"}
+    strings = [v for v in variables if v["type"] == "String"]
+    lines = [
+        "/* Generated by `delaycomp build --native` from the Python FMU's variable table:",
+        f" * {root.get('modelName')}, configuration {json.dumps(config, sort_keys=True)}. */",
+        "#ifndef DELAYCOMP_CONFIG_H", "#define DELAYCOMP_CONFIG_H", "",
+        f"#define KIND_{kind.upper()} 1",
+        f"#define INSTANTIATION_TOKEN {_c_string(guid)}",
+        f"#define NX {n if kind != 'delay' else len(ins)}",
+        f"#define NU {m if kind != 'delay' else len(ins)}",
+        f"#define NVR {len(variables)}",
+        f"#define NSTRING {len(strings)}",
+        f"#define OUTPUT_NAMES {_c_string(repr([v['name'] for v in outs]))}",
+    ]
+
+    def vr(name):
+        return next(v["vr"] for v in variables if v["name"] == name)
+
+    blocks = {"delay": {"VR_DELAY": "delay", "VR_U0": "u0[1]"},
+              "plant": {"VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_X0": "x0[1]"},
+              "controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_MODE": "mode",
+                             "VR_MODE_INDEX": "mode_index", "VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_K": "K[1,1]",
+                             "VR_U0": "u0[1]", "VR_HELD_SAMPLE": "held_sample"}}[kind]
+    for macro, name in blocks.items():
+        lines.append(f"#define {macro} {vr(name)}")
+    io = {"delay": ("VR_U", "VR_Y"), "plant": ("VR_U", "VR_X"),
+          "controller": ("VR_Y", "VR_UOUT")}[kind]
+    lines.append(f"#define {io[0]} {ins[0]['vr']}")
+    lines.append(f"#define {io[1]} {outs[0]['vr']}")
+    # the C code addresses matrices and vectors as contiguous blocks: check that they are
+    for group in (ins, outs):
+        if [v["vr"] for v in group] != list(range(group[0]["vr"], group[0]["vr"] + len(group))):
+            raise NativeBuildError("inputs and outputs must have consecutive value references")
+    lines += ["", "static const char *const VAR_NAME[NVR] = {"]
+    lines += [f"    {_c_string(v['name'])}," for v in variables]
+    lines += ["};", f"static const char VAR_TYPE[NVR + 1] = "
+              f"{_c_string(''.join(code[v['type']] for v in variables))};",
+              f"static const char VAR_CAUSALITY[NVR + 1] = "
+              f"{_c_string(''.join(caus[v['causality']] for v in variables))};",
+              "static const double REAL_START[NVR] = {"]
+    lines += [f"    {float(v['start']).hex() if v['type'] == 'Real' and v['start'] else '0.0'},"
+              for v in variables]
+    lines += ["};", "static const int BOOLEAN_START[NVR] = {"]
+    lines += [f"    {1 if v['type'] == 'Boolean' and v['start'] == 'true' else 0},"
+              for v in variables]
+    lines += ["};", "static const int INTEGER_START[NVR] = {"]
+    lines += [f"    {int(v['start']) if v['type'] == 'Integer' and v['start'] else 0},"
+              for v in variables]
+    lines += ["};"]
+    if strings:
+        slots = {v["vr"]: k for k, v in enumerate(strings)}
+        lines += ["static const char *const STRING_START[NSTRING] = {"]
+        lines += [f"    {_c_string(v['start'] or '')}," for v in strings]
+        lines += ["};", "static const int STRING_SLOT[NVR] = {"]
+        lines += [f"    {slots.get(v['vr'], -1)}," for v in variables]
+        lines += ["};"]
+    lines += ["", "#endif", ""]
+    return "\n".join(lines)
+
+
+def _native_description(kind: str, root: Element, ident: str, guid: str,
+                        sources: list[str]) -> bytes:
+    root.set("guid", guid)
+    root.set("generationTool", f"delaycomp {delaycomp.__version__} (native C)")
+    root.attrib.pop("generationDateAndTime", None)  # a rebuild gives the same file
+    cs = root.find("CoSimulation")
+    cs.set("needsExecutionTool", "false")
+    cs.set("canBeInstantiatedOnlyOncePerProcess", "false")
+    cs.set("canNotUseMemoryManagementFunctions", "true")
+    cs.set("modelIdentifier", ident)
+    files = Element("SourceFiles")
+    for name in sources:
+        SubElement(files, "File", attrib={"name": name})
+    cs.insert(0, files)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
+
+
+def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
+                     file_name: str | None = None) -> Path:
+    """Build the native FMU ``kind`` (``delay``, ``plant`` or ``controller``) into
+    ``out_dir`` and return its path.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`NATIVE_KINDS`.
+    out_dir : Path
+        Output folder (created).
+    config : dict, optional
+        The build configuration, as for :func:`delaycomp.build.build_fmu` (dimensions
+        ``n``, ``m``; names; an optional ``start`` table). Default: the scalar loop.
+    file_name : str, optional
+        Default ``<modelIdentifier>.fmu``.
+
+    Raises
+    ------
+    NativeBuildError
+        No C compiler, or it failed (its output is in the message).
+    ValueError
+        A kind without a native twin, or a bad dimension.
+    """
+    from delaycomp.fmuslave import pinned_guid
+
+    if kind not in NATIVE_KINDS:
+        raise ValueError(f"kind {kind!r} is not allowed for a native FMU: must be one of "
+                         f"{', '.join(NATIVE_KINDS)}")
+    cc = compiler()
+    config = dict(DEFAULT_CONFIG[kind] if config is None else config)
+    for key in ("n", "m"):
+        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
+            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
+                             "from 1 to 1000 (a dimension of the FMU)")
+    ident = FMUS[kind].model_identifier
+    root = _python_table(kind, config)
+    full = {**config, "version": delaycomp.__version__}
+    guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
+    model_c = NATIVE_KINDS[kind]
+    sources = [*COMMON_SOURCES, model_c]
+    description = _native_description(kind, root, ident, guid, sources)
+    import fmpy
+
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / (file_name or f"{ident}.fmu")
+    with tempfile.TemporaryDirectory(prefix="delaycomp-native-") as tmp:
+        stage = Path(tmp) / "fmu"
+        src = stage / "sources"
+        src.mkdir(parents=True)
+        for name in (*sources, *COMMON_HEADERS):
+            shutil.copy2(SOURCE_DIR / name, src / name)
+        for name in FMI_HEADERS:
+            shutil.copy2(fmi_header_dir() / name, src / name)
+        (src / "config.h").write_text(_config_h(kind, config, root, guid), encoding="utf-8")
+        binary = stage / "binaries" / fmpy.platform / f"{ident}.so"
+        binary.parent.mkdir(parents=True)
+        argv = [*cc, *CFLAGS, "-I", str(src), "-o", str(binary),
+                *(str(src / s) for s in sources), "-lm"]
+        proc = subprocess.run(argv, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise NativeBuildError(f"compiling the native {kind} FMU failed "
+                                   f"({' '.join(argv[:1])}):\n{proc.stderr.strip()}")
+        (stage / "modelDescription.xml").write_bytes(description)
+        res = stage / "resources"
+        res.mkdir()
+        (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True}, sort_keys=True),
+                                       encoding="utf-8")
+        doc = stage / "documentation"
+        doc.mkdir()
+        shutil.copy2(FMUS[kind].folder / "README.md", doc / "README.md")
+        shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
+        part = target.with_name(target.name + ".part")
+        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+            for path in sorted(stage.rglob("*")):
+                if path.is_file():
+                    zf.write(path, path.relative_to(stage).as_posix())
+        part.replace(target)
+    return target
+
+
+def build_native(out_dir: Path) -> list[Path]:
+    """Build the three native FMUs of the scalar LTI loop (default dimensions)."""
+    return [build_native_fmu(kind, out_dir) for kind in NATIVE_KINDS]
+
+
+def native_fmu_dir() -> Path:
+    """Build cache of native FMUs, beside the Python FMUs' cache, per source digest."""
+    from .simulate import default_fmu_dir
+
+    return default_fmu_dir().parent / f"native-{delaycomp.__version__}-{sources_digest()}"
+
+
+def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
+    """The native FMU for ``kind`` and ``config`` in ``fmu_dir`` (default: the cache),
+    built there if missing; an FMU already there is checked as
+    :func:`delaycomp.simulate.check_fmu` does, and must be native."""
+    from .errors import BadFileError
+    from .simulate import check_fmu, fmu_file_name
+
+    fmu_dir = Path(fmu_dir) if fmu_dir is not None else native_fmu_dir()
+    path = fmu_dir / fmu_file_name(kind, config)
+    if not path.exists():
+        build_native_fmu(kind, fmu_dir, config, path.name)
+        return path
+    check_fmu(path, kind, config)
+    with zipfile.ZipFile(path) as zf:
+        if not json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"):
+            raise BadFileError(path, "is a Python FMU, not a native one (use another "
+                                     "--fmu-dir, or delete it to rebuild)")
+    return path
+
+
+def compile_host(exe: Path) -> Path:
+    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``."""
+    proc = subprocess.run([*compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-I",
+                           str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"), "-o",
+                           str(exe), "-ldl", "-lm"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
+    return Path(exe)
+
+
+def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
+    """Unpack each FMU of ``fmus`` (instance -> file) into ``into/<instance>``."""
+    dirs = {}
+    for name, path in fmus.items():
+        dirs[name] = Path(into) / name
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(dirs[name])
+    return dirs
+
+
+def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
+              timing: bool = False) -> list[str]:
+    """The C host's command line for the scalar loop ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`) with the FMUs unpacked in ``dirs`` (instance ->
+    folder): stop time, base step, folders, every parameter."""
+    sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
+            for inst in loop.instances for k, v in inst.parameters.items()]
+    return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(loop.T / loop.N),
+            *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
+            *sets]
+
+
+def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
+    """Copy the SSP archive ``src`` to ``dest`` with each delaycomp FMU of ``resources/``
+    replaced by its native twin (same file name, variables and value references, built
+    for the configuration the FMU carries). The SSD, the parameter sets and any other file
+    are copied unchanged, so libcosim, Ecos and our master run the archive as before.
+
+    Raises
+    ------
+    ValueError
+        An FMU of the archive has no native twin (a user model's plant or controller).
+    """
+    kinds = {spec.model_identifier: kind for kind, spec in FMUS.items()
+             if kind in NATIVE_KINDS}
+    src, dest = Path(src), Path(dest)
+    part = dest.with_name(dest.name + ".part")
+    with tempfile.TemporaryDirectory(prefix="delaycomp-native-ssp-") as tmp, \
+            zipfile.ZipFile(src) as zin, \
+            zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename.startswith("resources/") and item.filename.endswith(".fmu"):
+                inner = Path(tmp) / Path(item.filename).name
+                inner.write_bytes(data)
+                from fmpy import read_model_description
+
+                ident = read_model_description(str(inner)).coSimulation.modelIdentifier
+                if ident not in kinds:
+                    raise ValueError(f"{item.filename} ({ident}) is not allowed in a native "
+                                     "archive: native FMUs exist for the delay, the LTI "
+                                     "plant and the LTI controller only")
+                with zipfile.ZipFile(inner) as zf:
+                    config = json.loads(zf.read(f"resources/{CONFIG_NAME}"))
+                config.pop("version", None)
+                config.pop("native", None)
+                built = build_native_fmu(kinds[ident], Path(tmp) / "native", config,
+                                         inner.name)
+                data = built.read_bytes()
+            zout.writestr(item, data)
+    part.replace(dest)
+    return dest
+
+
+def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:
+    """Native FMU files for every instance of ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`), to pass as ``fmus=`` to
+    :func:`delaycomp.simulate.run_loop`.
+
+    Raises
+    ------
+    ValueError
+        An instance has no native twin (a user model's plant or controller, a user's FMU).
+    """
+    from .system.loop import BuiltinFmu
+
+    for inst in loop.instances:
+        src = inst.source
+        if not (isinstance(src, BuiltinFmu) and src.kind in NATIVE_KINDS):
+            what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
+            raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
+                             f"is {what}; native FMUs exist for LTI loops only (the delay, "
+                             "the LTI plant and the LTI controller)")
+    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir)
+            for inst in loop.instances}

@@ -1,0 +1,265 @@
+/* DelaycompControllerLTI, native: the zero-order-hold predictor-controller of Theorem 3.2
+ * with the LTI predictor of Corollary 3.4, (3.15)-(3.16):
+ *
+ *   u_i = K Phi_i,  Phi_i = e^{A(r+tau)} y_i + sum_{p=1}^{l+q+1} Q_p B u_{i-p}
+ *   Q_p B = e^{A(p-1)T} G(T)        (p = 1 .. l+q),   G(s) = int_0^s e^{Aw} dw B
+ *   Q_{l+q+1} B = e^{A(l+q)T} G(r~)
+ *
+ * (compensated), or u_i = K y_i (uncompensated), held over [t_i, t_{i+1}). The twin of
+ * fmus/controller/delaycomp_controller_lti.py (delaycomp.controller.ZOHController and
+ * delaycomp.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
+ * included. Matrices are computed once, at fmi2ExitInitializationMode. */
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "native.h"
+
+#define EPS4 (4 * DBL_EPSILON)  /* round-off allowance on sampling-instant times */
+
+static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[VR_MODE]]; }
+
+static int compensated(const Instance *c) { return strcmp(mode_of(c), "compensated") == 0; }
+
+/* delaycomp.lti.split_delay: q = [r/T] and r~ = r - qT, integer up to round-off */
+static void split_delay(double r, double T, long *q, double *rest) {
+    double ratio = r / T;
+    double nearest = nearbyint(ratio);
+    if (fabs(ratio - nearest) <= GRID_RTOL * fmax(1.0, ratio)) {
+        *q = (long)nearest;
+        *rest = 0.0;
+        return;
+    }
+    double fl = floor(ratio);
+    *q = (long)fl;
+    *rest = fmax(r - fl * T, 0.0);
+}
+
+/* The Integer twin of mode (delaycomp.fmuslave, item 9): 0 leaves the String in charge,
+ * k = 1, 2 selects compensated, uncompensated; a String changed from its start value to
+ * another choice, or an index outside 0 .. 2, is refused. */
+static int resolve_mode_index(Instance *c) {
+    static const char *const choices[] = {"compensated", "uncompensated"};
+    int k = c->d.integer[VR_MODE_INDEX];
+    if (k == 0) return 0;
+    if (k < 1 || k > 2) {
+        log_error(c, "mode_index = %d is not allowed: must be 0 (as mode says) or 1 .. 2 "
+                  "(compensated, uncompensated)", k);
+        return -1;
+    }
+    char *mode = c->d.string[STRING_SLOT[VR_MODE]];
+    if (strcmp(mode, STRING_START[STRING_SLOT[VR_MODE]]) != 0 &&
+        strcmp(mode, choices[k - 1]) != 0) {
+        log_error(c, "mode = '%s' and mode_index = %d ('%s') disagree: set one of them", mode,
+                  k, choices[k - 1]);
+        return -1;
+    }
+    snprintf(mode, STRING_MAX, "%s", choices[k - 1]);
+    return 0;
+}
+
+int model_setup(Instance *c) {
+    Data *d = &c->d;
+    ModelData *m = &d->m;
+    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
+    m->built = 0;
+    if (resolve_mode_index(c) != 0) return -1;
+    if (alloc_buf(c, 0) != 0) return -1;
+    if (check_real_parameters_finite(c) != 0) return -1;
+    if (!(T > 0)) {
+        log_error(c, "T = %s is not allowed: must be > 0", num(T).s);
+        return -1;
+    }
+    if (r < 0) {
+        log_error(c, "r = %s is not allowed: must be >= 0", num(r).s);
+        return -1;
+    }
+    double steps = (r + tau) / T;
+    if (!(steps <= MAX_STEPS)) {
+        log_error(c, "r + tau = %s is not allowed: must be at most %.0f sampling periods of "
+                  "T = %s (it needs %.6g)", num(r + tau).s, MAX_STEPS, num(T).s, steps);
+        return -1;
+    }
+    long l = 0;
+    double tau_rest = 0.0;
+    if (tau >= 0) split_delay(tau, T, &l, &tau_rest);
+    if (tau < 0 || tau_rest != 0.0) {
+        log_error(c, "tau = %s is not allowed: must be a multiple l*T, l >= 0, of T = %s",
+                  num(tau).s, num(T).s);
+        return -1;
+    }
+    if (strcmp(mode_of(c), "compensated") != 0 && strcmp(mode_of(c), "uncompensated") != 0) {
+        log_error(c, "mode = '%s' is not allowed: must be one of compensated, uncompensated",
+                  mode_of(c));
+        return -1;
+    }
+    long q;
+    double rt;
+    split_delay(r, T, &q, &rt);
+    long L = l + q + 1;
+    size_t nE = (size_t)NX * NX, nQ = (size_t)NX * NU * (size_t)L;
+    if (alloc_buf(c, nE + nQ + (size_t)L * NU) != 0) return -1;
+    double *E = c->buf, *QB = c->buf + nE, *hist = QB + nQ;
+    const double *A = &d->real[VR_A], *B = &d->real[VR_B];
+    double *work = calloc(2 * nE + 2 * (size_t)NX * NU + nE, sizeof(double));
+    if (work == NULL) {
+        log_error(c, "out of memory computing the predictor");
+        return -1;
+    }
+    double *ET = work, *power = work + nE, *GT = work + 2 * nE, *G = GT + (size_t)NX * NU,
+           *tmp = G + (size_t)NX * NU;
+    double *As = tmp;  /* A (r + tau), then scratch */
+    for (size_t k = 0; k < nE; k++) As[k] = A[k] * (r + tau);
+    int fail = expm(As, NX, E);
+    fail |= flow(A, B, NX, NU, T, ET, GT);
+    for (size_t i = 0; i < NX; i++)
+        for (size_t j = 0; j < NX; j++) power[i * NX + j] = i == j ? 1.0 : 0.0;
+    size_t stride = (size_t)NU * (size_t)L;  /* QB is NX x (NU L), [Q_1 B, Q_2 B, ...] */
+    for (long p = 0; p < L && !fail; p++) {
+        if (p == L - 1) fail |= flow(A, B, NX, NU, rt, tmp, G);  /* tmp: e^{A r~}, unused */
+        const double *Gp = p == L - 1 ? G : GT;
+        for (size_t i = 0; i < NX; i++) {
+            for (size_t j = 0; j < NU; j++) {
+                double s = 0.0;
+                for (size_t k = 0; k < NX; k++) s += power[i * NX + k] * Gp[k * NU + j];
+                QB[i * stride + (size_t)p * NU + j] = s;
+            }
+        }
+        if (p < L - 1) {
+            matmul(power, ET, NX, NX, NX, tmp);
+            memcpy(power, tmp, nE * sizeof(double));
+        }
+    }
+    free(work);
+    if (fail) {
+        log_error(c, "out of memory computing the predictor");
+        return -1;
+    }
+    if (compensated(c)) {
+        int finite = 1;
+        for (size_t k = 0; k < nE + nQ; k++) finite &= isfinite(c->buf[k]) != 0;
+        if (!finite) {
+            char *text = matrix_text(A, NX, NX);
+            log_error(c, "A = %s is not allowed: must keep the predictor e^(A (r + tau)) "
+                      "finite for r + tau = %s (it overflows)", text ? text : "[...]",
+                      num(r + tau).s);
+            free(text);
+            return -1;
+        }
+    }
+    for (long p = 0; p < L; p++)
+        memcpy(hist + (size_t)p * NU, &d->real[VR_U0], NU * sizeof(double));
+    memcpy(m->held, &d->real[VR_U0], NU * sizeof(double));
+    m->l = l;
+    m->q = q;
+    m->L = L;
+    m->r_tilde = rt;
+    m->hist_head = 0;
+    m->next = 0;
+    m->at_sample = 1;
+    m->proposal_valid = 0;
+    m->y_held_valid = 0;
+    m->built = 1;
+    return 0;
+}
+
+/* u = K Phi(y, history) or K y, from the sampled measurement */
+static void propose(Instance *c, const double *y, double *u) {
+    const ModelData *m = &c->d.m;
+    const double *K = &c->d.real[VR_K];
+    double phi[NX];
+    if (compensated(c)) {
+        size_t nE = (size_t)NX * NX, stride = (size_t)NU * (size_t)m->L;
+        const double *E = c->buf, *QB = c->buf + nE, *hist = QB + (size_t)NX * stride;
+        for (size_t i = 0; i < NX; i++) {
+            double a = 0.0, b = 0.0;
+            for (size_t k = 0; k < NX; k++) a += E[i * NX + k] * y[k];
+            for (long p = 0; p < m->L; p++) {  /* u_{i-p-1}, newest first */
+                const double *up = hist + (size_t)((m->hist_head + p) % m->L) * NU;
+                for (size_t j = 0; j < NU; j++) b += QB[i * stride + (size_t)p * NU + j] * up[j];
+            }
+            phi[i] = a + b;
+        }
+        y = phi;
+    }
+    for (size_t j = 0; j < NU; j++) {
+        double s = 0.0;
+        for (size_t k = 0; k < NX; k++) s += K[j * NX + k] * y[k];
+        u[j] = s;
+    }
+}
+
+/* The current output; -1 (logged) when the feedback overflows */
+static int output(Instance *c, const double **u) {
+    ModelData *m = &c->d.m;
+    if (!m->built) { *u = &c->d.real[VR_U0]; return 0; }
+    if (!m->at_sample) { *u = m->held; return 0; }
+    if (!m->proposal_valid) {
+        const double *y = &c->d.real[VR_Y];
+        const double *sample = c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? m->y_held : y;
+        propose(c, sample, m->proposal);
+        m->proposal_valid = 1;
+        int finite = 1, y_finite = 1;
+        for (size_t j = 0; j < NU; j++) finite &= isfinite(m->proposal[j]) != 0;
+        for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
+        if (!finite && y_finite) {
+            char *text = vector_text(m->proposal, NU);
+            log_error(c, "control %s = %s at t = %s is not allowed: must be finite (the "
+                      "feedback overflowed)", OUTPUT_NAMES, text ? text : "[...]",
+                      num(c->d.t0 + (double)m->next * c->d.real[VR_T]).s);
+            free(text);
+            *u = m->proposal;
+            return -1;
+        }
+    }
+    *u = m->proposal;
+    return 0;
+}
+
+int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+    const double *u;
+    int rc = output(c, &u);
+    *value = u[vr - VR_UOUT];
+    return rc;
+}
+
+void model_input_set(Instance *c) { c->d.m.proposal_valid = 0; }
+
+int model_step(Instance *c, double t, double h) {
+    ModelData *m = &c->d.m;
+    if (!(isfinite(h) && h > 0)) {
+        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0",
+                  num(h).s, num(t).s);
+        return -1;
+    }
+    if (check_inputs_finite(c, VR_Y, NX, t) != 0) return -1;
+    if (m->at_sample) {  /* commit u_i: held, and the newest entry of the history */
+        const double *u;
+        if (output(c, &u) != 0) return -1;
+        double committed[NU];
+        memcpy(committed, u, NU * sizeof(double));
+        memcpy(m->held, committed, NU * sizeof(double));
+        double *hist = c->buf + (size_t)NX * NX + (size_t)NX * NU * (size_t)m->L;
+        m->hist_head = (m->hist_head + m->L - 1) % m->L;
+        memcpy(hist + (size_t)m->hist_head * NU, committed, NU * sizeof(double));
+        m->next += 1;
+        m->proposal_valid = 0;
+    }
+    double T = c->d.real[VR_T];
+    double t_end = t + h;
+    double t_sample = c->d.t0 + (double)m->next * T;
+    double tol = 1e-9 * T + EPS4 * fabs(t_end);
+    if (t_end > t_sample + tol) {
+        log_error(c, "step [%s, %s] is not allowed: it passes over the sampling instant %s; "
+                  "steps must end on t0 + iT", num(t).s, num(t_end).s, num(t_sample).s);
+        return -1;
+    }
+    m->at_sample = fabs(t_end - t_sample) <= tol;
+    if (c->d.boolean[VR_HELD_SAMPLE]) {
+        memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
+        m->y_held_valid = 1;
+        m->proposal_valid = 0;
+    }
+    return 0;
+}

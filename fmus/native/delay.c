@@ -1,0 +1,86 @@
+/* DelaycompDelay, native: y_k = u_{k-D} on n channels, u_j = u0 for j < 0.
+ * The twin of fmus/delay/delaycomp_delay.py (delaycomp.delayline.DelayLine): same
+ * variables, checks and messages. The buffer is a ring of D values per channel. */
+#include <math.h>
+#include <string.h>
+
+#include "native.h"
+
+int model_setup(Instance *c) {
+    double delay = c->d.real[VR_DELAY];  /* checked in the Python slave's order */
+    if (!isfinite(delay)) {
+        log_error(c, "delay = %s is not allowed: must be a finite number", num(delay).s);
+        return -1;
+    }
+    if (delay < 0) {
+        log_error(c, "delay = %s is not allowed: must be >= 0", num(delay).s);
+        return -1;
+    }
+    if (check_real_parameters_finite(c) != 0) return -1;  /* u0 */
+    c->d.m.has_line = 0;
+    c->d.m.D = 0;
+    c->d.m.h = 0.0;
+    c->d.m.head = 0;
+    return alloc_buf(c, 0);
+}
+
+int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+    size_t i = vr - VR_Y;
+    const ModelData *m = &c->d.m;
+    if (m->has_line)
+        *value = m->D == 0 ? c->d.real[VR_U + i] : c->buf[(size_t)m->head * NX + i];
+    else
+        *value = c->d.real[VR_DELAY] == 0.0 ? c->d.real[VR_U + i] : c->d.real[VR_U0 + i];
+    return 0;
+}
+
+void model_input_set(Instance *c) { (void)c; }
+
+/* delaycomp.delayline.steps_of (delaycomp.grid.steps_of): D with delay = D h, or -1
+ * with a logged error */
+static long steps_of(Instance *c, double delay, double h) {
+    double ratio = delay / h;
+    if (!(ratio <= MAX_STEPS)) {
+        log_error(c, "delay = %s is not allowed: must be at most %.0f steps of the "
+                  "communication step %s (it needs %.6g)", num(delay).s, MAX_STEPS, num(h).s,
+                  ratio);
+        return -1;
+    }
+    double D = nearbyint(ratio);
+    if (fabs(ratio - D) > GRID_RTOL * fmax(1.0, ratio)) {
+        log_error(c, "delay = %s is not allowed: must be a multiple of the communication "
+                  "step %s", num(delay).s, num(h).s);
+        return -1;
+    }
+    return (long)D;
+}
+
+int model_step(Instance *c, double t, double h) {
+    ModelData *m = &c->d.m;
+    if (!(isfinite(h) && h > 0)) {
+        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0",
+                  num(h).s, num(t).s);
+        return -1;
+    }
+    if (!m->has_line) {
+        long D = steps_of(c, c->d.real[VR_DELAY], h);
+        if (D < 0) return -1;
+        if (alloc_buf(c, (size_t)D * NX) != 0) return -1;
+        for (long k = 0; k < D; k++)
+            memcpy(c->buf + (size_t)k * NX, &c->d.real[VR_U0], NX * sizeof(double));
+        m->D = D;
+        m->head = 0;
+        m->h = h;
+        m->has_line = 1;
+    } else if (fabs(h - m->h) > GRID_RTOL * m->h) {
+        log_error(c, "step size %s is not allowed: this delay runs on a fixed communication "
+                  "step, %s", num(h).s, num(m->h).s);
+        return -1;
+    }
+    if (check_inputs_finite(c, VR_U, NX, t) != 0) return -1;
+    if (m->D > 0) {  /* the oldest value leaves, u_k takes its place */
+        memcpy(c->buf + (size_t)m->head * NX, &c->d.real[VR_U], NX * sizeof(double));
+        m->head = (m->head + 1) % m->D;
+    }
+    return 0;
+}

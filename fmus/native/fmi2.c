@@ -1,0 +1,735 @@
+/* The FMI 2.0 co-simulation interface of the delaycomp native FMUs, written once.
+ *
+ * State machine of FMI 2.0.4, section 4.2.4: every function checks the state it is called
+ * in and refuses a call in the wrong state with fmi2Error and a logged message (the state
+ * is left as it was). A fault of the model (a bad parameter at fmi2ExitInitializationMode,
+ * a non-finite input or a step it cannot take at fmi2DoStep, an output that overflows)
+ * logs the reason, returns fmi2Error and puts the instance into the error state, from
+ * which only getters, FMU-state calls, fmi2Reset and fmi2FreeInstance are accepted.
+ * The FMU state holds everything (Data and the model buffer), so a restored instance
+ * continues bit-identically; it serializes to a self-checking byte string.
+ * Memory: the C library's calloc/free (canNotUseMemoryManagementFunctions = true).
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "native.h"
+
+#define ANY_STATE (StateInstantiated | StateInitializationMode | StateStepComplete | \
+                   StateTerminated | StateError)
+#define MASK_GET (StateInitializationMode | StateStepComplete | StateTerminated | StateError)
+#define MASK_SET_PARAMETER (StateInstantiated | StateInitializationMode)
+#define MASK_SET_INPUT (StateInstantiated | StateInitializationMode | StateStepComplete)
+#define MASK_STATE (ANY_STATE)
+
+static const char *state_name(FsmState s) {
+    switch (s) {
+    case StateInstantiated: return "instantiated";
+    case StateInitializationMode: return "initialization mode";
+    case StateStepComplete: return "step complete";
+    case StateTerminated: return "terminated";
+    case StateError: return "error";
+    }
+    return "unknown";
+}
+
+/* ---- logging ------------------------------------------------------------------------ */
+static void vlog(Instance *c, fmi2Status status, const char *category, const char *fmt,
+                 va_list ap) {
+    char stack[1024];
+    va_list copy;
+    va_copy(copy, ap);
+    int len = vsnprintf(stack, sizeof stack, fmt, copy);
+    va_end(copy);
+    if (len < 0 || c->cb.logger == NULL) return;
+    if ((size_t)len < sizeof stack) {
+        c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s",
+                     stack);
+        return;
+    }
+    char *heap = malloc((size_t)len + 1);
+    if (heap == NULL) {  /* the message, cut: better than none */
+        c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s",
+                     stack);
+        return;
+    }
+    vsnprintf(heap, (size_t)len + 1, fmt, ap);
+    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", heap);
+    free(heap);
+}
+
+void log_error(Instance *c, const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    vlog(c, fmi2Error, "logStatusError", fmt, ap);
+    va_end(ap);
+}
+
+void log_info(Instance *c, const char *fmt, ...) {
+    if (!c->logging_on) return;
+    va_list ap;
+    va_start(ap, fmt);
+    vlog(c, fmi2OK, "logAll", fmt, ap);
+    va_end(ap);
+}
+
+/* ---- helpers shared by the models ----------------------------------------------------- */
+/* "d.ddde+XX" with its last mantissa digit one up or one down, if that reads back as v
+ * (printf rounds an exact decimal tie to even; the shortest repr may be the other side) */
+static int nudge_last_digit(char *text, double v) {
+    char *e = strchr(text, 'e');
+    if (e == NULL || e == text) return 0;
+    for (int dir = 1; dir >= -1; dir -= 2) {
+        char trial[40];
+        snprintf(trial, sizeof trial, "%s", text);
+        char *d = trial + (e - text) - 1;
+        if (*d == '.') d--;
+        if (dir > 0 && *d == '9') continue;  /* would carry: not a tie neighbour here */
+        if (dir < 0 && *d == '0') continue;
+        *d = (char)(*d + dir);
+        if (strtod(trial, NULL) == v) {
+            memcpy(text, trial, strlen(trial) + 1);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+Num num(double v) {
+    Num n;
+    if (isnan(v)) { snprintf(n.s, sizeof n.s, "nan"); return n; }
+    if (isinf(v)) { snprintf(n.s, sizeof n.s, v > 0 ? "inf" : "-inf"); return n; }
+    int p = 1;  /* the fewest significant digits that read back exactly */
+    for (; p < 17; p++) {
+        snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
+        if (strtod(n.s, NULL) == v) break;
+        if (nudge_last_digit(n.s, v)) break;  /* an exact tie rounded the other way */
+    }
+    if (p == 17) snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
+    int exp10 = atoi(strchr(n.s, 'e') + 1);
+    if (exp10 >= -4 && exp10 < 16) {  /* Python's repr: positional in this range */
+        int decimals = p - 1 - exp10;
+        snprintf(n.s, sizeof n.s, "%.*f", decimals > 0 ? decimals : 0, v);
+        if (strchr(n.s, '.') == NULL) strcat(n.s, ".0");  /* Python writes 1.0, not 1 */
+    }
+    return n;
+}
+
+static int append(char **buf, size_t *len, size_t *cap, const char *text) {
+    size_t add = strlen(text);
+    if (*len + add + 1 > *cap) {
+        size_t cap2 = (*cap + add + 1) * 2;
+        char *b = realloc(*buf, cap2);
+        if (b == NULL) return -1;
+        *buf = b;
+        *cap = cap2;
+    }
+    memcpy(*buf + *len, text, add + 1);
+    *len += add;
+    return 0;
+}
+
+char *matrix_text(const double *a, size_t rows, size_t cols) {
+    char *buf = NULL;
+    size_t len = 0, cap = 0;
+    int bad = append(&buf, &len, &cap, rows > 1 || cols > 0 ? "[" : "");
+    for (size_t i = 0; i < rows && !bad; i++) {
+        bad |= append(&buf, &len, &cap, i ? ", [" : "[");
+        for (size_t j = 0; j < cols && !bad; j++) {
+            if (j) bad |= append(&buf, &len, &cap, ", ");
+            bad |= append(&buf, &len, &cap, num(a[i * cols + j]).s);
+        }
+        bad |= append(&buf, &len, &cap, "]");
+    }
+    bad |= append(&buf, &len, &cap, "]");
+    if (bad) { free(buf); return NULL; }
+    return buf;
+}
+
+char *vector_text(const double *v, size_t n) {
+    char *buf = NULL;
+    size_t len = 0, cap = 0;
+    int bad = append(&buf, &len, &cap, "[");
+    for (size_t j = 0; j < n && !bad; j++) {
+        if (j) bad |= append(&buf, &len, &cap, ", ");
+        bad |= append(&buf, &len, &cap, num(v[j]).s);
+    }
+    bad |= append(&buf, &len, &cap, "]");
+    if (bad) { free(buf); return NULL; }
+    return buf;
+}
+
+int check_real_parameters_finite(Instance *c) {
+    for (size_t vr = 0; vr < NVR; vr++) {
+        if (VAR_TYPE[vr] == 'r' && VAR_CAUSALITY[vr] == 'p' && !isfinite(c->d.real[vr])) {
+            log_error(c, "%s = %s is not allowed: must be a finite number", VAR_NAME[vr],
+                      num(c->d.real[vr]).s);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
+    for (size_t k = 0; k < count; k++) {
+        double v = c->d.real[first + k];
+        if (!isfinite(v)) {
+            log_error(c, "input %s = %s at t = %s is not allowed: must be a finite number",
+                      VAR_NAME[first + k], num(v).s, num(t).s);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+int alloc_buf(Instance *c, size_t n) {
+    free(c->buf);
+    c->buf = NULL;
+    c->nbuf = 0;
+    if (n == 0) return 0;
+    c->buf = calloc(n, sizeof(double));
+    if (c->buf == NULL) {
+        log_error(c, "out of memory: the model needs %zu numbers", n);
+        return -1;
+    }
+    c->nbuf = n;
+    return 0;
+}
+
+/* ---- state machine ------------------------------------------------------------------- */
+static int allowed(Instance *c, const char *fn, int mask) {
+    if (c == NULL) return 0;
+    if (c->d.state & mask) return 1;
+    log_error(c, "%s is not allowed in state '%s' (FMI 2.0 co-simulation state machine)", fn,
+              state_name(c->d.state));
+    return 0;
+}
+
+static fmi2Status model_fault(Instance *c) {
+    c->d.state = StateError;
+    return fmi2Error;
+}
+
+static void set_start_values(Instance *c) {
+    memset(&c->d, 0, sizeof c->d);
+    for (size_t vr = 0; vr < NVR; vr++) {
+        c->d.real[vr] = REAL_START[vr];
+        c->d.boolean[vr] = BOOLEAN_START[vr];
+        c->d.integer[vr] = INTEGER_START[vr];
+    }
+#if NSTRING > 0
+    for (size_t k = 0; k < NSTRING; k++)
+        snprintf(c->d.string[k], STRING_MAX, "%s", STRING_START[k]);
+#endif
+    c->d.state = StateInstantiated;
+}
+
+/* ---- common functions -------------------------------------------------------------- */
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn,
+                               size_t nCategories, const fmi2String categories[]) {
+    Instance *c = comp;
+    (void)nCategories;
+    (void)categories;
+    if (c == NULL) return fmi2Error;
+    c->logging_on = loggingOn ? 1 : 0;
+    return fmi2OK;
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation,
+                              const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                              fmi2Boolean loggingOn) {
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (functions == NULL || functions->logger == NULL) return NULL;
+    const char *name = instanceName ? instanceName : "";
+    if (fmuType != fmi2CoSimulation) {
+        functions->logger(functions->componentEnvironment, name, fmi2Error, "logStatusError",
+                          "%s", "fmuType is not allowed: this FMU supports only "
+                                "fmi2CoSimulation");
+        return NULL;
+    }
+    if (fmuGUID == NULL || strcmp(fmuGUID, INSTANTIATION_TOKEN) != 0) {
+        functions->logger(functions->componentEnvironment, name, fmi2Error, "logStatusError",
+                          "GUID %s is not allowed: this FMU is %s", fmuGUID ? fmuGUID : "(null)",
+                          INSTANTIATION_TOKEN);
+        return NULL;
+    }
+    Instance *c = calloc(1, sizeof *c);
+    if (c == NULL) return NULL;
+    c->instance_name = malloc(strlen(name) + 1);
+    if (c->instance_name == NULL) { free(c); return NULL; }
+    strcpy(c->instance_name, name);
+    c->cb = *functions;
+    c->logging_on = loggingOn ? 1 : 0;
+    set_start_values(c);
+    return c;
+}
+
+void fmi2FreeInstance(fmi2Component comp) {
+    Instance *c = comp;
+    if (c == NULL) return;
+    free(c->buf);
+    free(c->instance_name);
+    free(c);
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
+                               fmi2Real tolerance, fmi2Real startTime,
+                               fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    Instance *c = comp;
+    (void)toleranceDefined;
+    (void)tolerance;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    if (!allowed(c, "fmi2SetupExperiment", StateInstantiated)) return fmi2Error;
+    if (!isfinite(startTime)) {
+        log_error(c, "startTime = %s is not allowed: must be a finite number",
+                  num(startTime).s);
+        return fmi2Error;
+    }
+    c->d.t0 = startTime;
+    c->d.time = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2EnterInitializationMode", StateInstantiated)) return fmi2Error;
+    c->d.state = StateInitializationMode;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2ExitInitializationMode", StateInitializationMode)) return fmi2Error;
+    c->d.time = c->d.t0;
+    if (model_setup(c) != 0) return model_fault(c);
+    c->d.state = StateStepComplete;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component comp) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2Terminate", StateStepComplete)) return fmi2Error;
+    c->d.state = StateTerminated;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component comp) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2Reset", ANY_STATE)) return fmi2Error;
+    free(c->buf);
+    c->buf = NULL;
+    c->nbuf = 0;
+    set_start_values(c);
+    return fmi2OK;
+}
+
+/* ---- getters and setters ---------------------------------------------------------- */
+static int check_vr(Instance *c, const char *fn, fmi2ValueReference vr, char type) {
+    static const char *const type_names[] = {"Real", "Integer", "Boolean", "String"};
+    const char *tname = type == 'r' ? type_names[0] : type == 'i' ? type_names[1]
+                      : type == 'b' ? type_names[2] : type_names[3];
+    if (vr >= NVR || VAR_TYPE[vr] != type) {
+        log_error(c, "%s: value reference %u is not allowed: it is not a %s variable of this "
+                  "FMU", fn, (unsigned)vr, tname);
+        return 0;
+    }
+    return 1;
+}
+
+static int check_settable(Instance *c, const char *fn, fmi2ValueReference vr) {
+    if (VAR_CAUSALITY[vr] == 'o') {
+        log_error(c, "%s: %s is an output: it cannot be set", fn, VAR_NAME[vr]);
+        return 0;
+    }
+    if (VAR_CAUSALITY[vr] == 'p' && !(c->d.state & MASK_SET_PARAMETER)) {
+        log_error(c, "%s: %s is a fixed parameter: it can be set only before "
+                  "fmi2ExitInitializationMode (state is '%s')", fn, VAR_NAME[vr],
+                  state_name(c->d.state));
+        return 0;
+    }
+    return 1;
+}
+
+fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2GetReal", MASK_GET)) return fmi2Error;
+    if (nvr > 0 && (vr == NULL || value == NULL)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2GetReal", vr[k], 'r')) return fmi2Error;
+        if (VAR_CAUSALITY[vr[k]] == 'o') {
+            if (model_output(c, vr[k], &value[k]) != 0) return model_fault(c);
+        } else {
+            value[k] = c->d.real[vr[k]];
+        }
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Integer value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2GetInteger", MASK_GET)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2GetInteger", vr[k], 'i')) return fmi2Error;
+        value[k] = c->d.integer[vr[k]];
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          fmi2Boolean value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2GetBoolean", MASK_GET)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2GetBoolean", vr[k], 'b')) return fmi2Error;
+        value[k] = c->d.boolean[vr[k]] ? fmi2True : fmi2False;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                         fmi2String value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2GetString", MASK_GET)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2GetString", vr[k], 's')) return fmi2Error;
+#if NSTRING > 0
+        value[k] = c->d.string[STRING_SLOT[vr[k]]];
+#else
+        (void)value;
+#endif
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                       const fmi2Real value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2SetReal", MASK_SET_INPUT)) return fmi2Error;
+    if (nvr > 0 && (vr == NULL || value == NULL)) return fmi2Error;
+    int inputs = 0;
+    for (size_t k = 0; k < nvr; k++) {  /* all or nothing */
+        if (!check_vr(c, "fmi2SetReal", vr[k], 'r') || !check_settable(c, "fmi2SetReal", vr[k]))
+            return fmi2Error;
+    }
+    for (size_t k = 0; k < nvr; k++) {
+        c->d.real[vr[k]] = value[k];
+        inputs |= VAR_CAUSALITY[vr[k]] == 'i';
+    }
+    if (inputs) model_input_set(c);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Integer value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2SetInteger", MASK_SET_INPUT)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2SetInteger", vr[k], 'i') ||
+            !check_settable(c, "fmi2SetInteger", vr[k]))
+            return fmi2Error;
+    }
+    for (size_t k = 0; k < nvr; k++) c->d.integer[vr[k]] = value[k];
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                          const fmi2Boolean value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2SetBoolean", MASK_SET_INPUT)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2SetBoolean", vr[k], 'b') ||
+            !check_settable(c, "fmi2SetBoolean", vr[k]))
+            return fmi2Error;
+    }
+    for (size_t k = 0; k < nvr; k++) c->d.boolean[vr[k]] = value[k] ? 1 : 0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
+                         const fmi2String value[]) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2SetString", MASK_SET_INPUT)) return fmi2Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (!check_vr(c, "fmi2SetString", vr[k], 's') ||
+            !check_settable(c, "fmi2SetString", vr[k]))
+            return fmi2Error;
+        if (value[k] == NULL || strlen(value[k]) >= STRING_MAX) {
+            log_error(c, "%s is not allowed: must be a string of at most %d characters",
+                      VAR_NAME[vr[k]], STRING_MAX - 1);
+            return fmi2Error;
+        }
+    }
+#if NSTRING > 0
+    for (size_t k = 0; k < nvr; k++)
+        snprintf(c->d.string[STRING_SLOT[vr[k]]], STRING_MAX, "%s", value[k]);
+#endif
+    return fmi2OK;
+}
+
+/* ---- FMU state ------------------------------------------------------------------------ */
+#define MAGIC "DCNATIV1"
+
+typedef struct {
+    char magic[8];
+    char token[64];
+    uint64_t data_size;
+    uint64_t nbuf;
+} Header;
+
+typedef struct {
+    Header h;
+    Data d;
+    double buf[];
+} Snapshot;
+
+static Snapshot *snapshot_new(size_t nbuf) {
+    Snapshot *s = calloc(1, sizeof(Snapshot) + nbuf * sizeof(double));
+    if (s == NULL) return NULL;
+    memcpy(s->h.magic, MAGIC, 8);
+    snprintf(s->h.token, sizeof s->h.token, "%s", INSTANTIATION_TOKEN);
+    s->h.data_size = sizeof(Data);
+    s->h.nbuf = nbuf;
+    return s;
+}
+
+static int model_state_ok(const Data *d, size_t nbuf);
+
+fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2GetFMUstate", MASK_STATE)) return fmi2Error;
+    if (FMUstate == NULL) return fmi2Error;
+    Snapshot *s = *FMUstate;
+    if (s == NULL || s->h.nbuf != c->nbuf) {  /* a new snapshot, or one of another size */
+        Snapshot *fresh = snapshot_new(c->nbuf);
+        if (fresh == NULL) {
+            log_error(c, "fmi2GetFMUstate: out of memory");
+            return fmi2Error;
+        }
+        free(s);
+        s = fresh;
+    }
+    s->d = c->d;
+    if (c->nbuf) memcpy(s->buf, c->buf, c->nbuf * sizeof(double));
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+static int snapshot_valid(Instance *c, const Snapshot *s, const char *fn) {
+    if (memcmp(s->h.magic, MAGIC, 8) != 0 || strcmp(s->h.token, INSTANTIATION_TOKEN) != 0 ||
+        s->h.data_size != sizeof(Data) || !model_state_ok(&s->d, (size_t)s->h.nbuf)) {
+        log_error(c, "%s: FMU state is not allowed: it is not a consistent state of this FMU "
+                  "(%s)", fn, INSTANTIATION_TOKEN);
+        return 0;
+    }
+    return 1;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
+    Instance *c = comp;
+    if (!allowed(c, "fmi2SetFMUstate", MASK_STATE)) return fmi2Error;
+    const Snapshot *s = FMUstate;
+    if (s == NULL) {
+        log_error(c, "fmi2SetFMUstate: FMU state is not allowed: NULL");
+        return fmi2Error;
+    }
+    if (!snapshot_valid(c, s, "fmi2SetFMUstate")) return fmi2Error;
+    double *buf = NULL;
+    if (s->h.nbuf) {
+        buf = malloc((size_t)s->h.nbuf * sizeof(double));
+        if (buf == NULL) {
+            log_error(c, "fmi2SetFMUstate: out of memory");
+            return fmi2Error;
+        }
+        memcpy(buf, s->buf, (size_t)s->h.nbuf * sizeof(double));
+    }
+    free(c->buf);
+    c->buf = buf;
+    c->nbuf = (size_t)s->h.nbuf;
+    c->d = s->d;
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
+    Instance *c = comp;
+    if (c == NULL) return fmi2Error;
+    if (FMUstate != NULL) {
+        free(*FMUstate);
+        *FMUstate = NULL;  /* a second free of the same pointer is harmless */
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate,
+                                      size_t *size) {
+    Instance *c = comp;
+    if (c == NULL || FMUstate == NULL || size == NULL) return fmi2Error;
+    const Snapshot *s = FMUstate;
+    *size = sizeof(Snapshot) + (size_t)s->h.nbuf * sizeof(double);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
+                                 fmi2Byte serializedState[], size_t size) {
+    Instance *c = comp;
+    if (c == NULL || FMUstate == NULL || serializedState == NULL) return fmi2Error;
+    const Snapshot *s = FMUstate;
+    size_t need = sizeof(Snapshot) + (size_t)s->h.nbuf * sizeof(double);
+    if (size < need) {
+        log_error(c, "fmi2SerializeFMUstate: size = %zu is not allowed: must be at least %zu",
+                  size, need);
+        return fmi2Error;
+    }
+    memcpy(serializedState, s, need);
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[],
+                                   size_t size, fmi2FMUstate *FMUstate) {
+    Instance *c = comp;
+    if (c == NULL || serializedState == NULL || FMUstate == NULL) return fmi2Error;
+    Header h;
+    if (size < sizeof(Snapshot)) {
+        log_error(c, "fmi2DeSerializeFMUstate: %zu bytes are not allowed: not a state of "
+                  "this FMU (too short)", size);
+        return fmi2Error;
+    }
+    memcpy(&h, serializedState, sizeof h);
+    if (h.nbuf > (size - sizeof(Snapshot)) / sizeof(double) ||
+        size != sizeof(Snapshot) + (size_t)h.nbuf * sizeof(double)) {
+        log_error(c, "fmi2DeSerializeFMUstate: %zu bytes are not allowed: not a state of "
+                  "this FMU (wrong length)", size);
+        return fmi2Error;
+    }
+    Snapshot *s = malloc(size);
+    if (s == NULL) {
+        log_error(c, "fmi2DeSerializeFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memcpy(s, serializedState, size);
+    if (!snapshot_valid(c, s, "fmi2DeSerializeFMUstate")) {
+        free(s);
+        return fmi2Error;
+    }
+    free(*FMUstate);  /* FMI 2.0: a non-NULL *FMUstate is the state to overwrite */
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp,
+                                        const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[],
+                                        size_t nKnown, const fmi2Real dvKnown[],
+                                        fmi2Real dvUnknown[]) {
+    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown;
+    (void)dvUnknown;
+    Instance *c = comp;
+    if (c != NULL)
+        log_error(c, "fmi2GetDirectionalDerivative is not allowed: "
+                  "providesDirectionalDerivative is false");
+    return fmi2Error;
+}
+
+/* ---- co-simulation -------------------------------------------------------------------- */
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
+                                       size_t nvr, const fmi2Integer order[],
+                                       const fmi2Real value[]) {
+    (void)vr; (void)nvr; (void)order; (void)value;
+    Instance *c = comp;
+    if (c != NULL)
+        log_error(c, "fmi2SetRealInputDerivatives is not allowed: canInterpolateInputs is "
+                  "false");
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
+                                        size_t nvr, const fmi2Integer order[],
+                                        fmi2Real value[]) {
+    (void)vr; (void)nvr; (void)order; (void)value;
+    Instance *c = comp;
+    if (c != NULL)
+        log_error(c, "fmi2GetRealOutputDerivatives is not allowed: "
+                  "maxOutputDerivativeOrder is 0");
+    return fmi2Error;
+}
+
+fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
+                      fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    Instance *c = comp;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (!allowed(c, "fmi2DoStep", StateStepComplete)) return fmi2Error;
+    if (model_step(c, currentCommunicationPoint, communicationStepSize) != 0)
+        return model_fault(c);
+    c->d.time = currentCommunicationPoint + communicationStepSize;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component comp) {
+    Instance *c = comp;
+    if (c != NULL)
+        log_error(c, "fmi2CancelStep is not allowed: fmi2DoStep never returns fmi2Pending");
+    return fmi2Error;
+}
+
+static fmi2Status no_status(fmi2Component comp, const char *fn) {
+    Instance *c = comp;
+    if (c != NULL)
+        log_error(c, "%s is not allowed: fmi2DoStep never returns fmi2Pending", fn);
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    (void)s; (void)value;
+    return no_status(c, "fmi2GetStatus");
+}
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
+    (void)s; (void)value;
+    return no_status(c, "fmi2GetRealStatus");
+}
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    (void)s; (void)value;
+    return no_status(c, "fmi2GetIntegerStatus");
+}
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    (void)s; (void)value;
+    return no_status(c, "fmi2GetBooleanStatus");
+}
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    (void)s; (void)value;
+    return no_status(c, "fmi2GetStringStatus");
+}
+
+/* The model's check of a restored state: buffer sizes and positions in range. */
+static int model_state_ok(const Data *d, size_t nbuf) {
+    int st = d->state;
+    if (st != StateInstantiated && st != StateInitializationMode && st != StateStepComplete &&
+        st != StateTerminated && st != StateError)
+        return 0;
+#if defined(KIND_DELAY)
+    if (!d->m.has_line) return nbuf == 0;
+    return d->m.D >= 0 && (size_t)d->m.D * NX == nbuf &&
+           (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
+#elif defined(KIND_PLANT)
+    return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU;
+#elif defined(KIND_CONTROLLER)
+    if (!d->m.built) return nbuf == 0;
+    return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&
+           nbuf == (size_t)NX * NX + (size_t)NX * NU * d->m.L + (size_t)d->m.L * NU &&
+           d->m.hist_head >= 0 && d->m.hist_head < d->m.L;
+#else
+    (void)d;
+    (void)nbuf;
+    return 0;
+#endif
+}

@@ -1,0 +1,252 @@
+/* A small closed-loop FMI 2.0 co-simulation host in C (no Python anywhere).
+ *
+ * Runs the scalar loop  plant -> meas_delay -> controller -> input_delay -> plant  of
+ * delaycomp's LTI scenarios with the FMUs unpacked in four folders (the two delays may
+ * share one). Value references, types, GUIDs and model identifiers are read from each
+ * folder's modelDescription.xml. The step order is delaycomp's master (Gauss-Seidel along
+ * the signal chain, orchestrator/master.py): at t_k = t0 + k h the plant's state is read,
+ * passed through the measurement delay to the controller, the control through the input
+ * delay to the plant; then every FMU steps from t_k to t_k + h. One CSV row per tick,
+ * written to stdout after the run: time, plant.x, controller.u (%.17g, exact).
+ *
+ * usage: host [--timing] STOP_TIME H plant=DIR meas_delay=DIR controller=DIR input_delay=DIR
+ *             [INSTANCE.VARIABLE=VALUE ...]
+ * --timing: print the wall time of the stepping loop (initialization excluded) to stderr.
+ * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <dlfcn.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "fmi2Functions.h"
+
+#define NI 4
+static const char *const NAMES[NI] = {"plant", "meas_delay", "controller", "input_delay"};
+
+typedef struct {
+    char dir[4096];
+    char *xml;
+    char guid[128], ident[256];
+    void *lib;
+    fmi2Component c;
+    fmi2InstantiateTYPE *instantiate;
+    fmi2FreeInstanceTYPE *free_instance;
+    fmi2SetupExperimentTYPE *setup;
+    fmi2EnterInitializationModeTYPE *enter;
+    fmi2ExitInitializationModeTYPE *exit_init;
+    fmi2TerminateTYPE *terminate;
+    fmi2SetRealTYPE *set_real;
+    fmi2GetRealTYPE *get_real;
+    fmi2SetBooleanTYPE *set_boolean;
+    fmi2SetStringTYPE *set_string;
+    fmi2DoStepTYPE *do_step;
+} Fmu;
+
+static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
+                   fmi2String category, fmi2String message, ...) {
+    (void)env;
+    va_list ap;
+    va_start(ap, message);
+    fprintf(stderr, "[%s %d %s] ", name, (int)status, category);
+    vfprintf(stderr, message, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+}
+
+static void die(const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("host: error: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+    exit(1);
+}
+
+static char *read_file(const char *path) {
+    FILE *f = fopen(path, "rb");
+    if (f == NULL) die("cannot read %s", path);
+    fseek(f, 0, SEEK_END);
+    long size = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *text = malloc((size_t)size + 1);
+    if (text == NULL || fread(text, 1, (size_t)size, f) != (size_t)size) die("cannot read %s", path);
+    text[size] = '\0';
+    fclose(f);
+    return text;
+}
+
+/* the value of attribute `attr` in the tag that starts at `tag` (up to its '>') */
+static int attribute(const char *tag, const char *attr, char *out, size_t size) {
+    const char *end = strchr(tag, '>');
+    char key[64];
+    snprintf(key, sizeof key, " %s=\"", attr);
+    const char *p = strstr(tag, key);
+    if (p == NULL || (end && p > end)) return 0;
+    p += strlen(key);
+    const char *q = strchr(p, '"');
+    if (q == NULL || (size_t)(q - p) >= size) return 0;
+    memcpy(out, p, (size_t)(q - p));
+    out[q - p] = '\0';
+    return 1;
+}
+
+/* value reference and type (Real, Boolean, String) of variable `name` */
+static fmi2ValueReference lookup(const Fmu *f, const char *name, char *type) {
+    char want[300], vr[32];
+    snprintf(want, sizeof want, " name=\"%s\"", name);
+    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
+        const char *end = strchr(p, '>');
+        const char *hit = strstr(p, want);
+        if (hit == NULL || hit > end) continue;
+        if (!attribute(p, "valueReference", vr, sizeof vr)) die("%s: no valueReference", name);
+        const char *t = end + 1;
+        while (*t && *t != '<') t++;
+        if (strncmp(t, "<Real", 5) == 0) *type = 'r';
+        else if (strncmp(t, "<Boolean", 8) == 0) *type = 'b';
+        else if (strncmp(t, "<String", 7) == 0) *type = 's';
+        else die("%s: unsupported type", name);
+        return (fmi2ValueReference)strtoul(vr, NULL, 10);
+    }
+    die("%s has no variable %s", f->dir, name);
+    return 0;
+}
+
+static void *sym(Fmu *f, const char *name) {
+    void *p = dlsym(f->lib, name);
+    if (p == NULL) die("%s: no symbol %s", f->ident, name);
+    return p;
+}
+
+static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
+    char path[8192];
+    snprintf(path, sizeof path, "%s/modelDescription.xml", f->dir);
+    f->xml = read_file(path);
+    const char *root = strstr(f->xml, "<fmiModelDescription");
+    const char *cs = strstr(f->xml, "<CoSimulation");
+    if (!root || !cs || !attribute(root, "guid", f->guid, sizeof f->guid) ||
+        !attribute(cs, "modelIdentifier", f->ident, sizeof f->ident))
+        die("%s: not a co-simulation FMU", f->dir);
+    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->ident);
+    f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (f->lib == NULL) die("cannot load %s: %s", path, dlerror());
+    f->instantiate = (fmi2InstantiateTYPE *)sym(f, "fmi2Instantiate");
+    f->free_instance = (fmi2FreeInstanceTYPE *)sym(f, "fmi2FreeInstance");
+    f->setup = (fmi2SetupExperimentTYPE *)sym(f, "fmi2SetupExperiment");
+    f->enter = (fmi2EnterInitializationModeTYPE *)sym(f, "fmi2EnterInitializationMode");
+    f->exit_init = (fmi2ExitInitializationModeTYPE *)sym(f, "fmi2ExitInitializationMode");
+    f->terminate = (fmi2TerminateTYPE *)sym(f, "fmi2Terminate");
+    f->set_real = (fmi2SetRealTYPE *)sym(f, "fmi2SetReal");
+    f->get_real = (fmi2GetRealTYPE *)sym(f, "fmi2GetReal");
+    f->set_boolean = (fmi2SetBooleanTYPE *)sym(f, "fmi2SetBoolean");
+    f->set_string = (fmi2SetStringTYPE *)sym(f, "fmi2SetString");
+    f->do_step = (fmi2DoStepTYPE *)sym(f, "fmi2DoStep");
+    snprintf(path, sizeof path, "file://%s/resources", f->dir);
+    f->c = f->instantiate(instance, fmi2CoSimulation, f->guid, path, cb, fmi2False, fmi2False);
+    if (f->c == NULL) die("%s: fmi2Instantiate failed", instance);
+}
+
+#define CHECK(call, what) do { if ((call) > fmi2Warning) die("%s failed", what); } while (0)
+
+static double get(Fmu *f, fmi2ValueReference vr) {
+    double v;
+    CHECK(f->get_real(f->c, &vr, 1, &v), "fmi2GetReal");
+    return v;
+}
+
+static void put(Fmu *f, fmi2ValueReference vr, double v) {
+    CHECK(f->set_real(f->c, &vr, 1, &v), "fmi2SetReal");
+}
+
+static double now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+int main(int argc, char **argv) {
+    int timing = argc > 1 && strcmp(argv[1], "--timing") == 0;
+    if (timing) {
+        argv++;
+        argc--;
+    }
+    if (argc < 7) die("usage: host STOP_TIME H plant=DIR meas_delay=DIR controller=DIR "
+                      "input_delay=DIR [INSTANCE.VARIABLE=VALUE ...]");
+    double stop = strtod(argv[1], NULL), h = strtod(argv[2], NULL);
+    if (!(h > 0) || !(stop > 0)) die("STOP_TIME and H must be > 0");
+    static Fmu fmu[NI];
+    fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
+    for (int i = 0; i < NI; i++) {
+        const char *arg = argv[3 + i];
+        size_t len = strlen(NAMES[i]);
+        if (strncmp(arg, NAMES[i], len) != 0 || arg[len] != '=') die("expected %s=DIR", NAMES[i]);
+        snprintf(fmu[i].dir, sizeof fmu[i].dir, "%s", arg + len + 1);
+        load(&fmu[i], NAMES[i], &cb);
+        CHECK(fmu[i].setup(fmu[i].c, fmi2False, 0.0, 0.0, fmi2True, stop), "fmi2SetupExperiment");
+        CHECK(fmu[i].enter(fmu[i].c), "fmi2EnterInitializationMode");
+    }
+    for (int a = 7; a < argc; a++) {  /* INSTANCE.VARIABLE=VALUE */
+        char buf[512];
+        snprintf(buf, sizeof buf, "%s", argv[a]);
+        char *dot = strchr(buf, '.'), *eq = strchr(buf, '=');
+        if (!dot || !eq || eq < dot) die("bad setting %s", argv[a]);
+        *dot = *eq = '\0';
+        int i = 0;
+        while (i < NI && strcmp(NAMES[i], buf) != 0) i++;
+        if (i == NI) die("no instance %s", buf);
+        char type;
+        fmi2ValueReference vr = lookup(&fmu[i], dot + 1, &type);
+        const char *value = eq + 1;
+        if (type == 'r') {
+            put(&fmu[i], vr, strtod(value, NULL));
+        } else if (type == 'b') {
+            fmi2Boolean b = strcmp(value, "true") == 0 || strcmp(value, "1") == 0;
+            CHECK(fmu[i].set_boolean(fmu[i].c, &vr, 1, &b), "fmi2SetBoolean");
+        } else {
+            CHECK(fmu[i].set_string(fmu[i].c, &vr, 1, &value), "fmi2SetString");
+        }
+    }
+    for (int i = 0; i < NI; i++) CHECK(fmu[i].exit_init(fmu[i].c), "fmi2ExitInitializationMode");
+    char type;
+    fmi2ValueReference x = lookup(&fmu[0], "x", &type), pu = lookup(&fmu[0], "u", &type);
+    fmi2ValueReference mu = lookup(&fmu[1], "u", &type), my = lookup(&fmu[1], "y", &type);
+    fmi2ValueReference cy = lookup(&fmu[2], "y", &type), cu = lookup(&fmu[2], "u", &type);
+    fmi2ValueReference iu = lookup(&fmu[3], "u", &type), iy = lookup(&fmu[3], "y", &type);
+    long ticks = lround(stop / h);
+    double *rows = malloc(3 * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
+    if (rows == NULL) die("out of memory");
+    double started = now();
+    for (long k = 0;; k++) {
+        double t = (double)k * h;  /* t_k = t0 + k h, t0 = 0 */
+        double xv = get(&fmu[0], x);
+        put(&fmu[1], mu, xv);
+        put(&fmu[2], cy, get(&fmu[1], my));
+        double uv = get(&fmu[2], cu);
+        put(&fmu[3], iu, uv);
+        put(&fmu[0], pu, get(&fmu[3], iy));
+        rows[3 * k] = t;
+        rows[3 * k + 1] = xv;
+        rows[3 * k + 2] = uv;
+        if (k == ticks) break;
+        for (int i = 0; i < NI; i++) CHECK(fmu[i].do_step(fmu[i].c, t, h, fmi2True), "fmi2DoStep");
+    }
+    if (timing) fprintf(stderr, "host: %ld ticks in %.9f s\n", ticks, now() - started);
+    printf("time,plant.x,controller.u\n");
+    for (long k = 0; k <= ticks; k++)
+        printf("%.17g,%.17g,%.17g\n", rows[3 * k], rows[3 * k + 1], rows[3 * k + 2]);
+    free(rows);
+    for (int i = 0; i < NI; i++) {
+        CHECK(fmu[i].terminate(fmu[i].c), "fmi2Terminate");
+        fmu[i].free_instance(fmu[i].c);
+    }
+    for (int i = 0; i < NI; i++) {
+        dlclose(fmu[i].lib);
+        free(fmu[i].xml);
+    }
+    return 0;
+}

@@ -1,0 +1,61 @@
+/* DelaycompPlantLTI, native: x' = A x + B u, u held over each step, exactly discretized:
+ * x_{k+1} = Ad x_k + Bd u_k, [Ad Bd; 0 I] = expm([A B; 0 0] h). The twin of
+ * fmus/plant/delaycomp_plant_lti.py: same variables, checks and messages. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "native.h"
+
+int model_setup(Instance *c) {
+    if (check_real_parameters_finite(c) != 0) return -1;
+    memcpy(&c->d.real[VR_X], &c->d.real[VR_X0], NX * sizeof(double));
+    c->d.m.has_h = 0;
+    c->d.m.h = 0.0;
+    return alloc_buf(c, (size_t)NX * NX + (size_t)NX * NU);
+}
+
+int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+    *value = c->d.real[vr];
+    return 0;
+}
+
+void model_input_set(Instance *c) { (void)c; }
+
+int model_step(Instance *c, double t, double h) {
+    ModelData *m = &c->d.m;
+    if (!(isfinite(h) && h > 0)) {
+        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0",
+                  num(h).s, num(t).s);
+        return -1;
+    }
+    if (check_inputs_finite(c, VR_U, NU, t) != 0) return -1;
+    double *Ad = c->buf, *Bd = c->buf + NX * NX;
+    if (!m->has_h || h != m->h) {
+        if (flow(&c->d.real[VR_A], &c->d.real[VR_B], NX, NU, h, Ad, Bd) != 0) {
+            log_error(c, "out of memory computing the discretization");
+            return -1;
+        }
+        m->h = h;
+        m->has_h = 1;
+    }
+    double x[NX];
+    int bad = 0;
+    const double *xs = &c->d.real[VR_X], *u = &c->d.real[VR_U];
+    for (size_t i = 0; i < NX; i++) {
+        double a = 0.0, b = 0.0;
+        for (size_t j = 0; j < NX; j++) a += Ad[i * NX + j] * xs[j];
+        for (size_t j = 0; j < NU; j++) b += Bd[i * NU + j] * u[j];
+        x[i] = a + b;
+        bad |= !isfinite(x[i]);
+    }
+    if (bad) {
+        char *text = vector_text(x, NX);
+        log_error(c, "state %s = %s at t = %s is not allowed: must be finite (the plant "
+                  "diverged: overflow)", OUTPUT_NAMES, text ? text : "[...]", num(t + h).s);
+        free(text);
+        return -1;
+    }
+    memcpy(&c->d.real[VR_X], x, NX * sizeof(double));
+    return 0;
+}
