@@ -76,7 +76,8 @@ def linalg(tmp_path_factory):
         "static const char VAR_TYPE[NVR + 1] = \"r\";\n"
         "static const char VAR_CAUSALITY[NVR + 1] = \"p\";\n"
         "static const double REAL_START[NVR] = {0.0};\n"
-        "static const int BOOLEAN_START[NVR] = {0};\n")
+        "static const int BOOLEAN_START[NVR] = {0};\n"
+        "static const int INTEGER_START[NVR] = {0};\n")
     (tmp / "stub.c").write_text(
         '#include "native.h"\n'
         "int model_setup(Instance *c) { (void)c; return 0; }\n"

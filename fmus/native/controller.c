@@ -12,6 +12,7 @@
 #include <float.h>
 #include <math.h>
 #include <stdlib.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "native.h"
@@ -228,8 +229,9 @@ void model_input_set(Instance *c) { c->d.m.proposal_valid = 0; }
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;
-    if (!(isfinite(h) && h > 0)) {
-        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0",
+    if (!(isfinite(t) && isfinite(h) && h > 0)) {
+        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 "
+                  "from a finite time",
                   num(h).s, num(t).s);
         return -1;
     }

@@ -24,8 +24,9 @@ void model_input_set(Instance *c) { (void)c; }
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;
-    if (!(isfinite(h) && h > 0)) {
-        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0",
+    if (!(isfinite(t) && isfinite(h) && h > 0)) {
+        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 "
+                  "from a finite time",
                   num(h).s, num(t).s);
         return -1;
     }
