@@ -46,8 +46,6 @@ from .model import ModelError
 from .scenarios import ParameterError
 from .ssp import SspError
 
-#: suffix of the CSV of a failed run (rows up to the failure): never read as a result
-PARTIAL_SUFFIX = ".partial"
 
 
 class UsageError(Exception):
@@ -57,6 +55,29 @@ class UsageError(Exception):
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # one line, no usage dump, exit 2
         raise UsageError(message)
+
+
+class _Append(argparse.Action):
+    """``action="append"`` without argparse's copy of the list at every occurrence (that
+    copy made 60 000 ``--set`` quadratic)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        items = getattr(namespace, self.dest, None)
+        if items is None or items is self.default:
+            items = list(self.default or [])
+            setattr(namespace, self.dest, items)
+        items.append(values)
+
+
+#: what a scenario argument is, for the help of every subcommand that takes one
+SCENARIO_HELP = "a scenario name (`delaycomp list` shows them)"
+
+RUN_EXAMPLES = """examples:
+  delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
+  delaycomp run example-3.6 --stop-time 2000 --output-interval 1 --out long.csv
+  delaycomp run example-3.6 --set r=0.5 --compare --plot both.png
+  delaycomp run build/fmus/example-3.6.ssp --set controller.mode=uncompensated
+"""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -71,15 +92,27 @@ def _parser() -> argparse.ArgumentParser:
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
 
-    r = sub.add_parser("run", help="co-simulate a scenario or an SSP file")
-    r.add_argument("scenario", help="a scenario name, or FILE.ssp (then --set takes "
+    r = sub.add_parser("run", help="co-simulate a scenario or an SSP file",
+                       description="Co-simulate a scenario (or a packed FILE.ssp) in "
+                                   "delaycomp's exact master.",
+                       epilog=RUN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("scenario", help=SCENARIO_HELP + ", or FILE.ssp (then --set takes "
                                     "instance.parameter=value)")
     _common(r)
     r.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time in seconds (default: the scenario's)")
     r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
-                   help="write one row per base step")
-    r.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+                   help="write the trajectory as CSV while the run goes (one row per base "
+                        "step, or per --output-interval)")
+    r.add_argument("--output-interval", type=float, default=None, metavar="S",
+                   help="a row every S seconds (a multiple of the base step h = T/N) and "
+                        "at the stop time (default: every base step)")
+    r.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="draw the run (png, pdf, svg, ...): every signal, the sampling "
+                        "instants and the first sample's delay window")
+    r.add_argument("--compare", action="store_true",
+                   help="also run the other controller mode (compensated / "
+                        "uncompensated) and draw both in --plot")
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
@@ -90,22 +123,26 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
                             "is stable")
-    c.add_argument("scenario")
+    c.add_argument("scenario", help=SCENARIO_HELP + " of an LTI loop")
     _common(c)
     c.add_argument("--periods", type=int, default=40,
                    help="periods of each confirming co-simulation (default 40)")
     c.add_argument("--grid", default=None, metavar="NAME=START:STOP:COUNT",
                    help="r_c as a function of one parameter (T, k, ...): a table, no "
                         "co-simulation")
-    c.add_argument("--out", type=Path, default=None, metavar="FILE.csv")
-    c.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    c.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
+                   help="with --grid: write the table as CSV")
+    c.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="with --grid: draw r_c against the grid parameter")
 
     s = sub.add_parser("sweep", help="run a scenario over a parameter grid")
-    s.add_argument("scenario")
+    s.add_argument("scenario", help=SCENARIO_HELP)
     _common(s)
-    s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
-                   help="a swept parameter (repeatable)")
-    s.add_argument("--stop-time", type=float, default=None, metavar="S")
+    s.add_argument("--grid", action=_Append, required=True, metavar="NAME=START:STOP:COUNT",
+                   help="a swept parameter, COUNT values from START to STOP (repeatable); "
+                        "values of delays off the base grid are snapped to it")
+    s.add_argument("--stop-time", type=float, default=None, metavar="S",
+                   help="stop time of every run in seconds (default: the scenario's)")
     s.add_argument("--engine", choices=("inprocess", "fmu"), default="inprocess",
                    help="inprocess (default): the FMUs' slaves without the FMI layer, equal "
                         "to the FMU run to the bit; fmu: the built FMUs")
@@ -116,13 +153,15 @@ def _parser() -> argparse.ArgumentParser:
                    help="run on this Dask distributed scheduler")
     s.add_argument("--exact", action="store_true",
                    help="LTI scenarios: rho from the lifted discrete-time model")
-    s.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
-    s.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    s.add_argument("--out", type=Path, required=True, metavar="FILE.csv",
+                   help="write one row per grid point: the grid values and the metrics")
+    s.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="draw rho: a curve for one grid parameter, a map for two")
 
     k = sub.add_parser("check", help="cross-check every reference case in every master")
-    k.add_argument("--master", action="append", default=None, metavar="NAME",
+    k.add_argument("--master", action=_Append, default=None, metavar="NAME",
                    help="only this master (repeatable; default: all)")
-    k.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+    k.add_argument("--case", action=_Append, default=None, metavar="SCENARIO/CASE",
                    help="only this reference case (repeatable; default: all)")
 
     x = sub.add_parser("crosscheck",
@@ -130,7 +169,7 @@ def _parser() -> argparse.ArgumentParser:
                             "cross-check layout")
     x.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="root of the tree (DIR/fmus/2.0/cs/linux64/delaycomp/<version>/...)")
-    x.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+    x.add_argument("--case", action=_Append, default=None, metavar="SCENARIO/CASE",
                    help="only this reference case (repeatable; default: all)")
     x.add_argument("--no-fmu", action="store_true",
                    help="write the CSV, option and README files only (no .fmu)")
@@ -139,7 +178,7 @@ def _parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("export-loop",
                        help="assemble a scenario's loop into one container FMU")
-    e.add_argument("scenario")
+    e.add_argument("scenario", help=SCENARIO_HELP)
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
 
@@ -151,14 +190,21 @@ def _parser() -> argparse.ArgumentParser:
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
-    p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
+    p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
+                       help="a FILE.ssp for one scenario, else a folder for all of them")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
+    for command in sub.choices.values():
+        loud = command.add_mutually_exclusive_group()
+        loud.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=0,
+                          default=1, help="errors and results only (no progress, no notes)")
+        loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
+                          const=2, help="also say what is run (steps, estimates, snapping)")
     return p
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
                    help="set a scenario parameter (repeatable)")
     p.add_argument("--fmu-dir", type=Path, default=None,
                    help="folder of built FMUs (default: a per-version cache, built on demand)")
@@ -203,9 +249,20 @@ def _cmd_ssp(args) -> int:
     return 0
 
 
-def _cmd_run(args) -> int:
-    from .simulate import run_loop
+def _outputs(args) -> None:
+    """Check ``--out`` and ``--plot`` before anything runs (a bad path: exit 2)."""
+    from .outputs import check_output
 
+    check_output(getattr(args, "out", None), "--out")
+    check_output(getattr(args, "plot", None), "--plot", "plot")
+
+
+def _cmd_run(args) -> int:
+    from .plotting import Timing, loop_title
+
+    _outputs(args)
+    if args.compare and not args.plot:
+        raise UsageError("--compare draws both runs into --plot FILE.png: give --plot")
     if args.scenario.endswith(".ssp"):
         return _run_ssp(args)
     if args.master != "delaycomp":
@@ -213,69 +270,140 @@ def _cmd_run(args) -> int:
     scenario = scenarios.get(args.scenario)
     params = scenario.resolve(args.set)
     stop = scenario.default_stop_time if args.stop_time is None else args.stop_time
+    spec = scenario.make(params)
+    others = {}
+    if args.compare:
+        if "mode" not in {p.name for p in scenario.params}:
+            with_mode = ", ".join(n for n, sc in scenarios.SCENARIOS.items()
+                                  if "mode" in {p.name for p in sc.params})
+            raise UsageError(f"--compare needs a loop with a mode parameter (compensated or "
+                             f"uncompensated): {with_mode}; {scenario.name} has none")
+        other = "uncompensated" if params["mode"] == "compensated" else "compensated"
+        others[other] = scenario.make(scenario.resolve([*args.set, f"mode={other}"]))
+    from .plotting import UNITS_BY_LOOP
+
+    return _execute(args, spec, stop, scenario.name,
+                    loop_title(scenario.name, scenario.title,
+                               {k: v for k, v in params.items()
+                                if not (args.compare and k == "mode")}),
+                    Timing.of_spec(spec), UNITS_BY_LOOP.get(scenario.name),
+                    label=params.get("mode"), others=others)
+
+
+def _execute(args, spec, stop: float, name: str, title: str, timing, units,
+             label: str | None = None, others: dict | None = None, fmus=None,
+             runner=None) -> int:
+    """Run ``spec`` (and, for ``--compare``, the ``others``) to ``stop`` with the CSV
+    streamed to ``--out`` and decimated by ``--output-interval``; then plot and report.
+
+    ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
+    and are decimated afterwards)."""
+    from .outputs import CsvStream, check_budget, clear_previous, output_every
+    from .progress import bar, info
+    from .simulate import run_loop, stop_ticks
+
+    ticks = stop_ticks(stop, spec.T, spec.N)
+    every = output_every(args.output_interval, spec.T, spec.N)
+    keep = bool(args.plot)
+    seconds, memory = check_budget(spec, ticks * (1 + len(others or {})),
+                                   args.engine, every, keep)
+    info(f"{name}: {ticks} base steps of h = {spec.T / spec.N!r} s, a row every {every}; "
+         f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
+    clear_previous(args.out, args.plot)
+    names = [f"{i}.{v}" for i, v in spec.recorded]
+    stream = CsvStream(args.out, names) if args.out else None
     started = time.perf_counter()
-    result = run_loop(scenario.make(params), stop, args.fmu_dir, engine=args.engine)
+    try:
+        if runner is None:
+            with bar(ticks, name, args.verbosity, unit="step") as progress:
+                def tick(k, progress=progress):
+                    progress.update(k - progress.n)
+
+                result = run_loop(spec, stop, args.fmu_dir, engine=args.engine, fmus=fmus,
+                                  every=every, sink=stream, keep=keep, progress=tick)
+        else:
+            result = runner(stop)
+            if stream is not None and result.success:
+                for k, (t, row) in enumerate(zip(result.times, result.data)):
+                    if k % every == 0 or k == len(result.times) - 1:
+                        stream(t, row)
+    except BaseException:
+        if stream is not None:
+            stream.finish(False)
+        raise
     elapsed = time.perf_counter() - started
-    return _report_run(args, result, elapsed, scenario.name,
-                       f"{scenario.title}\n" + _describe(params))
+    where = stream.finish(result.success) if stream is not None else None
+    runs = None
+    if others and result.success:
+        runs = {label or "this run": result}
+        for other_label, other_spec in others.items():
+            other = run_loop(other_spec, stop, args.fmu_dir, engine=args.engine,
+                             every=every, keep=True)
+            runs[other_label] = other
+    return _report_run(args, result, elapsed, name, title, where, timing, units, runs)
 
 
 def _run_ssp(args) -> int:
-    from .simulate import run_loop, stop_ticks
+    from .plotting import Timing, loop_title
     from .ssp import Archive, apply_sets
 
     if args.engine != "fmu":
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
                          "FMUs")
+    if args.compare:
+        raise UsageError("--compare runs a scenario by name (set controller.mode for a "
+                         "FILE.ssp)")
     with Archive(Path(args.scenario)) as archive:
         system = archive.system
         spec = apply_sets(system.spec, args.set, archive.fmus())
         stop = system.info.stop_time if args.stop_time is None else args.stop_time
         if stop is None:
             raise UsageError(f"{Path(args.scenario).name} has no stop time: give --stop-time")
-        stop_ticks(stop, spec.T, spec.N)  # a bad stop time is a usage error
-        started = time.perf_counter()
-        if args.master == "delaycomp":
-            result = run_loop(spec, stop, fmus=archive.fmus())
-        else:
+        runner = None
+        if args.master != "delaycomp":
             if args.set:
                 raise UsageError("--set applies to our master only (libcosim and Ecos take "
                                  "the parameters packed in the SSP)")
             from .thirdparty import run_ssp
 
-            result = run_ssp(args.master, args.scenario, stop)
-            if not result.success:
-                raise RuntimeError(result.message)
-        elapsed = time.perf_counter() - started
-    title = f"{system.info.description or system.info.name}\n" + " ".join(args.set)
-    return _report_run(args, result, elapsed, Path(args.scenario).name, title)
+            def runner(stop, master=args.master, path=args.scenario):
+                result = run_ssp(master, path, stop)
+                if not result.success:
+                    raise RuntimeError(result.message)
+                return result
+
+        ctrl = spec.instances.get("controller")
+        mode = ctrl[2].get("mode") if ctrl else None
+        title = loop_title(Path(args.scenario).name, system.info.description or
+                           system.info.name, {"T": spec.T, "mode": mode,
+                                              **({k: ctrl[2].get(k) for k in ("r", "tau")}
+                                                 if ctrl else {})})
+        return _execute(args, spec, stop, Path(args.scenario).name, title,
+                        Timing.of_spec(spec), None, fmus=archive.fmus(), runner=runner)
 
 
-def _report_run(args, result, elapsed: float, name: str, title: str) -> int:
-    """Write the CSV and plot of a successful run; on failure nothing that looks like a
-    result (no FILE.csv, no plot): the rows recorded before it go to FILE.csv.partial."""
-    for note in result.notes:
-        print(f"note: {note}")
+def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
+                timing=None, units=None, runs=None) -> int:
+    """Plot a successful run and print its summary; on failure nothing that looks like a
+    result (no FILE.csv, no plot): the rows recorded before it are in FILE.csv.partial."""
+    from .progress import QUIET, info
+
+    if args.verbosity > QUIET:
+        for note in result.notes:
+            info(f"note: {note}", args.verbosity)
     if not result.success:
-        where = ""
-        if args.out and len(result.times):
-            partial = args.out.with_name(args.out.name + PARTIAL_SUFFIX)
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            result.write_csv(partial)
-            where = (f"; {len(result.times)} rows to t = {result.times[-1]:.6g} kept in "
-                     f"{partial}")
-        print(f"delaycomp: error: {result.message}{where}", file=sys.stderr)
+        kept = ""
+        if where is not None and result.row_count:
+            kept = (f"; {result.row_count} rows to t = {result.times[-1]:.6g} kept in "
+                    f"{where}")
+        print(f"delaycomp: error: {result.message}{kept}", file=sys.stderr)
         return 1
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        result.write_csv(args.out)
     if args.plot:
         from .plotting import plot_result
 
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        plot_result(result, args.plot, title)
+        plot_result(result, args.plot, title, timing, units, runs)
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
-    print(f"{name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
+    print(f"{name}: {result.row_count} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")
     return 0
 

@@ -1,30 +1,161 @@
-"""Plots of recorded trajectories (matplotlib, no display needed)."""
+"""Plots of recorded trajectories (matplotlib, no display needed).
+
+A run's figure explains itself: a title that names the loop (:func:`loop_title`), one
+panel per signal with its unit where known, a legend, the sampling instants ``t_i`` and,
+shaded, the delay window ``[t_i - r, t_i + tau]`` of the first sample whose prediction is
+exact (``i = ceil(r/T)``, at least 1): the state measured at ``t_i`` is ``x(t_i - r)``, and
+the input the controller computes then reaches the plant at ``t_i + tau``. With
+``compare`` the compensated and uncompensated runs of the same loop share the panels.
+"""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from pathlib import Path
 
+#: Units of signals, by the variable's name, where the loop's model fixes them (the
+#: unicycle of Proposition 4.2 and Corollary 4.1: positions in metres, heading in
+#: radians). The paper's other examples are dimensionless.
+UNITS_BY_LOOP: dict[str, dict[str, str]] = {
+    "proposition-4.2": {"x": "m", "y": "m", "theta": "rad", "v": "m/s", "omega": "rad/s"},
+    "corollary-4.1": {"x": "m", "y": "m", "theta": "rad", "v": "m/s", "omega": "rad/s"},
+}
+#: At most this many sampling instants are drawn as lines (beyond, they would fill the
+#: panel; the title still gives T).
+MAX_SAMPLE_LINES = 60
 
-def plot_result(result, path: str | Path, title: str) -> None:
-    """One panel per recorded signal against time; controller signals as staircases."""
+
+@dataclass(frozen=True)
+class Timing:
+    """What the figure marks: period ``T`` and the delays ``r``, ``tau`` the controller
+    assumes (seconds), from ``t0``."""
+
+    T: float
+    r: float
+    tau: float
+    t0: float = 0.0
+
+    @classmethod
+    def of_spec(cls, spec) -> Timing | None:
+        """From a loop's controller parameters (``None`` if it has no controller)."""
+        inst = spec.instances.get("controller")
+        if inst is None:
+            return None
+        params = inst[2]
+        return cls(float(spec.T), float(params.get("r", 0.0)), float(params.get("tau", 0.0)))
+
+
+def loop_title(name: str, description: str | None, params: dict | None = None) -> str:
+    """The title of a loop's figure: its name and description, then its timing.
+
+    One function for every figure, so that scenarios, SSP files and loop files name
+    their loop the same way.
+
+    Parameters
+    ----------
+    name : str
+        the scenario name or the file name of the loop.
+    description : str or None
+        one line saying what the loop is.
+    params : dict, optional
+        resolved parameters; ``T``, ``r``, ``tau`` and ``mode`` go into the second line.
+
+    Examples
+    --------
+    >>> print(loop_title("example-3.6", "x' = x + u", {"T": 1.0, "r": 0.3, "tau": 0.0,
+    ...                                                "mode": "compensated"}))
+    example-3.6: x' = x + u
+    T = 1 s, r = 0.3 s, tau = 0 s, compensated
+    """
+    head = f"{name}: {description}" if description else name
+    params = params or {}
+    parts = [f"{k} = {params[k]:g} s" for k in ("T", "r", "tau")
+             if isinstance(params.get(k), (int, float))]
+    if params.get("mode"):
+        parts.append(str(params["mode"]))
+    return head + ("\n" + ", ".join(parts) if parts else "")
+
+
+def _label(name: str, units: dict[str, str]) -> str:
+    var = name.split(".", 1)[-1]
+    unit = units.get(var)
+    return f"{name} [{unit}]" if unit else name
+
+
+def plot_result(result, path: str | Path, title: str, timing: Timing | None = None,
+                units: dict[str, str] | None = None, compare: dict | None = None) -> None:
+    """One panel per recorded signal against time; controller signals as staircases.
+
+    Parameters
+    ----------
+    result : Result
+        the run (:class:`delaycomp.simulate.Result`).
+    path : str or Path
+        the image file (its suffix picks the format); written whole or not at all.
+    title : str
+        the figure's title (:func:`loop_title`).
+    timing : Timing, optional
+        marks the sampling instants and the first sample's delay window.
+    units : dict, optional
+        unit of a signal by variable name (``{"theta": "rad"}``).
+    compare : dict, optional
+        ``{label: run}``: draw these runs of the same loop in the same panels, each
+        labelled (``{"compensated": r1, "uncompensated": r2}``); ``result`` then only
+        gives the signal names.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    units = units or {}
+    runs = list(compare.items()) if compare else [(None, result)]
     n = len(result.names)
-    fig, axes = plt.subplots(n, 1, sharex=True, figsize=(8, 2.2 + 1.8 * n), squeeze=False)
-    for ax, name in zip(axes[:, 0], result.names):
+    fig, axes = plt.subplots(n, 1, sharex=True, figsize=(8, 2.4 + 1.9 * n), squeeze=False)
+    colors = ("tab:blue", "tab:red", "tab:green", "tab:purple")
+    for row, (ax, name) in enumerate(zip(axes[:, 0], result.names)):
         style = "steps-post" if name.startswith("controller.") else "default"
-        ax.plot(result.times, result.column(name), drawstyle=style, lw=1.4)
-        ax.set_ylabel(name)
+        for c, (label, res) in enumerate(runs):
+            text = name if label is None else f"{name}, {label}"
+            ax.plot(res.times, res.column(name), drawstyle=style, lw=1.4,
+                    color=colors[c % len(colors)], label=text)
+        ax.set_ylabel(_label(name, units))
         ax.grid(True, alpha=0.3)
         ax.axhline(0.0, color="k", lw=0.6)
-    axes[-1, 0].set_xlabel("time [s]")
+        if timing is not None:
+            _mark_timing(ax, timing, float(result.times[-1]), legend=row == 0)
+        ax.legend(fontsize=7, loc="best")
+    axes[-1, 0].set_xlabel("time t [s]")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".part" + path.suffix)
-    fig.savefig(tmp, dpi=110)
+    _save(fig, Path(path))
     plt.close(fig)
+
+
+def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
+    T, r, tau, t0 = timing.T, timing.r, timing.tau, timing.t0
+    count = int(math.floor((t_end - t0) / T + 1e-9)) + 1
+    if count <= MAX_SAMPLE_LINES:
+        for i in range(count):
+            ax.axvline(t0 + i * T, color="0.55", lw=0.6, ls=":",
+                       label=f"sampling instants t_i = {t0:g} + i T" if legend and i == 0
+                       else None)
+    i = max(1, math.ceil(r / T - 1e-9))
+    t_i = t0 + i * T
+    if t_i <= t_end and (r > 0 or tau > 0):
+        ax.axvspan(max(t0, t_i - r), min(t_end, t_i + tau), color="tab:orange", alpha=0.15,
+                   label=(f"sample t_{i} = {t_i:g} s: measures x(t_{i} - r), acts at "
+                          f"t_{i} + tau" if legend else None))
+
+
+def _save(fig, path: Path) -> None:
+    """Write to ``NAME.part.SUFFIX``, then rename: no half-written image."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    try:
+        fig.savefig(tmp, dpi=110)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(path)
