@@ -416,17 +416,32 @@ def _describe(params: dict) -> str:
 
 def _cmd_sweep(args) -> int:
     from . import sweep
+    from .outputs import clear_previous
+    from .plotting import loop_title
+    from .progress import info
 
+    _outputs(args)
+    scenario = scenarios.get(args.scenario)
     axes = [sweep.parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
+    axes, notes = sweep.snap_axes(args.scenario, axes, args.set)
+    for note in notes:
+        info(f"note: {note}", args.verbosity)
+    clear_previous(args.out, args.plot)
     started = time.perf_counter()
     rows = sweep.run_sweep(args.scenario, axes, args.set, args.stop_time, args.engine,
                            args.workers, args.scheduler,
-                           str(args.fmu_dir) if args.fmu_dir else None, args.exact)
+                           str(args.fmu_dir) if args.fmu_dir else None, args.exact,
+                           verbosity=args.verbosity)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
-        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set))
+        fixed = scenario.resolve([*args.set, *(f"{a.name}={sweep._fmt(a.values[0])}"
+                                               for a in axes)])
+        swept = {a.name for a in axes}
+        sweep.plot_sweep(rows, axes, args.plot,
+                         loop_title(scenario.name, scenario.title,
+                                    {k: v for k, v in fixed.items() if k not in swept}))
     stable = sum(r["stable"] for r in rows)
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
           f"{stable} stable; wrote {args.out}")
@@ -496,18 +511,36 @@ def _cmd_export_loop(args) -> int:
     return 0
 
 
+#: width of ``delaycomp list`` (it fits a 100-column terminal)
+LIST_WIDTH = 100
+
+
 def _cmd_list(args) -> int:
-    for sc in scenarios.SCENARIOS.values():
-        print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
+    import textwrap
+
+    indent = " " * 27
+    for number, sc in enumerate(scenarios.SCENARIOS.values()):
+        if number:
+            print()
+        print(textwrap.fill(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)",
+                            LIST_WIDTH, subsequent_indent="    "))
+        print(f"    {'NAME':<9} {'DEFAULT':<12} MEANING; ALLOWED VALUES")
         for p in sc.params:
             if isinstance(p.default, tuple):
                 default = ",".join(f"{v:g}" for v in p.default)
             elif p.default is None:  # derived from other parameters
                 default = {"r_true": "(= r)", "tau_true": "(= tau)"}.get(p.name,
                                                                         "(depends on n)")
+            elif isinstance(p.default, float):
+                default = f"{p.default:g}"
             else:
-                default = p.default
-            print(f"    {p.name:<9} default {default!s:<12} {p.help}; {p.allowed}")
+                default = str(p.default)
+            head = f"    {p.name:<9} {default:<12} "
+            if len(head) > len(indent):  # a long default: the text on the next line
+                print(head.rstrip())
+                head = indent
+            print(textwrap.fill(f"{p.help}; {p.allowed}", LIST_WIDTH, initial_indent=head,
+                                subsequent_indent=indent, break_on_hyphens=False))
     return 0
 
 
@@ -525,6 +558,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("delaycomp: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `delaycomp list | head`: the reader has gone, not an error
+        try:
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no flush error at exit
+        except OSError:
+            pass
+        return 0
     except (OSError, RuntimeError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         print(f"delaycomp: error: {msg}", file=sys.stderr)

@@ -59,22 +59,37 @@ def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
 
     if scenario.lti is None:
         raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
-    params = scenario.resolve(sets)
+    # r is what is searched: resolve with r = 0, which is on every base grid (a default r
+    # off the grid of a new T or N must not stop the search)
+    params = scenario.resolve(["r=0", *sets])
     A, B, K = scenario.lti(params)
     T, tau = params["T"], params["tau"]
+    fixed = held_fixed(params)
 
     def rho(r: float) -> float:
         return lifted_loop(A, B, K, T, r, tau, "uncompensated").spectral_radius
 
-    r_c = critical_delay(rho, r_max=50 * T, step=T / 100)
+    rho0 = rho(0.0)
+    if rho0 >= 1.0:
+        raise RuntimeError(f"the uncompensated loop is unstable already at r = 0 (spectral "
+                           f"radius {rho0:.6g}) with {fixed} held fixed: it has no critical "
+                           "measurement delay")
+    r_max = 50 * T
+    try:
+        r_c = critical_delay(rho, r_max=r_max, step=T / 100)
+    except ValueError:
+        raise RuntimeError(f"the uncompensated loop stays stable for every r up to "
+                           f"{r_max:g} (50 T) with {fixed} held fixed") from None
     report = CriticalDelayReport(r_c)
+    report.lines.append(f"searched the measurement delay r of the uncompensated loop with "
+                        f"{fixed} held fixed")
     N = max(int(params["N"]), CONFIRM_N)
     h = T / N
     r_lo = max(math.floor((r_c - CONFIRM_OFFSET * T) / h) * h, 0.0)
     r_hi = math.ceil((r_c + CONFIRM_OFFSET * T) / h) * h
     ok = []
     for r, side in ((r_lo, "below"), (r_hi, "above")):
-        p = scenario.resolve([*sets, f"r={r!r}", f"N={N}", "mode=uncompensated"])
+        p = scenario.resolve(["r=0", *sets, f"r={r!r}", f"N={N}", "mode=uncompensated"])
         result = run_loop(scenario.make(p), periods * T, fmu_dir)
         lifted = lifted_loop(A, B, K, T, r, tau, "uncompensated")
         g_exact = lifted.spectral_radius
@@ -90,6 +105,20 @@ def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
     if not report.confirmed:
         report.lines.append("NOT confirmed by co-simulation")
     return report
+
+
+def held_fixed(params: dict) -> str:
+    """The parameters a search over ``r`` holds fixed, as ``T = 1, tau = 0, k = 2``.
+
+    Examples
+    --------
+    >>> held_fixed({"k": 2.0, "T": 1.0, "r": 0.3, "tau": 0.0, "N": 100, "x0": 1.0})
+    'T = 1, tau = 0, k = 2'
+    """
+    skip = {"r", "r_true", "tau_true", "N", "x0", "u0", "mode", "T", "tau"}
+    rest = [f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}"
+            for k, v in params.items() if k not in skip and v is not None]
+    return ", ".join([f"T = {params['T']:g}", f"tau = {params['tau']:g}", *rest])
 
 
 def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:

@@ -24,7 +24,6 @@ from __future__ import annotations
 import csv
 import itertools
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,11 +60,75 @@ def parse_grid(text: str) -> Axis:
     if not 1 <= count <= 100_000:
         raise ParameterError(f"--grid {text!r}: COUNT = {count} is not allowed: must be an "
                              "integer from 1 to 100000")
-    return Axis(name.strip(), tuple(float(v) for v in np.linspace(start, stop, count)))
+    # each value as a person would write it: 0.05, not linspace's 0.049999999999999996
+    return Axis(name.strip(), tuple(_decimal(v) for v in np.linspace(start, stop, count)))
+
+
+def _decimal(value: float) -> float:
+    """The float of ``value``'s 15 significant digits (undoes linspace's round-off)."""
+    return float(f"{float(value):.15g}")
 
 
 def _fmt(value: float) -> str:
     return f"{value:.15g}"
+
+
+#: parameters that must be whole multiples of the base step h = T/N
+GRID_BOUND = ("r", "tau", "r_true", "tau_true")
+
+
+def snap_axes(scenario: str, axes: list[Axis], sets: list[str]) -> tuple[list[Axis], list[str]]:
+    """Snap the values of delay axes (``r``, ``tau``, ``r_true``, ``tau_true``) to the
+    nearest multiple of the base step ``h = T/N``; return the axes and one note per
+    snapped axis (what moved, and by how much at most).
+
+    ``h`` comes from ``--set`` or the scenario's defaults; when ``T`` or ``N`` is itself
+    swept, ``h`` differs between points and nothing is snapped (an off-grid point is then
+    refused by name, as before).
+
+    Examples
+    --------
+    >>> axes, notes = snap_axes("example-3.6", [parse_grid("r=0:0.98:20")], [])
+    >>> axes[0].values[:3]
+    (0.0, 0.05, 0.1)
+    >>> notes[0].split(";")[0]
+    'r: 18 of 20 values snapped to the base grid h = T/N = 0.01'
+    """
+    sc = scenarios.get(scenario)
+    names = {a.name for a in axes}
+    if names & {"T", "N"}:
+        return list(axes), []
+    timing = {}
+    for name in ("T", "N"):
+        p = sc.param(name)
+        value = p.default
+        for text in sets:
+            key, sep, raw = text.partition("=")
+            if sep and key.strip() == name:
+                try:
+                    value = p.parse(raw.strip())
+                except ValueError:
+                    return list(axes), []  # resolve() names the bad value later
+        timing[name] = value
+    if not (isinstance(timing["T"], float) and timing["T"] > 0
+            and isinstance(timing["N"], int) and timing["N"] >= 1):
+        return list(axes), []
+    h = timing["T"] / timing["N"]
+    out, notes = [], []
+    for axis in axes:
+        if axis.name not in GRID_BOUND:
+            out.append(axis)
+            continue
+        snapped = tuple(_decimal(round(v / h) * h) if v >= 0 else v for v in axis.values)
+        moved = [abs(a - b) for a, b in zip(axis.values, snapped) if a != b]
+        if moved:
+            distinct = len(set(snapped))
+            notes.append(f"{axis.name}: {len(moved)} of {len(snapped)} values snapped to the "
+                         f"base grid h = T/N = {_fmt(h)}; largest move {max(moved):.3g}"
+                         + (f"; {len(snapped) - distinct} duplicates" if distinct
+                            < len(snapped) else ""))
+        out.append(Axis(axis.name, snapped))
+    return out, notes
 
 
 def points(axes: list[Axis]) -> list[tuple[float, ...]]:
@@ -151,27 +214,88 @@ def _prebuild(jobs: list[Job]) -> None:
 
 
 class _Progress:
-    def __init__(self, total: int):
+    """Counts finished points on a tqdm bar (standard error, a terminal only, with the
+    time left); ``verbosity`` 0 hides it."""
+
+    def __init__(self, total: int, verbosity: int = 1):
+        from .progress import bar
+
         self.total, self.done = total, 0
-        self.enabled = sys.stderr.isatty()
+        self._bar = bar(total, "sweep", verbosity, unit="point")
 
     def tick(self, count: int = 1) -> None:
         self.done += count
-        if self.enabled:
-            width = 30
-            filled = int(width * self.done / self.total)
-            sys.stderr.write(f"\rsweep [{'#' * filled}{'.' * (width - filled)}] "
-                             f"{self.done}/{self.total}")
-            if self.done == self.total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+        self._bar.update(count)
+        if self.done >= self.total:
+            self._bar.close()
+
+
+#: Lower bound of the cost of one point of ``--exact`` (a lifted-model eigenvalue
+#: problem), in seconds.
+SECONDS_PER_EXACT_POINT = 50e-6
+#: Bytes of one result row in memory (a dict of about ten floats).
+BYTES_PER_ROW = 1000
+
+
+def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
+                     stop: float | None = None, engine: str = "inprocess", workers: int = 1,
+                     exact: bool = False) -> tuple[int, float]:
+    """Refuse, in one line with the estimate, a grid that cannot finish or fit in memory.
+
+    Returns the number of points and the estimated seconds (a lower bound).
+    """
+    from .outputs import (
+        MAX_RUN_SECONDS,
+        SECONDS_PER_TICK,
+        _bytes,
+        _duration,
+        physical_memory,
+    )
+
+    count = math.prod(len(a.values) for a in axes)
+    sc = scenarios.get(scenario)
+    per_point = SECONDS_PER_EXACT_POINT
+    if not exact:
+        params = {p.name: p.default for p in sc.params}
+        for text in sets:
+            key, sep, raw = text.partition("=")
+            if sep and key.strip() in ("T", "N"):
+                try:
+                    params[key.strip()] = sc.param(key.strip()).parse(raw.strip())
+                except ValueError:
+                    pass  # resolve() names it
+        for a in axes:
+            if a.name in ("T", "N"):
+                params[a.name] = min(a.values) if a.name == "T" else max(a.values)
+        T, N = float(params["T"]), params["N"]
+        stop_time = sc.default_stop_time if stop is None else stop
+        if T > 0 and isinstance(N, (int, float)) and N >= 1:
+            per_point = (stop_time / T) * N * SECONDS_PER_TICK.get(engine, 10e-6)
+    seconds = count * per_point / max(1, workers)
+    if seconds > MAX_RUN_SECONDS:
+        raise ParameterError(
+            f"--grid: {count:.4g} points at least {per_point * 1e3:.3g} ms each on "
+            f"{max(1, workers)} workers take at least {_duration(seconds)}, over the limit "
+            f"of {_duration(MAX_RUN_SECONDS)}; use fewer points or a shorter --stop-time")
+    ram = physical_memory()
+    if ram is not None and count * BYTES_PER_ROW > ram / 2:
+        raise ParameterError(
+            f"--grid: {count:.4g} points need at least {_bytes(count * BYTES_PER_ROW)} for "
+            f"their results, over half of this machine's {_bytes(ram)}; use fewer points")
+    return count, seconds
 
 
 def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
-              fmu_dir: str | None = None, exact: bool = False) -> list[dict]:
-    """Run the grid; return one row (grid values + metrics) per point, in grid order."""
+              fmu_dir: str | None = None, exact: bool = False,
+              verbosity: int = 1) -> list[dict]:
+    """Run the grid; return one row (grid values + metrics) per point, in grid order.
+
+    ``verbosity`` 0 hides the progress bar (shown on a terminal otherwise).
+    """
     sc = scenarios.get(scenario)
+    check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
+                     exact)
     if exact and sc.lti is None:
         raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
     if workers < 1:
@@ -191,7 +315,7 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         jobs.append(Job(scenario, point_sets, float(stop), engine, fmu_dir, exact))
     if not exact and engine == "fmu":
         _prebuild(jobs)
-    progress = _Progress(len(jobs))
+    progress = _Progress(len(jobs), verbosity)
     if scheduler:
         results = _run_dask(jobs, scheduler, progress)
     elif workers > 1:
@@ -235,10 +359,15 @@ def _run_dask(jobs: list[Job], address: str, progress: _Progress) -> list[dict]:
     except ImportError:
         raise RuntimeError("--scheduler needs Dask: pip install 'delaycomp[dask]'") from None
 
+    from distributed import as_completed
+
     with Client(address) as client:
         futures = client.map(evaluate, jobs, pure=False)
-        results = client.gather(futures)
-    progress.tick(len(jobs))
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list = [None] * len(jobs)
+        for future in as_completed(futures):  # the bar moves as each point finishes
+            results[index[future.key]] = future.result()
+            progress.tick()
     return results
 
 
@@ -249,8 +378,8 @@ def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
     with open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow([*names, *METRICS])
-        for row in rows:
-            w.writerow([_cell(row[k]) for k in (*names, *METRICS)])
+        for row in rows:  # grid values as written (15 digits), metrics to the bit
+            w.writerow([*(_fmt(row[k]) for k in names), *(_cell(row[k]) for k in METRICS)])
     tmp.replace(path)
 
 
