@@ -69,6 +69,15 @@ class _Append(argparse.Action):
         items.append(values)
 
 
+def _file_path(text: str) -> Path:
+    """An output file's path; a name ending in a separator is a folder, refused here
+    (``Path`` would drop the separator)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder: give a file name such as "
+                                         f"{text}result.csv (or .png for a plot)")
+    return Path(text)
+
+
 #: what a scenario argument is, for the help of every subcommand that takes one
 SCENARIO_HELP = "a scenario name (`delaycomp list` shows them)"
 
@@ -101,13 +110,13 @@ def _parser() -> argparse.ArgumentParser:
     _common(r)
     r.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time in seconds (default: the scenario's)")
-    r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
+    r.add_argument("--out", type=_file_path, default=None, metavar="FILE.csv",
                    help="write the trajectory as CSV while the run goes (one row per base "
                         "step, or per --output-interval)")
     r.add_argument("--output-interval", type=float, default=None, metavar="S",
                    help="a row every S seconds (a multiple of the base step h = T/N) and "
                         "at the stop time (default: every base step)")
-    r.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+    r.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="draw the run (png, pdf, svg, ...): every signal, the sampling "
                         "instants and the first sample's delay window")
     r.add_argument("--compare", action="store_true",
@@ -130,9 +139,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--grid", default=None, metavar="NAME=START:STOP:COUNT",
                    help="r_c as a function of one parameter (T, k, ...): a table, no "
                         "co-simulation")
-    c.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
+    c.add_argument("--out", type=_file_path, default=None, metavar="FILE.csv",
                    help="with --grid: write the table as CSV")
-    c.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+    c.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="with --grid: draw r_c against the grid parameter")
 
     s = sub.add_parser("sweep", help="run a scenario over a parameter grid")
@@ -153,9 +162,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="run on this Dask distributed scheduler")
     s.add_argument("--exact", action="store_true",
                    help="LTI scenarios: rho from the lifted discrete-time model")
-    s.add_argument("--out", type=Path, required=True, metavar="FILE.csv",
+    s.add_argument("--out", type=_file_path, required=True, metavar="FILE.csv",
                    help="write one row per grid point: the grid values and the metrics")
-    s.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+    s.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="draw rho: a curve for one grid parameter, a map for two")
 
     k = sub.add_parser("check", help="cross-check every reference case in every master")
@@ -451,8 +460,14 @@ def _cmd_sweep(args) -> int:
 def _cmd_critical_delay(args) -> int:
     from .critical import critical_delay_report, critical_delay_table
 
+    _outputs(args)
     scenario = scenarios.get(args.scenario)
+    if (args.out or args.plot) and not args.grid:
+        raise UsageError("--out and --plot write the table of --grid: give --grid")
     if args.grid:
+        from .outputs import clear_previous
+
+        clear_previous(args.out, args.plot)
         rows = critical_delay_table(scenario, args.set, args.grid, args.out, args.plot)
         for line in rows:
             print(line)

@@ -104,6 +104,19 @@ def plot_result(result, path: str | Path, title: str, timing: Timing | None = No
         labelled (``{"compensated": r1, "uncompensated": r2}``); ``result`` then only
         gives the signal names.
     """
+    import matplotlib.pyplot as plt
+
+    fig = result_figure(result, title, timing, units, compare)
+    try:
+        _save(fig, Path(path))
+    finally:
+        plt.close(fig)
+
+
+def result_figure(result, title: str, timing: Timing | None = None,
+                  units: dict[str, str] | None = None, compare: dict | None = None):
+    """The figure :func:`plot_result` writes (a matplotlib ``Figure``; close it after
+    use). Parameters as there."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -129,8 +142,7 @@ def plot_result(result, path: str | Path, title: str, timing: Timing | None = No
     axes[-1, 0].set_xlabel("time t [s]")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    _save(fig, Path(path))
-    plt.close(fig)
+    return fig
 
 
 def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
