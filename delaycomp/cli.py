@@ -189,7 +189,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="assemble a scenario's loop into one container FMU")
     e.add_argument("scenario", help=SCENARIO_HELP)
     _common(e)
-    e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
+    e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu",
+                   help="the container FMU to write")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -434,6 +435,8 @@ def _cmd_sweep(args) -> int:
     axes = [sweep.parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
+    sweep.check_sweep_size(args.scenario, axes, args.set, args.stop_time, args.engine,
+                           1 if args.scheduler else args.workers, args.exact)
     axes, notes = sweep.snap_axes(args.scenario, axes, args.set)
     for note in notes:
         info(f"note: {note}", args.verbosity)
@@ -533,13 +536,13 @@ LIST_WIDTH = 100
 def _cmd_list(args) -> int:
     import textwrap
 
-    indent = " " * 27
+    indent = " " * 30
     for number, sc in enumerate(scenarios.SCENARIOS.values()):
         if number:
             print()
         print(textwrap.fill(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)",
-                            LIST_WIDTH, subsequent_indent="    "))
-        print(f"    {'NAME':<9} {'DEFAULT':<12} MEANING; ALLOWED VALUES")
+                            LIST_WIDTH, subsequent_indent="  "))
+        print(f"    {'NAME':<9} {'DEFAULT':<15} MEANING; ALLOWED VALUES")
         for p in sc.params:
             if isinstance(p.default, tuple):
                 default = ",".join(f"{v:g}" for v in p.default)
@@ -550,7 +553,7 @@ def _cmd_list(args) -> int:
                 default = f"{p.default:g}"
             else:
                 default = str(p.default)
-            head = f"    {p.name:<9} {default:<12} "
+            head = f"    {p.name:<9} {default:<15} "
             if len(head) > len(indent):  # a long default: the text on the next line
                 print(head.rstrip())
                 head = indent
