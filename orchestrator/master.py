@@ -371,6 +371,9 @@ class Master:
 class Recorder:
     """Observer that keeps selected outputs at every ``every``-th tick, for CSV and plots.
 
+    The components themselves keep bounded state only (README, "Reliability"); with
+    ``keep=False`` so does the recorder.
+
     Parameters
     ----------
     master : Master
@@ -387,8 +390,6 @@ class Recorder:
         run); with ``False`` only the last row is kept, so a streamed run stays flat.
     final : int, optional
         a tick recorded even off the decimation (the stop tick).
-
-    The components themselves keep bounded state only (README, "Reliability").
     """
 
     def __init__(self, master: Master, signals: Sequence[tuple[str, str]], every: int = 1,
