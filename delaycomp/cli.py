@@ -47,7 +47,6 @@ from .scenarios import ParameterError
 from .ssp import SspError
 
 
-
 class UsageError(Exception):
     """Bad command-line input: reported as one line, exit status 2."""
 
@@ -578,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `delaycomp list | head`: the reader has gone, not an error
         try:
-            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no flush error at exit
+            sys.stdout = open(os.devnull, "w")  # no flush error when Python exits
         except OSError:
             pass
         return 0

@@ -147,7 +147,7 @@ class CsvStream:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp = self.path.with_name(self.path.name + WORKING_SUFFIX)
-        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")  # noqa: SIM115
+        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._fh)
         self._writer.writerow(["time", *names])
         self.rows = 0

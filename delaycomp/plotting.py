@@ -147,7 +147,7 @@ def result_figure(result, title: str, timing: Timing | None = None,
 
 def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
     T, r, tau, t0 = timing.T, timing.r, timing.tau, timing.t0
-    count = int(math.floor((t_end - t0) / T + 1e-9)) + 1
+    count = math.floor((t_end - t0) / T + 1e-9) + 1
     if count <= MAX_SAMPLE_LINES:
         for i in range(count):
             ax.axvline(t0 + i * T, color="0.55", lw=0.6, ls=":",

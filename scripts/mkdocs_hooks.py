@@ -43,7 +43,7 @@ def scenario_list() -> str:
     return "```text\n" + buf.getvalue().rstrip() + "\n```\n"
 
 
-def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 - hook API
+def on_page_markdown(markdown: str, page, config, files) -> str:
     if CLI_MARK in markdown:
         markdown = markdown.replace(CLI_MARK, cli_reference())
     if SCENARIOS_MARK in markdown:

@@ -21,7 +21,7 @@ def test_tutorial_code_runs_and_prints_what_the_page_shows(tmp_path, monkeypatch
     shutil.copytree(REPO / "docs" / "examples", tmp_path / "docs" / "examples")
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
-    exec(compile(blocks[0], "tutorial-1", "exec"), namespace)  # noqa: S102 - our own page
+    exec(compile(blocks[0], "tutorial-1", "exec"), namespace)
     printed = dict(line.split() for line in capsys.readouterr().out.splitlines())
     shown = dict(line.split() for line in
                  re.search(r"prints\n\n```text\n(.*?)```", text, flags=re.S).group(1)
@@ -32,7 +32,7 @@ def test_tutorial_code_runs_and_prints_what_the_page_shows(tmp_path, monkeypatch
     assert abs(float(shown["compensated"])) < 1e-12
     # the uncompensated swing is an exact ZOH computation: the page's digits, to round-off
     assert abs(float(printed["uncompensated"]) - float(shown["uncompensated"])) < 1e-9
-    exec(compile(blocks[1], "tutorial-2", "exec"), namespace)  # noqa: S102
+    exec(compile(blocks[1], "tutorial-2", "exec"), namespace)
     assert (tmp_path / "cart.png").stat().st_size > 0
 
 

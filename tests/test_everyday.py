@@ -17,7 +17,7 @@ import pytest
 
 from delaycomp import cli, scenarios, sweep
 from delaycomp.lti import lifted_loop
-from delaycomp.outputs import CsvStream, OutputError, check_output, output_every
+from delaycomp.outputs import CsvStream, OutputError, check_output
 from delaycomp.plotting import Timing, loop_title, result_figure
 from delaycomp.simulate import run_loop
 
@@ -258,7 +258,7 @@ def test_units_where_the_model_fixes_them(capsys, tmp_path):
 
 def test_compare_draws_both_modes_of_the_same_loop(capsys, tmp_path):
     png = tmp_path / "both.png"
-    code, out, err = run_cli(capsys, "run", "example-3.6", *FAST, "--set", "r=0.5",
+    code, _, err = run_cli(capsys, "run", "example-3.6", *FAST, "--set", "r=0.5",
                              "--stop-time", "5", "--compare", "--plot", str(png))
     assert code == 0 and png.stat().st_size > 0, err
     sc = scenarios.get("example-3.6")
