@@ -42,10 +42,9 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from delaycomp import __version__, check, scenarios  # noqa: E402
-from delaycomp.orchestrator.master import Connection, Master, Recorder  # noqa: E402
 from delaycomp.simulate import (  # noqa: E402
     fmu_path,
-    make_components,
+    make_master,
     run_loop,
     single_threaded_blas,
 )
@@ -93,8 +92,8 @@ def bench_engines(names, Ns, repeats, fmu_dir):
             p = sc.resolve([f"N={N}"])
             spec = sc.make(p)
             stop = stop_for(sc, N, p["T"])
-            for kind, config, _ in spec.instances.values():
-                fmu_path(kind, config, fmu_dir)  # built before timing
+            for inst in spec.instances:
+                fmu_path(*inst.source.build_key(), fmu_dir)  # built before timing
             med = alternate({
                 "fmu": lambda spec=spec, stop=stop: run_loop(spec, stop, fmu_dir),
                 "inprocess": lambda spec=spec, stop=stop: run_loop(spec, stop,
@@ -144,11 +143,10 @@ def bench_example_3_6(repeats, fmu_dir):
 # -- 2. master overhead ----------------------------------------------------------------------
 
 def _ready_master(spec, stop, fmu_dir, record=True):
-    comps = make_components(spec, "fmu", fmu_dir)
-    master = Master(comps, [Connection.parse(c) for c in spec.connections], spec.T, spec.N)
-    if record:
-        master.add_observer(Recorder(master, spec.recorded))
-    master.setup(stop, {n: prm for n, (_, _, prm) in spec.instances.items()})
+    master, recorder = make_master(spec, fmu_dir)
+    if not record:
+        master._observers.remove(recorder)  # the bare master: no recording
+    master.setup(stop, spec.parameters())
     master.initialize()
     return master
 
@@ -434,7 +432,7 @@ def main(argv=None) -> int:
         print("building FMUs ...", flush=True)
         for name in names:
             sc = scenarios.get(name)
-            for kind, config, _ in sc.make(sc.resolve([])).instances.values():
+            for kind, config in (i.source.build_key() for i in sc.loop([]).instances):
                 fmu_path(kind, config, fmu_dir)
         print("Example 3.6 against real time", flush=True)
         results["ex36"] = bench_example_3_6(args.repeats, fmu_dir)

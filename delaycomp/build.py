@@ -29,8 +29,9 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 
 #: Modules of :mod:`delaycomp` that run inside the FMUs (no CLI, no plotting, no fmpy).
 #: The built-in models (``models/*.py``) are bundled too: their modules import each other.
-BUNDLED_MODULES = ("__init__.py", "lti.py", "controller.py", "delayline.py", "fmuslave.py",
-                   "names.py", "history.py", "model.py", "nlcontrol.py", "predictors.py",
+BUNDLED_MODULES = ("__init__.py", "errors.py", "grid.py", "lti.py", "controller.py",
+                   "delayline.py", "fmuslave.py", "names.py", "history.py", "model.py",
+                   "nlcontrol.py", "predictors.py",
                    *sorted(f"models/{p.name}" for p in (PACKAGE_DIR / "models").glob("*.py")))
 
 

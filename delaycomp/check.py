@@ -20,150 +20,72 @@ Tolerances, from the maths:
 
 from __future__ import annotations
 
-import csv
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
 
-import numpy as np
-
-#: the repository's reference traces (present in a clone or an editable install)
-REFERENCE_DIR = Path(__file__).resolve().parent.parent / "reference"
-
-#: zero-order-hold tolerance: ``|error| <= EXACT_TOL (1 + |ref|)``
-EXACT_TOL = 1e-9
-#: continuous input at N = 100: ``max |error| <= FIRST_ORDER_FRACTION * max |ref|``
-FIRST_ORDER_FRACTION = 0.02
-
-
-@dataclass(frozen=True)
-class RefCase:
-    """A scenario with its parameters and the reference trace it must reproduce."""
-
-    scenario: str
-    case: str
-    sets: tuple[str, ...]
-    #: ``exact`` (zero-order hold, round-off only) or ``first-order`` (continuous input)
-    kind: str
-
-    @property
-    def id(self) -> str:
-        return f"{self.scenario}/{self.case}"
-
-    @property
-    def csv_path(self) -> Path:
-        return REFERENCE_DIR / self.scenario / f"{self.case}_ref.csv"
-
-    @property
-    def opt_path(self) -> Path:
-        return REFERENCE_DIR / self.scenario / f"{self.case}_ref.opt"
-
-    def reference(self) -> tuple[list[str], np.ndarray]:
-        """Header (``time`` first) and the rows of the reference trace."""
-        if not self.csv_path.exists():
-            raise FileNotFoundError(
-                f"reference trace {self.csv_path.name} of {self.id} not found: the reference "
-                "traces come with a clone of the repository")
-        with open(self.csv_path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-        return rows[0], np.array(rows[1:], dtype=float)
-
-    def stop_time(self) -> float:
-        return float(self.reference()[1][-1, 0])
-
-
-CASES: tuple[RefCase, ...] = (
-    RefCase("example-3.6", "fig1", ("r=0.1", "mode=uncompensated"), "exact"),
-    RefCase("example-3.6", "fig2", ("r=0.3", "mode=uncompensated"), "exact"),
-    RefCase("example-3.6", "fig3", ("r=0.3", "mode=compensated", "u0=4"), "exact"),
-    RefCase("example-2.4", "default", (), "first-order"),
-    RefCase("example-2.4", "sparse", ("T=2",), "first-order"),
-    RefCase("example-3.8", "default", (), "exact"),
-    RefCase("example-3.8", "delayed", ("tau=1", "r=1.5"), "exact"),
-    RefCase("example-3.8", "sin", ("p=sin",), "exact"),
-    RefCase("corollary-3.7", "default", (), "exact"),
-    RefCase("corollary-3.7", "n2", ("n=2", "T=0.5", "r=0.75", "tau=0.5", "x0=1,-2", "u0=0.7"),
-            "exact"),
-    RefCase("corollary-4.1", "default", (), "first-order"),
-    RefCase("proposition-4.2", "default", (), "exact"),
-    RefCase("proposition-4.2", "nodelay_r", ("tau=0", "x0=-2,0.5,2.5"), "exact"),
+from .cases import (  # noqa: F401 - the cases are part of this module's interface
+    CASES,
+    EXACT_TOL,
+    FIRST_ORDER_FRACTION,
+    REFERENCE_DIR,
+    CheckRow,
+    Comparison,
+    RefCase,
+    case,
+    compare,
+    loop_case,
 )
-
-
-def case(case_id: str) -> RefCase:
-    """The case ``scenario/case``."""
-    for c in CASES:
-        if c.id == case_id:
-            return c
-    raise KeyError(f"no reference case {case_id!r}: allowed are "
-                   f"{', '.join(c.id for c in CASES)}")
-
-
-@dataclass(frozen=True)
-class CheckRow:
-    """One line of the cross-check table."""
-
-    case: str
-    master: str
-    max_error: float
-    #: what ``max_error`` is held to, as text (``1e-09 x (1 + abs(ref))``, ...)
-    tolerance: str
-    passed: bool
-    note: str = ""
-
-
-@dataclass(frozen=True)
-class Comparison:
-    max_error: float
-    tolerance: str
-    passed: bool
-
-
-def compare(c: RefCase, names: list[str], times: np.ndarray, data: np.ndarray,
-            stride: int = 1, ref_stride: int = 1) -> Comparison:
-    """Compare a recorded trajectory with the reference of ``c``, pointwise.
-
-    ``names`` are the trajectory's columns (``plant.x``, ...), ``data[k, j]`` their values at
-    ``times[k]``; every reference column must be present (none is skipped). ``stride`` takes
-    every ``stride``-th row of the trajectory (a run at a finer base step), ``ref_stride``
-    every ``ref_stride``-th row of the reference (a run sampled at ``t0 + iT``). For
-    ``first-order`` cases only the N = 100 bound is checked here (the halving needs a
-    second run, see :func:`first_order_ratio`).
-    """
-    header, ref = c.reference()
-    ref = ref[::ref_stride]
-    missing = [n for n in header[1:] if n not in names]
-    if missing:
-        raise ValueError(f"{c.id}: the run has no column {', '.join(missing)}")
-    cols = [names.index(n) for n in header[1:]]
-    got = np.asarray(data, dtype=float)[::stride][:, cols]
-    t = np.asarray(times, dtype=float)[::stride]
-    if got.shape != ref[:, 1:].shape or not np.allclose(t, ref[:, 0], rtol=0, atol=1e-9):
-        return Comparison(float("inf"), "same time grid as the reference", False)
-    err = np.abs(got - ref[:, 1:])
-    if not np.all(np.isfinite(err)):
-        return Comparison(float("inf"), "finite", False)
-    if c.kind == "exact":
-        ratio = err / (1.0 + np.abs(ref[:, 1:]))
-        return Comparison(float(err.max()), f"{EXACT_TOL:g} x (1 + abs(ref))",
-                          bool(np.all(ratio <= EXACT_TOL)))
-    bound = FIRST_ORDER_FRACTION * float(np.abs(ref[:, 1:]).max())
-    return Comparison(float(err.max()), f"{bound:.3g} (2% of max abs(ref))",
-                      bool(err.max() <= bound))
-
 
 #: A provider runs cases in one master: ``provider(cases) -> rows``.
 Provider = Callable[[Iterable[RefCase]], Iterable[CheckRow]]
 
 
+@dataclass(frozen=True)
+class Requirement:
+    """What an optional master needs: importable ``modules`` and the command that installs
+    them (``hint``)."""
+
+    modules: tuple[str, ...]
+    hint: str
+
+    def missing(self) -> list[str]:
+        """The modules of :attr:`modules` that cannot be imported here."""
+        import importlib.util
+
+        return [m for m in self.modules if importlib.util.find_spec(m) is None]
+
+
+@dataclass(frozen=True)
+class Master:
+    """A registered master: its provider and, for an optional one, what it needs."""
+
+    provider: Provider
+    requires: Requirement | None = None
+
+    def unavailable(self) -> str | None:
+        """Why this master cannot run here (``"not installed: ..."``), else ``None``."""
+        if self.requires is None:
+            return None
+        missing = self.requires.missing()
+        if not missing:
+            return None
+        return f"not installed ({', '.join(missing)}): {self.requires.hint}"
+
+
 @dataclass
 class Registry:
-    """Named providers, in the order their rows are printed."""
+    """Named masters, in the order their rows are printed."""
 
-    providers: dict[str, Provider] = field(default_factory=dict)
+    masters: dict[str, Master] = field(default_factory=dict)
 
-    def register(self, name: str, provider: Provider) -> None:
-        self.providers[name] = provider
+    def register(self, name: str, provider: Provider,
+                 requires: Requirement | None = None) -> None:
+        self.masters[name] = Master(provider, requires)
+
+    @property
+    def providers(self) -> dict[str, Provider]:
+        return {name: m.provider for name, m in self.masters.items()}
 
 
 PROVIDERS = Registry()
@@ -171,12 +93,10 @@ PROVIDERS = Registry()
 
 def _run_ours(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """Our master with the FMUs (from the build cache) against each reference."""
-    from . import scenarios
     from .simulate import run_loop
 
     for c in cases:
-        sc = scenarios.get(c.scenario)
-        res = run_loop(sc.make(sc.resolve(list(c.sets))), c.stop_time())
+        res = run_loop(c.loop(), c.stop_time())
         if not res.success:
             yield CheckRow(c.id, "delaycomp", float("inf"), "-", False, res.message)
             continue
@@ -205,7 +125,10 @@ def _run_container(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     return run_container_cases(cases)
 
 
-PROVIDERS.register("container", _run_container)
+#: the extra that brings fmu-manipulation-toolbox
+CONTAINER = Requirement(("fmu_manipulation_toolbox",),
+                        "pip install 'delaycomp[container]'")
+PROVIDERS.register("container", _run_container, CONTAINER)
 
 
 def _third_party(master: str) -> Provider:
@@ -218,22 +141,36 @@ def _third_party(master: str) -> Provider:
 
 
 #: libcosim and Ecos run each case's Jacobi variant (see :mod:`delaycomp.thirdparty`)
-PROVIDERS.register("libcosim", _third_party("libcosim"))
-PROVIDERS.register("ecos", _third_party("ecos"))
+PROVIDERS.register("libcosim", _third_party("libcosim"),
+                   Requirement(("libcosimpy",), "pip install 'delaycomp[masters]'"))
+PROVIDERS.register("ecos", _third_party("ecos"),
+                   Requirement(("ecospy", "tbb"), "pip install 'delaycomp[masters]'"))
 
 
-def run_checks(cases: Iterable[RefCase] = CASES,
-               masters: Iterable[str] | None = None) -> list[CheckRow]:
-    """Every provider (or those named in ``masters``) over ``cases``."""
+def run_checks(cases: Iterable[RefCase] = CASES, masters: Iterable[str] | None = None,
+               require_all: bool = False) -> list[CheckRow]:
+    """Every master (or those named in ``masters``) over ``cases``.
+
+    An optional master that is not installed gives one row with ``passed=None`` (not run,
+    not a failure of the software) and the command that installs it; it is a failed row
+    (``passed=False``) when it was named in ``masters`` or ``require_all`` is set.
+    """
     cases = list(cases)
-    names = list(PROVIDERS.providers) if masters is None else list(masters)
+    names = list(PROVIDERS.masters) if masters is None else list(masters)
     rows: list[CheckRow] = []
     for name in names:
-        if name not in PROVIDERS.providers:
+        if name not in PROVIDERS.masters:
             raise KeyError(f"unknown master {name!r}: allowed are "
-                           f"{', '.join(PROVIDERS.providers)}")
+                           f"{', '.join(PROVIDERS.masters)}")
+        master = PROVIDERS.masters[name]
+        absent = master.unavailable()
+        if absent is not None:
+            required = require_all or masters is not None
+            rows.append(CheckRow("*", name, math.nan, "-", False if required else None,
+                                 absent))
+            continue
         try:
-            rows.extend(PROVIDERS.providers[name](cases))
+            rows.extend(master.provider(cases))
         except Exception as exc:  # noqa: BLE001 - a broken master is a failed row, not a crash
             rows.append(CheckRow("*", name, float("inf"), "-", False,
                                  f"{type(exc).__name__}: {exc}"))
@@ -246,6 +183,7 @@ def format_table(rows: list[CheckRow]) -> str:
              "|---|---|---|---|---|"]
     for r in rows:
         note = f" ({r.note})" if r.note else ""
-        lines.append(f"| {r.case} | {r.master} | {r.max_error:.3g} | {r.tolerance} | "
-                     f"{'yes' if r.passed else 'NO'}{note} |")
+        verdict = {True: "yes", False: "NO", None: "skipped"}[r.passed]
+        error = "-" if math.isnan(r.max_error) else f"{r.max_error:.3g}"
+        lines.append(f"| {r.case} | {r.master} | {error} | {r.tolerance} | {verdict}{note} |")
     return "\n".join(lines)

@@ -1,7 +1,7 @@
 """The whole loop as one FMU: a container FMU made with fmu-manipulation-toolbox.
 
 ``delaycomp export-loop SCENARIO --out FILE.fmu`` puts the plant, the two delays and the
-controller of a :class:`~delaycomp.scenarios.LoopSpec` into one FMI 2.0 co-simulation FMU
+controller of a :class:`~delaycomp.system.Loop` into one FMI 2.0 co-simulation FMU
 (fmu-manipulation-toolbox's FMU container). The container steps its FMUs at the base step
 ``h = T/N`` inside each of its own communication steps, so an importer runs it with
 ``output_interval = T`` and gets the loop at the sampling instants.
@@ -41,6 +41,7 @@ controller needs ``x(t_i)`` before ``t_i`` is reached, which only direct feedthr
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -51,13 +52,14 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from .check import CheckRow, RefCase, compare
+from .cases import CheckRow, RefCase, compare
 from .child import module_argv
-from .scenarios import LoopSpec, ParameterError
+from .errors import ParameterError
+from .system import Loop
 
-#: inner order of the container (see the module docstring)
+#: inner order of the container, by role (see the module docstring)
 ORDER = ("input_delay", "plant", "meas_delay", "controller")
-#: base steps added to each delay to absorb the container's order
+#: base steps added to each delay (by role) to absorb the container's order
 ADDED_STEPS = {"meas_delay": 1, "input_delay": 1}
 
 
@@ -71,60 +73,63 @@ def _toolbox():
     except ImportError:
         raise ContainerError(
             "export-loop needs fmu-manipulation-toolbox >= 2.0: pip install "
-            "'fmu-manipulation-toolbox>=2.0'") from None
+            "'delaycomp[container]'") from None
     return Assembly
 
 
-def output_names(spec: LoopSpec) -> dict[str, str]:
+def output_names(spec: Loop) -> dict[str, str]:
     """Container output name -> the loop's column (``plant.x``): the variable's own name,
     or ``instance_variable`` where two recorded signals share a variable name."""
-    names = [v for _, v in spec.recorded]
+    names = [p.variable for p in spec.recorded]
     unique = len(set(names)) == len(names)
-    return {(v if unique else f"{i}_{v}"): f"{i}.{v}" for i, v in spec.recorded}
+    return {(p.variable if unique else f"{p.instance}_{p.variable}"): str(p)
+            for p in spec.recorded}
 
 
-def description(spec: LoopSpec, fmu_files: dict[str, str], name: str) -> dict:
+def _ordered(spec: Loop) -> list:
+    """The loop's instances in the container's order (by role); all four roles needed."""
+    members = [spec.by_role(role) for role in ORDER]
+    if None in members or len(spec.instances) != len(ORDER):
+        raise ParameterError(f"a loop container needs exactly the roles {', '.join(ORDER)}")
+    return members
+
+
+def _text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (str, int)):
+        return str(value)
+    return repr(float(value))
+
+
+def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
     """The container's JSON description (fmu-manipulation-toolbox's format)."""
-    if set(spec.instances) != set(ORDER):
-        raise ParameterError(f"a loop container needs the instances {', '.join(ORDER)}")
-    h = spec.T / spec.N
-    meas = spec.instances["meas_delay"][2]["delay"]
+    members = _ordered(spec)
+    h = spec.h
+    meas = spec.by_role("meas_delay").parameters["delay"]
     if meas < h * (1 - 1e-9):
         raise ParameterError(
             f"parameter r = {meas!r} is not allowed for export-loop: the measurement delay "
             f"must be at least one base step h = T/N = {h!r} (the container reads outputs "
             "before it sets inputs, so r = 0 would need direct feedthrough)")
     start = []
-    for inst in ORDER:
-        _, _, params = spec.instances[inst]
-        params = dict(params)
-        if inst in ADDED_STEPS:
-            params["delay"] = params["delay"] + ADDED_STEPS[inst] * h
-        if inst == "controller":
+    for inst in members:
+        params = dict(inst.parameters)
+        if inst.role in ADDED_STEPS:
+            params["delay"] = params["delay"] + ADDED_STEPS[inst.role] * h
+        if inst.role == "controller":
             params["held_sample"] = True
-        for key, value in params.items():
-            if isinstance(value, bool):
-                text = "true" if value else "false"
-            elif isinstance(value, str):
-                text = value
-            elif isinstance(value, int):
-                text = str(value)
-            else:
-                text = repr(float(value))
-            start.append([f"{inst}.fmu", key, text])
-    links = []
-    for con in spec.connections:
-        left, right = (part.strip() for part in con.split("->"))
-        (src, src_var), (dst, dst_var) = left.split(".", 1), right.split(".", 1)
-        links.append([f"{src}.fmu", src_var, f"{dst}.fmu", dst_var])
+        start += [[f"{inst.name}.fmu", key, _text(value)] for key, value in params.items()]
+    links = [[f"{c.src.instance}.fmu", c.src.variable, f"{c.dst.instance}.fmu",
+              c.dst.variable] for c in spec.connections]
     outputs = [[f"{col.split('.', 1)[0]}.fmu", col.split(".", 1)[1], out]
                for out, col in output_names(spec).items()]
     return {
         "name": name, "step_size": h, "sequential": True, "mt": False,
         "auto_link": False, "auto_input": False, "auto_output": False,
         "auto_parameter": False, "auto_local": False,
-        "fmu": [f"{inst}.fmu" for inst in ORDER],
-        "path": {f"{inst}.fmu": fmu_files[inst] for inst in ORDER},
+        "fmu": [f"{inst.name}.fmu" for inst in members],
+        "path": {f"{inst.name}.fmu": fmu_files[inst.name] for inst in members},
         "link": links, "output": outputs, "start": start,
     }
 
@@ -134,9 +139,9 @@ def _identifier(path: Path) -> str:
     return ident if ident and not ident[0].isdigit() else f"loop_{ident}"
 
 
-def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None) -> Path:
+def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None) -> Path:
     """Write the loop ``spec`` as one container FMU to ``out``; return ``out``."""
-    from .simulate import fmu_path
+    from .simulate import source_fmu
 
     Assembly = _toolbox()
     out = Path(out)
@@ -144,12 +149,11 @@ def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None) -> Path:
     with tempfile.TemporaryDirectory(prefix="delaycomp-loop-") as tmp:
         work = Path(tmp)
         files = {}
-        for inst in ORDER:
-            kind, config, _ = spec.instances[inst]
-            src = fmu_path(kind, config, fmu_dir)
+        for inst in _ordered(spec):
+            src = source_fmu(inst.source, fmu_dir)
             if not (work / src.name).exists():
                 shutil.copy2(src, work / src.name)
-            files[inst] = src.name
+            files[inst.name] = src.name
         desc = description(spec, files, f"{ident}.fmu")
         (work / "loop.json").write_text(json.dumps(desc, indent=1), encoding="utf-8")
         log = logging.getLogger("fmu_manipulation_toolbox")
@@ -171,7 +175,7 @@ def export_loop(spec: LoopSpec, out: Path, fmu_dir: Path | None = None) -> Path:
     return out
 
 
-def simulate_loop(path: Path, spec: LoopSpec, stop_time: float):
+def simulate_loop(path: Path, spec: Loop, stop_time: float):
     """``fmpy.simulate_fmu`` on the container at ``output_interval = T``: the times and
     the columns ``plant.x ...`` at the sampling instants."""
     import numpy as np
@@ -187,13 +191,10 @@ def simulate_loop(path: Path, spec: LoopSpec, stop_time: float):
 
 def run_container_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """The container of each case against its reference at the sampling instants."""
-    from . import scenarios
-
     with tempfile.TemporaryDirectory(prefix="delaycomp-container-") as tmp:
         for c in cases:
             try:
-                sc = scenarios.get(c.scenario)
-                spec = sc.make(sc.resolve(list(c.sets)))
+                spec = c.loop()
                 path = export_loop(spec, Path(tmp) / "loop.fmu")
                 names, times, data = _simulate_in_child(path, c)
                 cmp = compare(c, names, times, data, stride=1, ref_stride=spec.N)
@@ -212,7 +213,8 @@ def _simulate_in_child(path: Path, c: RefCase):
 
     import numpy as np
 
-    proc = subprocess.run(module_argv("delaycomp.container", str(path), c.id),
+    proc = subprocess.run(module_argv("delaycomp.container", str(path),
+                                      json.dumps(dataclasses.asdict(c))),
                           capture_output=True, text=True, timeout=1200)
     if proc.returncode != 0:
         reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]
@@ -222,12 +224,10 @@ def _simulate_in_child(path: Path, c: RefCase):
 
 
 def _main(argv: list[str]) -> int:
-    from . import check, scenarios
-
-    path, case_id = Path(argv[0]), argv[1]
-    c = check.case(case_id)
-    sc = scenarios.get(c.scenario)
-    spec = sc.make(sc.resolve(list(c.sets)))
+    path = Path(argv[0])
+    fields = json.loads(argv[1])
+    c = RefCase(**{**fields, "sets": tuple(fields["sets"])})
+    spec = c.loop()
     names, times, data = simulate_loop(path, spec, c.stop_time())
     print(json.dumps({"names": names, "times": times.tolist(), "data": data.tolist()}),
           flush=True)

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import ParameterError
 from .lti import critical_delay, lifted_loop
-from .scenarios import ParameterError, Scenario
+from .system import Loop, LtiDesign, lti_loop
 
 #: Half-width of the bracket confirmed by co-simulation, as a fraction of T.
 CONFIRM_OFFSET = 0.005
@@ -53,18 +54,28 @@ def fitted_spectral_radius(result, n: int, m: int, T: float, N: int, r: float,
     return float(np.max(np.abs(np.linalg.eigvals(M))))
 
 
-def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
+def _design(source, sets: list[str]) -> tuple[Loop, LtiDesign]:
+    """The loop of ``source`` (a scenario or a loop file) with ``sets``, and its LTI design.
+
+    ``r`` is what the search varies: it is resolved as 0 (on every grid) before ``sets``,
+    so a default ``r`` off a new base grid does not stop the search.
+    """
+    loop = source.loop(["r=0", *sets])
+    if loop.lti is None:
+        raise ParameterError(f"critical-delay needs an LTI loop; {source.name} is not")
+    return loop, loop.lti
+
+
+def critical_delay_report(source, sets: list[str], periods: int,
                           fmu_dir: Path | None = None) -> CriticalDelayReport:
+    """``r_c`` of the uncompensated loop from the lifted model, confirmed by co-simulation
+    just below and just above it (``source``: a scenario or a loop file)."""
     from .simulate import run_loop
 
-    if scenario.lti is None:
-        raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
-    # r is what is searched: resolve with r = 0, which is on every base grid (a default r
-    # off the grid of a new T or N must not stop the search)
-    params = scenario.resolve(["r=0", *sets])
-    A, B, K = scenario.lti(params)
-    T, tau = params["T"], params["tau"]
-    fixed = held_fixed(params)
+    loop, d = _design(source, sets)
+    A, B, K = d.A, d.B, d.K
+    T, tau = loop.T, d.tau
+    fixed = _held_fixed(source, loop, d, sets)
 
     def rho(r: float) -> float:
         return lifted_loop(A, B, K, T, r, tau, "uncompensated").spectral_radius
@@ -83,14 +94,14 @@ def critical_delay_report(scenario: Scenario, sets: list[str], periods: int,
     report = CriticalDelayReport(r_c)
     report.lines.append(f"searched the measurement delay r of the uncompensated loop with "
                         f"{fixed} held fixed")
-    N = max(int(params["N"]), CONFIRM_N)
+    N = max(loop.N, CONFIRM_N)
     h = T / N
     r_lo = max(math.floor((r_c - CONFIRM_OFFSET * T) / h) * h, 0.0)
     r_hi = math.ceil((r_c + CONFIRM_OFFSET * T) / h) * h
     ok = []
     for r, side in ((r_lo, "below"), (r_hi, "above")):
-        p = scenario.resolve(["r=0", *sets, f"r={r!r}", f"N={N}", "mode=uncompensated"])
-        result = run_loop(scenario.make(p), periods * T, fmu_dir)
+        confirm = lti_loop(A, B, K, T, r, tau, N, "uncompensated", d.x0, d.u0)
+        result = run_loop(confirm, periods * T, fmu_dir)
         lifted = lifted_loop(A, B, K, T, r, tau, "uncompensated")
         g_exact = lifted.spectral_radius
         g_sim = fitted_spectral_radius(result, lifted.n, lifted.m, T, N, r, lifted.L)
@@ -121,6 +132,15 @@ def held_fixed(params: dict) -> str:
     return ", ".join([f"T = {params['T']:g}", f"tau = {params['tau']:g}", *rest])
 
 
+def _held_fixed(source, loop: Loop, d: LtiDesign, sets: list[str]) -> str:
+    """What a search over ``r`` holds fixed: a scenario's parameters by name
+    (:func:`held_fixed`), a loop file's ``T``, ``tau`` and gain ``K``."""
+    if hasattr(source, "params"):  # a scenario: its own parameter names
+        return held_fixed(source.resolve(["r=0", *sets]))
+    gain = np.array2string(np.asarray(d.K, dtype=float), precision=6, separator=", ")
+    return f"T = {loop.T:g}, tau = {d.tau:g}, K = {' '.join(gain.split())}"
+
+
 def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:
     """``r_c`` for ``mode``, or ``"unstable"`` (at r = 0) or ``"stable"`` (up to r_max).
 
@@ -141,7 +161,7 @@ def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:
         return "stable"
 
 
-def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
+def critical_delay_table(source, sets: list[str], grid: str,
                          out: Path | None = None, plot: Path | None = None) -> list[str]:
     """``r_c`` of the uncompensated and of the compensated loop along one parameter.
 
@@ -153,18 +173,14 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
     """
     from .sweep import _fmt, parse_grid
 
-    if scenario.lti is None:
-        raise ParameterError(f"critical-delay needs an LTI scenario; {scenario.name} is not")
     axis = parse_grid(grid)
     lines = [f"{axis.name:>10} {'r_c uncompensated':>18} {'r_c compensated':>18}"]
     table = []
     for value in axis.values:
-        # r is what is searched: resolve with r = 0, which is on every grid
-        p = scenario.resolve(["r=0", *sets, f"{axis.name}={_fmt(value)}"])
-        A, B, K = scenario.lti(p)
-        r_max = max(R_MAX_PERIODS * p["T"], R_MAX_MIN)
-        uncomp = _r_c(A, B, K, p["T"], p["tau"], "uncompensated", r_max)
-        comp = _r_c(A, B, K, p["T"], p["tau"], "compensated", r_max)
+        loop, d = _design(source, [*sets, f"{axis.name}={_fmt(value)}"])
+        r_max = max(R_MAX_PERIODS * loop.T, R_MAX_MIN)
+        uncomp = _r_c(d.A, d.B, d.K, loop.T, d.tau, "uncompensated", r_max)
+        comp = _r_c(d.A, d.B, d.K, loop.T, d.tau, "compensated", r_max)
         table.append((value, uncomp, comp, r_max))
         cells = [f"{v:.9f}" if isinstance(v, float) else
                  {"unstable": "unstable at r=0", "stable": f"stable r<={r_max:g}"}.get(v, v)
@@ -183,7 +199,7 @@ def critical_delay_table(scenario: Scenario, sets: list[str], grid: str,
                                            for v in (uncomp, comp))])
         tmp.replace(out)
     if plot:
-        _plot_table(table, axis.name, plot, scenario.name + " " + " ".join(sets))
+        _plot_table(table, axis.name, plot, source.name + " " + " ".join(sets))
     return lines
 
 

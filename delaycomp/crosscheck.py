@@ -63,7 +63,7 @@ import numpy as np
 
 import delaycomp
 
-from .check import EXACT_TOL, CheckRow, RefCase
+from .cases import EXACT_TOL, CheckRow, RefCase
 from .child import module_argv
 
 #: tool folder of the cross-check tree
@@ -88,11 +88,7 @@ def model_name(c: RefCase, instance: str) -> str:
 
 def stop_time(c: RefCase) -> float:
     """``PERIODS`` sampling periods, or the reference's stop time if shorter."""
-    from . import scenarios
-
-    sc = scenarios.get(c.scenario)
-    T = sc.resolve(list(c.sets))["T"]
-    return min(c.stop_time(), PERIODS * T)
+    return min(c.stop_time(), PERIODS * c.loop().T)
 
 
 # -- recording the loop ------------------------------------------------------------------
@@ -164,33 +160,31 @@ class _Tap:
 def record_case(c: RefCase, fmu_dir: Path | None = None) -> dict[str, Trace]:
     """Run the loop of ``c`` to :func:`stop_time` with every instance tapped."""
     from delaycomp.orchestrator.fmu import FmuComponent
-    from delaycomp.orchestrator.master import Connection, Master, Recorder
 
-    from . import scenarios
-    from .simulate import fmu_path, stop_ticks
+    from .simulate import make_master, source_fmu
 
-    sc = scenarios.get(c.scenario)
-    spec = sc.make(sc.resolve(list(c.sets)))
+    spec = c.loop()
     stop = stop_time(c)
-    ticks = stop_ticks(stop, spec.T, spec.N)
-    taps = {name: _Tap(FmuComponent(name, fmu_path(kind, config, fmu_dir)))
-            for name, (kind, config, _) in spec.instances.items()}
-    master = Master(taps.values(), [Connection.parse(x) for x in spec.connections],
-                    spec.T, spec.N)
-    recorder = Recorder(master, [])
-    master.add_observer(recorder)
+    ticks = spec.timing.ticks(stop)
+    taps = {i.name: _Tap(FmuComponent(i.name, source_fmu(i.source, fmu_dir)))
+            for i in spec.instances}
+    master, recorder = make_master(spec, components=list(taps.values()))
     try:
-        master.setup(stop, {name: p for name, (_, _, p) in spec.instances.items()})
+        master.setup(stop, spec.parameters())
         master.initialize()
         for tap in taps.values():
             tap.first_outputs()
         master.run_until(ticks)
     finally:
         master.terminate()
-    return {name: Trace(name, kind, dict(config), dict(params), tap.input_names,
-                        tap.output_names, list(recorder.times), tap.inputs, tap.outputs)
-            for (name, (kind, config, params)), tap in zip(spec.instances.items(),
-                                                           taps.values())}
+    traces = {}
+    for inst in spec.instances:
+        kind, config = inst.source.build_key()
+        tap = taps[inst.name]
+        traces[inst.name] = Trace(inst.name, kind, config, dict(inst.parameters),
+                                  tap.input_names, tap.output_names, list(recorder.times),
+                                  tap.inputs, tap.outputs)
+    return traces
 
 
 # -- the files ---------------------------------------------------------------------------

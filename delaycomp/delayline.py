@@ -16,24 +16,12 @@ from __future__ import annotations
 
 from collections import deque
 
-from .lti import GRID_RTOL, check_steps
+from . import grid
 
 
 def steps_of(delay: float, h: float) -> int:
     """Return ``D`` with ``delay = D h``; raise ``ValueError`` if there is none."""
-    if not h > 0:
-        raise ValueError(f"step size must be > 0, got {h!r}")
-    if not delay >= 0:
-        raise ValueError(f"delay must be >= 0, got {delay!r}")
-    ratio = delay / h
-    check_steps("delay", delay, ratio, f"communication steps of {h!r}")
-    D = round(ratio)
-    if abs(ratio - D) > GRID_RTOL * max(1.0, ratio):
-        raise ValueError(
-            f"delay = {delay!r} is not allowed: must be an integer multiple of the "
-            f"communication step {h!r}"
-        )
-    return int(D)
+    return grid.steps_of(delay, h, "delay", f"the communication step {h!r}")
 
 
 class DelayLine:

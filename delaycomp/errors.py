@@ -11,10 +11,29 @@ from __future__ import annotations
 from pathlib import Path
 
 
-class BadFileError(Exception):
+class DelaycompError(Exception):
+    """Base of the errors delaycomp raises for bad input or a failed run (the CLI prints
+    them as one line)."""
+
+
+class BadFileError(DelaycompError):
     """A user-supplied file is missing, corrupt or foreign; the message names it."""
 
     def __init__(self, path: str | Path, reason: str):
         self.path = Path(path)
         self.reason = " ".join(str(reason).split())  # one line
         super().__init__(f"{self.path}: {self.reason}")
+
+
+class ParameterError(DelaycompError, ValueError):
+    """A loop or scenario parameter is unknown or outside its allowed range (one-line
+    message naming the parameter and the allowed range)."""
+
+
+class SimulationFailed(DelaycompError, RuntimeError):
+    """A co-simulation stopped before its stop time (a component refused a step). The
+    rows recorded up to the failure are in :attr:`result` (``success`` is False)."""
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result

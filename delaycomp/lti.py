@@ -10,7 +10,6 @@ Notation follows Karafyllis & Krstic: plant ``x' = A x + B u(t - tau)``, measure
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -19,22 +18,12 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
+# the base grid is decided in one place; re-exported for the FMUs' imports
+from .grid import GRID_RTOL, MAX_STEPS, check_steps  # noqa: F401
+from .grid import split as split_delay
+
 Mode = Literal["compensated", "uncompensated"]
 MODES: tuple[str, ...] = ("compensated", "uncompensated")
-
-#: Relative slack used when deciding whether a delay is a multiple of a period.
-GRID_RTOL = 1e-9
-#: Longest buffer (delay line, input history, predictor window) in steps: a bad parameter
-#: (a huge delay, a tiny step) must be refused, not allocate until the host is killed.
-#: 10^6 steps of a scalar signal take about 80 MB once filled.
-MAX_STEPS = 1_000_000
-
-
-def check_steps(name: str, value: float, steps: float, unit: str) -> None:
-    """Refuse a window of more than :data:`MAX_STEPS` steps of ``unit``."""
-    if not steps <= MAX_STEPS:
-        raise ValueError(f"{name} = {value!r} is not allowed: must be at most {MAX_STEPS} "
-                         f"{unit} (it needs {steps:.6g})")
 
 
 def as_matrices(A, B) -> tuple[np.ndarray, np.ndarray]:
@@ -72,23 +61,13 @@ def discretize(A, B, h: float) -> tuple[np.ndarray, np.ndarray]:
     return flow(A, B, h)
 
 
-def split_delay(r: float, T: float) -> tuple[int, float]:
-    """Return ``(q, r~)`` with ``q = [r/T]`` and ``r~ = r - qT`` in ``[0, T)``.
 
-    When ``r/T`` is an integer up to round-off (``0.3 / 0.1`` is ``2.9999999999999996``)
-    the integer is taken and ``r~ = 0``: a floor of the raw quotient would put almost a
-    whole period into ``r~``.
-    """
-    if T <= 0:
-        raise ValueError(f"T must be > 0, got {T}")
-    if r < 0:
-        raise ValueError(f"r must be >= 0, got {r}")
-    ratio = r / T
-    nearest = round(ratio)
-    if abs(ratio - nearest) <= GRID_RTOL * max(1.0, ratio):
-        return int(nearest), 0.0
-    q = math.floor(ratio)
-    return q, max(r - q * T, 0.0)
+def sampled_radius(A, B, K, T: float) -> float:
+    """Spectral radius of the delay-free sampled loop ``x_{i+1} = (Ad + Bd K) x_i`` (the
+    plant under ``u = K x`` held over each period ``T``, no delay)."""
+    Ad, Bd = discretize(A, B, T)
+    K = np.atleast_2d(np.asarray(K, dtype=float))
+    return float(np.max(np.abs(np.linalg.eigvals(Ad + Bd @ K))))
 
 
 def periods_in(tau: float, T: float) -> int:

@@ -32,11 +32,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 
+from .errors import DelaycompError
+
 CONTROLS = ("continuous", "zoh")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-class ModelError(ValueError):
+class ModelError(DelaycompError, ValueError):
     """The model module does not follow the interface (one-line message)."""
 
 

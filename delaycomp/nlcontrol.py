@@ -29,21 +29,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import grid
 from .delayline import DelayLine
+from .grid import check_steps
 from .history import InputHistory
-from .lti import GRID_RTOL, check_steps, split_delay
+from .lti import split_delay
 from .model import Model
 from .predictors import DEFAULT_TOL, integrate, numerical_predictor
 
 
 def grid_steps(value: float, h: float, name: str) -> int:
-    ratio = value / h
-    check_steps(name, value, ratio, f"base steps of h = {h!r}")
-    steps = round(ratio)
-    if abs(ratio - steps) > GRID_RTOL * max(1.0, ratio):
-        raise ValueError(f"{name} = {value!r} is not allowed: must be a multiple of the base "
-                         f"step h = {h!r}")
-    return int(steps)
+    """Base steps in ``value`` (:func:`delaycomp.grid.steps_of`)."""
+    return grid.steps_of(value, h, name)
 
 
 def padded_delay(tau: float, T: float) -> float:
@@ -71,6 +68,16 @@ class ModelPlant:
         return x
 
 
+#: the controller's predictor: the model's closed form, an ODE solve over the stored
+#: inputs, or none (the uncompensated baseline: the feedback acts on the sample itself)
+PREDICTORS = ("closed", "numerical", "none")
+
+
+def _no_prediction(y, segments, p):
+    """Phi = the sample: the loop without delay compensation (``mode = uncompensated``)."""
+    return np.asarray(y, dtype=float)
+
+
 class _Base:
     def __init__(self, model: Model, params: dict, T: float, r: float, tau: float, N: int,
                  u0, predictor: str, tol: float):
@@ -94,9 +101,11 @@ class _Base:
             self.phi = model.predictor
         elif predictor == "numerical":
             self.phi = numerical_predictor(model.f, tol, tol)
+        elif predictor == "none":  # the uncompensated baseline: the sample itself
+            self.phi = _no_prediction
         else:
-            raise ValueError(f"predictor = {predictor!r} is not allowed: must be closed or "
-                             "numerical")
+            raise ValueError(f"predictor = {predictor!r} is not allowed: must be one of "
+                             f"{', '.join(PREDICTORS)}")
         self.tol = tol
         self.k_tick = 0  # ticks since t0
 

@@ -20,7 +20,8 @@ import math
 import os
 from pathlib import Path
 
-from .scenarios import ParameterError, on_grid
+from .errors import ParameterError
+from .grid import on_grid
 
 #: suffix of the CSV of a failed run (rows up to the failure): never read as a result
 PARTIAL_SUFFIX = ".partial"
@@ -207,32 +208,40 @@ def _bytes(n: float) -> str:
     return f"{n:.3g} B"
 
 
-def estimate(spec, ticks: int, engine: str = "fmu", every: int = 1,
+def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
              keep: bool = True) -> tuple[float, float]:
     """Lower bounds of a run's wall time (s) and memory (bytes) before it starts.
 
     Memory counts the delay lines (``delay / h`` held values each), the controller's
     input history (``(r + tau) / h`` values) and, with ``keep``, the recorded rows.
+    ``loop`` is a :class:`~delaycomp.system.Loop`.
     """
-    h = spec.T / spec.N
+    h = loop.T / loop.N
     held = 0.0
-    for kind, config, params in spec.instances.values():
-        width = int(config.get("n", 1)) if kind == "delay" else int(config.get("m", 1))
-        window = params.get("delay", 0.0) if kind == "delay" else (
-            params.get("r", 0.0) + params.get("tau", 0.0))
-        held += (float(window) / h) * (BYTES_PER_HELD + BYTES_PER_HELD_VALUE * width)
+    for inst in loop.instances:
+        config = getattr(inst.source, "config", None)
+        config = config() if callable(config) else (config or {})
+        params = inst.parameters
+        if inst.role in ("meas_delay", "input_delay"):
+            width, window = int(config.get("n", 1)), float(params.get("delay", 0.0))
+        elif inst.role == "controller":
+            width = int(config.get("m", 1))
+            window = float(params.get("r", 0.0)) + float(params.get("tau", 0.0))
+        else:
+            continue
+        held += (window / h) * (BYTES_PER_HELD + BYTES_PER_HELD_VALUE * width)
     kept = 0.0
     if keep:
-        kept = (ticks / every + 1) * (len(spec.recorded) + 1) * BYTES_PER_KEPT_VALUE
+        kept = (ticks / every + 1) * (len(loop.recorded) + 1) * BYTES_PER_KEPT_VALUE
     return ticks * SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK["inprocess"]), held + kept
 
 
-def check_budget(spec, ticks: int, engine: str = "fmu", every: int = 1,
+def check_budget(loop, ticks: int, engine: str = "fmu", every: int = 1,
                  keep: bool = True) -> tuple[float, float]:
     """Refuse a run that cannot finish (:data:`MAX_RUN_SECONDS`) or cannot fit in half
     the physical memory; return the estimate ``(seconds, bytes)`` otherwise."""
-    seconds, memory = estimate(spec, ticks, engine, every, keep)
-    steps = f"{ticks:.4g} base steps (T = {spec.T!r}, N = {spec.N})"
+    seconds, memory = estimate(loop, ticks, engine, every, keep)
+    steps = f"{ticks:.4g} base steps (T = {loop.T!r}, N = {loop.N})"
     if seconds > MAX_RUN_SECONDS:
         raise OutputError(
             f"this run needs {steps}: at least {_duration(seconds)} at "
@@ -244,6 +253,6 @@ def check_budget(spec, ticks: int, engine: str = "fmu", every: int = 1,
         what = "delay buffers and kept rows" if keep else "delay buffers"
         raise OutputError(
             f"this run needs at least {_bytes(memory)} of memory for its {what} "
-            f"(T = {spec.T!r}, N = {spec.N}), over half of this machine's {_bytes(ram)}; "
+            f"(T = {loop.T!r}, N = {loop.N}), over half of this machine's {_bytes(ram)}; "
             "lower N" + (" or give --output-interval" if keep else ""))
     return seconds, memory

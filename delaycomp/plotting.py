@@ -1,16 +1,20 @@
 """Plots of recorded trajectories (matplotlib, no display needed).
 
+:func:`figure` draws into a new :class:`matplotlib.figure.Figure` without pyplot, so it
+never switches the caller's backend nor keeps figures alive in pyplot's registry.
+
 A run's figure explains itself: a title that names the loop (:func:`loop_title`), one
 panel per signal with its unit where known, a legend, the sampling instants ``t_i`` and,
 shaded, the delay window ``[t_i - r, t_i + tau]`` of the first sample whose prediction is
 exact (``i = ceil(r/T)``, at least 1): the state measured at ``t_i`` is ``x(t_i - r)``, and
-the input the controller computes then reaches the plant at ``t_i + tau``. With
-``compare`` the compensated and uncompensated runs of the same loop share the panels.
+the input the controller computes then reaches the plant at ``t_i + tau``. Several runs of
+the same loop (``run --compare``: compensated and uncompensated) share the panels.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,13 +41,15 @@ class Timing:
     t0: float = 0.0
 
     @classmethod
-    def of_spec(cls, spec) -> Timing | None:
+    def of_loop(cls, loop) -> Timing | None:
         """From a loop's controller parameters (``None`` if it has no controller)."""
-        inst = spec.instances.get("controller")
-        if inst is None:
+        ctrl = loop.by_role("controller")
+        if ctrl is None:
             return None
-        params = inst[2]
-        return cls(float(spec.T), float(params.get("r", 0.0)), float(params.get("tau", 0.0)))
+        params = ctrl.parameters
+        return cls(float(loop.T), float(params.get("r", 0.0)), float(params.get("tau", 0.0)))
+
+    of_spec = of_loop
 
 
 def loop_title(name: str, description: str | None, params: dict | None = None) -> str:
@@ -59,7 +65,12 @@ def loop_title(name: str, description: str | None, params: dict | None = None) -
     description : str or None
         one line saying what the loop is.
     params : dict, optional
-        resolved parameters; ``T``, ``r``, ``tau`` and ``mode`` go into the second line.
+        ``T``, ``r``, ``tau`` and ``mode`` go into the second line.
+
+    Returns
+    -------
+    str
+        two lines.
 
     Examples
     --------
@@ -77,72 +88,82 @@ def loop_title(name: str, description: str | None, params: dict | None = None) -
     return head + ("\n" + ", ".join(parts) if parts else "")
 
 
+def title_of_loop(loop, compare: bool = False) -> str:
+    """:func:`loop_title` of a :class:`~delaycomp.system.Loop`: its name and title, its
+    period, the delays its controller assumes and (unless ``compare``) its mode."""
+    ctrl = loop.by_role("controller")
+    params = dict(ctrl.parameters) if ctrl is not None else {}
+    params["T"] = loop.T
+    if compare:
+        params.pop("mode", None)
+    return loop_title(loop.name, loop.title or None, params)
+
+
 def _label(name: str, units: dict[str, str]) -> str:
     var = name.split(".", 1)[-1]
     unit = units.get(var)
     return f"{name} [{unit}]" if unit else name
 
 
-def plot_result(result, path: str | Path, title: str, timing: Timing | None = None,
-                units: dict[str, str] | None = None, compare: dict | None = None) -> None:
-    """One panel per recorded signal against time; controller signals as staircases.
+def figure(results, title: str = "", labels: Sequence[str] | None = None,
+           timing: Timing | None = None, units: dict[str, str] | None = None):
+    """One panel per recorded signal against time, one line per result; controller
+    signals as staircases (they are held over each base step).
 
     Parameters
     ----------
-    result : Result
-        the run (:class:`delaycomp.simulate.Result`).
-    path : str or Path
-        the image file (its suffix picks the format); written whole or not at all.
+    results : Result or list of Result
+        the runs (:class:`delaycomp.simulate.Result`); the first one's signals make the
+        panels.
     title : str
         the figure's title (:func:`loop_title`).
+    labels : sequence of str, optional
+        one label per result, in the legend (``["compensated", "uncompensated"]``).
     timing : Timing, optional
         marks the sampling instants and the first sample's delay window.
     units : dict, optional
         unit of a signal by variable name (``{"theta": "rad"}``).
-    compare : dict, optional
-        ``{label: run}``: draw these runs of the same loop in the same panels, each
-        labelled (``{"compensated": r1, "uncompensated": r2}``); ``result`` then only
-        gives the signal names.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
-    fig = result_figure(result, title, timing, units, compare)
-    try:
-        _save(fig, Path(path))
-    finally:
-        plt.close(fig)
-
-
-def result_figure(result, title: str, timing: Timing | None = None,
-                  units: dict[str, str] | None = None, compare: dict | None = None):
-    """The figure :func:`plot_result` writes (a matplotlib ``Figure``; close it after
-    use). Parameters as there."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    results = list(results) if isinstance(results, (list, tuple)) else [results]
     units = units or {}
-    runs = list(compare.items()) if compare else [(None, result)]
-    n = len(result.names)
-    fig, axes = plt.subplots(n, 1, sharex=True, figsize=(8, 2.4 + 1.9 * n), squeeze=False)
-    colors = ("tab:blue", "tab:red", "tab:green", "tab:purple")
-    for row, (ax, name) in enumerate(zip(axes[:, 0], result.names)):
+    names = list(results[0].names)
+    n = len(names)
+    fig = Figure(figsize=(8, 2.4 + 1.9 * n))
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    t_end = max(float(r.times[-1]) for r in results if len(r.times))
+    for row, (ax, name) in enumerate(zip(axes, names)):
         style = "steps-post" if name.startswith("controller.") else "default"
-        for c, (label, res) in enumerate(runs):
-            text = name if label is None else f"{name}, {label}"
-            ax.plot(res.times, res.column(name), drawstyle=style, lw=1.4,
-                    color=colors[c % len(colors)], label=text)
+        for k, result in enumerate(results):
+            if name not in result.names:
+                continue
+            label = f"{name}, {labels[k]}" if labels else name
+            ax.plot(result.times, result.column(name), drawstyle=style, lw=1.4, label=label)
         ax.set_ylabel(_label(name, units))
         ax.grid(True, alpha=0.3)
         ax.axhline(0.0, color="k", lw=0.6)
         if timing is not None:
-            _mark_timing(ax, timing, float(result.times[-1]), legend=row == 0)
+            _mark_timing(ax, timing, t_end, legend=row == 0)
         ax.legend(fontsize=7, loc="best")
-    axes[-1, 0].set_xlabel("time t [s]")
-    fig.suptitle(title, fontsize=9)
+    axes[-1].set_xlabel("time t [s]")
+    if title:
+        fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def result_figure(result, title: str, timing: Timing | None = None,
+                  units: dict[str, str] | None = None, compare: dict | None = None):
+    """:func:`figure` of ``result``, or of the labelled runs ``compare``
+    (``{"compensated": r1, "uncompensated": r2}``) of the same loop."""
+    if compare:
+        return figure(list(compare.values()), title, list(compare), timing, units)
+    return figure(result, title, None, timing, units)
 
 
 def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
@@ -161,8 +182,9 @@ def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
                           f"t_{i} + tau" if legend else None))
 
 
-def _save(fig, path: Path) -> None:
-    """Write to ``NAME.part.SUFFIX``, then rename: no half-written image."""
+def save(fig, path: str | Path) -> None:
+    """Write ``fig`` to ``path`` through a temporary file (no half-written image)."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + ".part" + path.suffix)
     try:
@@ -171,3 +193,9 @@ def _save(fig, path: Path) -> None:
         tmp.unlink(missing_ok=True)
         raise
     tmp.replace(path)
+
+
+def plot_result(result, path: str | Path, title: str, timing: Timing | None = None,
+                units: dict[str, str] | None = None, compare: dict | None = None) -> None:
+    """:func:`result_figure` written to ``path`` (its suffix picks the format)."""
+    save(result_figure(result, title, timing, units, compare), path)

@@ -1,23 +1,27 @@
 """Scenarios: named closed loops with their parameters, defaults and allowed ranges.
 
-A scenario turns user parameters into a :class:`LoopSpec`: which FMU each instance is,
-its parameter values, the connections and the recorded signals. It does not run anything.
+A scenario turns user parameters into a :class:`~delaycomp.system.Loop` (the typed loop
+that every command runs): which FMU each instance is, its parameter values, the
+connections and the recorded signals. It does not run anything.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from .lti import GRID_RTOL, MODES, split_delay
+from .errors import ParameterError
+from .grid import on_grid
+from .lti import MODES, split_delay
 from .names import indexed
+from .system import Loop, lti_loop, model_loop
 
-
-class ParameterError(ValueError):
-    """A scenario parameter is unknown or outside its allowed range (one-line message)."""
+__all__ = ["SCENARIOS", "Loop", "Param", "ParameterError", "Scenario", "get", "lti_loop",
+           "model_loop", "loop_file", "on_grid", "open_source"]
 
 
 @dataclass(frozen=True)
@@ -70,28 +74,31 @@ def _flag(text: str) -> bool:
 
 
 @dataclass(frozen=True)
-class LoopSpec:
-    """A closed loop ready for the master."""
-
-    #: instance name -> (FMU kind of :data:`delaycomp.build.FMUS`, build config, parameters)
-    instances: dict[str, tuple[str, dict, dict]]
-    connections: list[str]
-    T: float
-    N: int
-    #: (instance, variable) recorded as CSV columns ``instance.variable``
-    recorded: list[tuple[str, str]] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
 class Scenario:
     name: str
     title: str
     params: tuple[Param, ...]
-    make: Callable[[dict], LoopSpec]
+    #: validated parameters -> the loop
+    builder: Callable[[dict], Loop]
     default_stop_time: float
     check: Callable[[dict], None] = lambda p: None
     #: for LTI scenarios: parameters -> (A, B, K) of ``x' = A x + B u``, ``u = K x``
     lti: Callable[[dict], tuple] | None = None
+
+    def make(self, params: dict) -> Loop:
+        """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
+
+        Its stop time is the scenario's default where that lies on the loop's base grid;
+        with a new ``T`` or ``N`` it may not, and the loop then has none (a run names
+        ``--stop-time``; critical-delay and sweeps, which choose their own, just work).
+        """
+        loop = self.builder(params).replace(name=self.name, title=self.title)
+        stop = self.default_stop_time
+        return loop.replace(stop_time=stop if on_grid(stop, loop.h) else None)
+
+    def loop(self, assignments: list[str] | dict | None = None) -> Loop:
+        """The loop for ``NAME=VALUE`` assignments over the defaults."""
+        return self.make(self.resolve(assignments))
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -127,118 +134,6 @@ def _split(assignment: str) -> tuple[str, str]:
     return name.strip(), value.strip()
 
 
-def on_grid(value: float, step: float) -> bool:
-    """Is ``value`` an integer multiple of ``step`` (up to round-off)?"""
-    ratio = value / step
-    return abs(ratio - round(ratio)) <= GRID_RTOL * max(1.0, abs(ratio))
-
-
-def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
-             state: str = "x", inp: str = "u", r_true: float | None = None,
-             tau_true: float | None = None) -> LoopSpec:
-    """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
-
-    ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``. The history of x on
-    ``[-r, 0]`` is the constant ``x0`` (the measurement delay's initial history), the
-    controller's output history on ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs
-    apply the loop's true delays ``r_true``, ``tau_true`` (default: the assumed ``r``,
-    ``tau``), so a mismatch between what the controller assumes and the loop is possible.
-    """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    B = np.atleast_2d(np.asarray(B, dtype=float))
-    K = np.atleast_2d(np.asarray(K, dtype=float))
-    n, m = B.shape
-    x0 = np.asarray(x0, dtype=float).reshape(n)
-    u0 = np.asarray(u0, dtype=float).reshape(m)
-
-    def mat(label, M):
-        return {f"{label}[{i + 1},{j + 1}]": float(M[i, j])
-                for i in range(M.shape[0]) for j in range(M.shape[1])}
-
-    def vec(label, v):
-        return {f"{label}[{i + 1}]": float(v[i]) for i in range(len(v))}
-
-    xs, us = indexed(state, n), indexed(inp, m)
-    ys_in, ys_out = indexed("u", n), indexed("y", n)  # delay FMU on the measurement
-    dl_in, dl_out = indexed("u", m), indexed("y", m)  # delay FMU on the input
-    ctrl_in = indexed("y", n)
-    instances = {
-        "plant": ("plant", {"n": n, "m": m, "state": state, "input": inp},
-                  {**mat("A", A), **mat("B", B), **vec("x0", x0)}),
-        "meas_delay": ("delay", {"n": n},
-                       {"delay": r if r_true is None else r_true, **vec("u0", x0)}),
-        "controller": ("controller", {"n": n, "m": m},
-                       {"T": T, "r": r, "tau": tau, "mode": mode, **mat("A", A),
-                        **mat("B", B), **mat("K", K), **vec("u0", u0)}),
-        "input_delay": ("delay", {"n": m},
-                        {"delay": tau if tau_true is None else tau_true, **vec("u0", u0)}),
-    }
-    connections = (
-        [f"plant.{x} -> meas_delay.{i}" for x, i in zip(xs, ys_in)]
-        + [f"meas_delay.{o} -> controller.{i}" for o, i in zip(ys_out, ctrl_in)]
-        + [f"controller.{u} -> input_delay.{i}" for u, i in zip(us, dl_in)]
-        + [f"input_delay.{o} -> plant.{u}" for o, u in zip(dl_out, us)]
-    )
-    recorded = [("plant", x) for x in xs] + [("controller", u) for u in us]
-    return LoopSpec(instances, connections, T, N, recorded)
-
-
-def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
-               params: dict | None = None, mode: str | None = None,
-               predictor: str | None = None, tolerance: float | None = None,
-               pad: bool = False, r_true: float | None = None,
-               tau_true: float | None = None) -> LoopSpec:
-    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.model`).
-
-    Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
-    """
-    from .model import load_model
-
-    model = load_model(model_path)
-    n, m = model.n, model.m
-    x0 = [float(v) for v in np.ravel(x0)]
-    u0 = [float(v) for v in np.ravel(u0)]
-    if len(x0) != n:
-        raise ParameterError(f"parameter x0 has {len(x0)} values: must have {n} "
-                             f"({', '.join(model.states)})")
-    if len(u0) != m:
-        raise ParameterError(f"parameter u0 has {len(u0)} values: must have {m} "
-                             f"({', '.join(model.inputs)})")
-    cfg = {"model": str(model_path)}
-    ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad),
-            **{f"u0[{j + 1}]": v for j, v in enumerate(u0)},
-            **{f"z0[{i + 1}]": v for i, v in enumerate(x0 if z0 is None else z0)},
-            **(params or {})}
-    if mode is not None:
-        ctrl["mode"] = mode
-    if predictor is not None:
-        ctrl["predictor"] = predictor
-    plant = {**{f"x0[{i + 1}]": v for i, v in enumerate(x0)},
-             **{k: v for k, v in (params or {}).items() if k in model.parameters}}
-    if tolerance is not None:
-        plant["tolerance"] = ctrl["tolerance"] = tolerance
-    instances = {
-        "plant": ("model_plant", cfg, plant),
-        "meas_delay": ("delay", {"n": n},
-                       {"delay": r if r_true is None else r_true,
-                        **{f"u0[{i + 1}]": v for i, v in enumerate(x0)}}),
-        "controller": ("model_controller", cfg, ctrl),
-        "input_delay": ("delay", {"n": m},
-                        {"delay": tau if tau_true is None else tau_true,
-                         **{f"u0[{j + 1}]": v for j, v in enumerate(u0)}}),
-    }
-    ys_in, ys_out = indexed("u", n), indexed("y", n)
-    dl_in, dl_out = indexed("u", m), indexed("y", m)
-    connections = (
-        [f"plant.{s} -> meas_delay.{i}" for s, i in zip(model.states, ys_in)]
-        + [f"meas_delay.{o} -> controller.y_{s}" for o, s in zip(ys_out, model.states)]
-        + [f"controller.{u} -> input_delay.{i}" for u, i in zip(model.inputs, dl_in)]
-        + [f"input_delay.{o} -> plant.{u}" for o, u in zip(dl_out, model.inputs)]
-    )
-    recorded = [("plant", s) for s in model.states] + [("controller", u) for u in model.inputs]
-    return LoopSpec(instances, connections, T, N, recorded)
-
-
 def _true_delay_params() -> tuple[Param, ...]:
     return (
         Param("r_true", None, "the loop's true measurement delay (default: r, the one the "
@@ -264,7 +159,7 @@ def _example_3_6_matrices(p: dict) -> tuple:
     return [[1.0]], [[1.0]], [[-p["k"]]]
 
 
-def _example_3_6(p: dict) -> LoopSpec:
+def _example_3_6(p: dict) -> Loop:
     A, B, K = _example_3_6_matrices(p)
     return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], [p["x0"]],
                     [p["u0"]], r_true=p["r_true"], tau_true=p["tau_true"])
@@ -291,7 +186,7 @@ EXAMPLE_3_6 = Scenario(
         real("u0", 0.0, "constant input history on [-r - tau, 0)"),
         *_true_delay_params(),
     ),
-    make=_example_3_6,
+    builder=_example_3_6,
     default_stop_time=20.0,
     check=_check_timing,
     lti=_example_3_6_matrices,
@@ -412,7 +307,7 @@ def _corollary_3_7_matrices(p: dict) -> tuple:
     return np.eye(n, k=1), np.eye(n)[:, -1:], deadbeat_gain(n, p["T"])
 
 
-def _corollary_3_7(p: dict) -> LoopSpec:
+def _corollary_3_7(p: dict) -> Loop:
     A, B, K = _corollary_3_7_matrices(p)
     return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], p["x0"], p["u0"],
                     r_true=p["r_true"], tau_true=p["tau_true"])
@@ -431,7 +326,7 @@ COROLLARY_3_7 = Scenario(
         vector("u0", (0.0,), "input history, constant on [-r - tau, 0)"),
         _mode_param(),
     ),
-    make=_corollary_3_7,
+    builder=_corollary_3_7,
     default_stop_time=10.0,
     check=_corollary_3_7_check,
     lti=_corollary_3_7_matrices,
@@ -447,3 +342,27 @@ def get(name: str) -> Scenario:
     except KeyError:
         raise ParameterError(
             f"unknown scenario {name!r}: allowed are {', '.join(SCENARIOS)}") from None
+
+
+#: the scenarios at their defaults, as loop files shipped in the package
+LOOPS_DIR = Path(__file__).resolve().parent / "loops"
+
+
+def loop_file(name: str) -> Path:
+    """The shipped loop file of scenario ``name`` at its defaults (a starting point for
+    one's own; it builds the same loop as the scenario, tested)."""
+    get(name)
+    return LOOPS_DIR / f"{name}.toml"
+
+
+def open_source(text: str | Path):
+    """A scenario by name, or a loop file (a path ending in ``.toml``).
+
+    Both give ``name``, ``title``, ``default_stop_time`` (``None`` when a loop file has
+    none), ``resolve(assignments)``, ``make(resolved) -> Loop`` and ``loop(assignments)``.
+    """
+    if str(text).endswith(".toml"):
+        from .system.loopfile import LoopFile
+
+        return LoopFile(text)
+    return get(str(text))

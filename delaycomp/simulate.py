@@ -1,11 +1,14 @@
-"""Run a :class:`~delaycomp.scenarios.LoopSpec` with the project's FMUs and master."""
+"""Run a :class:`~delaycomp.system.Loop` with the project's FMUs and master.
+
+:func:`make_master` is the one function that wires a master from a loop; everything that
+runs a loop (``run``, sweeps, the cross-check, the benchmark) goes through it.
+"""
 
 from __future__ import annotations
 
 import csv
 import hashlib
 import json
-import math
 import os
 import zipfile
 from dataclasses import dataclass, field
@@ -26,11 +29,11 @@ from .build import (
     build_fmu,
     model_identifier,
 )
-from .errors import BadFileError
-from .scenarios import LoopSpec, ParameterError, on_grid
+from .errors import BadFileError, ParameterError
+from .system import FmuFile, Loop, Timing
 
 __all__ = ["ENGINES", "Result", "SimulationError", "default_fmu_dir", "fmu_path",
-           "make_components", "make_master", "parameters_of", "run_loop"]
+           "make_components", "make_master", "parameters_of", "run_loop", "source_fmu"]
 
 
 def _source_digest() -> str:
@@ -160,6 +163,26 @@ class Result:
     def column(self, name: str) -> np.ndarray:
         return self.data[:, self.names.index(name)]
 
+    def __getitem__(self, name: str) -> np.ndarray:
+        """The signal ``name`` (``"plant.x1"``, ``"controller.u"``) as an array."""
+        if name not in self.names:
+            raise KeyError(f"no signal {name!r}: the run recorded {', '.join(self.names)}")
+        return self.column(name)
+
+    @property
+    def signals(self) -> dict[str, np.ndarray]:
+        """Every recorded signal by name, one array each (``times`` is the time axis)."""
+        return {name: self.data[:, j] for j, name in enumerate(self.names)}
+
+    def to_pandas(self):
+        """A ``pandas.DataFrame`` indexed by time, one column per signal (needs pandas)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("to_pandas() needs pandas: pip install pandas") from None
+        return pd.DataFrame(self.data, index=pd.Index(self.times, name="time"),
+                            columns=list(self.names))
+
     def write_csv(self, path: str | Path) -> None:
         path = Path(path)
         tmp = path.with_name(path.name + ".part")
@@ -172,14 +195,8 @@ class Result:
 
 
 def stop_ticks(stop_time: float, T: float, N: int) -> int:
-    h = T / N
-    if not (math.isfinite(stop_time) and stop_time > 0):
-        raise ParameterError(f"--stop-time {stop_time!r} is not allowed: must be a finite "
-                             "number > 0")
-    if not on_grid(stop_time, h):
-        raise ParameterError(f"--stop-time {stop_time!r} is not allowed: must be a multiple "
-                             f"of the base step h = T/N = {h!r}")
-    return round(stop_time / h)
+    """Base steps to ``stop_time`` (:meth:`delaycomp.system.Timing.ticks`)."""
+    return Timing(T, N).ticks(stop_time)
 
 
 #: ``fmu``: the built FMUs through fmpy; ``inprocess``: the same slave classes called
@@ -187,56 +204,73 @@ def stop_ticks(stop_time: float, T: float, N: int) -> int:
 ENGINES = ("fmu", "inprocess")
 
 
-def make_components(spec: LoopSpec, engine: str = "fmu", fmu_dir: Path | None = None,
+def source_fmu(source, fmu_dir: Path | None = None) -> Path:
+    """The FMU file of an instance's source: a given file as it is, else the built FMU of
+    its kind and configuration (:func:`fmu_path`)."""
+    if isinstance(source, FmuFile):
+        return Path(source.path)
+    return fmu_path(*source.build_key(), fmu_dir)
+
+
+def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None,
                     fp_guarded: bool = False, fmus: dict[str, Path] | None = None) -> list:
-    """The master components of ``spec`` for ``engine``. ``fp_guarded`` (in-process only):
+    """The master components of ``loop`` for ``engine``. ``fp_guarded`` (in-process only):
     the caller steps them under ``np.errstate(all="ignore")``. ``fmus`` (FMU engine only)
     gives the FMU file of some instances (e.g. from an SSP archive); the others come from
-    :func:`fmu_path`."""
+    :func:`source_fmu`."""
     if engine == "fmu":
         fmus = fmus or {}
-        return [FmuComponent(name, fmus.get(name) or fmu_path(kind, config, fmu_dir))
-                for name, (kind, config, _) in spec.instances.items()]
+        return [FmuComponent(i.name, fmus.get(i.name) or source_fmu(i.source, fmu_dir))
+                for i in loop.instances]
     if fmus:
         raise ParameterError("FMU files are not allowed with the in-process engine")
     if engine == "inprocess":
         from delaycomp.orchestrator.inprocess import SlaveComponent
 
-        return [SlaveComponent(name, kind, config, fp_guarded)
-                for name, (kind, config, _) in spec.instances.items()]
+        files = [i.name for i in loop.instances if isinstance(i.source, FmuFile)]
+        if files:
+            raise ParameterError(f"instance {files[0]} is an FMU file: the in-process "
+                                 "engine runs delaycomp's own slaves only (use --engine fmu)")
+        return [SlaveComponent(i.name, *i.source.build_key(), fp_guarded)
+                for i in loop.instances]
     raise ParameterError(f"engine {engine!r} is not allowed: must be one of "
                          f"{', '.join(ENGINES)}")
 
 
-def make_master(spec: LoopSpec, fmu_dir: Path | None = None, t0: float = 0.0,
+def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
                 every: int = 1, engine: str = "fmu", fp_guarded: bool = False,
-                fmus: dict[str, Path] | None = None, sink=None, keep: bool = True,
+                fmus: dict[str, Path] | None = None,
+                components: list | None = None, sink=None, keep: bool = True,
                 final: int | None = None) -> tuple[Master, Recorder]:
-    """A master over fresh components of ``spec`` (for ``engine``), with a recorder of its
-    signals at every ``every``-th tick and at tick ``final`` (not yet set up: call
-    ``master.setup(stop_time, parameters_of(spec))``); ``sink`` and ``keep`` as in
-    :class:`~delaycomp.orchestrator.master.Recorder`."""
-    components = make_components(spec, engine, fmu_dir, fp_guarded, fmus)
-    master = Master(components, [Connection.parse(c) for c in spec.connections],
-                    spec.T, spec.N, t0)
-    recorder = Recorder(master, spec.recorded, every, sink, keep, final)
+    """The master of ``loop``: its components (fresh ones for ``engine``, or the given
+    ``components``, e.g. wrapped to tap their signals), its connections, its timing, and a
+    recorder of its recorded ports at every ``every``-th tick and at tick ``final``
+    (``sink`` and ``keep`` as in :class:`~delaycomp.orchestrator.master.Recorder`). Not yet
+    set up: call ``master.setup(stop_time, loop.parameters())``."""
+    if components is None:
+        components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
+    connections = [Connection(c.src.instance, c.src.variable, c.dst.instance, c.dst.variable)
+                   for c in loop.connections]
+    master = Master(components, connections, loop.T, loop.N, t0)
+    recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every,
+                        sink, keep, final)
     master.add_observer(recorder)
     return master, recorder
 
 
-def parameters_of(spec: LoopSpec) -> dict[str, dict]:
-    return {name: params for name, (_, _, params) in spec.instances.items()}
+def parameters_of(loop: Loop) -> dict[str, dict]:
+    return loop.parameters()
 
 
-def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
+def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0, engine: str = "fmu",
              fmus: dict[str, Path] | None = None, every: int = 1, sink=None,
              keep: bool = True, progress=None) -> Result:
-    """Co-simulate ``spec`` from ``t0`` to ``stop_time``.
+    """Co-simulate ``loop`` from ``t0`` to ``stop_time``.
 
     Parameters
     ----------
-    spec : LoopSpec
+    loop : Loop
         the loop.
     stop_time, t0 : float
         the interval; ``stop_time - t0`` must be a multiple of the base step.
@@ -247,7 +281,7 @@ def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
         layer).
     fmus : dict, optional
         the FMU file of some instances (e.g. from an SSP archive); the others come from
-        :func:`fmu_path`.
+        :func:`source_fmu`.
     every : int
         record every ``every``-th base step (and the stop time); 1: every base step.
     sink : callable, optional
@@ -264,9 +298,9 @@ def run_loop(spec: LoopSpec, stop_time: float, fmu_dir: Path | None = None,
         On a component failure the result so far, with ``success=False`` and the failure
         in ``message``.
     """
-    ticks = stop_ticks(stop_time - t0, spec.T, spec.N)
+    ticks = loop.timing.ticks(stop_time - t0)
     with single_threaded_blas():
-        return _run(spec, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
+        return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
                     progress)
 
 
@@ -283,7 +317,7 @@ def single_threaded_blas():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _run(spec: LoopSpec, ticks: int, stop_time: float, fmu_dir, t0: float,
+def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
          engine: str, fmus: dict[str, Path] | None, every: int = 1, sink=None,
          keep: bool = True, progress=None) -> Result:
     # In-process, the slaves' floating-point guard is set once for the run, not per step
@@ -295,7 +329,7 @@ def _run(spec: LoopSpec, ticks: int, stop_time: float, fmu_dir, t0: float,
     components = list(master.components.values())
     success, message = True, ""
     try:
-        master.setup(stop_time, parameters_of(spec))
+        master.setup(stop_time, spec.parameters())
         master.initialize()
         if guard:
             with np.errstate(all="ignore"):

@@ -1,7 +1,7 @@
 """SSP 1.0 description of a closed loop: ``SystemStructure.ssd``, ``.ssv`` files, ``.ssp``.
 
-The SSD and its parameter sets are written from the same :class:`~delaycomp.scenarios.
-LoopSpec` that the master runs, so the two cannot drift apart, and are read back into one.
+The SSD and its parameter sets are written from the same :class:`~delaycomp.system.Loop`
+that the master runs, so the two cannot drift apart, and are read back into one.
 This module only does XML; there is no maths here.
 
 Layout of a system (a folder, or the zip archive ``<name>.ssp``)::
@@ -36,7 +36,8 @@ from pathlib import Path
 
 from lxml import etree
 
-from .scenarios import LoopSpec
+from .errors import DelaycompError, ParameterError
+from .system import ROLES, BuiltinFmu, Connection, FmuFile, Instance, Loop, ModelFmu, Port, Timing
 
 SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -59,7 +60,7 @@ FMU_MIME = "application/x-fmu-sharedlibrary"
 _MODEL_PREFIX = "builtin:"
 
 
-class SspError(ValueError):
+class SspError(DelaycompError, ValueError):
     """An SSD, SSV or SSP archive that this module cannot read (one-line message)."""
 
 
@@ -152,20 +153,18 @@ def ssv_document(name: str, parameters: dict) -> etree._ElementTree:
     return etree.ElementTree(root)
 
 
-def ssd_document(spec: LoopSpec, info: SystemInfo,
+def ssd_document(spec: Loop, info: SystemInfo,
                  fmu_files: dict[str, str]) -> etree._ElementTree:
     """The SSD of ``spec``; ``fmu_files`` maps each instance to its FMU file name."""
-    connectors: dict[str, list[tuple[str, str]]] = {name: [] for name in spec.instances}
-    parsed = [_split_connection(c) for c in spec.connections]
-    for src, svar, dst, dvar in parsed:
-        for inst, var, kind in ((src, svar, "output"), (dst, dvar, "input")):
-            if inst not in spec.instances:
-                raise ValueError(f"connection {src}.{svar} -> {dst}.{dvar}: no instance {inst!r}")
-            if (var, kind) not in connectors[inst]:
-                connectors[inst].append((var, kind))
-    for inst, var in spec.recorded:
-        if (var, "output") not in connectors[inst] and (var, "input") not in connectors[inst]:
-            connectors[inst].append((var, "output"))
+    connectors: dict[str, list[tuple[str, str]]] = {name: [] for name in spec.names}
+    for con in spec.connections:
+        for port, kind in ((con.src, "output"), (con.dst, "input")):
+            if (port.variable, kind) not in connectors[port.instance]:
+                connectors[port.instance].append((port.variable, kind))
+    for port in spec.recorded:
+        have = connectors[port.instance]
+        if (port.variable, "output") not in have and (port.variable, "input") not in have:
+            have.append((port.variable, "output"))
 
     root = etree.Element(tag("ssd:SystemStructureDescription"), nsmap=NSMAP,
                          attrib={"version": "1.0", "name": info.name})
@@ -173,27 +172,31 @@ def ssd_document(spec: LoopSpec, info: SystemInfo,
     if info.description:
         system.set("description", info.description)
     elements = etree.SubElement(system, tag("ssd:Elements"))
-    for inst, (kind, config, params) in spec.instances.items():
-        comp = etree.SubElement(elements, tag("ssd:Component"), name=inst, type=FMU_MIME,
-                                source=f"{RESOURCES}/{fmu_files[inst]}")
+    for inst in spec.instances:
+        comp = etree.SubElement(elements, tag("ssd:Component"), name=inst.name, type=FMU_MIME,
+                                source=f"{RESOURCES}/{fmu_files[inst.name]}")
         conns = etree.SubElement(comp, tag("ssd:Connectors"))
-        for var, ckind in connectors[inst]:
+        for var, ckind in connectors[inst.name]:
             c = etree.SubElement(conns, tag("ssd:Connector"), name=var, kind=ckind)
             etree.SubElement(c, tag("ssc:Real"))
-        for pname, value in params.items():
+        for pname, value in inst.parameters.items():
             c = etree.SubElement(conns, tag("ssd:Connector"), name=pname, kind="parameter")
             etree.SubElement(c, tag(f"ssc:{_ssv_type(value)}"))
         bindings = etree.SubElement(comp, tag("ssd:ParameterBindings"))
         etree.SubElement(bindings, tag("ssd:ParameterBinding"),
-                         source=f"{RESOURCES}/{inst}.ssv")
+                         source=f"{RESOURCES}/{inst.name}.ssv")
         anns = etree.SubElement(comp, tag("ssd:Annotations"))
         ann = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
-        etree.SubElement(ann, tag("dc:Fmu"), kind=kind,
-                         config=json.dumps(_config_out(config), sort_keys=True))
+        key = inst.source.build_key()
+        fmu = etree.SubElement(ann, tag("dc:Fmu"), role=inst.role)
+        if key is not None:
+            fmu.set("kind", key[0])
+            fmu.set("config", json.dumps(_config_out(key[1]), sort_keys=True))
     connections = etree.SubElement(system, tag("ssd:Connections"))
-    for src, svar, dst, dvar in parsed:
-        etree.SubElement(connections, tag("ssd:Connection"), startElement=src,
-                         startConnector=svar, endElement=dst, endConnector=dvar)
+    for con in spec.connections:
+        etree.SubElement(connections, tag("ssd:Connection"), startElement=con.src.instance,
+                         startConnector=con.src.variable, endElement=con.dst.instance,
+                         endConnector=con.dst.variable)
 
     h = spec.T / spec.N
     exp = etree.SubElement(root, tag("ssd:DefaultExperiment"), startTime="0.0")
@@ -206,23 +209,17 @@ def ssd_document(spec: LoopSpec, info: SystemInfo,
     dc = etree.SubElement(anns, tag("ssc:Annotation"), type=DC_ANNOTATION)
     master = etree.SubElement(dc, tag("dc:Master"), T=_format(float(spec.T)), N=str(spec.N),
                               h=_format(h), parameterSet=info.parameter_set)
-    for inst, var in spec.recorded:
-        etree.SubElement(master, tag("dc:Record"), element=inst, connector=var)
+    for port in spec.recorded:
+        etree.SubElement(master, tag("dc:Record"), element=port.instance,
+                         connector=port.variable)
     return etree.ElementTree(root)
 
 
-def _split_connection(text: str) -> tuple[str, str, str, str]:
-    left, right = (part.strip() for part in text.split("->"))
-    src, svar = left.split(".", 1)
-    dst, dvar = right.split(".", 1)
-    return src, svar, dst, dvar
-
-
-def _fmu_file_names(spec: LoopSpec) -> dict[str, str]:
+def _fmu_file_names(spec: Loop) -> dict[str, str]:
     from .simulate import fmu_file_name
 
-    return {inst: fmu_file_name(kind, config)
-            for inst, (kind, config, _) in spec.instances.items()}
+    return {i.name: (Path(i.source.path).name if isinstance(i.source, FmuFile)
+                     else fmu_file_name(*i.source.build_key())) for i in spec.instances}
 
 
 def _write(tree: etree._ElementTree, path: Path) -> None:
@@ -231,32 +228,33 @@ def _write(tree: etree._ElementTree, path: Path) -> None:
                                     pretty_print=True))
 
 
-def write_system(spec: LoopSpec, info: SystemInfo, folder: str | Path) -> Path:
+def write_system(spec: Loop, info: SystemInfo, folder: str | Path) -> Path:
     """Write ``SystemStructure.ssd`` and ``resources/<instance>.ssv`` into ``folder``."""
     folder = Path(folder)
     _write(ssd_document(spec, info, _fmu_file_names(spec)), folder / SSD_NAME)
-    for inst, (_, _, params) in spec.instances.items():
-        _write(ssv_document(info.parameter_set, params), folder / RESOURCES / f"{inst}.ssv")
+    for inst in spec.instances:
+        _write(ssv_document(info.parameter_set, dict(inst.parameters)),
+               folder / RESOURCES / f"{inst.name}.ssv")
     return folder / SSD_NAME
 
 
-def pack(spec: LoopSpec, info: SystemInfo, out: str | Path,
+def pack(spec: Loop, info: SystemInfo, out: str | Path,
          fmu_dir: Path | None = None, fmus: dict[str, Path] | None = None) -> Path:
     """Write the archive ``out`` (``.ssp``): the SSD, its SSVs and the FMUs.
 
     The FMUs are taken from ``fmus`` (instance -> path) where given, else from
-    :func:`delaycomp.simulate.fmu_path` (built into ``fmu_dir`` or the cache if missing).
+    :func:`delaycomp.simulate.source_fmu` (built into ``fmu_dir`` or the cache if missing).
     """
-    from .simulate import fmu_path
+    from .simulate import source_fmu
 
     out = Path(out)
     names = _fmu_file_names(spec)
     with tempfile.TemporaryDirectory(prefix="delaycomp-ssp-") as tmp:
         folder = Path(tmp)
         write_system(spec, info, folder)
-        for inst, (kind, config, _) in spec.instances.items():
-            src = (fmus or {}).get(inst) or fmu_path(kind, config, fmu_dir)
-            target = folder / RESOURCES / names[inst]
+        for inst in spec.instances:
+            src = (fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir)
+            target = folder / RESOURCES / names[inst.name]
             if not target.exists():
                 shutil.copyfile(src, target)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -275,7 +273,7 @@ def pack(spec: LoopSpec, info: SystemInfo, out: str | Path,
 class System:
     """An SSD read back: the loop, what else it says, and each instance's FMU file."""
 
-    spec: LoopSpec
+    spec: Loop
     info: SystemInfo
     #: instance -> the component's ``source`` (relative to the SSD)
     sources: dict[str, str]
@@ -333,7 +331,7 @@ def read_system(ssd_path: str | Path) -> System:
     if master is None:
         raise SspError(f"{where}: no {DC_ANNOTATION} annotation with dc:Master: not a "
                        "delaycomp system")
-    instances, sources, set_names = {}, {}, set()
+    instances, sources, set_names = [], {}, set()
     for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
         name = _attr(comp, "name", where)
         sources[name] = _attr(comp, "source", f"{where}: component {name}")
@@ -341,23 +339,34 @@ def read_system(ssd_path: str | Path) -> System:
                         NSMAP)
         if fmu is None:
             raise SspError(f"{where}: component {name} has no dc:Fmu annotation")
-        try:
-            config = _config_in(json.loads(_attr(fmu, "config", f"{where}: {name}")))
-        except json.JSONDecodeError:
-            raise SspError(f"{where}: component {name}: dc:Fmu config is not JSON") from None
+        role = fmu.get("role") or name  # archives before roles named instances by role
+        if role not in ROLES:
+            raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
+                           f"{', '.join(ROLES)}")
+        kind = fmu.get("kind")
+        if kind is None:
+            source = FmuFile(ssd_path.parent / sources[name])
+        else:
+            try:
+                config = _config_in(json.loads(_attr(fmu, "config", f"{where}: {name}")))
+            except json.JSONDecodeError:
+                raise SspError(f"{where}: component {name}: dc:Fmu config is not JSON"
+                               ) from None
+            source = (ModelFmu(kind, Path(config["model"])) if "model" in config
+                      else BuiltinFmu(kind, config))
         params: dict = {}
         for binding in comp.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NSMAP):
-            source = _attr(binding, "source", f"{where}: component {name}")
-            set_name, values = read_ssv(ssd_path.parent / source)
+            bsource = _attr(binding, "source", f"{where}: component {name}")
+            set_name, values = read_ssv(ssd_path.parent / bsource)
             set_names.add(set_name)
             params.update(values)
-        instances[name] = (_attr(fmu, "kind", f"{where}: {name}"), config, params)
+        instances.append(Instance(name, role, source, params))
     connections = []
     for c in system.iterfind("ssd:Connections/ssd:Connection", NSMAP):
         ends = [_attr(c, a, f"{where}: connection") for a in
                 ("startElement", "startConnector", "endElement", "endConnector")]
-        connections.append(f"{ends[0]}.{ends[1]} -> {ends[2]}.{ends[3]}")
-    recorded = [(_attr(r, "element", where), _attr(r, "connector", where))
+        connections.append(Connection(Port(ends[0], ends[1]), Port(ends[2], ends[3])))
+    recorded = [Port(_attr(r, "element", where), _attr(r, "connector", where))
                 for r in master.iterfind("dc:Record", NSMAP)]
     try:
         T, N = float(_attr(master, "T", where)), int(_attr(master, "N", where))
@@ -371,7 +380,12 @@ def read_system(ssd_path: str | Path) -> System:
         raise SspError(f"{where}: stopTime {stop!r} is not a number") from None
     info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
                       master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
-    return System(LoopSpec(instances, connections, T, N, recorded), info, sources)
+    try:
+        loop = Loop(instances, connections, Timing(T, N), recorded, info.name,
+                    info.description)
+    except ParameterError as exc:
+        raise SspError(f"{where}: {exc}") from None
+    return System(loop, info, sources)
 
 
 class Archive:
@@ -455,13 +469,16 @@ def validate(path: str | Path) -> list[str]:
 # -- scenarios -----------------------------------------------------------------------------
 
 def scenario_system(name: str, assignments: list[str] | None = None,
-                    parameter_set: str = DEFAULT_SET) -> tuple[LoopSpec, SystemInfo]:
+                    parameter_set: str = DEFAULT_SET) -> tuple[Loop, SystemInfo]:
     """The loop and SSD header of scenario ``name`` with ``NAME=VALUE`` assignments."""
     from . import scenarios
 
-    sc = scenarios.get(name)
-    spec = sc.make(sc.resolve(list(assignments or [])))
-    return spec, SystemInfo(sc.name, sc.title, sc.default_stop_time, parameter_set)
+    return loop_system(scenarios.get(name).loop(list(assignments or [])), parameter_set)
+
+
+def loop_system(loop: Loop, parameter_set: str = DEFAULT_SET) -> tuple[Loop, SystemInfo]:
+    """A loop and the SSD header it gets (its name, title and stop time)."""
+    return loop, SystemInfo(loop.name, loop.title, loop.stop_time, parameter_set)
 
 
 def write_all(folder: str | Path) -> list[Path]:
@@ -486,7 +503,8 @@ def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Pat
     systems = [scenario_system(name) for name in SCENARIOS]
     wanted = {}
     for spec, _ in systems:
-        for kind, config, _ in spec.instances.values():
+        for inst in spec.instances:
+            kind, config = inst.source.build_key()
             wanted.setdefault(fmu_file_name(kind, config), (kind, config))
     have = {name: Path(fmu_dir) / name for name in wanted
             if fmu_dir is not None and (Path(fmu_dir) / name).is_file()}
@@ -494,17 +512,24 @@ def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Pat
     with ThreadPoolExecutor(max_workers=2) as pool:  # each build is its own process
         built = list(pool.map(lambda kc: fmu_path(*kc), missing))
     have.update({p.name: p for p in built})
-    from .thirdparty import jacobi_info, jacobi_variant
+    from .system.jacobi import jacobi_variant
 
     out = []
     for spec, info in systems:
-        fmus = {inst: have[fmu_file_name(kind, config)]
-                for inst, (kind, config, _) in spec.instances.items()}
+        fmus = {inst.name: have[fmu_file_name(*inst.source.build_key())]
+                for inst in spec.instances}
         out.append(pack(spec, info, Path(out_dir) / f"{info.name}.ssp", fmus=fmus))
         variant = jacobi_variant(spec)
         out.append(pack(variant, jacobi_info(info), Path(out_dir) / f"{info.name}-jacobi.ssp",
-                        fmus={i: fmus[i] for i in variant.instances}))
+                        fmus={i: fmus[i] for i in variant.names}))
     return out
+
+
+def jacobi_info(info: SystemInfo) -> SystemInfo:
+    """The SSD header of a Jacobi variant: the description says what was changed."""
+    return SystemInfo(info.name, f"{info.description} (Jacobi variant: measurement delay "
+                      "shortened by h, controller samples the previous step)",
+                      info.stop_time, info.parameter_set)
 
 
 def _fmu_parameter_type(fmu: Path, name: str) -> str | None:
@@ -517,25 +542,23 @@ def _fmu_parameter_type(fmu: Path, name: str) -> str | None:
     return None
 
 
-def apply_sets(spec: LoopSpec, assignments: list[str], fmus: dict[str, Path]) -> LoopSpec:
+def apply_sets(spec: Loop, assignments: list[str], fmus: dict[str, Path]) -> Loop:
     """``spec`` with ``instance.parameter=value`` assignments applied to FMU parameters.
 
     The value is parsed as the parameter's type (from the SSV, else the FMU's
     modelDescription); an unknown instance or parameter, or a bad value, raises
     :class:`SspError`.
     """
-    instances = {k: (kind, config, dict(params))
-                 for k, (kind, config, params) in spec.instances.items()}
+    params = {i.name: dict(i.parameters) for i in spec.instances}
     for text in assignments:
         left, sep, value = text.partition("=")
         inst, dot, pname = left.strip().partition(".")
         if not sep or not dot or not pname:
             raise SspError(f"--set {text!r}: an SSP takes instance.parameter=VALUE")
-        if inst not in instances:
+        if inst not in params:
             raise SspError(f"--set {text!r}: no instance {inst!r}: allowed are "
-                           f"{', '.join(instances)}")
-        params = instances[inst][2]
-        kind = (_ssv_type(params[pname]) if pname in params
+                           f"{', '.join(params)}")
+        kind = (_ssv_type(params[inst][pname]) if pname in params[inst]
                 else _fmu_parameter_type(fmus[inst], pname))
         if kind is None:
             raise SspError(f"--set {text!r}: {inst} has no parameter {pname!r}")
@@ -546,5 +569,5 @@ def apply_sets(spec: LoopSpec, assignments: list[str], fmus: dict[str, Path]) ->
         except (ValueError, SspError):
             raise SspError(f"--set {text!r}: {inst}.{pname} must be a finite "
                            f"{kind}") from None
-        params[pname] = parsed
-    return LoopSpec(instances, list(spec.connections), spec.T, spec.N, list(spec.recorded))
+        params[inst][pname] = parsed
+    return spec.with_instances(i.with_parameters(**params[i.name]) for i in spec.instances)

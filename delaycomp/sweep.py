@@ -1,4 +1,5 @@
-"""Parameter sweeps and stability maps: many runs of one scenario over a grid.
+"""Parameter sweeps and stability maps: many runs of one loop (a scenario or a loop file)
+over a grid.
 
 Each grid point is one run (or, with ``exact``, one lifted-model eigenvalue computation for
 LTI scenarios). Per point the sweep reports
@@ -29,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenarios
-from .scenarios import ParameterError
+from .errors import ParameterError
+from .scenarios import open_source
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -77,6 +78,18 @@ def _fmt(value: float) -> str:
 GRID_BOUND = ("r", "tau", "r_true", "tau_true")
 
 
+def _base_loop(scenario: str, sets: list[str]):
+    """The loop of ``scenario`` with ``sets`` and ``r = 0`` (on every grid), or ``None``
+    if that does not resolve."""
+    source = open_source(scenario)
+    for attempt in (["r=0", *sets], list(sets)):
+        try:
+            return source.loop(attempt)
+        except (ParameterError, ValueError):
+            continue
+    return None
+
+
 def snap_axes(scenario: str, axes: list[Axis], sets: list[str]) -> tuple[list[Axis], list[str]]:
     """Snap the values of delay axes (``r``, ``tau``, ``r_true``, ``tau_true``) to the
     nearest multiple of the base step ``h = T/N``; return the axes and one note per
@@ -94,25 +107,13 @@ def snap_axes(scenario: str, axes: list[Axis], sets: list[str]) -> tuple[list[Ax
     >>> notes[0].split(";")[0]
     'r: 18 of 20 values snapped to the base grid h = T/N = 0.01'
     """
-    sc = scenarios.get(scenario)
     names = {a.name for a in axes}
     if names & {"T", "N"}:
         return list(axes), []
-    timing = {}
-    for name in ("T", "N"):
-        p = sc.param(name)
-        value = p.default
-        for text in sets:
-            key, sep, raw = text.partition("=")
-            if sep and key.strip() == name:
-                try:
-                    value = p.parse(raw.strip())
-                except ValueError:
-                    return list(axes), []  # resolve() names the bad value later
-        timing[name] = value
-    if not (isinstance(timing["T"], float) and timing["T"] > 0
-            and isinstance(timing["N"], int) and timing["N"] >= 1):
-        return list(axes), []
+    base = _base_loop(scenario, sets)
+    if base is None:
+        return list(axes), []  # the point's own validation names what is wrong
+    timing = {"T": base.T, "N": base.N}
     h = timing["T"] / timing["N"]
     out, notes = [], []
     for axis in axes:
@@ -139,6 +140,7 @@ def points(axes: list[Axis]) -> list[tuple[float, ...]]:
 class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
+    #: a scenario name or a loop file's path
     scenario: str
     sets: tuple[str, ...]
     stop: float
@@ -181,21 +183,19 @@ def evaluate(job: Job) -> dict:
     """Metrics of one grid point (a top-level function, for processes and Dask)."""
     from .simulate import run_loop
 
-    sc = scenarios.get(job.scenario)
-    p = sc.resolve(list(job.sets))
+    spec = open_source(job.scenario).loop(list(job.sets))
     if job.exact:
         from .lti import lifted_loop
 
-        A, B, K = sc.lti(p)
-        loop = lifted_loop(A, B, K, p["T"], p["r"], p["tau"], p["mode"], p.get("r_true"),
-                           p.get("tau_true"))
-        rho = loop.spectral_radius
+        d = spec.lti
+        lifted = lifted_loop(d.A, d.B, d.K, spec.T, d.r, d.tau, d.mode, d.r_true, d.tau_true)
+        rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
                 "deadbeat_time": None}
-    spec = sc.make(p)
     kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
     res = run_loop(spec, job.stop, job.fmu_dir, **kwargs)
-    n_states = sum(1 for inst, _ in spec.recorded if inst == "plant")
+    plant = spec.by_role("plant").name
+    n_states = sum(1 for port in spec.recorded if port.instance == plant)
     return metrics_of(res.times, res.data[:, :n_states], spec.N, res.success)
 
 
@@ -205,11 +205,14 @@ def _prebuild(jobs: list[Job]) -> None:
 
     seen = set()
     for job in jobs:
-        sc = scenarios.get(job.scenario)
-        for kind, config, _ in sc.make(sc.resolve(list(job.sets))).instances.values():
-            key = (kind, tuple(sorted(config.items())))
-            if key not in seen:
-                seen.add(key)
+        for inst in open_source(job.scenario).loop(list(job.sets)).instances:
+            key = inst.source.build_key()
+            if key is None:
+                continue
+            kind, config = key
+            ident = (kind, tuple(sorted(config.items())))
+            if ident not in seen:
+                seen.add(ident)
                 fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
 
 
@@ -253,23 +256,18 @@ def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
     )
 
     count = math.prod(len(a.values) for a in axes)
-    sc = scenarios.get(scenario)
     per_point = SECONDS_PER_EXACT_POINT
-    if not exact:
-        params = {p.name: p.default for p in sc.params}
-        for text in sets:
-            key, sep, raw = text.partition("=")
-            if sep and key.strip() in ("T", "N"):
-                try:
-                    params[key.strip()] = sc.param(key.strip()).parse(raw.strip())
-                except ValueError:
-                    pass  # resolve() names it
-        for a in axes:
-            if a.name in ("T", "N"):
-                params[a.name] = min(a.values) if a.name == "T" else max(a.values)
-        T, N = float(params["T"]), params["N"]
-        stop_time = sc.default_stop_time if stop is None else stop
-        if T > 0 and isinstance(N, (int, float)) and N >= 1:
+    base = None if exact else _base_loop(scenario, sets)
+    if base is not None:
+        T, N = base.T, base.N
+        for a in axes:  # the most expensive point when T or N is swept
+            if a.name == "T" and min(a.values) > 0:
+                T = min(a.values)
+            if a.name == "N" and max(a.values) >= 1:
+                N = max(a.values)
+        source = open_source(scenario)
+        stop_time = stop if stop is not None else (source.default_stop_time or base.stop_time)
+        if stop_time:
             per_point = (stop_time / T) * N * SECONDS_PER_TICK.get(engine, 10e-6)
     seconds = count * per_point / max(1, workers)
     if seconds > MAX_RUN_SECONDS:
@@ -291,28 +289,32 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
               verbosity: int = 1) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
-    ``verbosity`` 0 hides the progress bar (shown on a terminal otherwise).
+    ``scenario`` is a scenario name or a loop file's path (``.toml``); ``verbosity`` 0
+    hides the progress bar (shown on a terminal otherwise).
     """
-    sc = scenarios.get(scenario)
     check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
                      exact)
-    if exact and sc.lti is None:
-        raise ParameterError(f"--exact needs an LTI scenario; {scenario} is not")
+    sc = open_source(scenario)
+    if exact and sc.loop(list(sets)).lti is None:
+        raise ParameterError(f"--exact needs an LTI loop; {scenario} is not")
     if workers < 1:
         raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     names = [a.name for a in axes]
     if len(set(names)) != len(names):
         raise ParameterError("--grid: each parameter may be swept once")
     stop = sc.default_stop_time if stop is None else stop
+    if stop is None:
+        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
     jobs = []
     for values in points(axes):
         point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
         try:
-            sc.resolve(list(point_sets))  # validate every point before running any
+            sc.make(sc.resolve(list(point_sets)))  # validate every point before running any
         except ParameterError as exc:
             where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
             raise ParameterError(f"grid point {where}: {exc}") from None
-        jobs.append(Job(scenario, point_sets, float(stop), engine, fmu_dir, exact))
+        jobs.append(Job(str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
+                        else scenario, point_sets, float(stop), engine, fmu_dir, exact))
     if not exact and engine == "fmu":
         _prebuild(jobs)
     progress = _Progress(len(jobs), verbosity)

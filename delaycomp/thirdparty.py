@@ -54,72 +54,15 @@ from pathlib import Path
 import numpy as np
 
 from .child import module_argv
-from .scenarios import LoopSpec, on_grid
 from .simulate import Result
+from .system import Loop
+from .system.jacobi import (  # noqa: F401 - re-exported: the variant is run here
+    JACOBI_LATENCY_STEPS,
+    CompensationError,
+    jacobi_variant,
+)
 
 MASTERS = ("libcosim", "ecos")
-#: base steps of latency a Jacobi master adds on a connection out of a direct-feedthrough
-#: output (measured, see the module docstring)
-JACOBI_LATENCY_STEPS = 1
-
-
-class CompensationError(ValueError):
-    """The loop cannot be made exact in a Jacobi master (one-line message)."""
-
-
-def jacobi_variant(spec: LoopSpec) -> LoopSpec:
-    """The loop for a Jacobi master: same total delays, same trajectory (module docstring).
-
-    Every delay FMU that feeds a controller is shortened by the latency ``h``; every
-    controller samples the input held over the previous base step; delay FMUs left with a
-    zero delay are bypassed.
-    """
-    h = spec.T / spec.N
-    lat = JACOBI_LATENCY_STEPS * h
-    conns = [_split(c) for c in spec.connections]
-    kinds = {inst: kind for inst, (kind, _, _) in spec.instances.items()}
-    controllers = {i for i, k in kinds.items() if k in ("controller", "model_controller")}
-    instances = {i: (k, dict(c), dict(p)) for i, (k, c, p) in spec.instances.items()}
-    for inst in controllers:
-        instances[inst][2]["held_sample"] = True
-    feeding = {src: dst for src, _, dst, _ in conns
-               if kinds[src] == "delay" and dst in controllers}
-    for src, dst in sorted(feeding.items()):  # once per delay, whatever its width
-        params = instances[src][2]
-        delay = float(params["delay"])
-        if delay < 2 * lat and not math.isclose(delay, 2 * lat, rel_tol=1e-9):
-            raise CompensationError(
-                f"{src}: delay {delay!r} < 2 h = {2 * lat!r}: in a Jacobi master {dst} "
-                f"samples the measurement one base step late, so {src} is shortened by h "
-                "and must keep at least one base step (without it the controller would "
-                "read the plant, whose output these masters take before initialization); "
-                "use r >= 2 T/N")
-        params["delay"] = delay - lat
-    bypass = {i for i in instances if kinds[i] == "delay"
-              and on_grid(float(instances[i][2]["delay"]), h)
-              and round(float(instances[i][2]["delay"]) / h) == 0}
-    if any(i in bypass for i, _ in spec.recorded):
-        raise CompensationError("a recorded signal belongs to a delay that is bypassed")
-    connections = []
-    for src, svar, dst, dvar in conns:
-        if dst in bypass:
-            continue
-        while src in bypass:  # follow the bypassed delay back to its own source
-            port = svar.replace("y", "u", 1)
-            src, svar = next((s, sv) for s, sv, d, dv in conns if d == src and dv == port)
-        connections.append(f"{src}.{svar} -> {dst}.{dvar}")
-    for inst in bypass:
-        del instances[inst]
-    return LoopSpec(instances, connections, spec.T, spec.N, list(spec.recorded))
-
-
-def _split(text: str) -> tuple[str, str, str, str]:
-    left, right = (part.strip() for part in text.split("->"))
-    src, svar = left.split(".", 1)
-    dst, dvar = right.split(".", 1)
-    return src, svar, dst, dvar
-
-
 # -- running -------------------------------------------------------------------------------
 
 def run_ssp(master: str, ssp_path: str | Path, stop_time: float,
@@ -147,7 +90,7 @@ def run_ssp(master: str, ssp_path: str | Path, stop_time: float,
                           str(z["message"]))
 
 
-def _run_libcosim(ssp_path: Path, spec: LoopSpec, ticks: int) -> tuple[np.ndarray, str]:
+def _run_libcosim(ssp_path: Path, spec: Loop, ticks: int) -> tuple[np.ndarray, str]:
     from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -160,13 +103,13 @@ def _run_libcosim(ssp_path: Path, spec: LoopSpec, ticks: int) -> tuple[np.ndarra
             for v in ex.slave_variables(i)}
     obs = CosimObserver.create_time_series(buffer_size=ticks + 10)
     ex.add_observer(obs)
-    for inst, var in spec.recorded:
+    for inst, var in ((p.instance, p.variable) for p in spec.recorded):
         obs.start_time_series(index[inst], refs[(inst, var)], CosimVariableType.REAL)
     ok = ex.step(ticks)
     if not ok:
         return np.zeros((0, len(spec.recorded))), "libcosim: a step failed"
     cols = []
-    for inst, var in spec.recorded:
+    for inst, var in ((p.instance, p.variable) for p in spec.recorded):
         slave, ref = index[inst], refs[(inst, var)]
         # libcosimpy 0.0.6 trims one sample per step number 0 it returns (it takes 0 for
         # "unfilled"): read step 0 on its own, then steps 1 .. ticks.
@@ -195,14 +138,14 @@ def _load_tbb() -> None:
             return
 
 
-def _run_ecos(ssp_path: Path, spec: LoopSpec, ticks: int, parameter_set: str
+def _run_ecos(ssp_path: Path, spec: Loop, ticks: int, parameter_set: str
               ) -> tuple[np.ndarray, str]:
     if os.name != "nt":
         _load_tbb()
     from ecospy import EcosSimulation
 
     h = spec.T / spec.N
-    ids = [f"{inst}::{var}" for inst, var in spec.recorded]
+    ids = [f"{p.instance}::{p.variable}" for p in spec.recorded]
     rows = []
     with EcosSimulation(ssp_path=str(ssp_path), step_size=h) as sim:
         if sim.init(parameter_set=parameter_set) is False:
@@ -231,7 +174,7 @@ def _worker(master: str, ssp_path: str, stop_time: float, out: str) -> None:
         data, message = _run_ecos(Path(ssp_path), spec, ticks, set_name)
     k = np.arange(len(data))
     times = (k // spec.N) * spec.T + (k % spec.N) * (spec.T / spec.N)  # as our master
-    np.savez(out, names=json.dumps([f"{i}.{v}" for i, v in spec.recorded]), times=times,
+    np.savez(out, names=json.dumps([str(p) for p in spec.recorded]), times=times,
              data=data, success=not message, message=message)
 
 
@@ -246,22 +189,13 @@ if __name__ == "__main__":  # the per-run process
 
 # -- packing and cross-checks --------------------------------------------------------------
 
-def pack_jacobi(name: str, assignments: list[str] | None, out: str | Path,
-                fmu_dir: Path | None = None, parameter_set: str | None = None) -> Path:
-    """``out`` (``.ssp``): the Jacobi variant of scenario ``name`` with its FMUs."""
-    from .ssp import DEFAULT_SET, pack, scenario_system
+def pack_jacobi(loop: Loop, out: str | Path, fmu_dir: Path | None = None,
+                parameter_set: str | None = None) -> Path:
+    """``out`` (``.ssp``): the Jacobi variant of ``loop`` with its FMUs."""
+    from .ssp import DEFAULT_SET, jacobi_info, loop_system, pack
 
-    spec, info = scenario_system(name, assignments, parameter_set or DEFAULT_SET)
+    spec, info = loop_system(loop, parameter_set or DEFAULT_SET)
     return pack(jacobi_variant(spec), jacobi_info(info), out, fmu_dir)
-
-
-def jacobi_info(info):
-    """The SSD header of a Jacobi variant: the description says what was changed."""
-    from .ssp import SystemInfo
-
-    return SystemInfo(info.name, f"{info.description} (Jacobi variant: measurement delay "
-                      "shortened by h, controller samples the previous step)",
-                      info.stop_time, info.parameter_set)
 
 
 def provider(master: str):
@@ -269,12 +203,12 @@ def provider(master: str):
     against the case's reference trace."""
 
     def run(cases):
-        from .check import CheckRow, compare
+        from .cases import CheckRow, compare
 
         for c in cases:
             with tempfile.TemporaryDirectory(prefix="delaycomp-check-") as tmp:
                 try:
-                    path = pack_jacobi(c.scenario, list(c.sets), Path(tmp) / "case.ssp",
+                    path = pack_jacobi(c.loop(), Path(tmp) / "case.ssp",
                                        parameter_set=c.case)
                 except CompensationError as exc:
                     yield CheckRow(c.id, master, float("inf"), "-", False, str(exc))

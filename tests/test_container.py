@@ -80,10 +80,10 @@ def test_without_the_timing_fixes_the_container_is_off(tmp_path):
     c = check.case("example-3.6/fig3")
     spec = _spec(c)
     files = {}
-    for inst, (kind, config, _) in spec.instances.items():
-        src = fmu_path(kind, config)
+    for inst in spec.instances:
+        src = fmu_path(*inst.source.build_key())
         (tmp_path / src.name).write_bytes(src.read_bytes())
-        files[inst] = src.name
+        files[inst.name] = src.name
     desc = container.description(spec, files, "plain.fmu")
     h = spec.T / spec.N
     desc["sequential"] = False
@@ -140,13 +140,10 @@ def test_held_sample_in_our_master_with_the_measurement_delay_one_step_shorter(c
     spec = _spec(c)
     h = spec.T / spec.N
     for shift, should_pass in ((h, True), (0.0, False)):
-        instances = dict(spec.instances)
-        kind, config, params = instances["controller"]
-        instances["controller"] = (kind, config, {**params, "held_sample": True})
-        kind, config, params = instances["meas_delay"]
-        instances["meas_delay"] = (kind, config, {**params, "delay": params["delay"] - shift})
-        res = run_loop(type(spec)(instances, spec.connections, spec.T, spec.N, spec.recorded),
-                       c.stop_time())
+        meas = spec.by_role("meas_delay")
+        shifted = spec.set_parameters("controller", held_sample=True).set_parameters(
+            meas.name, delay=meas.parameters["delay"] - shift)
+        res = run_loop(shifted, c.stop_time())
         assert res.success, res.message
         cmp = check.compare(c, res.names, res.times, res.data)
         assert cmp.passed is should_pass, (shift, cmp.max_error)

@@ -123,13 +123,13 @@ def test_repackaged_fmu_equals_a_pythonfmu_build_with_those_start_values(case_id
     """The per-case FMU is the cached FMU with another modelDescription and configuration;
     pythonfmu must build the same from that configuration (matrices, strings, Integer N,
     Boolean pad, GUID)."""
-    from delaycomp import scenarios
     from delaycomp.build import build_fmu
     from delaycomp.simulate import fmu_path
 
     c = check.case(case_id)
-    sc = scenarios.get(c.scenario)
-    kind, config, params = sc.make(sc.resolve(list(c.sets))).instances[instance]
+    inst = c.loop().instance(instance)
+    kind, config = inst.source.build_key()
+    params = dict(inst.parameters)
     variant = crosscheck.variant_fmu(fmu_path(kind, config), params, tmp_path / "v.fmu")
     built = build_fmu(kind, tmp_path / "built", {**config, "start": params}, "b.fmu")
     with zipfile.ZipFile(variant) as zv, zipfile.ZipFile(built) as zb:

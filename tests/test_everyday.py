@@ -277,7 +277,7 @@ def test_compare_draws_both_modes_of_the_same_loop(capsys, tmp_path):
 def test_compare_needs_a_loop_with_a_mode(capsys, tmp_path):
     code, _, err = run_cli(capsys, "run", "example-2.4", *FAST, "--compare", "--plot",
                            str(tmp_path / "x.png"))
-    one_line_error(code, err, "--compare needs a loop with a mode parameter")
+    one_line_error(code, err, "--compare needs a loop whose controller has a mode")
 
 
 # -- 4. critical-delay with a new T ---------------------------------------------------------

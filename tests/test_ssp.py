@@ -48,7 +48,7 @@ def test_committed_ssd_reads_back_into_the_scenario_loop(name):
     system = ssp.read_system(REPO / "ssp" / name / ssp.SSD_NAME)
     assert system.spec == spec
     assert system.info == info
-    assert set(system.sources) == set(spec.instances)
+    assert set(system.sources) == set(spec.names)
 
 
 ROUND_TRIPS = [

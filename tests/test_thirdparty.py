@@ -61,7 +61,7 @@ def packed(tmp_path_factory):
     folder = tmp_path_factory.mktemp("jacobi")
     for name, (case_id, stop) in CASES.items():
         c = check.case(case_id)
-        path = thirdparty.pack_jacobi(name, list(c.sets), folder / f"{name}.ssp",
+        path = thirdparty.pack_jacobi(c.loop(), folder / f"{name}.ssp",
                                       parameter_set=c.case)
         sc = scenarios.get(name)
         ours = run_loop(sc.make(sc.resolve(list(c.sets))), stop)
@@ -127,13 +127,15 @@ def test_variant_shortens_the_measurement_delay_by_h_and_bypasses_a_zero_delay()
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve(["r=0.3", "tau=2", "N=50"]))
     var = thirdparty.jacobi_variant(spec)
-    assert var.instances["meas_delay"][2]["delay"] == pytest.approx(0.3 - 1 / 50, abs=1e-15)
-    assert var.instances["input_delay"][2]["delay"] == 2.0  # no latency on the input path
-    assert var.instances["controller"][2]["held_sample"] is True
-    assert var.instances["controller"][2]["r"] == 0.3  # the controller still assumes r
+    assert var.by_role("meas_delay").parameters["delay"] == pytest.approx(0.3 - 1 / 50,
+                                                                          abs=1e-15)
+    # no latency on the input path
+    assert var.by_role("input_delay").parameters["delay"] == 2.0
+    assert var.by_role("controller").parameters["held_sample"] is True
+    assert var.by_role("controller").parameters["r"] == 0.3  # it still assumes r
     no_tau = thirdparty.jacobi_variant(sc.make(sc.resolve(["r=0.3"])))
-    assert "input_delay" not in no_tau.instances
-    assert "controller.u -> plant.u" in no_tau.connections
+    assert no_tau.by_role("input_delay") is None
+    assert "controller.u -> plant.u" in [str(c) for c in no_tau.connections]
 
 
 def test_variant_refuses_a_measurement_delay_below_two_base_steps():

@@ -19,7 +19,7 @@ from delaycomp.fmuslave import (
     check_model_parameters,
 )
 from delaycomp.model import CONTROLS, from_module
-from delaycomp.nlcontrol import make_controller
+from delaycomp.nlcontrol import PREDICTORS, make_controller
 from delaycomp.predictors import DEFAULT_TOL, IntegrationError
 
 
@@ -57,7 +57,8 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
                               "continuous (Theorem 2.1) or zoh (Theorem 3.2)")
         self.string_parameter("predictor", lambda: self.predictor,
                               lambda v: setattr(self, "predictor", v),
-                              "closed (the model's closed form) or numerical (ODE solve)")
+                              "closed (the model's closed form), numerical (ODE solve) or "
+                              "none (no prediction: the uncompensated baseline)")
         self.parameter("tolerance", lambda: self.tolerance,
                        lambda v: setattr(self, "tolerance", v),
                        "rtol = atol of numerical solves, in (0, 1)")
@@ -101,9 +102,9 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         if not 0 < self.tolerance < 1:
             self.fail(f"tolerance = {self.tolerance!r} is not allowed: must be in (0, 1)")
         check_model_parameters(self.model, self.values)
-        if self.predictor not in ("closed", "numerical"):
-            self.fail(f"predictor = {self.predictor!r} is not allowed: must be one of closed, "
-                      "numerical")
+        if self.predictor not in PREDICTORS:
+            self.fail(f"predictor = {self.predictor!r} is not allowed: must be one of "
+                      f"{', '.join(PREDICTORS)}")
         try:
             self.ctrl = make_controller(self.model, self.values, self.T, self.r, self.tau,
                                         int(self.N), self.u0, self.z0, self.mode,

@@ -1,0 +1,246 @@
+"""The Python API: your own loop, run, plotted, packed, swept and analysed from Python.
+
+A loop comes from a loop file (:func:`load`), from matrices or a python-control
+``StateSpace`` (:func:`lti`), or from a model file (:func:`model`); each returns a
+:class:`~delaycomp.system.Loop`, the typed description every command runs. Then
+
+- :func:`run` co-simulates it and returns a :class:`~delaycomp.simulate.Result` (one numpy
+  array per signal: ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
+- :func:`plot` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
+- :func:`to_ssp` packs an SSP archive (``jacobi=True`` for libcosim and Ecos);
+- :func:`sweep` runs a grid and returns one row of metrics per point;
+- :func:`critical_delay` gives the largest measurement delay the uncompensated loop
+  survives (LTI).
+
+Failures raise named exceptions, all :class:`~delaycomp.errors.DelaycompError`:
+:class:`~delaycomp.errors.ParameterError` (a value out of range, the sign guard),
+:class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.model.ModelError`,
+:class:`~delaycomp.errors.SimulationFailed` (a run stopped early; its rows are in
+``exc.result``).
+
+**The sign.** delaycomp, like the paper, applies ``u = K x``; python-control's
+``lqr``/``dlqr`` return ``K`` for ``u = -K x``: pass ``-K``. A ``K`` with which the
+delay-free sampled loop is unstable is refused unless ``allow_unstable=True``.
+
+Examples
+--------
+A double integrator with two delays, compensated against uncompensated:
+
+>>> import numpy as np
+>>> from delaycomp import api
+>>> A = [[0.0, 1.0], [0.0, 0.0]]
+>>> B = [[0.0], [1.0]]
+>>> K = [[-1.0, -1.6]]                     # u = K x (python-control's lqr gives -K)
+>>> loop = api.lti(A, B, K, T=0.2, r=0.36, tau=0.4, N=20, x0=[1.0, 0.0])
+>>> res = api.run(loop, stop_time=12.0, engine="inprocess")
+>>> bool(abs(res["plant.x1"][-1]) < 1e-2)
+True
+>>> bare = api.run(api.lti(A, B, K, T=0.2, r=0.36, tau=0.4, N=20, x0=[1.0, 0.0],
+...                        mode="uncompensated"), 12.0, engine="inprocess")
+>>> bool(np.abs(bare["plant.x1"]).max() > np.abs(res["plant.x1"]).max())
+True
+>>> fig = api.plot([res, bare], labels=["compensated", "uncompensated"])
+>>> type(fig).__name__
+'Figure'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .errors import (
+    BadFileError,
+    DelaycompError,
+    ParameterError,
+    SimulationFailed,
+)
+from .model import ModelError
+from .simulate import Result
+from .system import Loop
+from .system import lti_loop as _lti_loop
+from .system import model_loop as _model_loop
+from .system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
+
+__all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
+           "Result", "SignError", "SimulationFailed", "critical_delay", "load", "lti",
+           "model", "plot", "run", "sweep", "to_ssp"]
+
+
+def load(path: str | Path, **overrides) -> Loop:
+    """The loop of a loop file (TOML), with key overrides.
+
+    Parameters
+    ----------
+    path : str or Path
+        The loop file (see :mod:`delaycomp.system.loopfile` for its keys).
+    **overrides
+        Keys to override, as ``--set`` takes them; a section key is written with a double
+        underscore: ``r=0.4``, ``plant__x0=[1, 0]``, ``controller__mode="uncompensated"``.
+
+    Returns
+    -------
+    Loop
+    """
+    sets = {key.replace("__", "."): value for key, value in overrides.items()}
+    return LoopFile(path).loop(sets)
+
+
+def _matrices(plant, B):
+    """``(A, B)`` from arrays or a continuous-time python-control ``StateSpace``."""
+    if B is not None:
+        return np.atleast_2d(np.asarray(plant, dtype=float)), np.atleast_2d(
+            np.asarray(B, dtype=float))
+    if not all(hasattr(plant, a) for a in ("A", "B", "D")):
+        raise ParameterError("lti(plant, B=None, ...): plant must be the matrix A (with B) "
+                             "or a python-control StateSpace")
+    dt = getattr(plant, "dt", 0)
+    if dt not in (0, None):
+        raise ParameterError(f"StateSpace with dt = {dt!r} is not allowed: the plant must be "
+                             "continuous-time (dt = 0); delaycomp samples it exactly")
+    if np.any(np.asarray(plant.D, dtype=float) != 0):
+        raise ParameterError("StateSpace with D != 0 is not allowed: the measured output is "
+                             "the state (D = 0)")
+    return np.asarray(plant.A, dtype=float), np.asarray(plant.B, dtype=float)
+
+
+def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
+        N: int = DEFAULT_N, x0, u0=None, mode: str = "compensated",
+        r_true: float | None = None, tau_true: float | None = None,
+        stop_time: float | None = None, name: str = "loop",
+        allow_unstable: bool = False) -> Loop:
+    """An LTI loop: plant ``x' = A x + B u(t - tau)``, measured as ``x(t - r)`` every ``T``,
+    controlled by ``u = K x`` on the predicted state (``mode="compensated"``) or on the
+    sample itself (``"uncompensated"``) through a zero-order hold.
+
+    Parameters
+    ----------
+    plant : array_like or control.StateSpace
+        ``A`` (n x n), with ``B`` given; or a continuous-time python-control ``StateSpace``
+        with ``D = 0`` (then ``B`` is taken from it).
+    B : array_like, optional
+        ``B`` (n x m).
+    K : array_like
+        The gain (m x n) of ``u = K x``, the paper's sign. python-control's ``lqr`` and
+        ``dlqr`` return ``K`` for ``u = -K x``: pass ``-K``.
+    T, r, tau, N : float, float, float, int
+        Sampling period, measurement delay, input delay (a multiple of ``T``), base steps
+        per period (``r`` and ``tau`` are multiples of ``h = T/N``).
+    x0, u0 : array_like
+        Constant histories of ``x`` on ``[-r, 0]`` and of ``u`` on ``[-r - tau, 0)``
+        (``u0`` defaults to zeros).
+    allow_unstable : bool
+        Let through a ``K`` with which the delay-free sampled loop is unstable (otherwise
+        :class:`SignError`, which gives its spectral radius).
+
+    Returns
+    -------
+    Loop
+    """
+    A, B = _matrices(plant, B)
+    if K is None:
+        raise ParameterError("lti(): K (u = K x) is required")
+    K = np.atleast_2d(np.asarray(K, dtype=float))
+    u0 = np.zeros(B.shape[1]) if u0 is None else u0
+    loop = _lti_loop(A, B, K, T, r, tau, N, mode, x0, u0, r_true=r_true, tau_true=tau_true,
+                     name=name, title=f"LTI loop {name}", stop_time=stop_time)
+    if not allow_unstable:
+        check_sign(A, B, K, T)
+    return loop
+
+
+def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
+          N: int = DEFAULT_N, x0, u0=None, mode: str = "compensated",
+          predictor: str | None = None, pad: bool = False,
+          stop_time: float | None = None, **parameters) -> Loop:
+    """A loop around a model file (the plant ``f`` and its delay-free feedback ``k``; see
+    :mod:`delaycomp.model`); ``parameters`` are the model's own.
+
+    ``mode="uncompensated"`` applies the feedback to the sample itself instead of the
+    prediction (the baseline the predictor is compared with).
+    """
+    from .model import load_model
+
+    if mode not in ("compensated", "uncompensated"):
+        raise ParameterError(f"mode = {mode!r} is not allowed: must be compensated or "
+                             "uncompensated")
+    m = load_model(path).m
+    u0 = np.zeros(m) if u0 is None else u0
+    return _model_loop(path, T, r, tau, N, x0, u0, params=parameters,
+                       predictor="none" if mode == "uncompensated" else predictor, pad=pad,
+                       name=Path(path).stem, title=f"model {Path(path).stem}",
+                       stop_time=stop_time)
+
+
+def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
+        fmu_dir: str | Path | None = None) -> Result:
+    """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
+    step; ``engine="inprocess"`` runs the FMUs' slaves without the FMI layer (the same
+    numbers, faster). Raises :class:`SimulationFailed` if the run stops early."""
+    from .simulate import run_loop
+
+    stop = loop.stop_time if stop_time is None else stop_time
+    if stop is None:
+        raise ParameterError("stop_time is required (the loop has none)")
+    result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine)
+    if not result.success:
+        raise SimulationFailed(result.message, result)
+    return result
+
+
+def plot(results, title: str = "", labels: Sequence[str] | None = None):
+    """A matplotlib ``Figure`` of one result or several (one line each, ``labels`` in the
+    legend); one panel per signal. The backend is not touched: save it with
+    ``fig.savefig(...)`` or show it in a notebook."""
+    from .plotting import figure
+
+    return figure(results, title, labels)
+
+
+def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
+           fmu_dir: str | Path | None = None) -> Path:
+    """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
+    variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`)."""
+    from . import ssp
+
+    fmu_dir = Path(fmu_dir) if fmu_dir else None
+    if jacobi:
+        from .thirdparty import pack_jacobi
+
+        return pack_jacobi(loop, out, fmu_dir)
+    return ssp.pack(*ssp.loop_system(loop), out, fmu_dir)
+
+
+def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = (),
+          stop_time: float | None = None, engine: str = "inprocess", workers: int = 1,
+          exact: bool = False) -> list[dict]:
+    """Metrics (``rho``, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time``) of
+    ``source`` at every point of ``grid`` (parameter name -> values).
+
+    ``source`` is a scenario name or a loop file's path; grid and ``sets`` names are its
+    keys (``r``, ``T``, ``controller.K``, ...).
+    """
+    from .sweep import Axis, run_sweep
+
+    axes = [Axis(name, tuple(float(v) for v in values)) for name, values in grid.items()]
+    return run_sweep(str(source), axes, list(sets), stop_time, engine, workers, None, None,
+                     exact)
+
+
+def critical_delay(loop: Loop) -> float:
+    """The largest measurement delay ``r_c`` for which the *uncompensated* LTI loop is
+    stable, from the spectral radius of the exact lifted model (the loop's own ``r`` is not
+    used)."""
+    from .lti import critical_delay as search
+    from .lti import lifted_loop
+
+    d = loop.lti
+    if d is None:
+        raise ParameterError(f"critical_delay needs an LTI loop; {loop.name} is not")
+
+    def rho(r: float) -> float:
+        return lifted_loop(d.A, d.B, d.K, loop.T, r, d.tau, "uncompensated").spectral_radius
+
+    return search(rho, r_max=50 * loop.T, step=loop.T / 100)

@@ -1,0 +1,100 @@
+"""The base grid: the one module that decides what lies on it.
+
+A loop runs on integer ticks ``t_k = t0 + k h`` of the base step ``h = T / N``. Delays,
+windows, stop times and sampling periods enter as real numbers and must be whole numbers
+of a step (``h``, a communication step, or ``T``); every such question in the package is
+asked here, with one tolerance (:data:`GRID_RTOL`) and one bound (:data:`MAX_STEPS`).
+This module imports nothing of the package: the maths, the FMUs and the system model all
+stand on it.
+
+Examples
+--------
+>>> on_grid(0.3, 0.01), on_grid(0.305, 0.01)
+(True, False)
+>>> steps_of(0.3, 0.1, "r")          # 0.3 / 0.1 is 2.9999999999999996
+3
+>>> split(2.5, 1.0)
+(2, 0.5)
+"""
+
+from __future__ import annotations
+
+import math
+
+#: Relative slack when deciding whether a value is a whole number of a step: round-off of
+#: decimal inputs (``0.3 / 0.1``) is about 1e-16 relative; 1e-9 leaves room for sums of a
+#: few such values and still refuses any value a user could mean as off the grid.
+GRID_RTOL = 1e-9
+#: Longest buffer (delay line, input history, predictor window) in steps: a bad parameter
+#: (a huge delay, a tiny step) must be refused, not allocate until the host is killed.
+#: 10^6 steps of a scalar signal take about 80 MB once filled.
+MAX_STEPS = 1_000_000
+
+
+def nearest_multiple(value: float, step: float) -> int | None:
+    """``k`` with ``value = k step`` up to :data:`GRID_RTOL`, else ``None``."""
+    ratio = value / step
+    if not math.isfinite(ratio):
+        return None
+    k = round(ratio)
+    if abs(ratio - k) <= GRID_RTOL * max(1.0, abs(ratio)):
+        return int(k)
+    return None
+
+
+def on_grid(value: float, step: float) -> bool:
+    """Is ``value`` an integer multiple of ``step`` (up to round-off)?"""
+    return nearest_multiple(value, step) is not None
+
+
+def check_steps(name: str, value: float, steps: float, unit: str) -> None:
+    """Refuse a window of more than :data:`MAX_STEPS` steps of ``unit``."""
+    if not steps <= MAX_STEPS:
+        raise ValueError(f"{name} = {value!r} is not allowed: must be at most {MAX_STEPS} "
+                         f"{unit} (it needs {steps:.6g})")
+
+
+def steps_of(value: float, step: float, name: str, what: str | None = None) -> int:
+    """``k`` with ``value = k step``, ``0 <= k <= MAX_STEPS``; else ``ValueError`` naming
+    ``name`` and the grid (``what``, default "the base step h = <step>")."""
+    what = what or f"the base step h = {step!r}"
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"step size must be a finite number > 0, got {step!r}")
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{name} = {value!r} is not allowed: must be a finite number >= 0")
+    check_steps(name, value, value / step, f"steps of {what}")
+    k = nearest_multiple(value, step)
+    if k is None:
+        raise ValueError(f"{name} = {value!r} is not allowed: must be a multiple of {what}")
+    return k
+
+
+def split(value: float, period: float) -> tuple[int, float]:
+    """``(q, rest)`` with ``q = [value / period]`` and ``rest = value - q period`` in
+    ``[0, period)``.
+
+    When ``value / period`` is an integer up to round-off (``0.3 / 0.1``) that integer is
+    taken and ``rest = 0``: a floor of the raw quotient would put almost a whole period into
+    ``rest``.
+    """
+    if not period > 0:
+        raise ValueError(f"T must be > 0, got {period}")
+    if value < 0:
+        raise ValueError(f"r must be >= 0, got {value}")
+    k = nearest_multiple(value, period)
+    if k is not None:
+        return k, 0.0
+    q = math.floor(value / period)
+    return q, max(value - q * period, 0.0)
+
+
+def ticks(duration: float, T: float, N: int, name: str = "--stop-time") -> int:
+    """Base steps ``k`` with ``duration = k h``, ``h = T / N``, for a duration > 0."""
+    h = T / N
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"{name} {duration!r} is not allowed: must be a finite number > 0")
+    k = nearest_multiple(duration, h)
+    if k is None:
+        raise ValueError(f"{name} {duration!r} is not allowed: must be a multiple of the "
+                         f"base step h = T/N = {h!r}")
+    return k

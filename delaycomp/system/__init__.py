@@ -1,0 +1,25 @@
+"""The system model: the typed description of a closed loop (:mod:`.loop`), the loop file
+that describes one in TOML (:mod:`.loopfile`) and the rewrites that work on roles
+(:mod:`.jacobi`). It stands on the maths and :mod:`delaycomp.grid`, and imports nothing
+above it (no FMI, no master).
+"""
+
+from .loop import (
+    ROLES,
+    BuiltinFmu,
+    Connection,
+    FmuFile,
+    Instance,
+    Loop,
+    LtiDesign,
+    ModelFmu,
+    Port,
+    Role,
+    Source,
+    Timing,
+    lti_loop,
+    model_loop,
+)
+
+__all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiDesign",
+           "ModelFmu", "Port", "Role", "Source", "Timing", "lti_loop", "model_loop"]

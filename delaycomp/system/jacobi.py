@@ -1,0 +1,87 @@
+"""The Jacobi variant of a loop: the same trajectory in a master that steps every
+component and only then exchanges the outputs (libcosim, Ecos; see
+:mod:`delaycomp.thirdparty` for the measurement of that latency).
+
+A rewrite of the typed loop by roles, never by instance names:
+
+- the **controller** samples the measurement held over the previous base step
+  (``held_sample = true``), so its output no longer depends on its input at the same
+  instant;
+- the **measurement delay** is shortened by that one base step ``h``, so the held value is
+  exactly ``x(t_i - r)``; it must keep at least one base step (``r >= 2 h``);
+- a **delay with a zero delay** (pure feedthrough, which cannot be shortened) is bypassed:
+  its input connection goes straight to its consumer.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .. import grid
+from ..names import indexed
+from .loop import Connection, Loop
+
+#: base steps of latency a Jacobi master adds on a connection out of a direct-feedthrough
+#: output (measured, see :mod:`delaycomp.thirdparty`)
+JACOBI_LATENCY_STEPS = 1
+DELAY_ROLES = ("meas_delay", "input_delay")
+
+
+class CompensationError(ValueError):
+    """The loop cannot be made exact in a Jacobi master (one-line message)."""
+
+
+def _delay_input_of(loop: Loop, name: str, output: str) -> str:
+    """The input of delay instance ``name`` whose value its ``output`` carries."""
+    n = int(loop.instance(name).source.build_key()[1]["n"])
+    return indexed("u", n)[indexed("y", n).index(output)]
+
+
+def jacobi_variant(loop: Loop) -> Loop:
+    """The loop for a Jacobi master: same total delays, same trajectory (module docstring).
+
+    Examples
+    --------
+    >>> from delaycomp.system import lti_loop
+    >>> loop = lti_loop([[1.0]], [[1.0]], [[-2.0]], 1.0, 0.3, 0.0, 100, "compensated",
+    ...                 [1.0], [0.0])
+    >>> variant = jacobi_variant(loop)
+    >>> variant.by_role("meas_delay").parameters["delay"], variant.by_role("input_delay")
+    (0.29, None)
+    >>> variant.by_role("controller").parameters["held_sample"]
+    True
+    """
+    h = loop.h
+    lat = JACOBI_LATENCY_STEPS * h
+    meas = loop.by_role("meas_delay")
+    ctrl = loop.by_role("controller")
+    if ctrl is None or meas is None:
+        raise CompensationError("a Jacobi variant needs a controller fed by a measurement "
+                                "delay")
+    delay = float(meas.parameters["delay"])
+    if delay < 2 * lat and not math.isclose(delay, 2 * lat, rel_tol=grid.GRID_RTOL):
+        raise CompensationError(
+            f"{meas.name}: delay {delay!r} < 2 h = {2 * lat!r}: in a Jacobi master "
+            f"{ctrl.name} samples the measurement one base step late, so {meas.name} is "
+            "shortened by h and must keep at least one base step (without it the "
+            "controller would read the plant, whose output these masters take before "
+            "initialization); use r >= 2 T/N")
+    changed = {meas.name: {"delay": delay - lat}, ctrl.name: {"held_sample": True}}
+    instances = [i.with_parameters(**changed[i.name]) if i.name in changed else i
+                 for i in loop.instances]
+    bypass = {i.name for i in instances if i.role in DELAY_ROLES
+              and grid.nearest_multiple(float(i.parameters["delay"]), h) == 0}
+    if any(p.instance in bypass for p in loop.recorded):
+        raise CompensationError("a recorded signal belongs to a delay that is bypassed")
+    connections = []
+    for con in loop.connections:
+        if con.dst.instance in bypass:
+            continue
+        src = con.src
+        while src.instance in bypass:  # follow the bypassed delay back to its own source
+            port = _delay_input_of(loop, src.instance, src.variable)
+            src = next(c.src for c in loop.connections
+                       if c.dst.instance == src.instance and c.dst.variable == port)
+        connections.append(Connection(src, con.dst))
+    return loop.replace(instances=tuple(i for i in instances if i.name not in bypass),
+                        connections=tuple(connections))

@@ -1,0 +1,434 @@
+"""The typed description of a closed loop: the one structure every consumer takes.
+
+A :class:`Loop` holds
+
+- :class:`Instance` objects, each with a **role** (:data:`ROLES`: the plant, the
+  measurement delay, the predictor-controller, the input delay) and a **source** (where its
+  FMU comes from: :class:`BuiltinFmu`, one of delaycomp's FMU kinds with its build
+  configuration; :class:`ModelFmu`, the plant or controller FMU of a user's model file;
+  :class:`FmuFile`, an FMU file given as it is) and its parameter values;
+- typed :class:`Connection` objects between :class:`Port` objects;
+- the :class:`Timing` (``T``, ``N``, integer ticks of ``h = T/N``, decided by
+  :mod:`delaycomp.grid`);
+- the recorded ports, and for LTI loops the design (:class:`LtiDesign`: ``A``, ``B``,
+  ``K``, delays, histories) that exact analyses (lifted model, critical delay, the sign
+  guard) read.
+
+Everything is validated once, when the loop is built; consumers (the master wiring, the SSP
+writer and reader, the Jacobi variant, the container export, the cross-check, sweeps,
+critical delay, the benchmark) read fields and never parse strings. Builders for the
+standard four-instance loop are :func:`lti_loop` and :func:`model_loop`.
+
+Examples
+--------
+>>> loop = lti_loop([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, tau=0.0, N=100,
+...                 mode="compensated", x0=[1.0], u0=[0.0])
+>>> [i.role for i in loop.instances]
+['plant', 'meas_delay', 'controller', 'input_delay']
+>>> str(loop.connections[0]), loop.timing.h
+('plant.x -> meas_delay.u', 0.01)
+>>> loop.by_role("controller").parameters["r"]
+0.3
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import numpy as np
+
+from .. import grid
+from ..errors import ParameterError
+from ..lti import MODES
+from ..names import indexed
+
+Role = Literal["plant", "meas_delay", "controller", "input_delay"]
+#: the roles of a closed loop, in signal order: plant -> meas_delay -> controller ->
+#: input_delay -> plant
+ROLES: tuple[Role, ...] = ("plant", "meas_delay", "controller", "input_delay")
+
+
+# -- sources -------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BuiltinFmu:
+    """One of delaycomp's FMUs: a kind of :data:`delaycomp.build.FMUS` (``plant``,
+    ``delay``, ``controller``) and its build configuration (dimensions, names)."""
+
+    kind: str
+    config: Mapping[str, Any] = field(default_factory=dict)
+
+    def build_key(self) -> tuple[str, dict]:
+        """``(kind, config)`` as :func:`delaycomp.build.build_fmu` takes them."""
+        return self.kind, dict(self.config)
+
+
+@dataclass(frozen=True)
+class ModelFmu:
+    """The plant (``kind = "model_plant"``) or controller (``"model_controller"``) FMU of
+    a user's model file (:mod:`delaycomp.model`)."""
+
+    kind: str
+    model: Path
+
+    @property
+    def config(self) -> dict:
+        return {"model": str(self.model)}
+
+    def build_key(self) -> tuple[str, dict]:
+        return self.kind, self.config
+
+
+@dataclass(frozen=True)
+class FmuFile:
+    """An FMU file taken as it is (from an SSP archive, or a user's own FMU)."""
+
+    path: Path
+
+    def build_key(self) -> None:
+        return None
+
+
+Source = Union[BuiltinFmu, ModelFmu, FmuFile]  # noqa: UP007 - isinstance() needs Union
+
+
+# -- structure -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Port:
+    """A variable of an instance: ``instance.variable``."""
+
+    instance: str
+    variable: str
+
+    def __str__(self) -> str:
+        return f"{self.instance}.{self.variable}"
+
+
+@dataclass(frozen=True)
+class Connection:
+    """A signal from an output port to an input port."""
+
+    src: Port
+    dst: Port
+
+    def __str__(self) -> str:
+        return f"{self.src} -> {self.dst}"
+
+
+@dataclass(frozen=True)
+class Instance:
+    """A component of the loop: its name, role, source and parameter values."""
+
+    name: str
+    role: Role
+    source: Source
+    parameters: Mapping[str, Any] = field(default_factory=dict)
+
+    def with_parameters(self, **changes) -> Instance:
+        """A copy with some parameters changed (or added)."""
+        return dataclasses.replace(self, parameters={**self.parameters, **changes})
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The base grid: sampling period ``T`` and ``N`` base steps per period."""
+
+    T: float
+    N: int
+
+    def __post_init__(self):
+        if not (isinstance(self.T, (int, float)) and math.isfinite(self.T) and self.T > 0):
+            raise ParameterError(f"parameter T = {self.T!r} is not allowed: must be a finite "
+                                 "number > 0")
+        if not (type(self.N) is int and self.N >= 1):
+            raise ParameterError(f"parameter N = {self.N!r} is not allowed: must be a "
+                                 "positive integer")
+
+    @property
+    def h(self) -> float:
+        """The base step ``T / N``."""
+        return self.T / self.N
+
+    def ticks(self, duration: float, name: str = "--stop-time") -> int:
+        """Base steps in ``duration`` (> 0, a multiple of ``h``), else ParameterError."""
+        try:
+            return grid.ticks(duration, self.T, self.N, name)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+
+    def check_on_grid(self, name: str, value: float) -> None:
+        """Refuse a delay ``value`` that is not a multiple of ``h``."""
+        if not grid.on_grid(value, self.h):
+            raise ParameterError(
+                f"parameter {name} = {value!r} is not allowed: must be a multiple of the "
+                f"base step h = T/N = {self.h!r} (raise N)")
+
+
+@dataclass(frozen=True)
+class LtiDesign:
+    """What an LTI loop is made of, for exact analyses: ``x' = A x + B u(t - tau)``,
+    ``u = K x`` (the paper's sign) on the predicted (``compensated``) or sampled state."""
+
+    A: np.ndarray
+    B: np.ndarray
+    K: np.ndarray
+    r: float
+    tau: float
+    mode: str
+    x0: np.ndarray
+    u0: np.ndarray
+    r_true: float | None = None
+    tau_true: float | None = None
+
+    @property
+    def n(self) -> int:
+        return self.B.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.B.shape[1]
+
+
+@dataclass(frozen=True)
+class Loop:
+    """A closed loop ready for a master; validated when built (see module docstring)."""
+
+    instances: tuple[Instance, ...]
+    connections: tuple[Connection, ...]
+    timing: Timing
+    recorded: tuple[Port, ...] = ()
+    #: a name for files and titles (scenario name or loop file stem); like the title, the
+    #: default stop time and the LTI design, it does not take part in comparing loops
+    name: str = field(default="loop", compare=False)
+    title: str = field(default="", compare=False)
+    stop_time: float | None = field(default=None, compare=False)
+    lti: LtiDesign | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "instances", tuple(self.instances))
+        object.__setattr__(self, "connections", tuple(self.connections))
+        object.__setattr__(self, "recorded", tuple(self.recorded))
+        names = [i.name for i in self.instances]
+        if len(set(names)) != len(names):
+            raise ParameterError(f"loop {self.name}: instance names must be distinct: {names}")
+        for inst in self.instances:
+            if inst.role not in ROLES:
+                raise ParameterError(f"loop {self.name}: instance {inst.name} has role "
+                                     f"{inst.role!r}: allowed are {', '.join(ROLES)}")
+        roles = [i.role for i in self.instances]
+        for role in ROLES:
+            if roles.count(role) > 1:
+                raise ParameterError(f"loop {self.name}: more than one {role}")
+        for port in [p for c in self.connections for p in (c.src, c.dst)] + list(
+                self.recorded):
+            if port.instance not in names:
+                raise ParameterError(f"loop {self.name}: {port} names no instance: "
+                                     f"allowed are {', '.join(names)}")
+        if self.stop_time is not None:
+            self.timing.ticks(self.stop_time, "stop_time")
+
+    # -- reading --
+    @property
+    def T(self) -> float:
+        return self.timing.T
+
+    @property
+    def N(self) -> int:
+        return self.timing.N
+
+    @property
+    def h(self) -> float:
+        return self.timing.h
+
+    @property
+    def names(self) -> list[str]:
+        return [i.name for i in self.instances]
+
+    def instance(self, name: str) -> Instance:
+        for inst in self.instances:
+            if inst.name == name:
+                return inst
+        raise KeyError(f"loop {self.name}: no instance {name!r}")
+
+    def by_role(self, role: Role) -> Instance | None:
+        """The instance with ``role``, or ``None``."""
+        for inst in self.instances:
+            if inst.role == role:
+                return inst
+        return None
+
+    def parameters(self) -> dict[str, dict]:
+        """Instance name -> its parameter values (what the master sets before
+        initialization)."""
+        return {i.name: dict(i.parameters) for i in self.instances}
+
+    # -- rewriting --
+    def replace(self, **changes) -> Loop:
+        """A copy with fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_instances(self, instances: Iterable[Instance]) -> Loop:
+        return self.replace(instances=tuple(instances))
+
+    def set_parameters(self, name: str, **changes) -> Loop:
+        """A copy with parameters of instance ``name`` changed."""
+        return self.with_instances(i.with_parameters(**changes) if i.name == name else i
+                                   for i in self.instances)
+
+
+# -- the standard loop ---------------------------------------------------------------------
+
+def _chain(plant_out: list[str], ctrl_in: list[str], ctrl_out: list[str],
+           plant_in: list[str]) -> tuple[Connection, ...]:
+    """plant -> meas_delay -> controller -> input_delay -> plant, channel by channel."""
+    n, m = len(plant_out), len(plant_in)
+    ys_in, ys_out = indexed("u", n), indexed("y", n)
+    dl_in, dl_out = indexed("u", m), indexed("y", m)
+
+    def c(a, av, b, bv):
+        return Connection(Port(a, av), Port(b, bv))
+
+    return tuple(
+        [c("plant", x, "meas_delay", i) for x, i in zip(plant_out, ys_in)]
+        + [c("meas_delay", o, "controller", i) for o, i in zip(ys_out, ctrl_in)]
+        + [c("controller", u, "input_delay", i) for u, i in zip(ctrl_out, dl_in)]
+        + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, plant_in)])
+
+
+def _vec(label: str, v) -> dict:
+    return {f"{label}[{i + 1}]": float(x) for i, x in enumerate(v)}
+
+
+def _mat(label: str, M) -> dict:
+    return {f"{label}[{i + 1},{j + 1}]": float(M[i, j])
+            for i in range(M.shape[0]) for j in range(M.shape[1])}
+
+
+def _delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[float, float]:
+    for name, value in (("r", r), ("tau", tau), ("r_true", r_true), ("tau_true", tau_true)):
+        if value is None:
+            continue
+        if not (math.isfinite(value) and value >= 0):
+            raise ParameterError(f"parameter {name} = {value!r} is not allowed: must be a "
+                                 "finite number >= 0")
+        timing.check_on_grid(name, value)
+    return (r if r_true is None else r_true), (tau if tau_true is None else tau_true)
+
+
+def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
+             state: str = "x", inp: str = "u", r_true: float | None = None,
+             tau_true: float | None = None, name: str = "loop", title: str = "",
+             stop_time: float | None = None) -> Loop:
+    """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
+
+    ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``, with ``u = K x``
+    (the paper's sign). The history of x on ``[-r, 0]`` is the constant ``x0`` (the
+    measurement delay's initial history), the controller's output history on
+    ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs apply the loop's true delays
+    ``r_true``, ``tau_true`` (default: the assumed ``r``, ``tau``).
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    B = np.atleast_2d(np.asarray(B, dtype=float))
+    K = np.atleast_2d(np.asarray(K, dtype=float))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ParameterError(f"matrix A has shape {A.shape}: must be square (n x n)")
+    if B.shape[0] != n:
+        raise ParameterError(f"matrix B has shape {B.shape}: must have n = {n} rows")
+    m = B.shape[1]
+    if K.shape != (m, n):
+        raise ParameterError(f"matrix K has shape {K.shape}: must be m x n = {m} x {n} "
+                             "(u = K x)")
+    for label, M in (("A", A), ("B", B), ("K", K)):
+        if not np.all(np.isfinite(M)):
+            raise ParameterError(f"matrix {label} has entries that are not finite numbers")
+    x0 = np.asarray(x0, dtype=float).ravel()
+    u0 = np.asarray(u0, dtype=float).ravel()
+    if x0.shape != (n,):
+        raise ParameterError(f"parameter x0 has {x0.size} values: must have n = {n}")
+    if u0.shape != (m,):
+        raise ParameterError(f"parameter u0 has {u0.size} values: must have m = {m}")
+    if mode not in MODES:
+        raise ParameterError(f"parameter mode = {mode!r} is not allowed: must be "
+                             f"{' or '.join(MODES)}")
+    timing = Timing(T, N)
+    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    xs, us = indexed(state, n), indexed(inp, m)
+    instances = (
+        Instance("plant", "plant",
+                 BuiltinFmu("plant", {"n": n, "m": m, "state": state, "input": inp}),
+                 {**_mat("A", A), **_mat("B", B), **_vec("x0", x0)}),
+        Instance("meas_delay", "meas_delay", BuiltinFmu("delay", {"n": n}),
+                 {"delay": r_loop, **_vec("u0", x0)}),
+        Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
+                 {"T": T, "r": r, "tau": tau, "mode": mode, **_mat("A", A), **_mat("B", B),
+                  **_mat("K", K), **_vec("u0", u0)}),
+        Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
+                 {"delay": tau_loop, **_vec("u0", u0)}),
+    )
+    recorded = tuple([Port("plant", x) for x in xs] + [Port("controller", u) for u in us])
+    design = LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true)
+    return Loop(instances, _chain(xs, indexed("y", n), us, us), timing, recorded, name,
+                title, stop_time, design)
+
+
+def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
+               params: dict | None = None, mode: str | None = None,
+               predictor: str | None = None, tolerance: float | None = None,
+               pad: bool = False, r_true: float | None = None,
+               tau_true: float | None = None, name: str = "loop", title: str = "",
+               stop_time: float | None = None) -> Loop:
+    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.model`).
+
+    Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
+    ``params`` are the model's parameters (an unknown name is refused).
+    """
+    from ..model import load_model
+
+    model = load_model(model_path)
+    n, m = model.n, model.m
+    x0 = [float(v) for v in np.ravel(x0)]
+    u0 = [float(v) for v in np.ravel(u0)]
+    if len(x0) != n:
+        raise ParameterError(f"parameter x0 has {len(x0)} values: must have {n} "
+                             f"({', '.join(model.states)})")
+    if len(u0) != m:
+        raise ParameterError(f"parameter u0 has {len(u0)} values: must have {m} "
+                             f"({', '.join(model.inputs)})")
+    params = dict(params or {})
+    unknown = [k for k in params if k not in model.parameters]
+    if unknown:
+        allowed = ", ".join(model.parameters) or "none"
+        raise ParameterError(f"model {model.name} has no parameter {unknown[0]!r}: allowed "
+                             f"are {allowed}")
+    timing = Timing(T, N)
+    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    path = Path(model_path)
+    ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad), **_vec("u0", u0),
+            **_vec("z0", x0 if z0 is None else z0), **params}
+    if mode is not None:
+        ctrl["mode"] = mode
+    if predictor is not None:
+        ctrl["predictor"] = predictor
+    plant = {**_vec("x0", x0), **params}
+    if tolerance is not None:
+        plant["tolerance"] = ctrl["tolerance"] = tolerance
+    instances = (
+        Instance("plant", "plant", ModelFmu("model_plant", path), plant),
+        Instance("meas_delay", "meas_delay", BuiltinFmu("delay", {"n": n}),
+                 {"delay": r_loop, **_vec("u0", x0)}),
+        Instance("controller", "controller", ModelFmu("model_controller", path), ctrl),
+        Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
+                 {"delay": tau_loop, **_vec("u0", u0)}),
+    )
+    recorded = tuple([Port("plant", s) for s in model.states]
+                     + [Port("controller", u) for u in model.inputs])
+    connections = _chain(list(model.states), [f"y_{s}" for s in model.states],
+                         list(model.inputs), list(model.inputs))
+    return Loop(instances, connections, timing, recorded, name, title, stop_time)

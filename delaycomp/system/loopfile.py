@@ -1,0 +1,388 @@
+"""Loop files: a closed loop described in TOML, the user's own system for every command.
+
+The shape is a contract (scripts and checks write such files; it is extended, never
+renamed)::
+
+    T = 0.2                 # sampling period [s], > 0
+    N = 20                  # base steps per period (h = T/N); default 100
+    r = 0.36                # measurement delay [s], a multiple of h; default 0
+    tau = 0.4               # input delay [s], a multiple of T (zero-order hold); default 0
+    # r_true, tau_true      optional: the loop's real delays when they differ
+    stop_time = 10.0        # optional: the default stop time of `run` [s]
+
+    [plant]
+    A = [[0, 1, 0], [0, 0, 1], [-1, -2, -3]]     # LTI: x' = A x + B u (any n, m) ...
+    B = [[0, 0], [1, 0], [0, 1]]
+    # model = "pend.py"                         # ... or a model file (delaycomp.model)
+    x0 = [1, 0, 0]          # the constant history of x on [-r, 0]
+
+    [controller]
+    mode = "compensated"    # or "uncompensated" (the sample itself instead of Phi)
+    K = [[-1, -2, 0], [0, -1, -1]]  # LTI: u = K x, the paper's sign (not python-control's)
+    u0 = [0, 0]             # the constant input history on [-r - tau, 0); default zeros
+    # gain = 2.0            # a model's own parameters, by name
+
+Extensions (optional keys): top-level ``name`` and ``title``; ``[plant] state`` and
+``input`` (base names of the LTI signals, default ``x`` and ``u``), ``[plant] tolerance``
+(a model plant without exact ``step``: its ODE tolerance); ``[controller] predictor``
+(``closed`` or ``numerical``, for models), ``pad`` (pad ``tau`` up to a multiple of T,
+Remark 3.3(b)), ``tolerance`` and ``allow_unstable``.
+
+Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
+the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
+``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``.
+
+**The sign, guarded.** For an LTI loop, a ``K`` with which the delay-free sampled loop is
+unstable (spectral radius of ``Ad + Bd K`` at least 1) is refused: the controller applies
+``u = K x`` whereas python-control's ``lqr``/``dlqr`` return ``K`` for ``u = -K x``.
+``allow_unstable = true`` lets a study of unstable designs through.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomllib
+
+from ..errors import BadFileError, ParameterError
+from ..lti import MODES
+from .loop import Loop, lti_loop, model_loop
+
+TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
+PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu")
+CONTROLLER_KEYS = ("mode", "K", "u0", "predictor", "pad", "tolerance", "allow_unstable")
+SECTIONS = ("plant", "controller")
+DEFAULT_N = 100
+
+_DECIMAL = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
+
+
+class SignError(ParameterError):
+    """An LTI gain with which the delay-free sampled loop is unstable (the sign guard)."""
+
+
+# -- values ---------------------------------------------------------------------------------
+
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: an ASCII decimal number, ``a,b,c`` (a list), ``a,b;c,d`` (rows),
+    a TOML array ``[[a, b], [c, d]]``, ``true``/``false``, or else the text itself.
+
+    Examples
+    --------
+    >>> parse_value("0.4"), parse_value("1,0"), parse_value("1,2;3,4")
+    (0.4, [1.0, 0.0], [[1.0, 2.0], [3.0, 4.0]])
+    >>> parse_value("[[1, 2]]"), parse_value("uncompensated"), parse_value("true")
+    ([[1, 2]], 'uncompensated', True)
+    """
+    text = text.strip()
+    if _DECIMAL.match(text):
+        return float(text)
+    if text in ("true", "false"):
+        return text == "true"
+    if text.startswith("["):
+        if "_" in text:
+            raise ValueError("plain decimal numbers only (no '_')")
+        try:
+            return tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"not a TOML array: {exc}") from None
+    if "," in text or ";" in text:
+        rows = [[_number(part) for part in row.split(",")] for row in text.split(";")]
+        return rows if ";" in text else rows[0]
+    return text
+
+
+def _number(text: str) -> float:
+    text = text.strip()
+    if not _DECIMAL.match(text):
+        raise ValueError(f"{text!r} is not an ASCII decimal number")
+    return float(text)
+
+
+def _real(where: str, value, positive=False, nonneg=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be a number")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be a finite number")
+    if positive and not value > 0:
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be > 0")
+    if nonneg and not value >= 0:
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be >= 0")
+    return value
+
+
+def _int(where: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+            isinstance(value, float) and not value.is_integer()) or not value >= 1:
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be a positive integer")
+    return int(value)
+
+
+def _array(where: str, value, ndim: int) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where} is not allowed: must be "
+                             f"{'a list of numbers' if ndim == 1 else 'a list of rows'}"
+                             ) from None
+    if ndim == 2 and arr.ndim == 1:
+        arr = arr.reshape(1, -1) if arr.size else arr.reshape(0, 0)
+    if arr.ndim != ndim or arr.size == 0 or any(isinstance(v, bool) for v in np.ravel(
+            np.asarray(value, dtype=object))):
+        raise ParameterError(f"{where} is not allowed: must be "
+                             f"{'a list of numbers' if ndim == 1 else 'a list of rows of numbers'}")
+    if not np.all(np.isfinite(arr)):
+        raise ParameterError(f"{where} is not allowed: every entry must be a finite number")
+    return arr
+
+
+def _flag(where: str, value) -> bool:
+    if not isinstance(value, bool):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be true or false")
+    return value
+
+
+# -- the sign guard ------------------------------------------------------------------------
+
+def check_sign(A, B, K, T: float) -> float:
+    """Refuse (:class:`SignError`) a gain with which the delay-free sampled loop
+    ``x_{i+1} = (Ad + Bd K) x_i`` is unstable; return its spectral radius otherwise.
+
+    Examples
+    --------
+    >>> round(check_sign([[1.0]], [[1.0]], [[-2.0]], 1.0), 6)    # Example 3.6: stable
+    0.718282
+    >>> check_sign([[1.0]], [[1.0]], [[2.0]], 1.0)   # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.system.loopfile.SignError: controller K: the delay-free sampled loop ...
+    """
+    from ..lti import sampled_radius
+
+    rho = sampled_radius(A, B, K, T)
+    if not rho < 1.0:
+        raise SignError(
+            f"controller K: the delay-free sampled loop is unstable (spectral radius of "
+            f"Ad + Bd K = {rho:.6g} >= 1 at T = {T!r}); delaycomp applies u = K x, whereas "
+            "python-control's lqr/dlqr return K for u = -K x (pass -K); set "
+            "allow_unstable = true (--allow-unstable) to study an unstable design")
+    return rho
+
+
+# -- the file ------------------------------------------------------------------------------
+
+def _check_keys(where: str, table: dict, allowed, extra=()) -> None:
+    for key in table:
+        if key not in allowed and key not in extra:
+            raise ParameterError(f"{where}: unknown key {key!r}: allowed are "
+                                 f"{', '.join(allowed)}")
+
+
+class LoopFile:
+    """A loop file read from disk: :meth:`loop` builds the :class:`Loop`, with overrides.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (folder / "ex.toml").write_text('''
+    ... T = 1.0
+    ... r = 0.3
+    ... tau = 1.0
+    ... [plant]
+    ... A = [[1.0]]
+    ... B = [[1.0]]
+    ... x0 = [1.0]
+    ... [controller]
+    ... K = [[-2.0]]
+    ... ''')
+    >>> lf = LoopFile(folder / "ex.toml")
+    >>> loop = lf.loop(["r=0.5", "controller.mode=uncompensated"])
+    >>> loop.name, loop.by_role("controller").parameters["mode"], loop.lti.r
+    ('ex', 'uncompensated', 0.5)
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise BadFileError(self.path, "no such loop file")
+        try:
+            self.data = tomllib.loads(self.path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise BadFileError(self.path, f"is not a TOML loop file: {exc}") from None
+        except OSError as exc:
+            raise BadFileError(self.path, f"cannot be read: {exc.strerror}") from None
+        self.name = str(self.data.get("name") or self.path.stem)
+        self.title = str(self.data.get("title") or f"loop file {self.path.name}")
+
+    @property
+    def base(self) -> Path:
+        """The folder relative paths resolve against."""
+        return self.path.resolve().parent
+
+    @property
+    def default_stop_time(self) -> float | None:
+        stop = self.data.get("stop_time")
+        return None if stop is None else _real("stop_time", stop, positive=True)
+
+    @property
+    def is_lti(self) -> bool:
+        return "A" in self.data.get("plant", {})
+
+    def resolve(self, assignments: list[str] | dict | None = None) -> dict:
+        """The file's data with ``NAME=VALUE`` overrides (``r``, ``plant.x0``,
+        ``controller.K``); the keys are checked, the values when the loop is built."""
+        data = copy.deepcopy(self.data)
+        items = assignments.items() if isinstance(assignments, dict) else (
+            _split(a) for a in (assignments or []))
+        for key, text in items:
+            section, dot, name = key.partition(".")
+            if not dot:
+                section, name = "", key
+            try:
+                value = parse_value(text) if isinstance(text, str) else text
+            except ValueError as exc:
+                raise ParameterError(f"--set {key}={text}: {exc}") from None
+            if section == "":
+                _check_keys(self.path.name, {name: 0}, TOP_KEYS)
+                data[name] = value
+            elif section in SECTIONS:
+                data.setdefault(section, {})[name] = value
+            else:
+                raise ParameterError(f"--set {key}: unknown section {section!r}: allowed "
+                                     f"are {', '.join(SECTIONS)} (or a top-level key: "
+                                     f"{', '.join(TOP_KEYS)})")
+        return data
+
+    def make(self, data: dict) -> Loop:
+        """The loop of resolved ``data``."""
+        return build(data, self.base, self.name, self.title, where=self.path.name)
+
+    def loop(self, assignments: list[str] | dict | None = None) -> Loop:
+        return self.make(self.resolve(assignments))
+
+
+def _split(assignment: str) -> tuple[str, str]:
+    name, sep, value = assignment.partition("=")
+    if not sep or not name.strip():
+        raise ParameterError(f"--set {assignment!r}: expected NAME=VALUE")
+    return name.strip(), value
+
+
+def build(data: dict, base: Path, name: str = "loop", title: str = "",
+          where: str = "loop") -> Loop:
+    """The :class:`Loop` of a loop file's ``data`` (paths relative to ``base``)."""
+    _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS)
+    plant = data.get("plant")
+    ctrl = dict(data.get("controller") or {})
+    if not isinstance(plant, dict):
+        raise ParameterError(f"{where}: a [plant] table is required (A and B, or model)")
+    if "T" not in data:
+        raise ParameterError(f"{where}: T (the sampling period) is required")
+    T = _real("T", data["T"], positive=True)
+    N = _int("N", data.get("N", DEFAULT_N))
+    r = _real("r", data.get("r", 0.0), nonneg=True)
+    tau = _real("tau", data.get("tau", 0.0), nonneg=True)
+    r_true = None if data.get("r_true") is None else _real("r_true", data["r_true"],
+                                                            nonneg=True)
+    tau_true = None if data.get("tau_true") is None else _real("tau_true", data["tau_true"],
+                                                                nonneg=True)
+    stop = None if data.get("stop_time") is None else _real("stop_time", data["stop_time"],
+                                                             positive=True)
+    mode = ctrl.get("mode", "compensated")
+    if mode not in MODES:
+        raise ParameterError(f"controller.mode = {mode!r} is not allowed: must be "
+                             f"{' or '.join(MODES)}")
+    common = dict(r_true=r_true, tau_true=tau_true, name=name, title=title, stop_time=stop)
+    if "fmu" in plant:
+        raise ParameterError(f"{where}: plant.fmu (a third-party plant FMU) is not supported "
+                             "by this version: give A and B, or model")
+    if ("A" in plant) == ("model" in plant):
+        raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
+                             "\"file.py\", not both")
+    if "x0" not in plant:
+        raise ParameterError(f"{where}: plant.x0 (the initial state) is required")
+    x0 = _array("plant.x0", plant["x0"], 1)
+    if "A" in plant:
+        _check_keys(f"{where} [plant]", plant, ("A", "B", "x0", "state", "input"))
+        _check_keys(f"{where} [controller]", ctrl, ("mode", "K", "u0", "allow_unstable"))
+        if "B" not in plant or "K" not in ctrl:
+            raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
+        A = _array("plant.A", plant["A"], 2)
+        B = _array("plant.B", plant["B"], 2)
+        K = _array("controller.K", ctrl["K"], 2)
+        m = B.shape[1]
+        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(m)
+        loop = lti_loop(A, B, K, T, r, tau, N, mode, x0, u0,
+                        state=_ident("plant.state", plant.get("state", "x")),
+                        inp=_ident("plant.input", plant.get("input", "u")), **common)
+        if tau > 0:
+            from ..grid import split
+
+            if split(tau, T)[1] != 0.0:
+                raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
+                                     f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+        if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
+            check_sign(A, B, K, T)
+        return loop
+    _check_keys(f"{where} [plant]", plant, ("model", "x0", "tolerance"))
+    model_path = Path(str(plant["model"]))
+    if not model_path.is_absolute():
+        model_path = (base / model_path).resolve()
+    from ..model import load_model
+
+    model = load_model(model_path)
+    known = {"mode", "u0", "predictor", "pad", "tolerance", "allow_unstable"}
+    params = {k: v for k, v in ctrl.items() if k not in known}
+    for key, value in params.items():
+        if key not in model.parameters:
+            allowed = ", ".join([*known, *model.parameters])
+            raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
+                                 f"{allowed}")
+        want = model.parameters[key]
+        if isinstance(want, str):
+            if not isinstance(value, str):
+                raise ParameterError(f"controller.{key} = {value!r} is not allowed: must be a "
+                                     "string")
+            choices = model.choices.get(key)
+            if choices and value not in choices:
+                raise ParameterError(f"controller.{key} = {value!r} is not allowed: must be "
+                                     f"one of {', '.join(choices)}")
+        else:
+            params[key] = _real(f"controller.{key}", value)
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(model.m)
+    predictor = ctrl.get("predictor")
+    if predictor is not None and predictor not in ("closed", "numerical"):
+        raise ParameterError(f"controller.predictor = {predictor!r} is not allowed: must be "
+                             "closed or numerical")
+    if mode == "uncompensated":
+        predictor = "none"
+    tol = ctrl.get("tolerance", plant.get("tolerance"))
+    tol = None if tol is None else _real("tolerance", tol, positive=True)
+    pad = _flag("controller.pad", ctrl.get("pad", False))
+    if model.control == "zoh" and tau > 0 and not pad:
+        from ..grid import split
+
+        if split(tau, T)[1] != 0.0:
+            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order hold "
+                                 f"needs a multiple l*T (l >= 0) of T = {T!r}; set "
+                                 "controller.pad = true to pad the input delay")
+    return model_loop(model_path, T, r, tau, N, x0, u0, params=params, predictor=predictor,
+                      tolerance=tol, pad=pad, **common)
+
+
+def _ident(where: str, value) -> str:
+    if not (isinstance(value, str) and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", value)):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be an identifier")
+    return value
+
+
+def read_loop(path: str | Path, assignments: list[str] | dict | None = None) -> Loop:
+    """The loop of the file at ``path`` with ``NAME=VALUE`` overrides."""
+    return LoopFile(path).loop(assignments)
