@@ -614,9 +614,47 @@ def _cmd_list(args) -> int:
     return 0
 
 
+def _split_sets(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Take every ``--set VALUE`` / ``--set=VALUE`` out of ``argv`` in one pass.
+
+    argparse matches the remaining arguments against a pattern string at every option it
+    meets, so its time grows with the square of the option count: 60 000 ``--set`` took
+    minutes. The assignments go straight into ``args.set`` instead (in order).
+
+    Examples
+    --------
+    >>> _split_sets(["run", "x", "--set", "r=1", "--set=k=2", "--out", "a.csv"])
+    (['r=1', 'k=2'], ['run', 'x', '--out', 'a.csv'])
+    """
+    sets: list[str] = []
+    rest: list[str] = []
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--":
+            rest.extend(argv[i:])
+            break
+        if arg == "--set" and i + 1 < len(argv):
+            sets.append(argv[i + 1])
+            i += 2
+            continue
+        if arg.startswith("--set="):
+            sets.append(arg[len("--set="):])
+        else:
+            rest.append(arg)
+        i += 1
+    return sets, rest
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
-        args = _parser().parse_args(argv)
+        sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
+        args = _parser().parse_args(rest)
+        if sets:
+            if not hasattr(args, "set"):
+                raise UsageError(f"unrecognized arguments: --set (delaycomp {args.command} "
+                                 "takes no --set)")
+            args.set = [*args.set, *sets]
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
