@@ -146,24 +146,33 @@ class CsvStream:
 
     def __init__(self, path: str | Path, names: list[str]):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.names = list(names)
         self.tmp = self.path.with_name(self.path.name + WORKING_SUFFIX)
-        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")
-        self._writer = csv.writer(self._fh)
-        self._writer.writerow(["time", *names])
+        self._fh = None  # opened with the first row: a run that fails before has no file
+        self._writer = None
         self.rows = 0
 
+    def _open(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")
+        self._writer = csv.writer(self._fh)
+        self._writer.writerow(["time", *self.names])
+
     def __call__(self, t: float, row) -> None:
+        if self._writer is None:
+            self._open()
         self._writer.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
         self.rows += 1
 
     def finish(self, success: bool) -> Path:
         """Close the file; return where it is now (``FILE`` or ``FILE.partial``)."""
-        self._fh.close()
         final = self.path if success else partial_path(self.path)
-        if not success and self.rows == 0:
-            self.tmp.unlink()
-            return final
+        if self._fh is None:  # no row came: nothing was written
+            if success:
+                self._open()
+            else:
+                return final
+        self._fh.close()
         self.tmp.replace(final)
         return final
 
