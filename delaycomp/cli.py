@@ -84,6 +84,7 @@ RUN_EXAMPLES = """examples:
   delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
   delaycomp run example-3.6 --stop-time 2000 --output-interval 1 --out long.csv
   delaycomp run example-3.6 --set r=0.5 --compare --plot both.png
+  delaycomp run my-loop.toml --set r=0.4 --out loop.csv --plot loop.png
   delaycomp run build/fmus/example-3.6.ssp --set controller.mode=uncompensated
 """
 
