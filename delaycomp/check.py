@@ -144,7 +144,7 @@ def _third_party(master: str) -> Provider:
 PROVIDERS.register("libcosim", _third_party("libcosim"),
                    Requirement(("libcosimpy",), "pip install 'delaycomp[masters]'"))
 PROVIDERS.register("ecos", _third_party("ecos"),
-                   Requirement(("ecospy", "tbb"), "pip install 'delaycomp[masters]'"))
+                   Requirement(("ecospy",), "pip install 'delaycomp[masters]'"))
 
 
 def run_checks(cases: Iterable[RefCase] = CASES, masters: Iterable[str] | None = None,

@@ -20,8 +20,19 @@ from .lti import MODES, split_delay
 from .names import indexed
 from .system import Loop, lti_loop, model_loop
 
-__all__ = ["SCENARIOS", "Loop", "Param", "ParameterError", "Scenario", "get", "lti_loop",
-           "model_loop", "loop_file", "on_grid", "open_source"]
+__all__ = [
+    "SCENARIOS",
+    "Loop",
+    "Param",
+    "ParameterError",
+    "Scenario",
+    "get",
+    "loop_file",
+    "lti_loop",
+    "model_loop",
+    "on_grid",
+    "open_source",
+]
 
 
 @dataclass(frozen=True)

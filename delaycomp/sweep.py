@@ -296,7 +296,7 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
                      exact)
     sc = open_source(scenario)
     if exact and sc.loop(list(sets)).lti is None:
-        raise ParameterError(f"--exact needs an LTI loop; {scenario} is not")
+        raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
     if workers < 1:
         raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     names = [a.name for a in axes]

@@ -230,8 +230,6 @@ class Loop:
             if port.instance not in names:
                 raise ParameterError(f"loop {self.name}: {port} names no instance: "
                                      f"allowed are {', '.join(names)}")
-        if self.stop_time is not None:
-            self.timing.ticks(self.stop_time, "stop_time")
 
     # -- reading --
     @property

@@ -57,6 +57,8 @@ TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "ti
 PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu")
 CONTROLLER_KEYS = ("mode", "K", "u0", "predictor", "pad", "tolerance", "allow_unstable")
 SECTIONS = ("plant", "controller")
+#: tables that describe something besides the loop (``[reference]``: for ``check``)
+OTHER_TABLES = ("reference",)
 DEFAULT_N = 100
 
 _DECIMAL = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
@@ -278,7 +280,8 @@ def _split(assignment: str) -> tuple[str, str]:
 def build(data: dict, base: Path, name: str = "loop", title: str = "",
           where: str = "loop") -> Loop:
     """The :class:`Loop` of a loop file's ``data`` (paths relative to ``base``)."""
-    _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS)
+    _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS,
+                OTHER_TABLES)
     plant = data.get("plant")
     ctrl = dict(data.get("controller") or {})
     if not isinstance(plant, dict):
