@@ -153,9 +153,18 @@ def _parser() -> argparse.ArgumentParser:
                         "values of delays off the base grid are snapped to it")
     s.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time of every run in seconds (default: the scenario's)")
-    s.add_argument("--engine", choices=("inprocess", "fmu"), default="inprocess",
-                   help="inprocess (default): the FMUs' slaves without the FMI layer, equal "
-                        "to the FMU run to the bit; fmu: the built FMUs")
+    s.add_argument("--engine", choices=("batch", "inprocess", "fmu"), default="batch",
+                   help="batch (default): all points advanced together, vectorized (points "
+                        "it cannot take run inprocess, and the output says so); inprocess: "
+                        "point by point, the FMUs' slaves without the FMI layer, equal to "
+                        "the FMU run to the bit; fmu: the built FMUs")
+    s.add_argument("--array-backend", choices=("numpy", "cupy", "jax", "auto"),
+                   default="numpy",
+                   help="batch engine's array library (default numpy; cupy or jax when "
+                        "installed, e.g. on a GPU; auto: a GPU library if one sees a GPU)")
+    s.add_argument("--chunk", type=int, default=None, metavar="POINTS",
+                   help="batch engine: points per chunk (default: from the available "
+                        "memory, at most 16384)")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core; 1 runs in this "
                         "process)")
@@ -483,18 +492,26 @@ def _cmd_sweep(args) -> int:
         info(f"note: {note}", args.verbosity)
     clear_previous(args.out, args.plot)
     started = time.perf_counter()
+    notes = []
     rows = sweep.run_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
                            args.workers, args.scheduler,
                            str(args.fmu_dir) if args.fmu_dir else None, args.exact,
-                           verbosity=args.verbosity)
+                           args.array_backend, args.chunk, notes, verbosity=args.verbosity)
+    for note in notes:  # what the batch engine did: part of the result (tests/test_batch.py)
+        print(note)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
+        from .critical import critical_curve
+
         first = source.loop([*sets, *(f"{a.name}={sweep._fmt(a.values[0])}" for a in axes)])
         ctrl = first.by_role("controller")
         fixed = {**(ctrl.parameters if ctrl is not None else {}), "T": first.T}
         for a in axes:  # the title gives what the grid holds fixed
             fixed.pop(a.name, None)
-        sweep.plot_sweep(rows, axes, args.plot, loop_title(source.name, source.title, fixed))
+        curve = critical_curve(source, sets, [a.name for a in axes],
+                               [a.values for a in axes])
+        sweep.plot_sweep(rows, axes, args.plot, loop_title(source.name, source.title, fixed),
+                         curve)
     stable = sum(r["stable"] for r in rows)
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
           f"{stable} stable; wrote {args.out}")
