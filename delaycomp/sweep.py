@@ -271,6 +271,8 @@ def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
         stop_time = stop if stop is not None else (source.default_stop_time or base.stop_time)
         if stop_time:
             per_point = (stop_time / T) * N * SECONDS_PER_TICK.get(engine, 10e-6)
+    if engine == "batch" and not exact:
+        per_point = 0.0  # vectorized over the points: no per-point bound known; memory only
     seconds = count * per_point / max(1, workers)
     if seconds > MAX_RUN_SECONDS:
         raise ParameterError(

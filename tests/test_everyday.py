@@ -118,8 +118,13 @@ def test_run_that_cannot_finish_is_refused_with_an_estimate(capsys, tmp_path, ar
 
 def test_grid_that_cannot_finish_is_refused_before_building_it(capsys, tmp_path):
     code, _, err = run_cli(capsys, "sweep", "example-3.6", "--grid", "r=0:0.5:100000",
-                           "--grid", "k=0:1:100000", "--out", str(tmp_path / "s.csv"))
+                           "--grid", "k=0:1:100000", "--engine", "inprocess",
+                           "--out", str(tmp_path / "s.csv"))
     one_line_error(code, err, "--grid: 1e+10 points at least")
+    # the batch engine: its memory for 1e10 result rows is refused the same way
+    code, _, err = run_cli(capsys, "sweep", "example-3.6", "--grid", "r=0:0.5:100000",
+                           "--grid", "k=0:1:100000", "--out", str(tmp_path / "s.csv"))
+    one_line_error(code, err, "--grid: 1e+10 points need at least")
 
 
 def test_many_set_arguments_parse_in_linear_time(monkeypatch):
