@@ -51,9 +51,6 @@ from .model import ModelError
 from .scenarios import ParameterError
 from .ssp import SspError
 
-#: suffix of the CSV of a failed run (rows up to the failure): never read as a result
-PARTIAL_SUFFIX = ".partial"
-
 
 class UsageError(Exception):
     """Bad command-line input: reported as one line, exit status 2."""
@@ -62,6 +59,39 @@ class UsageError(Exception):
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # one line, no usage dump, exit 2
         raise UsageError(message)
+
+
+class _Append(argparse.Action):
+    """``action="append"`` without argparse's copy of the list at every occurrence (that
+    copy made 60 000 ``--set`` quadratic)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        items = getattr(namespace, self.dest, None)
+        if items is None or items is self.default:
+            items = list(self.default or [])
+            setattr(namespace, self.dest, items)
+        items.append(values)
+
+
+def _file_path(text: str) -> Path:
+    """An output file's path; a name ending in a separator is a folder, refused here
+    (``Path`` would drop the separator)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder: give a file name such as "
+                                         f"{text}result.csv (or .png for a plot)")
+    return Path(text)
+
+
+#: what a scenario argument is, for the help of every subcommand that takes one
+SCENARIO_HELP = "a scenario name (`delaycomp list` shows them)"
+
+RUN_EXAMPLES = """examples:
+  delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
+  delaycomp run example-3.6 --stop-time 2000 --output-interval 1 --out long.csv
+  delaycomp run example-3.6 --set r=0.5 --compare --plot both.png
+  delaycomp run my-loop.toml --set r=0.4 --out loop.csv --plot loop.png
+  delaycomp run build/fmus/example-3.6.ssp --set controller.mode=uncompensated
+"""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -79,16 +109,28 @@ def _parser() -> argparse.ArgumentParser:
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
 
-    r = sub.add_parser("run", help="co-simulate a scenario, a loop file or an SSP file")
-    r.add_argument("scenario", help="a scenario name, a LOOP.toml (then --set takes the "
+    r = sub.add_parser("run", help="co-simulate a scenario, a loop file or an SSP file",
+                       description="Co-simulate a scenario, a loop file or a packed FILE.ssp "
+                                   "in delaycomp's exact master.",
+                       epilog=RUN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("scenario", help=SCENARIO_HELP + ", a LOOP.toml (then --set takes the "
                                     "file's keys: r=0.4, plant.x0=1,0, controller.K=...), "
                                     "or FILE.ssp (then --set takes instance.parameter=value)")
     _common(r)
     r.add_argument("--stop-time", type=float, default=None, metavar="S",
                    help="stop time in seconds (default: the scenario's)")
-    r.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
-                   help="write one row per base step")
-    r.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    r.add_argument("--out", type=_file_path, default=None, metavar="FILE.csv",
+                   help="write the trajectory as CSV while the run goes (one row per base "
+                        "step, or per --output-interval)")
+    r.add_argument("--output-interval", type=float, default=None, metavar="S",
+                   help="a row every S seconds (a multiple of the base step h = T/N) and "
+                        "at the stop time (default: every base step)")
+    r.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
+                   help="draw the run (png, pdf, svg, ...): every signal, the sampling "
+                        "instants and the first sample's delay window")
+    r.add_argument("--compare", action="store_true",
+                   help="also run the other controller mode (compensated / "
+                        "uncompensated) and draw both in --plot")
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
@@ -105,22 +147,26 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
                             "is stable")
-    c.add_argument("scenario", help="an LTI scenario name or LOOP.toml")
+    c.add_argument("scenario", help="an LTI scenario name (`delaycomp list`) or LOOP.toml")
     _common(c)
     c.add_argument("--periods", type=int, default=40,
                    help="periods of each confirming co-simulation (default 40)")
     c.add_argument("--grid", default=None, metavar="NAME=START:STOP:COUNT",
                    help="r_c as a function of one parameter (T, k, ...): a table, no "
                         "co-simulation")
-    c.add_argument("--out", type=Path, default=None, metavar="FILE.csv")
-    c.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    c.add_argument("--out", type=_file_path, default=None, metavar="FILE.csv",
+                   help="with --grid: write the table as CSV")
+    c.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
+                   help="with --grid: draw r_c against the grid parameter")
 
     s = sub.add_parser("sweep", help="run a scenario or a loop file over a parameter grid")
-    s.add_argument("scenario", help="a scenario name or LOOP.toml")
+    s.add_argument("scenario", help=SCENARIO_HELP + " or LOOP.toml")
     _common(s)
-    s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
-                   help="a swept parameter (repeatable)")
-    s.add_argument("--stop-time", type=float, default=None, metavar="S")
+    s.add_argument("--grid", action=_Append, required=True, metavar="NAME=START:STOP:COUNT",
+                   help="a swept parameter, COUNT values from START to STOP (repeatable); "
+                        "values of delays off the base grid are snapped to it")
+    s.add_argument("--stop-time", type=float, default=None, metavar="S",
+                   help="stop time of every run in seconds (default: the scenario's)")
     s.add_argument("--engine", choices=("batch", "inprocess", "fmu"), default="batch",
                    help="batch (default): all points advanced together, vectorized (points "
                         "it cannot take run inprocess, and the output says so); inprocess: "
@@ -140,18 +186,20 @@ def _parser() -> argparse.ArgumentParser:
                    help="run on this Dask distributed scheduler")
     s.add_argument("--exact", action="store_true",
                    help="LTI scenarios: rho from the lifted discrete-time model")
-    s.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
-    s.add_argument("--plot", type=Path, default=None, metavar="FILE.png")
+    s.add_argument("--out", type=_file_path, required=True, metavar="FILE.csv",
+                   help="write one row per grid point: the grid values and the metrics")
+    s.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
+                   help="draw rho: a curve for one grid parameter, a map for two")
 
     k = sub.add_parser("check", help="cross-check every reference case in every master")
     k.add_argument("loop", nargs="?", default=None, metavar="LOOP.toml",
                    help="check this loop file against the reference CSV it names "
                         "([reference] csv = ...) instead of the built-in cases")
-    k.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+    k.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
                    help="with LOOP.toml: override one of its keys (repeatable)")
-    k.add_argument("--master", action="append", default=None, metavar="NAME",
+    k.add_argument("--master", action=_Append, default=None, metavar="NAME",
                    help="only this master (repeatable; default: all)")
-    k.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+    k.add_argument("--case", action=_Append, default=None, metavar="SCENARIO/CASE",
                    help="only this reference case (repeatable; default: all)")
     k.add_argument("--require-all", action="store_true",
                    help="an optional master that is not installed is a failure (CI), not "
@@ -162,7 +210,7 @@ def _parser() -> argparse.ArgumentParser:
                             "cross-check layout")
     x.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="root of the tree (DIR/fmus/2.0/cs/linux64/delaycomp/<version>/...)")
-    x.add_argument("--case", action="append", default=None, metavar="SCENARIO/CASE",
+    x.add_argument("--case", action=_Append, default=None, metavar="SCENARIO/CASE",
                    help="only this reference case (repeatable; default: all)")
     x.add_argument("--no-fmu", action="store_true",
                    help="write the CSV, option and README files only (no .fmu)")
@@ -172,9 +220,10 @@ def _parser() -> argparse.ArgumentParser:
     e = sub.add_parser("export-loop",
                        help="assemble a scenario's or a loop file's loop into one container "
                             "FMU")
-    e.add_argument("scenario", help="a scenario name or LOOP.toml")
+    e.add_argument("scenario", help=SCENARIO_HELP + " or LOOP.toml")
     _common(e)
-    e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu")
+    e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu",
+                   help="the container FMU to write")
     e.add_argument("--native", action="store_true",
                    help="LTI loops: the container holds the native C FMUs (see Native C FMUs)")
 
@@ -188,14 +237,21 @@ def _parser() -> argparse.ArgumentParser:
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
     p_ssp.add_argument("--native", action="store_true",
                        help="LTI loops: pack the native C FMUs instead of the Python ones")
-    p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp")
+    p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
+                       help="a FILE.ssp for one scenario, else a folder for all of them")
 
     sub.add_parser("list", help="list the scenarios and their parameters")
+    for command in sub.choices.values():
+        loud = command.add_mutually_exclusive_group()
+        loud.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=0,
+                          default=1, help="errors and results only (no progress, no notes)")
+        loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
+                          const=2, help="also say what is run (steps, estimates, snapping)")
     return p
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
                    help="set a scenario parameter or a loop file's key (repeatable)")
     p.add_argument("--allow-unstable", action="store_true",
                    help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
@@ -274,9 +330,20 @@ def _cmd_ssp(args) -> int:
     return 0
 
 
-def _cmd_run(args) -> int:
-    from .simulate import run_loop
+def _outputs(args) -> None:
+    """Check ``--out`` and ``--plot`` before anything runs (a bad path: exit 2)."""
+    from .outputs import check_output
 
+    check_output(getattr(args, "out", None), "--out")
+    check_output(getattr(args, "plot", None), "--plot", "plot")
+
+
+def _cmd_run(args) -> int:
+    from .plotting import Timing, title_of_loop
+
+    _outputs(args)
+    if args.compare and not args.plot:
+        raise UsageError("--compare draws both runs into --plot FILE.png: give --plot")
     if args.scenario.endswith(".ssp"):
         if args.native:
             raise UsageError("--native is not allowed with a FILE.ssp: the archive's FMUs run")
@@ -290,37 +357,110 @@ def _cmd_run(args) -> int:
     if stop is None:
         raise UsageError(f"{source.name} has no stop time: give --stop-time (or stop_time "
                          "in the loop file)")
+    mode = _mode_of(loop)
+    others = {}
+    if args.compare:
+        other = "uncompensated" if mode == "compensated" else "compensated"
+        key = "controller.mode" if str(args.scenario).endswith(".toml") else "mode"
+        try:
+            others[other] = source.loop([*sets, f"{key}={other}"])
+        except (ParameterError, ValueError):
+            raise UsageError(f"--compare needs a loop whose controller has a mode "
+                             f"(compensated or uncompensated); {source.name} has none"
+                             ) from None
+    from .plotting import UNITS_BY_LOOP
+
     fmus = None
     if args.native:
         if args.engine != "fmu":
             raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
         fmus = _native_fmus(loop, args.fmu_dir)
+    return _execute(args, loop, stop, source.name, title_of_loop(loop, args.compare),
+                    Timing.of_loop(loop), UNITS_BY_LOOP.get(source.name), label=mode,
+                    others=others, fmus=fmus)
+
+
+def _mode_of(loop) -> str | None:
+    """``compensated`` or ``uncompensated`` for a loop whose controller has a mode."""
+    ctrl = loop.by_role("controller")
+    if ctrl is None:
+        return None
+    if ctrl.parameters.get("predictor") == "none":
+        return "uncompensated"
+    return ctrl.parameters.get("mode", "compensated")
+
+
+def _execute(args, loop, stop: float, name: str, title: str, timing, units,
+             label: str | None = None, others: dict | None = None, fmus=None,
+             runner=None) -> int:
+    """Run ``loop`` (and, for ``--compare``, the ``others``) to ``stop`` with the CSV
+    streamed to ``--out`` and decimated by ``--output-interval``; then plot and report.
+
+    ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
+    and are decimated afterwards)."""
+    from .outputs import CsvStream, check_budget, clear_previous, output_every
+    from .progress import bar, info
+    from .simulate import run_loop
+
+    ticks = loop.timing.ticks(stop)
+    every = output_every(args.output_interval, loop.T, loop.N)
+    keep = bool(args.plot)
+    seconds, memory = check_budget(loop, ticks * (1 + len(others or {})),
+                                   args.engine, every, keep)
+    info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
+         f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
+    clear_previous(args.out, args.plot)
+    names = [f"{p.instance}.{p.variable}" for p in loop.recorded]
+    stream = CsvStream(args.out, names) if args.out else None
     started = time.perf_counter()
-    result = run_loop(loop, stop, args.fmu_dir, engine=args.engine, fmus=fmus)
+    try:
+        if runner is None:
+            with bar(ticks, name, args.verbosity, unit="step") as progress:
+                def tick(k, progress=progress):
+                    progress.update(k - progress.n)
+
+                result = run_loop(loop, stop, args.fmu_dir, engine=args.engine, fmus=fmus,
+                                  every=every, sink=stream, keep=keep, progress=tick)
+        else:
+            result = runner(stop)
+            if stream is not None and result.success:
+                for k, (t, row) in enumerate(zip(result.times, result.data)):
+                    if k % every == 0 or k == len(result.times) - 1:
+                        stream(t, row)
+    except BaseException:
+        if stream is not None:
+            stream.finish(False)
+        raise
     elapsed = time.perf_counter() - started
-    detail = _describe(params) if isinstance(params, dict) and not str(
-        args.scenario).endswith(".toml") else " ".join(args.set)
-    return _report_run(args, result, elapsed, source.name, f"{source.title}\n" + detail)
+    where = stream.finish(result.success) if stream is not None else None
+    runs = None
+    if others and result.success:
+        runs = {label or "this run": result}
+        for other_label, other_loop in others.items():
+            other = run_loop(other_loop, stop, args.fmu_dir, engine=args.engine,
+                             every=every, keep=True)
+            runs[other_label] = other
+    return _report_run(args, result, elapsed, name, title, where, timing, units, runs)
 
 
 def _run_ssp(args) -> int:
-    from .simulate import run_loop, stop_ticks
+    from .plotting import Timing, title_of_loop
     from .ssp import Archive, apply_sets
 
     if args.engine != "fmu":
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
                          "FMUs")
+    if args.compare:
+        raise UsageError("--compare runs a scenario by name (set controller.mode for a "
+                         "FILE.ssp)")
     with Archive(Path(args.scenario)) as archive:
         system = archive.system
         spec = apply_sets(system.spec, args.set, archive.fmus())
         stop = system.info.stop_time if args.stop_time is None else args.stop_time
         if stop is None:
             raise UsageError(f"{Path(args.scenario).name} has no stop time: give --stop-time")
-        stop_ticks(stop, spec.T, spec.N)  # a bad stop time is a usage error
-        started = time.perf_counter()
-        if args.master == "delaycomp":
-            result = run_loop(spec, stop, fmus=archive.fmus())
-        else:
+        runner = None
+        if args.master != "delaycomp":
             if args.set:
                 raise UsageError("--set applies to our master only (libcosim, Ecos and "
                                  "OMSimulator take "
@@ -330,46 +470,48 @@ def _run_ssp(args) -> int:
             absent = PROVIDERS.masters[args.master].unavailable()
             if absent is not None:
                 raise UsageError(f"--master {args.master}: {absent}")
-            if args.master == "omsimulator":
-                from .omsimulator import run_ssp as run_oms
 
-                result = run_oms(args.scenario, stop)
-            else:
-                from .thirdparty import run_ssp
+            def runner(stop, master=args.master, path=args.scenario):
+                if master == "omsimulator":
+                    from .omsimulator import run_ssp as run_oms
 
-                result = run_ssp(args.master, args.scenario, stop)
-            if not result.success:
-                raise RuntimeError(result.message)
-        elapsed = time.perf_counter() - started
-    title = f"{system.info.description or system.info.name}\n" + " ".join(args.set)
-    return _report_run(args, result, elapsed, Path(args.scenario).name, title)
+                    result = run_oms(path, stop)
+                else:
+                    from .thirdparty import run_ssp
+
+                    result = run_ssp(master, path, stop)
+                if not result.success:
+                    raise RuntimeError(result.message)
+                return result
+
+        name = Path(args.scenario).name
+        loop = spec.replace(name=name, title=system.info.description or system.info.name)
+        return _execute(args, loop, stop, name, title_of_loop(loop), Timing.of_loop(loop),
+                        None, fmus=archive.fmus(), runner=runner)
 
 
-def _report_run(args, result, elapsed: float, name: str, title: str) -> int:
-    """Write the CSV and plot of a successful run; on failure nothing that looks like a
-    result (no FILE.csv, no plot): the rows recorded before it go to FILE.csv.partial."""
-    for note in result.notes:
-        print(f"note: {note}")
+def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
+                timing=None, units=None, runs=None) -> int:
+    """Plot a successful run and print its summary; on failure nothing that looks like a
+    result (no FILE.csv, no plot): the rows recorded before it are in FILE.csv.partial."""
+    from .progress import QUIET, info
+
+    if args.verbosity > QUIET:
+        for note in result.notes:
+            info(f"note: {note}", args.verbosity)
     if not result.success:
-        where = ""
-        if args.out and len(result.times):
-            partial = args.out.with_name(args.out.name + PARTIAL_SUFFIX)
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            result.write_csv(partial)
-            where = (f"; {len(result.times)} rows to t = {result.times[-1]:.6g} kept in "
-                     f"{partial}")
-        print(f"delaycomp: error: {result.message}{where}", file=sys.stderr)
+        kept = ""
+        if where is not None and result.row_count:
+            kept = (f"; {result.row_count} rows to t = {result.times[-1]:.6g} kept in "
+                    f"{where}")
+        print(f"delaycomp: error: {result.message}{kept}", file=sys.stderr)
         return 1
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        result.write_csv(args.out)
     if args.plot:
         from .plotting import plot_result
 
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        plot_result(result, args.plot, title)
+        plot_result(result, args.plot, title, timing, units, runs)
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
-    print(f"{name}: {len(result.times)} rows to t = {result.times[-1]:.6g} "
+    print(f"{name}: {result.row_count} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")
     return 0
 
@@ -382,26 +524,41 @@ def _describe(params: dict) -> str:
 
 def _cmd_sweep(args) -> int:
     from . import sweep
+    from .outputs import clear_previous
+    from .plotting import loop_title
+    from .progress import info
 
+    _outputs(args)
+    source, sets = _source(args)
     axes = [sweep.parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
+    sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
+                           1 if args.scheduler else args.workers, args.exact)
+    axes, notes = sweep.snap_axes(args.scenario, axes, sets)
+    for note in notes:
+        info(f"note: {note}", args.verbosity)
+    clear_previous(args.out, args.plot)
     started = time.perf_counter()
-    notes: list[str] = []
-    source, sets = _source(args)
+    notes = []
     rows = sweep.run_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
                            args.workers, args.scheduler,
                            str(args.fmu_dir) if args.fmu_dir else None, args.exact,
-                           args.array_backend, args.chunk, notes)
-    for note in notes:
+                           args.array_backend, args.chunk, notes, verbosity=args.verbosity)
+    for note in notes:  # what the batch engine did: part of the result (tests/test_batch.py)
         print(note)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
         from .critical import critical_curve
 
+        first = source.loop([*sets, *(f"{a.name}={sweep._fmt(a.values[0])}" for a in axes)])
+        ctrl = first.by_role("controller")
+        fixed = {**(ctrl.parameters if ctrl is not None else {}), "T": first.T}
+        for a in axes:  # the title gives what the grid holds fixed
+            fixed.pop(a.name, None)
         curve = critical_curve(source, sets, [a.name for a in axes],
                                [a.values for a in axes])
-        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set),
+        sweep.plot_sweep(rows, axes, args.plot, loop_title(source.name, source.title, fixed),
                          curve)
     stable = sum(r["stable"] for r in rows)
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
@@ -412,8 +569,14 @@ def _cmd_sweep(args) -> int:
 def _cmd_critical_delay(args) -> int:
     from .critical import critical_delay_report, critical_delay_table
 
+    _outputs(args)
     scenario, sets = _source(args)
+    if (args.out or args.plot) and not args.grid:
+        raise UsageError("--out and --plot write the table of --grid: give --grid")
     if args.grid:
+        from .outputs import clear_previous
+
+        clear_previous(args.out, args.plot)
         rows = critical_delay_table(scenario, sets, args.grid, args.out, args.plot)
         for line in rows:
             print(line)
@@ -496,24 +659,80 @@ def _native_fmus(spec, fmu_dir):
         raise UsageError(str(exc)) from None
 
 
+#: width of ``delaycomp list`` (it fits a 100-column terminal)
+LIST_WIDTH = 100
+
+
 def _cmd_list(args) -> int:
-    for sc in scenarios.SCENARIOS.values():
-        print(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)")
+    import textwrap
+
+    indent = " " * 30
+    for number, sc in enumerate(scenarios.SCENARIOS.values()):
+        if number:
+            print()
+        print(textwrap.fill(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)",
+                            LIST_WIDTH, subsequent_indent="  "))
+        print(f"    {'NAME':<9} {'DEFAULT':<15} MEANING; ALLOWED VALUES")
         for p in sc.params:
             if isinstance(p.default, tuple):
                 default = ",".join(f"{v:g}" for v in p.default)
             elif p.default is None:  # derived from other parameters
                 default = {"r_true": "(= r)", "tau_true": "(= tau)"}.get(p.name,
                                                                         "(depends on n)")
+            elif isinstance(p.default, float):
+                default = f"{p.default:g}"
             else:
-                default = p.default
-            print(f"    {p.name:<9} default {default!s:<12} {p.help}; {p.allowed}")
+                default = str(p.default)
+            head = f"    {p.name:<9} {default:<15} "
+            if len(head) > len(indent):  # a long default: the text on the next line
+                print(head.rstrip())
+                head = indent
+            print(textwrap.fill(f"{p.help}; {p.allowed}", LIST_WIDTH, initial_indent=head,
+                                subsequent_indent=indent, break_on_hyphens=False))
     return 0
+
+
+def _split_sets(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Take every ``--set VALUE`` / ``--set=VALUE`` out of ``argv`` in one pass.
+
+    argparse matches the remaining arguments against a pattern string at every option it
+    meets, so its time grows with the square of the option count: 60 000 ``--set`` took
+    minutes. The assignments go straight into ``args.set`` instead (in order).
+
+    Examples
+    --------
+    >>> _split_sets(["run", "x", "--set", "r=1", "--set=k=2", "--out", "a.csv"])
+    (['r=1', 'k=2'], ['run', 'x', '--out', 'a.csv'])
+    """
+    sets: list[str] = []
+    rest: list[str] = []
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--":
+            rest.extend(argv[i:])
+            break
+        if arg == "--set" and i + 1 < len(argv):
+            sets.append(argv[i + 1])
+            i += 2
+            continue
+        if arg.startswith("--set="):
+            sets.append(arg[len("--set="):])
+        else:
+            rest.append(arg)
+        i += 1
+    return sets, rest
 
 
 def main(argv: list[str] | None = None) -> int:
     try:
-        args = _parser().parse_args(argv)
+        sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
+        args = _parser().parse_args(rest)
+        if sets:
+            if not hasattr(args, "set"):
+                raise UsageError(f"unrecognized arguments: --set (delaycomp {args.command} "
+                                 "takes no --set)")
+            args.set = [*args.set, *sets]
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,

@@ -75,12 +75,25 @@ def critical_delay_report(source, sets: list[str], periods: int,
     loop, d = _design(source, sets)
     A, B, K = d.A, d.B, d.K
     T, tau = loop.T, d.tau
+    fixed = _held_fixed(source, loop, d, sets)
 
     def rho(r: float) -> float:
         return lifted_loop(A, B, K, T, r, tau, "uncompensated").spectral_radius
 
-    r_c = critical_delay(rho, r_max=50 * T, step=T / 100)
+    rho0 = rho(0.0)
+    if rho0 >= 1.0:
+        raise RuntimeError(f"the uncompensated loop is unstable already at r = 0 (spectral "
+                           f"radius {rho0:.6g}) with {fixed} held fixed: it has no critical "
+                           "measurement delay")
+    r_max = 50 * T
+    try:
+        r_c = critical_delay(rho, r_max=r_max, step=T / 100)
+    except ValueError:
+        raise RuntimeError(f"the uncompensated loop stays stable for every r up to "
+                           f"{r_max:g} (50 T) with {fixed} held fixed") from None
     report = CriticalDelayReport(r_c)
+    report.lines.append(f"searched the measurement delay r of the uncompensated loop with "
+                        f"{fixed} held fixed")
     N = max(loop.N, CONFIRM_N)
     h = T / N
     r_lo = max(math.floor((r_c - CONFIRM_OFFSET * T) / h) * h, 0.0)
@@ -103,6 +116,29 @@ def critical_delay_report(source, sets: list[str], periods: int,
     if not report.confirmed:
         report.lines.append("NOT confirmed by co-simulation")
     return report
+
+
+def held_fixed(params: dict) -> str:
+    """The parameters a search over ``r`` holds fixed, as ``T = 1, tau = 0, k = 2``.
+
+    Examples
+    --------
+    >>> held_fixed({"k": 2.0, "T": 1.0, "r": 0.3, "tau": 0.0, "N": 100, "x0": 1.0})
+    'T = 1, tau = 0, k = 2'
+    """
+    skip = {"r", "r_true", "tau_true", "N", "x0", "u0", "mode", "T", "tau"}
+    rest = [f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}"
+            for k, v in params.items() if k not in skip and v is not None]
+    return ", ".join([f"T = {params['T']:g}", f"tau = {params['tau']:g}", *rest])
+
+
+def _held_fixed(source, loop: Loop, d: LtiDesign, sets: list[str]) -> str:
+    """What a search over ``r`` holds fixed: a scenario's parameters by name
+    (:func:`held_fixed`), a loop file's ``T``, ``tau`` and gain ``K``."""
+    if hasattr(source, "params"):  # a scenario: its own parameter names
+        return held_fixed(source.resolve(["r=0", *sets]))
+    gain = np.array2string(np.asarray(d.K, dtype=float), precision=6, separator=", ")
+    return f"T = {loop.T:g}, tau = {d.tau:g}, K = {' '.join(gain.split())}"
 
 
 def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:

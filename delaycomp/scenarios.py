@@ -109,9 +109,15 @@ class Scenario:
     lti: Callable[[dict], tuple] | None = None
 
     def make(self, params: dict) -> Loop:
-        """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario."""
-        return self.builder(params).replace(name=self.name, title=self.title,
-                                            stop_time=self.default_stop_time)
+        """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
+
+        Its stop time is the scenario's default where that lies on the loop's base grid;
+        with a new ``T`` or ``N`` it may not, and the loop then has none (a run names
+        ``--stop-time``; critical-delay and sweeps, which choose their own, just work).
+        """
+        loop = self.builder(params).replace(name=self.name, title=self.title)
+        stop = self.default_stop_time
+        return loop.replace(stop_time=stop if on_grid(stop, loop.h) else None)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         """The loop for ``NAME=VALUE`` assignments over the defaults."""

@@ -176,6 +176,13 @@ class Result:
     message: str = ""
     #: informational messages the components logged, as ``instance: text``
     notes: list[str] = field(default_factory=list)
+    #: rows recorded (streamed to a sink, or kept here); ``None``: ``len(times)``
+    rows: int | None = None
+
+    @property
+    def row_count(self) -> int:
+        """Rows recorded in the run (more than :attr:`times` holds if the run streamed)."""
+        return len(self.times) if self.rows is None else self.rows
 
     def column(self, name: str) -> np.ndarray:
         return self.data[:, self.names.index(name)]
@@ -257,17 +264,20 @@ def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None
 def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
                 every: int = 1, engine: str = "fmu", fp_guarded: bool = False,
                 fmus: dict[str, Path] | None = None,
-                components: list | None = None) -> tuple[Master, Recorder]:
+                components: list | None = None, sink=None, keep: bool = True,
+                final: int | None = None) -> tuple[Master, Recorder]:
     """The master of ``loop``: its components (fresh ones for ``engine``, or the given
     ``components``, e.g. wrapped to tap their signals), its connections, its timing, and a
-    recorder of its recorded ports at every ``every``-th tick. Not yet set up: call
-    ``master.setup(stop_time, loop.parameters())``."""
+    recorder of its recorded ports at every ``every``-th tick and at tick ``final``
+    (``sink`` and ``keep`` as in :class:`~delaycomp.orchestrator.master.Recorder`). Not yet
+    set up: call ``master.setup(stop_time, loop.parameters())``."""
     if components is None:
         components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
     connections = [Connection(c.src.instance, c.src.variable, c.dst.instance, c.dst.variable)
                    for c in loop.connections]
     master = Master(components, connections, loop.T, loop.N, t0)
-    recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every)
+    recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every,
+                        sink, keep, final)
     master.add_observer(recorder)
     return master, recorder
 
@@ -278,17 +288,44 @@ def parameters_of(loop: Loop) -> dict[str, dict]:
 
 def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0, engine: str = "fmu",
-             fmus: dict[str, Path] | None = None) -> Result:
-    """Co-simulate ``loop`` from ``t0`` to ``stop_time`` with one row per base step.
+             fmus: dict[str, Path] | None = None, every: int = 1, sink=None,
+             keep: bool = True, progress=None) -> Result:
+    """Co-simulate ``loop`` from ``t0`` to ``stop_time``.
 
-    ``engine`` is ``fmu`` (the FMUs through fmpy) or ``inprocess`` (the same slaves without
-    the FMI layer). ``fmus`` gives the FMU file of some instances (e.g. from an SSP
-    archive); the others come from :func:`source_fmu`. On a component failure the result so
-    far is returned with ``success=False`` and the failure in ``message``.
+    Parameters
+    ----------
+    loop : Loop
+        the loop.
+    stop_time, t0 : float
+        the interval; ``stop_time - t0`` must be a multiple of the base step.
+    fmu_dir : Path, optional
+        folder of built FMUs (default: the per-version cache).
+    engine : str
+        ``fmu`` (the FMUs through fmpy) or ``inprocess`` (the same slaves without the FMI
+        layer).
+    fmus : dict, optional
+        the FMU file of some instances (e.g. from an SSP archive); the others come from
+        :func:`source_fmu`.
+    every : int
+        record every ``every``-th base step (and the stop time); 1: every base step.
+    sink : callable, optional
+        ``sink(t, row)`` receives every recorded row as the run goes (a streamed CSV).
+    keep : bool
+        keep the recorded rows in the result; ``False`` keeps only the last one (memory
+        stays flat however long the run).
+    progress : callable, optional
+        ``progress(ticks_done)`` called about every 1 % of the run.
+
+    Returns
+    -------
+    Result
+        On a component failure the result so far, with ``success=False`` and the failure
+        in ``message``.
     """
     ticks = loop.timing.ticks(stop_time - t0)
     with single_threaded_blas():
-        return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus)
+        return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
+                    progress)
 
 
 def single_threaded_blas():
@@ -305,12 +342,14 @@ def single_threaded_blas():
 
 
 def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
-         engine: str, fmus: dict[str, Path] | None) -> Result:
+         engine: str, fmus: dict[str, Path] | None, every: int = 1, sink=None,
+         keep: bool = True, progress=None) -> Result:
     # In-process, the slaves' floating-point guard is set once for the run, not per step
     # (the FMUs keep their own: their host's numpy settings are not ours to assume).
     guard = engine == "inprocess"
-    master, recorder = make_master(spec, fmu_dir, t0, engine=engine, fp_guarded=guard,
-                                   fmus=fmus)
+    master, recorder = make_master(spec, fmu_dir, t0, every, engine=engine,
+                                   fp_guarded=guard, fmus=fmus, sink=sink, keep=keep,
+                                   final=ticks)
     components = list(master.components.values())
     success, message = True, ""
     try:
@@ -318,9 +357,9 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
         master.initialize()
         if guard:
             with np.errstate(all="ignore"):
-                master.run_until(ticks)
+                _run_until(master, ticks, progress)
         else:
-            master.run_until(ticks)
+            _run_until(master, ticks, progress)
     except SimulationError as exc:
         success, message = False, str(exc)
     finally:
@@ -328,4 +367,16 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
     notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
              for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
-    return Result(recorder.names, np.array(recorder.times), data, success, message, notes)
+    return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
+                  recorder.count)
+
+
+def _run_until(master: Master, ticks: int, progress) -> None:
+    """``master.run_until(ticks)``, in about a hundred chunks when ``progress`` is given."""
+    if progress is None:
+        master.run_until(ticks)
+        return
+    chunk = max(1, ticks // 100)
+    while master.k < ticks:
+        master.run_until(min(ticks, master.k + chunk))
+        progress(master.k)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import csv
 import itertools
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,11 +63,75 @@ def parse_grid(text: str) -> Axis:
     if not 1 <= count <= 100_000:
         raise ParameterError(f"--grid {text!r}: COUNT = {count} is not allowed: must be an "
                              "integer from 1 to 100000")
-    return Axis(name.strip(), tuple(float(v) for v in np.linspace(start, stop, count)))
+    # each value as a person would write it: 0.05, not linspace's 0.049999999999999996
+    return Axis(name.strip(), tuple(_decimal(v) for v in np.linspace(start, stop, count)))
+
+
+def _decimal(value: float) -> float:
+    """The float of ``value``'s 15 significant digits (undoes linspace's round-off)."""
+    return float(f"{float(value):.15g}")
 
 
 def _fmt(value: float) -> str:
     return f"{value:.15g}"
+
+
+#: parameters that must be whole multiples of the base step h = T/N
+GRID_BOUND = ("r", "tau", "r_true", "tau_true")
+
+
+def _base_loop(scenario: str, sets: list[str]):
+    """The loop of ``scenario`` with ``sets`` and ``r = 0`` (on every grid), or ``None``
+    if that does not resolve."""
+    source = open_source(scenario)
+    for attempt in (["r=0", *sets], list(sets)):
+        try:
+            return source.loop(attempt)
+        except (ParameterError, ValueError):
+            continue
+    return None
+
+
+def snap_axes(scenario: str, axes: list[Axis], sets: list[str]) -> tuple[list[Axis], list[str]]:
+    """Snap the values of delay axes (``r``, ``tau``, ``r_true``, ``tau_true``) to the
+    nearest multiple of the base step ``h = T/N``; return the axes and one note per
+    snapped axis (what moved, and by how much at most).
+
+    ``h`` comes from ``--set`` or the scenario's defaults; when ``T`` or ``N`` is itself
+    swept, ``h`` differs between points and nothing is snapped (an off-grid point is then
+    refused by name, as before).
+
+    Examples
+    --------
+    >>> axes, notes = snap_axes("example-3.6", [parse_grid("r=0:0.98:20")], [])
+    >>> axes[0].values[:3]
+    (0.0, 0.05, 0.1)
+    >>> notes[0].split(";")[0]
+    'r: 18 of 20 values snapped to the base grid h = T/N = 0.01'
+    """
+    names = {a.name for a in axes}
+    if names & {"T", "N"}:
+        return list(axes), []
+    base = _base_loop(scenario, sets)
+    if base is None:
+        return list(axes), []  # the point's own validation names what is wrong
+    timing = {"T": base.T, "N": base.N}
+    h = timing["T"] / timing["N"]
+    out, notes = [], []
+    for axis in axes:
+        if axis.name not in GRID_BOUND:
+            out.append(axis)
+            continue
+        snapped = tuple(_decimal(round(v / h) * h) if v >= 0 else v for v in axis.values)
+        moved = [abs(a - b) for a, b in zip(axis.values, snapped) if a != b]
+        if moved:
+            distinct = len(set(snapped))
+            notes.append(f"{axis.name}: {len(moved)} of {len(snapped)} values snapped to the "
+                         f"base grid h = T/N = {_fmt(h)}; largest move {max(moved):.3g}"
+                         + (f"; {len(snapped) - distinct} duplicates" if distinct
+                            < len(snapped) else ""))
+        out.append(Axis(axis.name, snapped))
+    return out, notes
 
 
 def points(axes: list[Axis]) -> list[tuple[float, ...]]:
@@ -156,20 +219,72 @@ def _prebuild(jobs: list[Job]) -> None:
 
 
 class _Progress:
-    def __init__(self, total: int):
+    """Counts finished points on a tqdm bar (standard error, a terminal only, with the
+    time left); ``verbosity`` 0 hides it."""
+
+    def __init__(self, total: int, verbosity: int = 1):
+        from .progress import bar
+
         self.total, self.done = total, 0
-        self.enabled = sys.stderr.isatty()
+        self._bar = bar(total, "sweep", verbosity, unit="point")
 
     def tick(self, count: int = 1) -> None:
         self.done += count
-        if self.enabled:
-            width = 30
-            filled = int(width * self.done / self.total)
-            sys.stderr.write(f"\rsweep [{'#' * filled}{'.' * (width - filled)}] "
-                             f"{self.done}/{self.total}")
-            if self.done == self.total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
+        self._bar.update(count)
+        if self.done >= self.total:
+            self._bar.close()
+
+
+#: Lower bound of the cost of one point of ``--exact`` (a lifted-model eigenvalue
+#: problem), in seconds.
+SECONDS_PER_EXACT_POINT = 50e-6
+#: Bytes of one result row in memory (a dict of about ten floats).
+BYTES_PER_ROW = 1000
+
+
+def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
+                     stop: float | None = None, engine: str = "inprocess", workers: int = 1,
+                     exact: bool = False) -> tuple[int, float]:
+    """Refuse, in one line with the estimate, a grid that cannot finish or fit in memory.
+
+    Returns the number of points and the estimated seconds (a lower bound).
+    """
+    from .outputs import (
+        MAX_RUN_SECONDS,
+        SECONDS_PER_TICK,
+        _bytes,
+        _duration,
+        physical_memory,
+    )
+
+    count = math.prod(len(a.values) for a in axes)
+    per_point = SECONDS_PER_EXACT_POINT
+    base = None if exact else _base_loop(scenario, sets)
+    if base is not None:
+        T, N = base.T, base.N
+        for a in axes:  # the most expensive point when T or N is swept
+            if a.name == "T" and min(a.values) > 0:
+                T = min(a.values)
+            if a.name == "N" and max(a.values) >= 1:
+                N = max(a.values)
+        source = open_source(scenario)
+        stop_time = stop if stop is not None else (source.default_stop_time or base.stop_time)
+        if stop_time:
+            per_point = (stop_time / T) * N * SECONDS_PER_TICK.get(engine, 10e-6)
+    if engine == "batch" and not exact:
+        per_point = 0.0  # vectorized over the points: no per-point bound known; memory only
+    seconds = count * per_point / max(1, workers)
+    if seconds > MAX_RUN_SECONDS:
+        raise ParameterError(
+            f"--grid: {count:.4g} points at least {per_point * 1e3:.3g} ms each on "
+            f"{max(1, workers)} workers take at least {_duration(seconds)}, over the limit "
+            f"of {_duration(MAX_RUN_SECONDS)}; use fewer points or a shorter --stop-time")
+    ram = physical_memory()
+    if ram is not None and count * BYTES_PER_ROW > ram / 2:
+        raise ParameterError(
+            f"--grid: {count:.4g} points need at least {_bytes(count * BYTES_PER_ROW)} for "
+            f"their results, over half of this machine's {_bytes(ram)}; use fewer points")
+    return count, seconds
 
 
 #: engines of :func:`run_sweep`: ``batch`` advances all points together (vectorized);
@@ -181,15 +296,18 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
               fmu_dir: str | None = None, exact: bool = False,
               array_backend: str = "numpy", chunk: int | None = None,
-              notes: list[str] | None = None) -> list[dict]:
+              notes: list[str] | None = None, verbosity: int = 1) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
     ``scenario`` is a scenario name or a loop file's path (``.toml``). ``engine="batch"``
     advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
     :func:`delaycomp.batch.get_backend`) in chunks of at most ``chunk`` points (default:
     from the available memory); what it did, and which points fell back to the per-point
-    in-process engine and why, is appended to ``notes``.
+    in-process engine and why, is appended to ``notes``. ``verbosity`` 0 hides the progress
+    bar (shown on a terminal otherwise).
     """
+    check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
+                     exact)
     sc = open_source(scenario)
     if exact and sc.loop(list(sets)).lti is None:
         raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
@@ -221,18 +339,19 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
                         "inprocess" if engine == "batch" else engine, fmu_dir, exact))
     if engine == "batch" and not exact:
         results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
-                             chunk, notes if notes is not None else [])
+                             chunk, notes if notes is not None else [], verbosity)
         return [{**dict(zip(names, values)), **res}
                 for values, res in zip(points(axes), results)]
     if not exact and engine == "fmu":
         _prebuild(jobs)
     return [{**dict(zip(names, values)), **res}
-            for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler))]
+            for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler,
+                                                           _Progress(len(jobs), verbosity)))]
 
 
 def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
                scheduler: str | None, backend: str, chunk: int | None,
-               notes: list[str]) -> list[dict]:
+               notes: list[str], verbosity: int = 1) -> list[dict]:
     """The batch engine for the points it takes, the per-point engine for the others."""
     from . import batch, sweep_batch
 
@@ -246,7 +365,7 @@ def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
         raise ParameterError(f"--array-backend: {exc}") from None
     chunks, fallback, msgs = sweep_batch.prepare(loops, stop, be.name, workers, chunk)
     notes.extend(msgs)
-    progress = _Progress(len(jobs))
+    progress = _Progress(len(jobs), verbosity)
     results: list[dict | None] = [None] * len(jobs)
     try:
         for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(chunks, workers, scheduler,
@@ -315,10 +434,15 @@ def _run_dask(jobs: list[Job], address: str, progress: _Progress) -> list[dict]:
     except ImportError:
         raise RuntimeError("--scheduler needs Dask: pip install 'delaycomp[dask]'") from None
 
+    from distributed import as_completed
+
     with Client(address) as client:
         futures = client.map(evaluate, jobs, pure=False)
-        results = client.gather(futures)
-    progress.tick(len(jobs))
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list = [None] * len(jobs)
+        for future in as_completed(futures):  # the bar moves as each point finishes
+            results[index[future.key]] = future.result()
+            progress.tick()
     return results
 
 
@@ -329,8 +453,8 @@ def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
     with open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow([*names, *METRICS])
-        for row in rows:
-            w.writerow([_cell(row[k]) for k in (*names, *METRICS)])
+        for row in rows:  # grid values as written (15 digits), metrics to the bit
+            w.writerow([*(_fmt(row[k]) for k in names), *(_cell(row[k]) for k in METRICS)])
     tmp.replace(path)
 
 

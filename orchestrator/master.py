@@ -371,25 +371,56 @@ class Master:
 class Recorder:
     """Observer that keeps selected outputs at every ``every``-th tick, for CSV and plots.
 
-    It keeps every row it records (memory grows with the run); ``every > 1`` decimates a
-    long run. The components themselves keep bounded state only (README, "Reliability").
+    The components themselves keep bounded state only (README, "Reliability"); with
+    ``keep=False`` so does the recorder.
+
+    Parameters
+    ----------
+    master : Master
+        the master whose value vector it reads.
+    signals : sequence of (instance, variable)
+        the recorded outputs, in column order.
+    every : int
+        record tick ``k`` when ``k % every == 0`` (decimation of a long run).
+    sink : callable, optional
+        ``sink(t, row)`` for every recorded row, as it comes (a CSV written during the
+        run).
+    keep : bool
+        keep every recorded row in :attr:`times` / :attr:`rows` (memory grows with the
+        run); with ``False`` only the last row is kept, so a streamed run stays flat.
+    final : int, optional
+        a tick recorded even off the decimation (the stop tick).
     """
 
-    def __init__(self, master: Master, signals: Sequence[tuple[str, str]], every: int = 1):
+    def __init__(self, master: Master, signals: Sequence[tuple[str, str]], every: int = 1,
+                 sink=None, keep: bool = True, final: int | None = None):
         if not (isinstance(every, int) and every >= 1):
             raise ValueError(f"every = {every!r} is not allowed: must be a positive integer")
         self.names = [f"{i}.{v}" for i, v in signals]
         self._idx = [master.slot(i, v) for i, v in signals]
         self._gather = _gather(self._idx) or (lambda values: ())
         self.every = every
+        self.sink = sink
+        self.keep = keep
+        self.final = final
+        #: rows recorded so far (kept or not)
+        self.count = 0
         self.times: list[float] = []
         self.rows: list[Sequence[float]] = []
 
     def record(self, k: int, t: float, slots: Sequence[float]) -> None:
-        if k % self.every:
+        if k % self.every and k != self.final:
             return
-        self.times.append(t)
-        self.rows.append(self._gather(slots))
+        row = self._gather(slots)
+        self.count += 1
+        if self.sink is not None:
+            self.sink(t, row)
+        if self.keep:
+            self.times.append(t)
+            self.rows.append(row)
+        else:
+            self.times[:] = [t]
+            self.rows[:] = [row]
 
     def column(self, name: str) -> list[float]:
         j = self.names.index(name)
