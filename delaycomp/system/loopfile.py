@@ -73,7 +73,8 @@ class SignError(ParameterError):
 
 def parse_value(text: str) -> Any:
     """A ``--set`` value: an ASCII decimal number, ``a,b,c`` (a list), ``a,b;c,d`` (rows),
-    a TOML array ``[[a, b], [c, d]]``, ``true``/``false``, or else the text itself.
+    a TOML array ``[[a, b], [c, d]]``, a TOML inline table ``{name = value}``,
+    ``true``/``false``, or else the text itself.
 
     Examples
     --------
@@ -87,6 +88,11 @@ def parse_value(text: str) -> Any:
         return float(text)
     if text in ("true", "false"):
         return text == "true"
+    if text.startswith("{"):  # a TOML inline table: plant.parameters={mass = 2.0}
+        try:
+            return tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"not a TOML inline table: {exc}") from None
     if text.startswith("["):
         if "_" in text:
             raise ValueError("plain decimal numbers only (no '_')")
@@ -409,7 +415,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         A = _array("controller.A", ctrl["A"], 2)
         B = _array("controller.B", ctrl["B"], 2)
         K = _array("controller.K", ctrl["K"], 2)
-        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
+        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
         if tau > 0:
             from ..grid import split
 
@@ -440,7 +446,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         params[key] = value
     if mode == "uncompensated":
         params["predictor"] = "none"
-    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(model.m)
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     return fmu_plant_loop(fmu, plant["states"], plant["inputs"], plant.get("parameters"),
                           T, r, tau, N, x0, u0, model=model_path,
                           controller_parameters=params, **common)

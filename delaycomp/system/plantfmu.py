@@ -217,7 +217,8 @@ def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
 
 
 def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
-                   fmu_parameters: Mapping, T: float, r: float, tau: float, N: int, x0, u0,
+                   fmu_parameters: Mapping | None, T: float, r: float, tau: float, N: int, x0,
+                   u0=None,
                    *, A=None, B=None, K=None, mode: str = "compensated", model=None,
                    controller_parameters: Mapping | None = None,
                    r_true: float | None = None, tau_true: float | None = None,
@@ -236,7 +237,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters)
     n, m = len(states), len(inputs)
     x0 = np.asarray(x0, dtype=float).ravel()
-    u0 = np.asarray(u0, dtype=float).ravel()
+    u0 = np.zeros(m) if u0 is None else np.asarray(u0, dtype=float).ravel()
     if x0.shape != (n,):
         raise ParameterError(f"parameter x0 has {x0.size} values: must have one per state "
                              f"({', '.join(states)})")

@@ -1,0 +1,254 @@
+"""A plant FMU nobody here generated with pythonfmu (issue 14): the C test plant
+``Oscillator`` (``tests/cfmu``: FMI 2.0 CS and ME, RK4 substeps, an output with direct
+feedthrough) in a loop file, validated, and run in our master, libcosim, Ecos, the
+container and a sweep.
+
+The plant: ``position' = velocity``, ``velocity' = (force - k position - c velocity) / m``
+with ``k = -1`` (unstable), ``c = 0.2``, ``m = 1``; the loop of Example-3.6 kind around it
+with ``T = 0.5``, ``N = 50`` (``h = 0.01``), ``r = 0.3``, ``tau = 0.5``.
+
+**The plant's own solver error, derived.** With ``substep >= h`` the FMU takes one RK4
+step per communication step, with ``force`` held. For ``z' = M z``, ``z = (x, u)``,
+``M = [[A, B], [0, 0]]``, one RK4 step is exactly ``P = I + hM + (hM)^2/2 + (hM)^3/6 +
+(hM)^4/24``, and ``P = expm(h M')`` with ``M' = logm(P) / h`` (backward error analysis
+is exact for a linear ODE; ``M'`` keeps the block form, so ``M' = [[A', B'], [0, 0]]``).
+The C plant in the loop is therefore *exactly* delaycomp's exact LTI plant with
+``(A', B')`` in the same loop (controller still designed on ``A``, ``B``): the two runs
+agree to round-off, and the error of the C loop against the exact LTI loop is exactly
+the modified loop's deviation, ``O(h^4 |M|^5 / 120)`` per unit time. The tests check both:
+``|C - modified| <= 1e-11 (1 + |x|)`` (round-off over 1000 steps of a stable recursion,
+measured about 1e-15), and ``|C - exact| <= |modified - exact| + 1e-11 (1 + |x|)``, with
+the solver error visible (above 1e-11, so the comparison can tell the solvers apart).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+
+from delaycomp.errors import BadFileError, ParameterError
+from delaycomp.simulate import run_loop
+from delaycomp.system import lti_loop
+from delaycomp.system.loopfile import read_loop
+from delaycomp.system.plantfmu import read_interface
+from tests.cfmu.build import build_oscillator
+
+pytestmark = pytest.mark.fmu
+
+A = np.array([[0.0, 1.0], [1.0, -0.2]])
+B = np.array([[0.0], [1.0]])
+K = np.array([[-3.0, -2.5]])
+T, N, R, TAU = 0.5, 50, 0.3, 0.5
+STOP = 10.0
+ROUNDOFF = 1e-11
+
+LOOP = f"""
+T = {T}
+N = {N}
+r = {R}
+tau = {TAU}
+stop_time = {STOP}
+[plant]
+fmu = "Oscillator.fmu"
+states = ["position", "velocity"]
+inputs = ["force"]
+x0 = [1.0, 0.0]
+[plant.parameters]
+stiffness = -1.0
+damping = 0.2
+mass = 1.0
+position_start = 1.0
+velocity_start = 0.0
+substep = 0.01
+[controller]
+A = [[0, 1], [1, -0.2]]
+B = [[0], [1]]
+K = [[-3.0, -2.5]]
+"""
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cfmu")
+    build_oscillator(out)
+    (out / "osc.toml").write_text(LOOP, encoding="utf-8")
+    return out
+
+
+@pytest.fixture(scope="module")
+def ours(folder):
+    res = run_loop(read_loop(folder / "osc.toml"), STOP)
+    assert res.success, res.message
+    return res
+
+
+def _exact(A_plant, B_plant):
+    """delaycomp's exact LTI loop with plant (A_plant, B_plant), controller on (A, B)."""
+    loop = lti_loop(A_plant, B_plant, K, T, R, TAU, N, "compensated", [1.0, 0.0], [0.0])
+    ctrl = {f"A[{i + 1},{j + 1}]": A[i, j] for i in range(2) for j in range(2)}
+    ctrl |= {f"B[{i + 1},1]": B[i, 0] for i in range(2)}
+    loop = loop.set_parameters("controller", **ctrl)
+    res = run_loop(loop, STOP, engine="inprocess")
+    assert res.success, res.message
+    return res.data
+
+
+def _modified():
+    """(A', B') whose exact flow over h is one RK4 step (module docstring)."""
+    h = T / N
+    M = np.zeros((3, 3))
+    M[:2, :2], M[:2, 2:] = A, B
+    hM = h * M
+    P = np.eye(3) + hM + hM @ hM / 2 + hM @ hM @ hM / 6 + hM @ hM @ hM @ hM / 24
+    Mp = np.real(sl.logm(P)) / h
+    assert np.allclose(Mp[2], 0.0, atol=1e-12)  # the block form survives
+    return Mp[:2, :2], Mp[:2, 2:]
+
+
+def test_interface_is_read_without_fmi_calls(folder):
+    fmu = read_interface(folder / "Oscillator.fmu")
+    assert (fmu.co_simulation, fmu.model_exchange) == ("Oscillator", "Oscillator")
+    assert fmu.states == ("position", "velocity")
+    assert fmu.derivatives == ("der(position)", "acceleration")
+    assert fmu.of("input") == ["force"]
+
+
+def test_loop_has_delays_without_feedthrough_and_the_users_fmu(folder):
+    loop = read_loop(folder / "osc.toml")
+    assert loop.by_role("plant").source.path == folder / "Oscillator.fmu"
+    assert loop.by_role("meas_delay").source.config["feedthrough"] is False
+    assert loop.by_role("input_delay").source.config["feedthrough"] is False
+    assert loop.lti is None  # the plant is the FMU, not (A, B): no exact analyses
+    assert [str(c) for c in loop.connections][-1] == "input_delay.y -> plant.force"
+
+
+def test_matches_the_exact_lti_loop_within_the_plants_solver_error(ours):
+    exact = _exact(A, B)
+    modified = _exact(*_modified())
+    assert ours.names == ["plant.position", "plant.velocity", "controller.u"]
+    scale = 1 + np.abs(exact)
+    # the C plant is exactly the modified equation: agreement to round-off
+    assert np.all(np.abs(ours.data - modified) <= ROUNDOFF * scale), \
+        np.abs(ours.data - modified).max()
+    # and so within the solver's own error of the exact loop, which is visible
+    solver = np.abs(modified - exact)
+    assert np.all(np.abs(ours.data - exact) <= solver + ROUNDOFF * scale)
+    assert solver.max() > 10 * ROUNDOFF
+    # the loop is stabilized (the open-loop plant is unstable)
+    assert np.abs(ours.data[-1]).max() < 1e-4
+
+
+def test_feedthrough_plant_with_zero_delays_is_a_named_algebraic_loop(folder):
+    """Both delays zero: every component has direct feedthrough (the plant through its
+    ``acceleration`` output), refused before anything runs, the cycle named in order."""
+    loop = read_loop(folder / "osc.toml", ["r=0", "tau=0"])
+    with pytest.raises(ParameterError, match="algebraic loop controller -> input_delay -> "
+                       "plant -> meas_delay -> controller: "):
+        run_loop(loop, 1.0)
+
+
+def test_one_delay_breaks_the_cycle(folder):
+    """r = 0: the measurement delay is pure feedthrough, the input delay (tau = T) is not."""
+    loop = read_loop(folder / "osc.toml", ["r=0"])
+    assert "feedthrough" not in loop.by_role("meas_delay").source.config
+    res = run_loop(loop, 1.0)
+    assert res.success, res.message
+
+
+@pytest.mark.parametrize("sets,message", [
+    (['plant.states=["position", "speed"]'],
+     "plant.states: 'speed' is no variable of Oscillator.fmu: must be a Real output "
+     "(position, velocity, acceleration)"),
+    (['plant.states=["position", "force"]'], "plant.states: 'force' is a Real input"),
+    (['plant.inputs=["position"]'], "plant.inputs: 'position' is a Real output"),
+    (["plant.parameters={stiff = 1.0}"],
+     "plant.parameters: 'stiff' is not a settable parameter of Oscillator.fmu: allowed are "
+     "stiffness, damping"),
+    (['plant.parameters={mass = "heavy"}'], "plant.parameters: mass = 'heavy' is not allowed"),
+    (["plant.x0=[1.0]"], "parameter x0 has 1 values: must have one per state (position, "
+                         "velocity)"),
+    (["controller.B=[[0, 1], [1, 0]]"], "controller.B has shape (2, 2): must be n x m = 2 x 1"),
+    (["controller.K=[[3.0, 2.5]]"], "controller K: the delay-free sampled loop is unstable"),
+    (["plant.fmu=Missing.fmu"], "no such FMU file"),
+])
+def test_bad_mapping_is_one_line_naming_the_variable(folder, sets, message):
+    with pytest.raises((ParameterError, BadFileError)) as err:
+        read_loop(folder / "osc.toml", sets)
+    text = str(err.value)
+    assert message in text and "\n" not in text
+
+
+def test_fmu_without_a_binary_for_this_platform_is_refused(folder, tmp_path):
+    src = zipfile.ZipFile(folder / "Oscillator.fmu")
+    with zipfile.ZipFile(tmp_path / "Oscillator.fmu", "w") as out:
+        for item in src.namelist():
+            if not item.startswith("binaries/"):
+                out.writestr(item, src.read(item))
+    (tmp_path / "osc.toml").write_text(LOOP, encoding="utf-8")
+    with pytest.raises(ParameterError, match="has no binary for linux64"):
+        read_loop(tmp_path / "osc.toml")
+
+
+def test_cli_runs_it_and_refuses_bad_input_with_exit_2(folder, tmp_path, capsys):
+    from delaycomp.cli import main
+
+    out = tmp_path / "run.csv"
+    assert main(["run", str(folder / "osc.toml"), "--stop-time", "1.0", "--out", str(out)]) == 0
+    assert out.read_text().splitlines()[0] == "time,plant.position,plant.velocity,controller.u"
+    assert main(["run", str(folder / "osc.toml"), "--set", 'plant.inputs=["nope"]']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].count("plant.inputs: 'nope'") == 1 and "Traceback" not in "".join(err)
+
+
+@pytest.mark.parametrize("master", ["libcosim", "ecos"])
+def test_jacobi_archive_carries_the_users_fmu_and_runs_in(folder, ours, master, tmp_path):
+    """Same tolerance as tests/test_thirdparty.py against our master (1e-12 (1 + |x|))."""
+    from delaycomp import thirdparty
+
+    loop = read_loop(folder / "osc.toml")
+    path = thirdparty.pack_jacobi(loop, tmp_path / "osc-jacobi.ssp")
+    assert "resources/Oscillator.fmu" in zipfile.ZipFile(path).namelist()
+    res = thirdparty.run_ssp(master, path, 3.0)
+    assert res.success, res.message
+    k = len(res.times)
+    assert np.all(np.abs(res.data - ours.data[:k]) <= 1e-12 * (1 + np.abs(ours.data[:k])))
+
+
+def test_ssp_is_valid_and_round_trips(folder, ours, tmp_path):
+    from delaycomp import ssp
+
+    loop = read_loop(folder / "osc.toml")
+    path = ssp.pack(loop, ssp.SystemInfo("osc", "C plant", STOP), tmp_path / "osc.ssp")
+    with zipfile.ZipFile(path) as zf:
+        zf.extractall(tmp_path / "x")
+        docs = [n for n in zf.namelist() if n.endswith((".ssd", ".ssv"))]
+    assert "resources/Oscillator.fmu" in zipfile.ZipFile(path).namelist()
+    assert len(docs) == 5 and all(ssp.validate(tmp_path / "x" / n) == [] for n in docs)
+    with ssp.Archive(path) as archive:
+        res = run_loop(archive.system.spec, STOP, fmus=archive.fmus())
+    np.testing.assert_array_equal(res.data, ours.data)
+
+
+def test_container_reproduces_our_master(folder, ours, tmp_path):
+    """At the sampling instants the container is our master's loop (module container's
+    ordering): the same floating-point operations, compared to 1e-12 (1 + |x|)."""
+    from delaycomp import container
+
+    loop = read_loop(folder / "osc.toml")
+    path = container.export_loop(loop, tmp_path / "osc-loop.fmu")
+    names, times, data = container.simulate_loop(path, loop, 3.0)
+    assert names == ours.names
+    idx = np.rint(times / loop.h).astype(int)
+    assert np.all(np.abs(data - ours.data[idx]) <= 1e-12 * (1 + np.abs(ours.data[idx])))
+
+
+def test_sweep_over_the_measurement_delay(folder):
+    from delaycomp.sweep import parse_grid, run_sweep
+
+    rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0)
+    assert [row["r"] for row in rows] == [0.0, 0.2, 0.4]
+    assert all(row["stable"] == 1 for row in rows), rows
