@@ -252,3 +252,30 @@ def test_sweep_over_the_measurement_delay(folder):
     rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0)
     assert [row["r"] for row in rows] == [0.0, 0.2, 0.4]
     assert all(row["stable"] == 1 for row in rows), rows
+
+
+def test_delay_built_without_feedthrough_declares_none_and_refuses_a_zero_delay(tmp_path):
+    """The structural variant (``feedthrough = false``): its built modelDescription lists no
+    dependency for ``y``; the default build still lists ``u``; ``delay = 0`` is refused at
+    initialization with a logged error naming the parameter."""
+    from fmpy import read_model_description
+
+    from delaycomp.orchestrator.fmu import FmuComponent
+    from delaycomp.orchestrator.master import SimulationError
+    from delaycomp.simulate import fmu_path
+
+    path = fmu_path("delay", {"feedthrough": False, "n": 1}, tmp_path)
+    md = read_model_description(str(path))
+    assert [(o.variable.name, o.dependencies) for o in md.outputs] == [("y", [])]
+    comp = FmuComponent("d", path)
+    assert comp.feedthrough_outputs == frozenset()
+    from delaycomp.orchestrator.master import Master
+
+    master = Master([comp], [], T=1.0, N=10)
+    try:
+        with pytest.raises(SimulationError, match="delay = 0.0 is not allowed: this delay "
+                           "FMU is built without direct feedthrough"):
+            master.setup(1.0, {"d": {"delay": 0.0}})
+            master.initialize()
+    finally:
+        master.terminate()
