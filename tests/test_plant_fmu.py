@@ -279,3 +279,81 @@ def test_delay_built_without_feedthrough_declares_none_and_refuses_a_zero_delay(
             master.initialize()
     finally:
         master.terminate()
+
+
+RENAMED = {"plant": "Mass", "meas_delay": "Sensor", "controller": "Ctrl",
+           "input_delay": "Actuator"}
+
+
+@pytest.fixture(scope="module")
+def foreign_ssp(folder, tmp_path_factory):
+    """Our SSP of the loop made foreign: every delaycomp annotation removed and the
+    components renamed, as another tool would write it (valid SSP 1.0)."""
+    from lxml import etree
+
+    from delaycomp import ssp
+
+    out = tmp_path_factory.mktemp("foreign")
+    path = ssp.pack(read_loop(folder / "osc.toml"), ssp.SystemInfo("osc", "", STOP),
+                    out / "ours.ssp")
+    with zipfile.ZipFile(path) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    root = etree.fromstring(members["SystemStructure.ssd"])
+    for ann in root.iter(ssp.tag("ssc:Annotation")):
+        if ann.get("type") == ssp.DC_ANNOTATION:
+            ann.getparent().remove(ann)
+    for anns in list(root.iter(ssp.tag("ssd:Annotations"))):
+        if len(anns) == 0:
+            anns.getparent().remove(anns)
+    for comp in root.iter(ssp.tag("ssd:Component")):
+        comp.set("name", RENAMED[comp.get("name")])
+    for con in root.iter(ssp.tag("ssd:Connection")):
+        for end in ("startElement", "endElement"):
+            con.set(end, RENAMED[con.get(end)])
+    etree.cleanup_namespaces(root)
+    ssd = etree.tostring(root, xml_declaration=True, encoding="UTF-8")
+    assert b"org.delaycomp" not in ssd
+    (out / "SystemStructure.ssd").write_bytes(ssd)
+    assert ssp.validate(out / "SystemStructure.ssd") == []
+    foreign = out / "foreign.ssp"
+    with zipfile.ZipFile(foreign, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, ssd if name == "SystemStructure.ssd" else data)
+    return foreign
+
+
+def test_foreign_ssp_runs_with_master_settings_and_roles_from_the_connections(
+        foreign_ssp, ours, tmp_path):
+    """Only the plant is named; the connections give the other roles; same numbers as the
+    loop file's run (the same FMUs and parameters in the same master)."""
+    from delaycomp.cli import main
+
+    out = tmp_path / "foreign.csv"
+    assert main(["run", str(foreign_ssp), "--period", str(T), "--steps", str(N),
+                 "--role", "Mass=plant", "--stop-time", "2.0", "--out", str(out)]) == 0
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    header = out.read_text().splitlines()[0]
+    assert header == "time,Mass.position,Mass.velocity,Ctrl.u"
+    np.testing.assert_array_equal(rows[:, 1:], ours.data[:len(rows)])
+
+
+@pytest.mark.parametrize("args,message", [
+    ([], "not a delaycomp system (to run an SSP of another tool give the master settings: "
+         "--period T --steps N)"),
+    (["--period", "0.5", "--steps", "50"], "no component is known as the plant: name its "
+                                           "role with --role"),
+    (["--period", "0.5", "--steps", "50", "--role", "Mass=pump"], "--role Mass=pump: role "
+                                                                  "'pump' is not allowed"),
+    (["--period", "0.5", "--steps", "50", "--role", "Ctrl=plant", "--role", "Mass=plant"],
+     "component Ctrl is named plant, but the connections make it the controller"),
+    (["--period", "0.5"], "--period and --steps go together"),
+    (["--period", "0.5", "--steps", "50", "--role", "Mass=plant", "--master", "ecos"],
+     "in our master only"),
+])
+def test_foreign_ssp_without_what_it_needs_is_refused_with_the_reason(foreign_ssp, capsys,
+                                                                      args, message):
+    from delaycomp.cli import main
+
+    assert main(["run", str(foreign_ssp), "--stop-time", "1.0", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
