@@ -165,7 +165,7 @@ def _find_cycle(names: set[str], connections: Sequence[Connection]) -> list[str]
     first = cycle.index(min(cycle))
     cycle = cycle[first:] + cycle[:first]  # starting from its first name, for stable text
     assert all(b in succ[a] for a, b in zip(cycle, cycle[1:] + cycle[:1]))
-    return cycle + [cycle[0]]
+    return [*cycle, cycle[0]]
 
 
 class Master:

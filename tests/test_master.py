@@ -92,8 +92,8 @@ def test_algebraic_loop_names_its_members_only():
     """a -> b -> c -> a is a cycle; d hangs off it (feedthrough too, but not in the cycle)
     and the plant feeds nothing into it: the message names exactly the cycle, in order."""
     comps = [integrator(), gain("a", 1.0), gain("b", 1.0), gain("c", 1.0), gain("d", 1.0)]
-    cons = loop("a", "b", "c") + [Connection.parse("c.out -> d.in"),
-                                  Connection.parse("d.out -> plant.in")]
+    cons = [*loop("a", "b", "c"), Connection.parse("c.out -> d.in"),
+            Connection.parse("d.out -> plant.in")]
     with pytest.raises(ValueError, match=r"algebraic loop a -> b -> c -> a: ") as err:
         Master(comps, cons, T=1.0, N=1)
     assert "d" not in str(err.value).split(":")[0].split()
