@@ -66,6 +66,8 @@ def test_wheel_holds_every_package_and_the_data_commands_read(wheel):
             assert f"delaycomp/reference/{rel}" in names
     for readme in (REPO / "fmus").glob("*/README.md"):
         assert f"delaycomp/fmus/{readme.parent.name}/README.md" in names
+    for loop in (REPO / "delaycomp" / "loops").glob("*.toml"):  # the scenarios as data
+        assert f"delaycomp/loops/{loop.name}" in names
 
 
 def test_python_m_delaycomp_is_the_command(tmp_path):
