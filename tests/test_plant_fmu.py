@@ -357,3 +357,49 @@ def test_foreign_ssp_without_what_it_needs_is_refused_with_the_reason(foreign_ss
     assert main(["run", str(foreign_ssp), "--stop-time", "1.0", *args]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def _plant_fmu_loop(folder: Path, extra: str = "") -> Path:
+    """The loop file with ``predictor = "plant-fmu"`` instead of ``A``, ``B``."""
+    text = LOOP.replace("A = [[0, 1], [1, -0.2]]\nB = [[0], [1]]\n",
+                        f'predictor = "plant-fmu"\n{extra}')
+    path = folder / "osc-me.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_plant_fmu_as_the_predictors_model_within_the_ode_tolerance(folder, ours):
+    """The controller integrates the FMU's own Model Exchange derivatives with DOP853
+    (rtol = atol = 1e-10, the model controller's default) instead of the exact LTI flow of
+    (A, B). Same plant, same K: the runs differ by the predictor's error only. Bound: DOP853's
+    global error over the window r + tau = 0.8 s stays within ~10 tol e^(|A| 0.8) (|A| ~ 1.1:
+    < 3e-9), u within |K| (~ 3.9) times that (< 1.2e-8) at each sample, and the stable loop
+    does not amplify a sample's error (its state decays by a factor ~ 0.25 a period): so
+    1e-8 (1 + |x|) with margin; measured 1.4e-11."""
+    loop = read_loop(_plant_fmu_loop(folder))
+    ctrl = loop.by_role("controller")
+    assert ctrl.source.kind == "model_controller"
+    assert b"Oscillator" in Path(ctrl.source.model).read_bytes()  # the FMU travels inside
+    res = run_loop(loop, STOP)
+    assert res.success, res.message
+    assert res.names == ["plant.position", "plant.velocity", "controller.force"]
+    diff = np.abs(res.data - ours.data)
+    assert np.all(diff <= 1e-8 * (1 + np.abs(ours.data))), diff.max()
+
+
+def test_plant_fmu_predictor_needs_model_exchange_and_the_states_in_order(folder, tmp_path):
+    path = _plant_fmu_loop(folder)
+    with pytest.raises(ParameterError, match=r"needs plant\.states to be the FMU's continuous "
+                       r"states in order: position, velocity"):
+        read_loop(path, ['plant.states=["velocity", "position"]', "plant.x0=[0.0, 1.0]"])
+    src = zipfile.ZipFile(folder / "Oscillator.fmu")
+    with zipfile.ZipFile(tmp_path / "Oscillator.fmu", "w") as out:
+        for item in src.namelist():
+            data = src.read(item)
+            if item == "modelDescription.xml":
+                data = data.replace(b'<ModelExchange modelIdentifier="Oscillator" '
+                                    b'canNotUseMemoryManagementFunctions="true"/>', b"")
+            out.writestr(item, data)
+    (tmp_path / "osc-me.toml").write_text(path.read_text(), encoding="utf-8")
+    with pytest.raises(ParameterError, match=r"Oscillator\.fmu has no Model Exchange interface"):
+        read_loop(tmp_path / "osc-me.toml")

@@ -403,6 +403,8 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     fmu = Path(plant["fmu"])
     fmu = fmu if fmu.is_absolute() else (base / fmu).resolve()
     x0 = _array("plant.x0", plant["x0"], 1)
+    if ctrl.get("predictor") == "plant-fmu":
+        return _plant_fmu_predictor(plant, ctrl, fmu, where, T, N, r, tau, x0, common)
     if ("A" in ctrl) == ("model" in ctrl):
         raise ParameterError(f"{where}: with plant.fmu the predictor's model comes from "
                              "[controller]: A and B (LTI, with K) or model = \"file.py\"")
@@ -449,6 +451,41 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     return fmu_plant_loop(fmu, plant["states"], plant["inputs"], plant.get("parameters"),
                           T, r, tau, N, x0, u0, model=model_path,
+                          controller_parameters=params, **common)
+
+
+def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r, tau,
+                         x0, common: dict) -> Loop:
+    """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
+    predictor's model (:mod:`.fmumodel`), with ``u = K x``."""
+    from .fmumodel import write_model
+    from .plantfmu import check_mapping, fmu_plant_loop, read_interface
+
+    _check_keys(f"{where} [controller]", ctrl, ("predictor", "K", "u0", "mode", "tolerance"))
+    if "K" not in ctrl:
+        raise ParameterError(f"{where}: controller.predictor = \"plant-fmu\" needs "
+                             "controller.K (u = K x)")
+    iface = read_interface(fmu)
+    if iface.model_exchange is None:
+        raise ParameterError(f"controller.predictor = \"plant-fmu\" is not allowed: "
+                             f"{fmu.name} has no Model Exchange interface (give A and B, or "
+                             "model)")
+    states, inputs, values = check_mapping(iface, plant["states"], plant["inputs"],
+                                           plant.get("parameters"))
+    K = _array("controller.K", ctrl["K"], 2)
+    model = write_model(fmu, states, inputs, iface.states, K, values)
+    mode = ctrl.get("mode", "compensated")
+    params: dict = {"predictor": "none" if mode == "uncompensated" else "numerical"}
+    if "tolerance" in ctrl:
+        params["tolerance"] = _real("controller.tolerance", ctrl["tolerance"], positive=True)
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
+    if tau > 0:
+        from ..grid import split
+
+        if split(tau, T)[1] != 0.0:
+            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
+                                 f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+    return fmu_plant_loop(fmu, states, inputs, values, T, r, tau, N, x0, u0, model=model,
                           controller_parameters=params, **common)
 
 
