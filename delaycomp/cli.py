@@ -117,9 +117,18 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--grid", action="append", required=True, metavar="NAME=START:STOP:COUNT",
                    help="a swept parameter (repeatable)")
     s.add_argument("--stop-time", type=float, default=None, metavar="S")
-    s.add_argument("--engine", choices=("inprocess", "fmu"), default="inprocess",
-                   help="inprocess (default): the FMUs' slaves without the FMI layer, equal "
-                        "to the FMU run to the bit; fmu: the built FMUs")
+    s.add_argument("--engine", choices=("batch", "inprocess", "fmu"), default="batch",
+                   help="batch (default): all points advanced together, vectorized (points "
+                        "it cannot take run inprocess, and the output says so); inprocess: "
+                        "point by point, the FMUs' slaves without the FMI layer, equal to "
+                        "the FMU run to the bit; fmu: the built FMUs")
+    s.add_argument("--array-backend", choices=("numpy", "cupy", "jax", "auto"),
+                   default="numpy",
+                   help="batch engine's array library (default numpy; cupy or jax when "
+                        "installed, e.g. on a GPU; auto: a GPU library if one sees a GPU)")
+    s.add_argument("--chunk", type=int, default=None, metavar="POINTS",
+                   help="batch engine: points per chunk (default: from the available "
+                        "memory, at most 16384)")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: one per core; 1 runs in this "
                         "process)")
@@ -370,13 +379,22 @@ def _cmd_sweep(args) -> int:
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
     started = time.perf_counter()
-    _, sets = _source(args)
+    notes: list[str] = []
+    source, sets = _source(args)
     rows = sweep.run_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
                            args.workers, args.scheduler,
-                           str(args.fmu_dir) if args.fmu_dir else None, args.exact)
+                           str(args.fmu_dir) if args.fmu_dir else None, args.exact,
+                           args.array_backend, args.chunk, notes)
+    for note in notes:
+        print(note)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
-        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set))
+        from .critical import critical_curve
+
+        curve = critical_curve(source, sets, [a.name for a in axes],
+                               [a.values for a in axes])
+        sweep.plot_sweep(rows, axes, args.plot, f"{args.scenario}: " + " ".join(args.set),
+                         curve)
     stable = sum(r["stable"] for r in rows)
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
           f"{stable} stable; wrote {args.out}")

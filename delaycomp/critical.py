@@ -197,3 +197,79 @@ def _plot_table(table, name: str, path: Path, title: str) -> None:
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
     tmp.replace(path)
+
+
+#: the most values of the other grid axis at which :func:`critical_curve` solves for r_c
+CURVE_POINTS = 40
+
+
+def critical_curve(source, sets: list[str], names: list[str],
+                   values: list) -> np.ndarray | None:
+    """The exact lifted model's critical delays over a stability map: where ``rho = 1``.
+
+    For an LTI loop (``source``: a scenario or a loop file) swept over ``r`` (and at most
+    one other parameter) in the
+    uncompensated mode: rows ``(a, r)`` at up to :data:`CURVE_POINTS` values ``a`` of the
+    other axis (``a = nan`` for a map over ``r`` alone), one row for every ``r`` on the
+    map where the lifted loop's spectral radius crosses 1 (bracketed on the map's ``r``
+    values, refined by Brent's method to 1e-9). From a loop stable at ``r = 0`` the first
+    crossing is the critical delay ``r_c``; a loop unstable without delay may have a band
+    of delays that stabilize it, bounded by two crossings. ``None`` where no curve applies
+    (not LTI, no ``r`` axis, the compensated mode, whose spectrum does not depend on the
+    delay it knows).
+    """
+    if "r" not in names or len(names) > 2:
+        return None
+    d = source.loop(["r=0", *sets]).lti
+    if d is None or d.mode != "uncompensated" or d.r_true is not None:
+        return None
+    r_axis = np.unique(np.asarray(values[names.index("r")], dtype=float))
+    others = [n for n in names if n != "r"]
+    if others:
+        grid = np.asarray(values[names.index(others[0])], dtype=float)
+        if grid.size > CURVE_POINTS:
+            grid = np.linspace(grid.min(), grid.max(), CURVE_POINTS)
+    else:
+        grid = np.array([np.nan])
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # tiny matrices: no BLAS threads
+        return _curve(source, sets, others, grid, r_axis)
+
+
+def _curve(source, sets: list[str], others: list[str], grid: np.ndarray,
+           r_axis: np.ndarray) -> np.ndarray:
+    """``(a, r)`` rows: every crossing of ``rho = 1`` at each value ``a``."""
+    from .sweep import _fmt
+
+    points: list[tuple[float, float]] = []
+    for a in grid:
+        extra = [] if np.isnan(a) else [f"{others[0]}={_fmt(float(a))}"]
+        try:
+            loop = source.loop(["r=0", *sets, *extra])
+        except ValueError:
+            continue  # a value the loop refuses at r = 0 (the map then has none either)
+        d = loop.lti
+        for r in _crossings(d.A, d.B, d.K, loop.T, d.tau, r_axis):
+            points.append((float(a), r))
+    return np.array(points, dtype=float).reshape(-1, 2)
+
+
+def _crossings(A, B, K, T: float, tau: float, r_axis: np.ndarray) -> list[float]:
+    """Every ``r`` on the map where the uncompensated loop's spectral radius crosses 1,
+    bracketed on the map's own ``r`` values and refined by Brent's method to 1e-9; the
+    first one from a stable ``r = 0`` is the critical delay ``r_c``."""
+    from scipy.optimize import brentq
+
+    def rho(r: float) -> float:
+        return lifted_loop(A, B, K, T, r, tau, "uncompensated").spectral_radius - 1.0
+
+    out = []
+    rs = np.unique(np.concatenate([[0.0], r_axis[r_axis >= 0]]))
+    prev_r, prev = float(rs[0]), rho(float(rs[0]))
+    for r in rs[1:]:
+        now = rho(float(r))
+        if (prev < 0.0) != (now < 0.0):
+            out.append(brentq(rho, prev_r, float(r), xtol=1e-9))
+        prev_r, prev = float(r), now
+    return out

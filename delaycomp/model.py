@@ -13,11 +13,18 @@ A model module defines, at module level::
     def k(x, p): ...                 # CONTROL = "zoh": nominal sampled-data feedback k(x)
     def predictor(x, segments, p): ...  # optional closed-form Phi
     def step(x, u, h, p): ...        # optional exact plant step under constant u
+    BATCH = True                     # optional: f, k and step also take a batch of points
 
 ``x`` and ``u`` are 1-D numpy arrays, ``p`` a dict of the parameters (the controller adds
 ``T``, its sampling period). ``predictor`` receives the input history as segments
 ``(duration, u)`` covering ``[t - r - tau, t)`` oldest first and returns the state reached
 from ``x`` after ``r + tau`` (Phi of the paper). Without it the controller solves the ODE.
+
+``BATCH = True`` promises that ``f``, ``k`` and ``step`` also accept a batch of ``P``
+points: ``x`` of shape ``(n, P)``, ``u`` of shape ``(m, P)``, ``h`` and ``t`` of shape
+``(P,)``, and ``p["T"]`` of shape ``(P,)``; they return ``(n, P)`` and ``(m, P)`` arrays.
+With it and an exact ``step``, sweeps run the model on the batch engine
+(:mod:`delaycomp.batch`).
 """
 
 from __future__ import annotations
@@ -56,6 +63,8 @@ class Model:
     source: Path | None = None
     #: allowed values of string parameters (optional ``CHOICES`` of the module)
     choices: dict = field(default_factory=dict)
+    #: ``f``, ``k`` and ``step`` accept a batch of points (optional ``BATCH`` of the module)
+    batch: bool = False
 
     @property
     def n(self) -> int:
@@ -102,6 +111,9 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
         if key not in params or params[key] not in values:
             raise ModelError(f"model {label}: CHOICES[{key!r}] must list the values of a "
                              "string parameter, its default among them")
+    batch = getattr(module, "BATCH", False)
+    if not isinstance(batch, bool):
+        raise ModelError(f"model {label}: BATCH = {batch!r}, must be True or False")
     f, k = need("f"), need("k")
     arity = len(inspect.signature(k).parameters)
     if arity != (3 if control == "continuous" else 2):
@@ -110,7 +122,7 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
     return Model(label, states, inputs, control, f, k, params,
                  getattr(module, "predictor", None), getattr(module, "step", None),
                  Path(module.__file__) if getattr(module, "__file__", None) else None,
-                 choices)
+                 choices, batch)
 
 
 def load_model(path: str | Path) -> Model:

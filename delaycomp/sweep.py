@@ -17,7 +17,9 @@ LTI scenarios). Per point the sweep reports
 
 Points run one after another, on local worker processes, or on a Dask cluster; every
 point is computed by the same deterministic function, so the results do not depend on how
-they are distributed.
+they are distributed. With ``engine="batch"`` the points are advanced together, vectorized
+(:mod:`delaycomp.batch`, :mod:`delaycomp.sweep_batch`), in chunks spread the same way;
+points it cannot take run on the per-point in-process engine, and ``notes`` says which.
 """
 
 from __future__ import annotations
@@ -170,12 +172,23 @@ class _Progress:
             sys.stderr.flush()
 
 
+#: engines of :func:`run_sweep`: ``batch`` advances all points together (vectorized);
+#: ``inprocess`` and ``fmu`` run point by point (:data:`delaycomp.simulate.ENGINES`)
+SWEEP_ENGINES = ("batch", "inprocess", "fmu")
+
+
 def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
-              fmu_dir: str | None = None, exact: bool = False) -> list[dict]:
+              fmu_dir: str | None = None, exact: bool = False,
+              array_backend: str = "numpy", chunk: int | None = None,
+              notes: list[str] | None = None) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
-    ``scenario`` is a scenario name or a loop file's path (``.toml``).
+    ``scenario`` is a scenario name or a loop file's path (``.toml``). ``engine="batch"``
+    advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
+    :func:`delaycomp.batch.get_backend`) in chunks of at most ``chunk`` points (default:
+    from the available memory); what it did, and which points fell back to the per-point
+    in-process engine and why, is appended to ``notes``.
     """
     sc = open_source(scenario)
     if exact and sc.loop(list(sets)).lti is None:
@@ -185,22 +198,80 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     names = [a.name for a in axes]
     if len(set(names)) != len(names):
         raise ParameterError("--grid: each parameter may be swept once")
+    if engine not in SWEEP_ENGINES:
+        raise ParameterError(f"--engine {engine!r} is not allowed: must be one of "
+                             f"{', '.join(SWEEP_ENGINES)}")
+    if chunk is not None and chunk < 1:
+        raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
     stop = sc.default_stop_time if stop is None else stop
     if stop is None:
         raise ParameterError(f"{scenario} has no stop time: give --stop-time")
     jobs = []
+    loops = []
     for values in points(axes):
         point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
         try:
-            sc.make(sc.resolve(list(point_sets)))  # validate every point before running any
+            # validate every point before running any
+            loops.append(sc.make(sc.resolve(list(point_sets))))
         except ParameterError as exc:
             where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
             raise ParameterError(f"grid point {where}: {exc}") from None
         jobs.append(Job(str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
-                        else scenario, point_sets, float(stop), engine, fmu_dir, exact))
+                        else scenario, point_sets, float(stop),
+                        "inprocess" if engine == "batch" else engine, fmu_dir, exact))
+    if engine == "batch" and not exact:
+        results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
+                             chunk, notes if notes is not None else [])
+        return [{**dict(zip(names, values)), **res}
+                for values, res in zip(points(axes), results)]
     if not exact and engine == "fmu":
         _prebuild(jobs)
+    return [{**dict(zip(names, values)), **res}
+            for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler))]
+
+
+def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
+               scheduler: str | None, backend: str, chunk: int | None,
+               notes: list[str]) -> list[dict]:
+    """The batch engine for the points it takes, the per-point engine for the others."""
+    from . import batch, sweep_batch
+
+    if not (math.isfinite(stop) and stop > 0):
+        raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
+    for timing in {loop.timing for loop in loops}:  # as the per-point engine asks
+        timing.ticks(stop)
+    try:
+        be = batch.get_backend(backend)
+    except batch.BatchError as exc:
+        raise ParameterError(f"--array-backend: {exc}") from None
+    chunks, fallback, msgs = sweep_batch.prepare(loops, stop, be.name, workers, chunk)
+    notes.extend(msgs)
     progress = _Progress(len(jobs))
+    results: list[dict | None] = [None] * len(jobs)
+    try:
+        for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(chunks, workers, scheduler,
+                                                                 progress)):
+            for i, row in zip(idx, rows):
+                results[i] = row
+    except batch.BatchError as exc:
+        raise ParameterError(str(exc)) from None
+    done = sum(len(idx) for idx, _ in chunks)
+    notes.append(f"batch engine ({be.name}, {be.device}): {done} of {len(jobs)} points in "
+                 f"{len(chunks)} chunk{'s' if len(chunks) != 1 else ''}")
+    if fallback:
+        reasons = sorted({why for _, why in fallback})
+        notes.append(f"per-point engine (inprocess): {len(fallback)} points, because "
+                     + "; ".join(reasons))
+        rest = _run_jobs([jobs[i] for i, _ in fallback], workers, scheduler, progress)
+        for (i, _), row in zip(fallback, rest):
+            results[i] = row
+    return results
+
+
+def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
+              progress: _Progress | None = None) -> list[dict]:
+    """Per-point jobs, one after another, on worker processes or on Dask."""
+    progress = progress or _Progress(len(jobs))
     if scheduler:
         results = _run_dask(jobs, scheduler, progress)
     elif workers > 1:
@@ -213,7 +284,7 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
             for job in jobs:
                 results.append(evaluate(job))
                 progress.tick()
-    return [{**dict(zip(names, values)), **res} for values, res in zip(points(axes), results)]
+    return results
 
 
 def _run_processes(jobs: list[Job], workers: int, progress: _Progress) -> list[dict]:
@@ -271,8 +342,13 @@ def _cell(value) -> str:
     return repr(float(value))
 
 
-def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str) -> None:
-    """A curve of ``rho`` for one grid parameter, a heat map of it for two."""
+def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str,
+               critical: np.ndarray | None = None) -> None:
+    """A curve of ``rho`` for one grid parameter, a heat map of it for two.
+
+    ``critical``: rows ``(a, r)`` where the exact lifted model has ``rho = 1``
+    (:func:`delaycomp.critical.critical_curve`), drawn over the map and labelled.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -298,6 +374,8 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str)
         ax.set_ylabel(axes[0].name)
     else:
         raise ParameterError("--plot draws one or two grid parameters")
+    if critical is not None:
+        _draw_critical(ax, axes, critical)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
     path = Path(path)
@@ -306,3 +384,18 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str)
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
     tmp.replace(path)
+
+
+def _draw_critical(ax, axes: list[Axis], points: np.ndarray) -> None:
+    label = "exact lifted model: rho = 1 (critical delays)"
+    if len(points) == 0:
+        return
+    if len(axes) == 1:
+        for j, r in enumerate(points[:, 1]):
+            ax.axvline(r, color="tab:blue", ls="--", lw=1.2,
+                       label=f"{label}: r = {r:.6g}" if j < 3 else None)
+    elif axes[1].name == "r":  # r on the horizontal axis
+        ax.plot(points[:, 1], points[:, 0], "o", color="tab:blue", ms=3.5, label=label)
+    else:
+        ax.plot(points[:, 0], points[:, 1], "o", color="tab:blue", ms=3.5, label=label)
+    ax.legend(fontsize=8, loc="upper right")

@@ -18,7 +18,7 @@ LAYERS = {
     "delaycomp.lti": 0, "delaycomp.delayline": 0, "delaycomp.history": 0,
     "delaycomp.predictors": 0, "delaycomp.controller": 0, "delaycomp.nlcontrol": 0,
     "delaycomp.model": 0, "delaycomp.models": 0, "delaycomp.child": 0,
-    "delaycomp.reference": 0,
+    "delaycomp.reference": 0, "delaycomp.batch": 0,
     # 1: the system model and the scenarios (data that build it)
     "delaycomp.system": 1, "delaycomp.scenarios": 1,
     # 2: FMU adapters, builds, masters, formats
@@ -26,7 +26,7 @@ LAYERS = {
     "delaycomp.orchestrator": 2, "delaycomp.simulate": 2, "delaycomp.ssp": 2,
     "delaycomp.plotting": 2,
     # 3: studies
-    "delaycomp.sweep": 3, "delaycomp.critical": 3,
+    "delaycomp.sweep": 3, "delaycomp.critical": 3, "delaycomp.sweep_batch": 3,
     # 4: verification
     "delaycomp.cases": 4, "delaycomp.check": 4, "delaycomp.crosscheck": 4,
     "delaycomp.container": 4, "delaycomp.thirdparty": 4,

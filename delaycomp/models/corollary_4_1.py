@@ -24,10 +24,15 @@ from delaycomp.models.unicycle import f, predictor, step  # noqa: F401  (model i
 STATES = unicycle.STATES
 INPUTS = unicycle.INPUTS
 CONTROL = "continuous"
+BATCH = True  # f, k and step also take a batch: x of shape (3, P), u (2, P), t (P,)
 
 
 def pomet(t, x1, x2, x3):
     """Pomet's law ``(k1, k2)`` for the nonholonomic integrator (1.4)."""
+    if np.ndim(t) >= 1:  # a batch
+        c = np.cos(t)
+        e = x1 + x2 * c
+        return x2 * np.sin(t) - e, -(e * x1 * c + x1 * x2 + x3)
     c = math.cos(t)
     e = x1 + x2 * c
     return x2 * math.sin(t) - e, -(e * x1 * c + x1 * x2 + x3)

@@ -14,6 +14,7 @@ STATES = ("x1", "x2", "x3")
 INPUTS = ("u",)
 CONTROL = "continuous"
 PARAMETERS = {"law": "corrected"}
+BATCH = True  # f, k and step also take a batch: x of shape (3, P), u (1, P), h (P,)
 LAWS = ("corrected", "printed")
 CHOICES = {"law": LAWS}
 
@@ -57,4 +58,18 @@ def predictor(x, segments, p):
 
 
 def step(x, u, h, p):
-    return predictor(x, [(h, u)], p)
+    """The predictor over one segment; for a batch, the same terms with U = 0 at its start."""
+    if np.ndim(x) == 1:
+        return predictor(x, [(h, u)], p)
+    x1, x2, x3 = x
+    v, d = u[0], h
+    IG = (1.0 + v) * (v * d**3 / 6.0)
+    IU = v * d * d / 2.0
+    IU2 = v * v * d**3 / 3.0
+    J = (1.0 + v) * (v * d * d / 2.0)
+    U = v * d
+    return np.array([
+        x1 + d * x2 + d * x3 * x3 + 0.5 * d * d * x3 + 3.0 * x3 * IU + IG + IU2,
+        x2 + d * x3 + x3 * U + J,
+        x3 + U,
+    ])

@@ -30,6 +30,7 @@ PARAMETERS = {"law": "corrected"}
 LAWS = ("corrected", "printed")
 CHOICES = {"law": LAWS}
 SET_TOL = 1e-12
+BATCH = True  # f, k and step also take a batch: x of shape (3, P), u (2, P), p["T"] (P,)
 
 
 def _tols(x1, x2, x3):
@@ -64,7 +65,36 @@ def printed(x1, x2, x3, T):
     return k1 + x2 * k2, k2  # v = u1 + x2 omega (4.3)
 
 
+def corrected_batch(x1, x2, x3, T):
+    """:func:`corrected` for arrays of points (the same sets, chosen with ``np.where``)."""
+    tol = SET_TOL * np.maximum(1.0, np.sqrt(x1 * x1 + x2 * x2 + x3 * x3))
+    c1 = np.abs(x2) > tol
+    c2 = ~c1 & (np.abs(x1) > tol)
+    a = np.minimum(np.sqrt(np.abs(x2)), math.pi / 2)
+    b = -a * (x1 * np.sin(a) + x2 * np.cos(a)) / np.where(c1, 1.0 - np.cos(a), 1.0)
+    v = np.where(c1, b / T, np.where(c2, -x1 / T, 0.0))
+    omega = np.where(c1, a / T, np.where(c2, 0.0, -x3 / T))
+    return v, omega
+
+
+def printed_batch(x1, x2, x3, T):
+    """:func:`printed` for arrays of points."""
+    sq = x1 * x1 + x2 * x2 + x3 * x3
+    lin, quad = SET_TOL * np.maximum(1.0, np.sqrt(sq)), SET_TOL * np.maximum(1.0, sq)
+    c3 = np.abs(2 * x2 - x1 * x3) <= quad
+    c2 = ~c3 & (np.abs(x2) <= lin) & (np.abs(x1 * x3) > quad)
+    den = np.where(c2, T * (x1 * x1 + x3 * x3), 1.0)
+    root = np.sqrt(np.abs(x2))
+    k1 = np.where(c3, -x1 / T, np.where(c2, -x1 * x3 * x3 / den,
+                                        -2.0 / T * np.copysign(root, x2) - 2.0 / T * x1))
+    k2 = np.where(c3, -x3 / T, np.where(c2, x3 * x1 * x1 / den, root / T))
+    return k1 + x2 * k2, k2
+
+
 def k(x, p):
     x1, x2, x3 = unicycle.chained(x)
-    law = corrected if p.get("law", "corrected") == "corrected" else printed
+    corr = p.get("law", "corrected") == "corrected"
+    if np.ndim(x) == 2:
+        return np.array((corrected_batch if corr else printed_batch)(x1, x2, x3, p["T"]))
+    law = corrected if corr else printed
     return np.array(law(x1, x2, x3, p["T"]))

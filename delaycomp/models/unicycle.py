@@ -17,10 +17,20 @@ INPUTS = ("v", "omega")
 
 
 def dynamics(s, u):
+    if np.ndim(s) == 2:  # a batch: (3, P)
+        return np.array([u[0] * np.cos(s[2]), u[0] * np.sin(s[2]), u[1]])
     return np.array([u[0] * math.cos(s[2]), u[0] * math.sin(s[2]), u[1]])
 
 
 def flow(s, u, h):
+    if np.ndim(s) == 2:  # a batch: s (3, P), u (2, P), h (P,)
+        v, w = u[0], u[1]
+        half = 0.5 * w * h
+        still = half == 0.0
+        sinc = np.where(still, 1.0, np.sin(half) / np.where(still, 1.0, half))
+        heading = s[2] + half
+        return np.array([s[0] + v * h * sinc * np.cos(heading),
+                         s[1] + v * h * sinc * np.sin(heading), s[2] + w * h])
     v, w = float(u[0]), float(u[1])
     half = 0.5 * w * h
     sinc = math.sin(half) / half if half != 0.0 else 1.0
@@ -39,6 +49,9 @@ def predict(s, segments):
 
 def chained(s):
     """(4.2): ``x1 = x cos + y sin``, ``x2 = x sin - y cos``, ``x3 = theta``."""
+    if np.ndim(s) == 2:
+        c, sn = np.cos(s[2]), np.sin(s[2])
+        return np.array([s[0] * c + s[1] * sn, s[0] * sn - s[1] * c, s[2]])
     c, sn = math.cos(s[2]), math.sin(s[2])
     return np.array([s[0] * c + s[1] * sn, s[0] * sn - s[1] * c, s[2]])
 

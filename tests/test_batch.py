@@ -1,0 +1,350 @@
+"""The batch engine against the per-point engine: trajectories, metrics, sweeps, chunking.
+
+The per-point in-process engine is the reference (it equals the FMU run to the bit,
+tests/test_engines.py). Tolerances:
+
+- trajectories are compared relative to the run's scale so far (:func:`assert_close`);
+- exact LTI loops: the batch does the per-point engine's arithmetic per point; for scalar
+  plants in the same order (bit-equal), for n > 1 the matrix products are summed in
+  another order than BLAS, a few ulp a step (measured at most 1.6e-14 on these grids):
+  1e-12 relative (the issue's bound);
+- model loops: the batch predictor composes the exact step over the window where the
+  per-point closed forms evaluate the same exact flow in one expression; both are exact,
+  so they differ by round-off; 1e-9 relative to ``max(1, |x|)`` is the ODE tolerance
+  (``DEFAULT_TOL`` = 1e-10) with room for 3000 steps;
+- ``rho`` is a least-squares rate (closed form here, ``np.polyfit`` per point): equal to
+  the same relative bound. Where both runs reach dead-beat (``|x| < 1e-9`` to the end) the
+  tail holds round-off (1e-15 to 1e-45) and ``rho`` is the rate of that noise (measured
+  7e-6 against 6e-6): there the two must agree on ``stable`` and the dead-beat time, and
+  ``rho`` only where the noise is the same (else both below 1).
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+from delaycomp import batch, scenarios, sweep, sweep_batch
+from delaycomp.model import load_model
+from delaycomp.models import path
+from delaycomp.simulate import run_loop
+
+LTI_REL = 1e-12
+MODEL_REL = 1e-9
+
+
+def assert_same(b: dict, s: dict, rel: float) -> None:
+    """Batch metrics ``b`` equal the per-point ``s`` (see the module docstring)."""
+    assert b["stable"] == s["stable"]
+    assert b["deadbeat_time"] == s["deadbeat_time"]
+    for key in ("final_norm", "peak_norm"):
+        # below 1e-12 a state is round-off of a dead-beat loop
+        assert b[key] == pytest.approx(s[key], rel=rel, abs=1e-12), key
+    if s["deadbeat_time"] is not None:
+        # the rate of round-off noise: the same verdict (stable, above) is what it carries
+        assert b["rho"] == pytest.approx(s["rho"], rel=rel) or max(b["rho"], s["rho"]) < 1
+    elif math.isinf(s["rho"]):
+        assert math.isinf(b["rho"])
+    else:
+        assert b["rho"] == pytest.approx(s["rho"], rel=rel)
+
+
+def assert_close(x: np.ndarray, ref: np.ndarray, rel: float) -> None:
+    """``|x(t) - ref(t)| <= rel * max(1, the largest |ref| up to t)`` at every tick: the scale
+    of the run so far (a dead-beat state near zero carries the round-off of the larger
+    values it came from; the per-point engine's own round-off is of that size too)."""
+    err = np.linalg.norm(x - ref, axis=1)
+    scale = np.maximum(1.0, np.maximum.accumulate(np.linalg.norm(ref, axis=1)))
+    assert np.all(err <= rel * scale), float(np.max(err / scale))
+
+
+def per_point(sc, p: dict, stop: float):
+    loop = sc.make(p)
+    res = run_loop(loop, stop, engine="inprocess")
+    n = sum(1 for port in loop.recorded if port.instance == "plant")
+    return res, sweep.metrics_of(res.times, res.data[:, :n], p["N"], res.success), n
+
+
+# -- LTI: trajectories and metrics ---------------------------------------------------------
+
+LTI_GRIDS = {
+    "example-3.6": [dict(k=k, r=r, mode=mode) for k in (0.5, 2.0, 3.0)
+                    for r in (0.0, 0.37, 0.98) for mode in ("compensated", "uncompensated")]
+    + [dict(r=0.3, r_true=0.45, tau_true=0.2, u0=0.4), dict(r=0.3, tau=1.6, T=0.8, N=40),
+       dict(r=1.7, tau=1.0, mode="uncompensated")],
+    "corollary-3.7": [dict(r=r, tau=tau, mode=mode) for r in (0.0, 0.5, 1.5)
+                      for tau in (0.0, 1.0) for mode in ("compensated", "uncompensated")]
+    + [dict(n=2, r=0.25), dict(n=4, x0="1,2,3,4", tau=2.0)],
+}
+
+
+def lti_ingredients(sc, ps):
+    """The batch ingredients of resolved points, as the sweep takes them from the loops."""
+    arr = sweep_batch._arrays([sweep_batch.lti_point(sc.make(p)) for p in ps], lti=True)
+    arr["mode"] = list(arr["mode"])
+    return arr
+
+
+@pytest.mark.parametrize("name", list(LTI_GRIDS))
+def test_lti_batch_equals_per_point(name):
+    """Per-point matrices, delays, periods and N (two groups) in one batch."""
+    sc = scenarios.get(name)
+    ps = [sc.resolve({k: str(v) for k, v in point.items()}) for point in LTI_GRIDS[name]]
+    by_n: dict[int, list[int]] = {}
+    for i, p in enumerate(ps):
+        by_n.setdefault(len(np.ravel(p["x0"])), []).append(i)
+    stop = 12.0
+    for idx in by_n.values():
+        res = batch.simulate_lti(**lti_ingredients(sc, [ps[i] for i in idx]), stop=stop,
+                                 record=True)
+        for j, i in enumerate(idx):
+            ref, metrics, n = per_point(sc, ps[i], stop)
+            assert_close(res.states[j, :len(ref.data)], ref.data[:, :n], LTI_REL)
+            assert_close(res.inputs[j, :len(ref.data)], ref.data[:, n:], LTI_REL)
+            assert_same(res.rows()[j], metrics, LTI_REL)
+
+
+def test_scalar_lti_trajectory_is_bit_equal():
+    """n = m = 1: the same operations in the same order as the plant slave."""
+    sc = scenarios.get("example-3.6")
+    ps = [sc.resolve({"k": "2.5", "r": "0.41", "mode": "uncompensated"})]
+    res = batch.simulate_lti(**lti_ingredients(sc, ps), stop=20.0, record=True)
+    ref, _, _ = per_point(sc, ps[0], 20.0)
+    assert np.array_equal(res.states[0, :, 0], ref.data[:, 0])
+
+
+# -- model loops -----------------------------------------------------------------------------
+
+MODEL_GRIDS = {
+    "example-2.4": (8.0, [{}, dict(r=0.1, tau=0.2), dict(x0="2,-1,1", r=0.55, tau=0.35),
+                          dict(T=0.4, r=0.2, tau=0.6)]),
+    "example-3.8": (8.0, [{}, dict(r=1.5, tau=1.0), dict(x0="2,1", r=0.25),
+                          dict(T=0.5, r=0.75)]),
+    "proposition-4.2": (8.0, [{}, dict(r=0.3), dict(x0="-2,1,3", r=1.25, tau=2.0),
+                              dict(T=0.5, r=0.1, tau=0.5)]),
+    "corollary-4.1": (6.0, [{}, dict(r=0.1, tau=0.2), dict(x0="0.5,-1,2", r=0.35)]),
+}
+
+
+@pytest.mark.parametrize("name", list(MODEL_GRIDS))
+def test_model_batch_equals_per_point(name):
+    stop, grid = MODEL_GRIDS[name]
+    sc = scenarios.get(name)
+    ps = [sc.resolve({k: str(v) for k, v in point.items()}) for point in grid]
+    model = load_model(sc.make(ps[0]).by_role("plant").source.model)
+    assert batch.batchable(model) is None
+    params = model.params(**{k: ps[0][k] for k in ("law", "p") if k in ps[0]})
+    res = batch.simulate_model(
+        model, params, np.array([p["T"] for p in ps]), ps[0]["N"],
+        np.array([p["r"] for p in ps]), np.array([p["tau"] for p in ps]),
+        np.array([p["x0"] for p in ps]), np.array([p["u0"] for p in ps]), stop,
+        record=True)
+    for j, p in enumerate(ps):
+        ref, metrics, n = per_point(sc, p, stop)
+        assert_close(res.states[j, :len(ref.data)], ref.data[:, :n], MODEL_REL)
+        assert_close(res.inputs[j, :len(ref.data)], ref.data[:, n:], MODEL_REL)
+        assert_same(res.rows()[j], metrics, MODEL_REL)
+
+
+def test_padding_and_both_laws_of_proposition_4_2():
+    """Remark 3.3(b) padding (tau not a multiple of T) and the printed law, as sweeps."""
+    for sets in (["pad=1"], ["law=printed"]):
+        axes = [sweep.parse_grid("tau=0.3:0.9:3" if sets == ["pad=1"] else "r=0.2:0.6:3")]
+        b = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="batch")
+        s = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="inprocess")
+        for x, y in zip(b, s):
+            assert_same(x, y, MODEL_REL)
+
+
+# -- failures --------------------------------------------------------------------------------
+
+def test_failures_end_the_record_as_the_per_point_engine_does():
+    """A control that overflows (refused: tick not recorded) and a plant state that does
+    (the run ends after the last finite tick): rho = inf and the same recorded norms."""
+    axes = [sweep.parse_grid("k=1e150:1e300:2")]
+    b = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
+                        engine="batch")
+    with np.errstate(over="ignore"):  # the per-point metric squares states of 1e200
+        s = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
+                            engine="inprocess")
+    assert all(math.isinf(row["rho"]) for row in s)
+    for x, y in zip(b, s):
+        assert x == y
+
+
+def test_finite_time_escape_of_the_printed_law():
+    """Example 2.4 with the printed (2.18) escapes in finite time (errata item 1)."""
+    axes = [sweep.parse_grid("r=0:0.2:2")]
+    sets = ["law=printed", "x0=-1.295,2.307,-4.261", "tau=0"]
+    b = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="batch")
+    s = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="inprocess")
+    assert any(math.isinf(row["rho"]) for row in s)
+    for x, y in zip(b, s):
+        assert_same(x, y, MODEL_REL)
+
+
+# -- the sweep: every scenario, chunking, processes, Dask, fallback ---------------------
+
+SWEEPS = {
+    "example-3.6": (["mode=uncompensated"], ["k=0.5:3:4", "r=0:0.9:4"], 10.0),
+    "corollary-3.7": (["mode=compensated"], ["r=0:1:3", "tau=0:1:2"], 8.0),
+    "example-2.4": ([], ["r=0:0.4:3"], 6.0),
+    "example-3.8": (["p=sin"], ["r=0:1:3"], 6.0),
+    "proposition-4.2": ([], ["r=0:1:3"], 6.0),
+    "corollary-4.1": ([], ["tau=0:0.4:3"], 5.0),
+}
+
+
+@pytest.mark.parametrize("name", list(SWEEPS))
+def test_sweep_batch_equals_inprocess(name):
+    sets, grids, stop = SWEEPS[name]
+    axes = [sweep.parse_grid(g) for g in grids]
+    notes: list[str] = []
+    b = sweep.run_sweep(name, axes, sets, stop=stop, engine="batch", notes=notes)
+    s = sweep.run_sweep(name, axes, sets, stop=stop, engine="inprocess")
+    assert any(f"{len(b)} of {len(b)} points" in note for note in notes), notes
+    rel = LTI_REL if scenarios.get(name).lti is not None else MODEL_REL
+    for x, y in zip(b, s):
+        assert {k: x[k] for k in x if k in y and k not in sweep.METRICS} == \
+            {k: y[k] for k in y if k not in sweep.METRICS}
+        assert_same(x, y, rel)
+
+
+def test_chunks_processes_and_dask_give_the_same_rows():
+    from distributed import LocalCluster
+
+    axes = [sweep.parse_grid("k=0.5:3:3"), sweep.parse_grid("r=0:0.9:4")]
+    args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=6.0,
+                engine="batch")
+    whole = sweep.run_sweep(**args)
+    chunked = sweep.run_sweep(**args, chunk=5)
+    procs = sweep.run_sweep(**args, chunk=4, workers=2)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        dask_rows = sweep.run_sweep(**args, chunk=3, scheduler=cluster.scheduler_address)
+    assert whole == chunked == procs == dask_rows
+
+
+def test_numerical_predictor_falls_back_and_says_so():
+    axes = [sweep.parse_grid("r=0.1:0.3:2")]
+    notes: list[str] = []
+    rows = sweep.run_sweep("example-3.8", axes, ["predictor=numerical"], stop=4.0,
+                           engine="batch", notes=notes)
+    assert any("per-point engine (inprocess): 2 points" in n and "predictor=numerical" in n
+               for n in notes), notes
+    assert rows == sweep.run_sweep("example-3.8", axes, ["predictor=numerical"], stop=4.0,
+                                   engine="inprocess")
+
+
+def test_a_model_without_batch_is_not_batchable(tmp_path):
+    src = path("example_3_8").read_text(encoding="utf-8").replace("BATCH = True", "")
+    f = tmp_path / "plain.py"
+    f.write_text(src, encoding="utf-8")
+    assert "does not declare BATCH = True" in batch.batchable(load_model(f))
+    with pytest.raises(batch.BatchError, match="BATCH"):
+        batch.simulate_model(load_model(f), {}, 1.0, 10, 0.5, 0.0, [1.0, 0.0], [0.0], 2.0)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(r=0.305), "r = 0.305"),
+    (dict(tau=0.5), "tau = 0.5 is not a multiple of T"),
+    (dict(mode="sideways"), "mode = 'sideways'"),
+    (dict(T=-1.0), "T is not allowed"),
+])
+def test_bad_ingredients_are_refused_in_one_line(kwargs, match):
+    args = dict(A=[[1.0]], B=[[1.0]], K=[[-2.0]], T=1.0, N=100, r=0.3, tau=0.0, x0=[1.0],
+                u0=[0.0], mode="compensated", stop=2.0)
+    args.update(kwargs)
+    with pytest.raises(batch.BatchError, match=match) as info:
+        batch.simulate_lti(**args)
+    assert "\n" not in str(info.value)
+
+
+def test_zero_matches_the_sweep():
+    assert batch.ZERO == sweep.ZERO
+
+
+def cli(*args):
+    from delaycomp.child import module_argv
+
+    return subprocess.run([*module_argv("delaycomp.cli"), *args], capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_cli_sweep_defaults_to_batch_and_says_so(tmp_path):
+    out = tmp_path / "map.csv"
+    proc = cli("sweep", "example-3.6", "--grid", "k=1:3:3", "--grid", "r=0:0.5:3",
+               "--stop-time", "5", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "batch engine (numpy, cpu): 9 of 9 points in 1 chunk" in proc.stdout
+    assert out.read_text().splitlines()[0] == "k,r,rho,stable,final_norm,peak_norm," \
+                                              "deadbeat_time"
+
+
+def test_cli_array_backend_without_its_library_is_a_usage_error(tmp_path):
+    try:
+        batch.get_backend("cupy")
+    except batch.BatchError:
+        usable = False
+    else:  # a machine with CuPy and a GPU: the sweep runs there
+        usable = True
+    proc = cli("sweep", "example-3.6", "--grid", "k=1:3:3", "--array-backend", "cupy",
+               "--stop-time", "5", "--out", str(tmp_path / "x.csv"))
+    if usable:
+        assert proc.returncode == 0, proc.stderr
+        return
+    assert proc.returncode == 2
+    assert "--array-backend" in proc.stderr and "cupy" in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+
+
+# -- the exact critical delays over a map ------------------------------------------------
+
+def test_critical_curve_is_the_lifted_models_critical_delay():
+    """k = 2, T = 1: r_c = 0.203267055 (README, critical-delay --grid; (3.20)); k = 2.5 is
+    unstable at r = 0 (2.5 > 1 + 2/(e - 1)) and a band of delays stabilizes it: two
+    crossings around the band the simulated map shows."""
+    from delaycomp.critical import critical_curve
+
+    sc = scenarios.get("example-3.6")
+    r_axis = np.linspace(0, 0.98, 50)
+    rows = critical_curve(sc, ["mode=uncompensated"], ["k", "r"], [[2.0, 2.5], r_axis])
+    at2 = rows[rows[:, 0] == 2.0][:, 1]
+    assert at2.tolist() == pytest.approx([0.203267055], abs=1e-8)
+    at25 = rows[rows[:, 0] == 2.5][:, 1]
+    assert len(at25) == 2 and 0 < at25[0] < at25[1] < 0.2
+    b = sweep.run_sweep("example-3.6", [sweep.parse_grid("r=0:0.2:21")],
+                        ["k=2.5", "mode=uncompensated"], engine="batch")
+    inside = [row["stable"] for row in b if at25[0] + 0.01 < row["r"] < at25[1] - 0.01]
+    outside = [row["stable"] for row in b if row["r"] < at25[0] - 0.01
+               or row["r"] > at25[1] + 0.01]
+    assert inside and all(inside) and outside and not any(outside)
+    assert critical_curve(sc, ["mode=compensated"], ["k", "r"], [[2.0], r_axis]) is None
+    assert critical_curve(sc, ["mode=uncompensated"], ["k", "T"], [[2.0], [1.0]]) is None
+
+
+def test_map_plot_carries_the_critical_delays(tmp_path):
+    png = tmp_path / "map.png"
+    proc = cli("sweep", "example-3.6", "--grid", "k=1.5:2.5:5", "--grid", "r=0:0.5:6",
+               "--set", "mode=uncompensated", "--stop-time", "10",
+               "--out", str(tmp_path / "m.csv"), "--plot", str(png))
+    assert proc.returncode == 0, proc.stderr
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_loop_file_sweeps_on_the_batch_engine():
+    """A loop file (the shipped example-3.6.toml) runs batched, as its scenario does."""
+    from delaycomp.scenarios import loop_file
+
+    axes = [sweep.parse_grid("r=0:0.9:4")]
+    notes: list[str] = []
+    b = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0, engine="batch",
+                        notes=notes)
+    s = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0,
+                        engine="inprocess")
+    assert any("4 of 4 points" in n for n in notes), notes
+    for x, y in zip(b, s):
+        assert_same(x, y, LTI_REL)
