@@ -40,6 +40,7 @@ List the scenarios and their parameters::
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -143,6 +144,15 @@ def _parser() -> argparse.ArgumentParser:
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
                         "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`; "
                         "omsimulator runs either, see README: Run in OpenModelica)")
+    r.add_argument("--period", type=float, default=None, metavar="T",
+                   help="FILE.ssp of another tool (no delaycomp annotations): the sampling "
+                        "period T [s]")
+    r.add_argument("--steps", type=int, default=None, metavar="N",
+                   help="FILE.ssp of another tool: base steps per period (h = T/N)")
+    r.add_argument("--role", action="append", default=[], metavar="NAME=ROLE",
+                   help="FILE.ssp of another tool: the role of component NAME (plant, "
+                        "meas_delay, controller, input_delay); repeatable; roles not named "
+                        "follow from the connections, walking the loop from the plant")
 
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
@@ -348,6 +358,8 @@ def _cmd_run(args) -> int:
         if args.native:
             raise UsageError("--native is not allowed with a FILE.ssp: the archive's FMUs run")
         return _run_ssp(args)
+    if args.period is not None or args.steps is not None or args.role:
+        raise UsageError("--period, --steps and --role apply to a FILE.ssp of another tool")
     if args.master != "delaycomp":
         raise UsageError("--master runs a FILE.ssp (pack one with `delaycomp ssp --jacobi`)")
     source, sets = _source(args)
@@ -443,6 +455,34 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
     return _report_run(args, result, elapsed, name, title, where, timing, units, runs)
 
 
+def _foreign(args):
+    """The :class:`delaycomp.ssp.Foreign` settings of ``--period``, ``--steps``, ``--role``
+    (None when none is given)."""
+    from .ssp import Foreign
+
+    if args.period is None and args.steps is None and not args.role:
+        return None
+    if (args.period is None) != (args.steps is None):
+        raise UsageError("--period and --steps go together (the master settings of an SSP "
+                         "of another tool)")
+    if args.period is not None and not (math.isfinite(args.period) and args.period > 0):
+        raise UsageError(f"--period {args.period!r} is not allowed: must be a finite "
+                         "number > 0")
+    if args.steps is not None and args.steps < 1:
+        raise UsageError(f"--steps {args.steps!r} is not allowed: must be a positive integer")
+    if args.master != "delaycomp":
+        raise UsageError("--period, --steps and --role run an SSP of another tool in our "
+                         "master only (for libcosim and Ecos, pack a loop with `delaycomp "
+                         "ssp --jacobi`)")
+    roles = {}
+    for item in args.role:
+        name, sep, role = item.partition("=")
+        if not sep or not name:
+            raise UsageError(f"--role {item!r}: expected NAME=ROLE")
+        roles[name.strip()] = role.strip()
+    return Foreign(args.period, args.steps, roles)
+
+
 def _run_ssp(args) -> int:
     from .plotting import Timing, title_of_loop
     from .ssp import Archive, apply_sets
@@ -453,7 +493,7 @@ def _run_ssp(args) -> int:
     if args.compare:
         raise UsageError("--compare runs a scenario by name (set controller.mode for a "
                          "FILE.ssp)")
-    with Archive(Path(args.scenario)) as archive:
+    with Archive(Path(args.scenario), _foreign(args)) as archive:
         system = archive.system
         spec = apply_sets(system.spec, args.set, archive.fmus())
         stop = system.info.stop_time if args.stop_time is None else args.stop_time

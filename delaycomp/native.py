@@ -155,7 +155,8 @@ def _config_h(kind: str, config: dict, root: Element, guid: str) -> str:
     blocks = {"delay": {"VR_DELAY": "delay", "VR_U0": "u0[1]"},
               "plant": {"VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_X0": "x0[1]"},
               "controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_MODE": "mode",
-                             "VR_MODE_INDEX": "mode_index", "VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_K": "K[1,1]",
+                             "VR_MODE_INDEX": "mode_index", "VR_A": "A[1,1]",
+                             "VR_B": "B[1,1]", "VR_K": "K[1,1]",
                              "VR_U0": "u0[1]", "VR_HELD_SAMPLE": "held_sample"}}[kind]
     for macro, name in blocks.items():
         lines.append(f"#define {macro} {vr(name)}")

@@ -275,7 +275,13 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
         components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
     connections = [Connection(c.src.instance, c.src.variable, c.dst.instance, c.dst.variable)
                    for c in loop.connections]
-    master = Master(components, connections, loop.T, loop.N, t0)
+    try:
+        master = Master(components, connections, loop.T, loop.N, t0)
+    except ValueError as exc:  # an algebraic loop, named by its members: a loop to fix
+        for c in components:
+            if hasattr(c, "terminate") and getattr(c, "fmu", None) is not None:
+                c.terminate()
+        raise ParameterError(f"loop {loop.name}: {exc}") from None
     recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every,
                         sink, keep, final)
     master.add_observer(recorder)

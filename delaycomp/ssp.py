@@ -46,7 +46,8 @@ import re
 import shutil
 import tempfile
 import zipfile
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from lxml import etree
@@ -452,8 +453,68 @@ def _inside(ssd_path: Path, source: str, where: str) -> str:
     return source
 
 
-def read_system(ssd_path: str | Path) -> System:
-    """Read an SSD written by :func:`write_system` (and its SSVs) back into a loop."""
+@dataclass(frozen=True)
+class Foreign:
+    """Master settings and roles for an SSP written by another tool (no delaycomp
+    annotations): the sampling period ``T``, base steps per period ``N`` and the roles of
+    components by name (``--role NAME=ROLE``). A role not given is taken from the
+    component's name when that is a role name, else found from the connections: walking
+    the loop from the plant, four components are plant, measurement delay, controller and
+    input delay, two are plant and controller."""
+
+    T: float | None = None
+    N: int | None = None
+    roles: Mapping[str, str] = field(default_factory=dict)
+
+
+def _infer_roles(where: str, names: list[str], roles: dict[str, str | None],
+                 connections: list[Connection]) -> dict[str, str]:
+    """Fill unknown roles by walking the component cycle from the plant (see Foreign)."""
+    unknown = [n for n in names if roles[n] is None]
+    if not unknown:
+        return dict(roles)  # type: ignore[arg-type]
+    how = (f"name its role with --role {unknown[0]}=ROLE ({', '.join(ROLES)})")
+    plant = next((n for n, r in roles.items() if r == "plant"), None)
+    if plant is None:
+        raise SspError(f"{where}: component {unknown[0]} has no role and no component is "
+                       f"known as the plant: {how}")
+    succ: dict[str, set[str]] = {n: set() for n in names}
+    for c in connections:
+        if c.src.instance != c.dst.instance:
+            succ[c.src.instance].add(c.dst.instance)
+    cycle, node = [plant], plant
+    while True:
+        nxt = succ[node]
+        if len(nxt) != 1:
+            raise SspError(f"{where}: the roles cannot be found from the connections "
+                           f"({node} feeds {len(nxt)} components, a loop feeds one): {how}")
+        node = next(iter(nxt))
+        if node == plant:
+            break
+        if node in cycle:
+            raise SspError(f"{where}: the connections from {plant} do not come back to it: "
+                           f"{how}")
+        cycle.append(node)
+    order = {4: ROLES, 2: ("plant", "controller")}.get(len(cycle))
+    if order is None or len(cycle) != len(names):
+        raise SspError(f"{where}: a loop of {len(cycle)} of {len(names)} components: the "
+                       f"roles follow from the connections for 4 (plant, meas_delay, "
+                       f"controller, input_delay) or 2 (plant, controller): {how}")
+    found = dict(zip(cycle, order))
+    for n in names:
+        if roles[n] is not None and roles[n] != found[n]:
+            raise SspError(f"{where}: component {n} is named {roles[n]}, but the "
+                           f"connections make it the {found[n]}")
+    return found
+
+
+def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
+    """Read an SSD written by :func:`write_system` (and its SSVs) back into a loop.
+
+    With ``foreign`` an SSD without delaycomp's annotations is read too (an SSP 1.0 of
+    another tool): its master settings and roles come from ``foreign`` (:class:`Foreign`),
+    its components are FMU files as they are, and the recorded signals are the plant's and
+    the controller's connected outputs."""
     ssd_path = Path(ssd_path)
     root = _parse_xml(ssd_path)
     where = ssd_path.name
@@ -464,10 +525,18 @@ def read_system(ssd_path: str | Path) -> System:
         raise SspError(f"{where}: no ssd:System")
     master = root.find(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation"
                        f"[@type='{DC_ANNOTATION}']/dc:Master", NSMAP)
-    if master is None:
+    if master is None and (foreign is None or foreign.T is None or foreign.N is None):
         raise SspError(f"{where}: no {DC_ANNOTATION} annotation with dc:Master: not a "
-                       "delaycomp system")
-    described = {c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
+                       "delaycomp system (to run an SSP of another tool give the master "
+                       "settings: --period T --steps N)")
+    given_roles = dict(foreign.roles) if foreign is not None else {}
+    for cname, role in given_roles.items():
+        if role not in ROLES:
+            raise SspError(f"--role {cname}={role}: role {role!r} is not allowed: allowed "
+                           f"are {', '.join(ROLES)}")
+    described = ({c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
+                 if master is not None else {})
+    roles: dict[str, str | None] = {}
     instances, sources, set_names = [], {}, set()
     for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
         name = _attr(comp, "name", where)
@@ -477,19 +546,26 @@ def read_system(ssd_path: str | Path) -> System:
         if fmu is None:  # an archive of an earlier layout: the description in the component
             fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
                             NSMAP)
-        if fmu is None:
+        if fmu is None and foreign is None:
             raise SspError(f"{where}: component {name} has no dc:Component (nor dc:Fmu) "
                            "annotation")
-        try:
-            choices = {k: tuple(v) for k, v in json.loads(fmu.get("choices", "{}")).items()}
-        except (json.JSONDecodeError, AttributeError, TypeError):
-            raise SspError(f"{where}: component {name}: choices is not a JSON object of "
-                           "lists") from None
-        role = fmu.get("role") or name  # archives before roles named instances by role
-        if role not in ROLES:
-            raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
-                           f"{', '.join(ROLES)}")
-        kind = fmu.get("kind")
+        choices: dict = {}
+        if fmu is None:
+            role = given_roles.get(name) or (name if name in ROLES else None)
+        else:
+            try:
+                choices = {k: tuple(v)
+                           for k, v in json.loads(fmu.get("choices", "{}")).items()}
+            except (json.JSONDecodeError, AttributeError, TypeError):
+                raise SspError(f"{where}: component {name}: choices is not a JSON object of "
+                               "lists") from None
+            # archives before roles named instances by role
+            role = given_roles.get(name) or fmu.get("role") or name
+            if role not in ROLES:
+                raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
+                               f"{', '.join(ROLES)}")
+        roles[name] = role
+        kind = fmu.get("kind") if fmu is not None else None
         if kind is None:
             source = FmuFile(ssd_path.parent / sources[name])
         else:
@@ -508,16 +584,32 @@ def read_system(ssd_path: str | Path) -> System:
             set_names.add(set_name)
             params.update(values)
         params = native_parameters(params, choices, f"{where}: component {name}")
-        instances.append(Instance(name, role, source, params))
+        instances.append((name, source, params))
+    for name in given_roles:
+        if name not in roles:
+            raise SspError(f"--role {name}=...: {where} has no component {name!r}: its "
+                           f"components are {', '.join(roles)}")
     connections = []
     for c in system.iterfind("ssd:Connections/ssd:Connection", NSMAP):
         ends = [_attr(c, a, f"{where}: connection") for a in
                 ("startElement", "startConnector", "endElement", "endConnector")]
         connections.append(Connection(Port(ends[0], ends[1]), Port(ends[2], ends[3])))
-    recorded = [Port(_attr(r, "element", where), _attr(r, "connector", where))
-                for r in master.iterfind("dc:Record", NSMAP)]
+    found = _infer_roles(where, list(roles), roles, connections)
+    instances = [Instance(name, found[name], source, params)
+                 for name, source, params in instances]
+    if master is not None:
+        recorded = [Port(_attr(r, "element", where), _attr(r, "connector", where))
+                    for r in master.iterfind("dc:Record", NSMAP)]
+    else:
+        by_role = {role: name for name, role in found.items()}
+        recorded = list(dict.fromkeys(
+            c.src for role in ("plant", "controller") for c in connections
+            if c.src.instance == by_role.get(role)))
     try:
-        T, N = float(_attr(master, "T", where)), int(_attr(master, "N", where))
+        if foreign is not None and foreign.T is not None and foreign.N is not None:
+            T, N = float(foreign.T), foreign.N
+        else:
+            T, N = float(_attr(master, "T", where)), int(_attr(master, "N", where))
     except ValueError:
         raise SspError(f"{where}: dc:Master T and N must be numbers") from None
     if not (math.isfinite(T) and T > 0):
@@ -535,9 +627,14 @@ def read_system(ssd_path: str | Path) -> System:
     if stop_time is not None and not (math.isfinite(stop_time) and stop_time >= 0):
         raise SspError(f"{where}: stopTime = {stop!r} is not allowed: must be a finite "
                        "number >= 0")
-    info = SystemInfo(master.get("name", root.get("name", "")), system.get("description", ""),
-                      stop_time,
-                      master.get("parameterSet", next(iter(set_names), DEFAULT_SET)))
+    set_name = next(iter(set_names), DEFAULT_SET)
+    if master is not None:
+        info = SystemInfo(master.get("name", root.get("name", "")),
+                          system.get("description", ""), stop_time,
+                          master.get("parameterSet", set_name))
+    else:
+        info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
+                          set_name)
     try:
         loop = Loop(instances, connections, Timing(T, N), recorded, info.name,
                     info.description)
@@ -570,8 +667,9 @@ def _check_member_fmu(path: Path, where: str) -> None:
 class Archive:
     """An ``.ssp`` archive unpacked into a temporary folder (a context manager)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, foreign: Foreign | None = None):
         self.path = Path(path)
+        self.foreign = foreign
         self._tmp: tempfile.TemporaryDirectory | None = None
         self.folder: Path | None = None
         self.system: System | None = None
@@ -604,7 +702,7 @@ class Archive:
             self.close()
             raise SspError(f"{self.path.name}: no {SSD_NAME} in the archive")
         try:
-            self.system = read_system(self.folder / SSD_NAME)
+            self.system = read_system(self.folder / SSD_NAME, self.foreign)
             for inst, source in self.system.sources.items():
                 if not (self.folder / source).is_file():
                     raise SspError(f"{self.path.name}: component {inst}: {source} is missing")

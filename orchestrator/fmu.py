@@ -79,9 +79,10 @@ class FmuRefused(RuntimeError):
 class FmuComponent(ComponentBase):
     """One instance of a co-simulation FMU.
 
-    Outputs that the modelDescription declares with an empty ``dependencies`` list have no
-    direct feedthrough; every other output (declared dependencies, or none declared) is
-    treated as depending on the inputs at the same instant.
+    Outputs whose declared ``dependencies`` name no input (an empty list, or only states,
+    as Model Exchange FMUs declare a state output) have no direct feedthrough; every other
+    output (an input among its dependencies, or none declared) is treated as depending on
+    the inputs at the same instant.
     """
 
     def __init__(self, name: str, path: str | Path):
@@ -95,7 +96,7 @@ class FmuComponent(ComponentBase):
         self.output_names = [v.name for v in self.md.modelVariables if v.causality == "output"]
         self.feedthrough_outputs = frozenset(
             u.variable.name for u in self.md.outputs
-            if u.dependencies is None or len(u.dependencies) > 0
+            if u.dependencies is None or any(d.causality == "input" for d in u.dependencies)
         )
         self.messages: list[str] = []
         self.last_message: str | None = None

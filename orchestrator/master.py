@@ -145,6 +145,29 @@ def _gather(slots: Sequence[int]):
     return itemgetter(*slots)
 
 
+def _find_cycle(names: set[str], connections: Sequence[Connection]) -> list[str]:
+    """One cycle among ``names`` (each has a predecessor among them), as
+    ``[a, b, ..., a]`` in signal order; the components left over by a topological sort
+    always contain one."""
+    succ = {n: sorted({c.dst for c in connections if c.src == n and c.dst in names})
+            for n in names}
+    pred = {n: sorted({c.src for c in connections if c.dst == n and c.src in names})
+            for n in names}
+    # walk backwards along predecessors until a component repeats: that closes a cycle
+    path: list[str] = []
+    seen: dict[str, int] = {}
+    node = min(names)
+    while node not in seen:
+        seen[node] = len(path)
+        path.append(node)
+        node = pred[node][0]
+    cycle = path[seen[node]:][::-1]  # backwards walk reversed: signal order
+    first = cycle.index(min(cycle))
+    cycle = cycle[first:] + cycle[:first]  # starting from its first name, for stable text
+    assert all(b in succ[a] for a, b in zip(cycle, cycle[1:] + cycle[:1]))
+    return [*cycle, cycle[0]]
+
+
 class Master:
     """Fixed-step master over integer ticks of ``h = T / N``.
 
@@ -237,9 +260,10 @@ class Master:
                     if not preds[m] and m not in order and m not in ready:
                         ready.append(m)
         if len(order) != len(feed):
-            loop = sorted(feed - set(order))
-            raise ValueError(f"algebraic loop through {', '.join(loop)}: every component "
-                             "in it has direct feedthrough")
+            cycle = _find_cycle(feed - set(order), self.connections)
+            raise ValueError(f"algebraic loop {' -> '.join(cycle)}: every component in it "
+                             "has direct feedthrough (a delay of at least one base step, "
+                             "built without feedthrough, would break it)")
 
         plan = _Plan()
         for name, c in comps.items():

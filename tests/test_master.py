@@ -88,6 +88,48 @@ def test_algebraic_loop_is_refused():
         Master([gain("a", 1.0), gain("b", 1.0)], loop("a", "b"), T=1.0, N=1)
 
 
+def test_algebraic_loop_names_its_members_only():
+    """a -> b -> c -> a is a cycle; d hangs off it (feedthrough too, but not in the cycle)
+    and the plant feeds nothing into it: the message names exactly the cycle, in order."""
+    comps = [integrator(), gain("a", 1.0), gain("b", 1.0), gain("c", 1.0), gain("d", 1.0)]
+    cons = [*loop("a", "b", "c"), Connection.parse("c.out -> d.in"),
+            Connection.parse("d.out -> plant.in")]
+    with pytest.raises(ValueError, match=r"algebraic loop a -> b -> c -> a: ") as err:
+        Master(comps, cons, T=1.0, N=1)
+    assert "d" not in str(err.value).split(":")[0].split()
+
+
+def test_a_delay_without_feedthrough_breaks_the_cycle():
+    """A plant with direct feedthrough (y = x + u) in a loop with a gain: refused; with a
+    one-step delay (no feedthrough) in between it runs, and the trajectory is the delayed
+    recursion x_{k+1} = x_k + h u_k, u_k = g (x_{k-1} + u_{k-1}), computed here by hand."""
+    def ft_plant():
+        return Mock("plant", True, lambda m: m.state + m.u,
+                    lambda m, h: setattr(m, "state", m.state + h * m.u))
+
+    with pytest.raises(ValueError, match="algebraic loop"):
+        Master([ft_plant(), gain("g", -1.0)], loop("plant", "g"), T=1.0, N=1)
+
+    def delay():  # y_k = u_{k-1}, y_0 = 0
+        m = Mock("delay", False, lambda m: m.state)
+        m._step = lambda m, h: setattr(m, "state", m.u)
+        return m
+
+    master = Master([ft_plant(), delay(), gain("g", -0.5)], loop("plant", "delay", "g"),
+                    T=1.0, N=10)
+    rec = Recorder(master, [("plant", "out")])
+    master.add_observer(rec)
+    master.setup(1.0, {"plant": {"x0": 1.0}})
+    master.initialize()
+    master.run_until(10)
+    x, d = 1.0, 0.0  # plant state, delay output
+    for k in range(len(rec.times)):
+        u = -0.5 * d
+        y = x + u
+        assert rec.rows[k][0] == pytest.approx(y, rel=1e-15)
+        x, d = x + 0.1 * u, y
+
+
 @pytest.mark.parametrize("text,match", [
     ("plant.out -> nobody.in", "no component"),
     ("plant.nope -> g.in", "no output"),

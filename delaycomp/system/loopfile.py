@@ -54,7 +54,8 @@ from ..lti import MODES
 from .loop import Loop, lti_loop, model_loop
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
-PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu")
+PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu", "states",
+              "inputs", "parameters")
 CONTROLLER_KEYS = ("mode", "K", "u0", "predictor", "pad", "tolerance", "allow_unstable")
 SECTIONS = ("plant", "controller")
 #: tables that describe something besides the loop (``[reference]``: for ``check``)
@@ -72,7 +73,8 @@ class SignError(ParameterError):
 
 def parse_value(text: str) -> Any:
     """A ``--set`` value: an ASCII decimal number, ``a,b,c`` (a list), ``a,b;c,d`` (rows),
-    a TOML array ``[[a, b], [c, d]]``, ``true``/``false``, or else the text itself.
+    a TOML array ``[[a, b], [c, d]]``, a TOML inline table ``{name = value}``,
+    ``true``/``false``, or else the text itself.
 
     Examples
     --------
@@ -86,6 +88,11 @@ def parse_value(text: str) -> Any:
         return float(text)
     if text in ("true", "false"):
         return text == "true"
+    if text.startswith("{"):  # a TOML inline table: plant.parameters={mass = 2.0}
+        try:
+            return tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"not a TOML inline table: {exc}") from None
     if text.startswith("["):
         if "_" in text:
             raise ValueError("plain decimal numbers only (no '_')")
@@ -304,8 +311,7 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
                              f"{' or '.join(MODES)}")
     common = dict(r_true=r_true, tau_true=tau_true, name=name, title=title, stop_time=stop)
     if "fmu" in plant:
-        raise ParameterError(f"{where}: plant.fmu (a third-party plant FMU) is not supported "
-                             "by this version: give A and B, or model")
+        return _fmu_plant(plant, ctrl, base, where, T, N, r, tau, mode, common)
     if ("A" in plant) == ("model" in plant):
         raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
                              "\"file.py\", not both")
@@ -378,6 +384,109 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
                                  "controller.pad = true to pad the input delay")
     return model_loop(model_path, T, r, tau, N, x0, u0, params=params, predictor=predictor,
                       tolerance=tol, pad=pad, **common)
+
+
+def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mode,
+               common: dict) -> Loop:
+    """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (:mod:`.plantfmu`)."""
+    from .plantfmu import fmu_plant_loop
+
+    _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "x0"))
+    for key in ("states", "inputs", "x0"):
+        if key not in plant:
+            raise ParameterError(f"{where}: plant.{key} is required with plant.fmu ("
+                                 + {"states": "the FMU outputs that form the measured state x",
+                                    "inputs": "the FMU inputs that receive u",
+                                    "x0": "the history of x on [-r, 0]"}[key] + ")")
+    if not isinstance(plant["fmu"], str):
+        raise ParameterError(f"plant.fmu = {plant['fmu']!r} is not allowed: must be a path")
+    fmu = Path(plant["fmu"])
+    fmu = fmu if fmu.is_absolute() else (base / fmu).resolve()
+    x0 = _array("plant.x0", plant["x0"], 1)
+    if ctrl.get("predictor") == "plant-fmu":
+        return _plant_fmu_predictor(plant, ctrl, fmu, where, T, N, r, tau, x0, common)
+    if ("A" in ctrl) == ("model" in ctrl):
+        raise ParameterError(f"{where}: with plant.fmu the predictor's model comes from "
+                             "[controller]: A and B (LTI, with K) or model = \"file.py\"")
+    if "A" in ctrl:
+        _check_keys(f"{where} [controller]", ctrl,
+                    ("A", "B", "K", "mode", "u0", "allow_unstable"))
+        if "B" not in ctrl or "K" not in ctrl:
+            raise ParameterError(f"{where}: an LTI predictor needs controller.A, "
+                                 "controller.B and controller.K")
+        A = _array("controller.A", ctrl["A"], 2)
+        B = _array("controller.B", ctrl["B"], 2)
+        K = _array("controller.K", ctrl["K"], 2)
+        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
+        if tau > 0:
+            from ..grid import split
+
+            if split(tau, T)[1] != 0.0:
+                raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
+                                     f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+        loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
+                              plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
+                              mode=mode, **common)
+        if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
+            check_sign(A, B, K, T)
+        return loop
+    model_path = Path(str(ctrl["model"]))
+    if not model_path.is_absolute():
+        model_path = (base / model_path).resolve()
+    from ..model import load_model
+
+    model = load_model(model_path)
+    settings = {"mode", "predictor", "pad", "tolerance"}
+    params = {}
+    for key, value in ctrl.items():
+        if key in ("model", "u0"):
+            continue
+        if key not in settings and key not in model.parameters:
+            allowed = ", ".join(["model", "u0", *sorted(settings), *model.parameters])
+            raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
+                                 f"{allowed}")
+        params[key] = value
+    if mode == "uncompensated":
+        params["predictor"] = "none"
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
+    return fmu_plant_loop(fmu, plant["states"], plant["inputs"], plant.get("parameters"),
+                          T, r, tau, N, x0, u0, model=model_path,
+                          controller_parameters=params, **common)
+
+
+def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r, tau,
+                         x0, common: dict) -> Loop:
+    """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
+    predictor's model (:mod:`.fmumodel`), with ``u = K x``."""
+    from .fmumodel import write_model
+    from .plantfmu import check_mapping, fmu_plant_loop, read_interface
+
+    _check_keys(f"{where} [controller]", ctrl, ("predictor", "K", "u0", "mode", "tolerance"))
+    if "K" not in ctrl:
+        raise ParameterError(f"{where}: controller.predictor = \"plant-fmu\" needs "
+                             "controller.K (u = K x)")
+    iface = read_interface(fmu)
+    if iface.model_exchange is None:
+        raise ParameterError(f"controller.predictor = \"plant-fmu\" is not allowed: "
+                             f"{fmu.name} has no Model Exchange interface (give A and B, or "
+                             "model)")
+    states, inputs, values = check_mapping(iface, plant["states"], plant["inputs"],
+                                           plant.get("parameters"))
+    K = _array("controller.K", ctrl["K"], 2)
+    model = write_model(fmu, states, inputs, iface.states, K, values)
+    mode = ctrl.get("mode", "compensated")
+    params: dict = {"predictor": "none" if mode == "uncompensated" else "numerical"}
+    if "tolerance" in ctrl:
+        params["tolerance"] = _real("controller.tolerance", ctrl["tolerance"], positive=True)
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
+    if tau > 0:
+        from ..grid import split
+
+        if split(tau, T)[1] != 0.0:
+            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
+                                 f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+    return fmu_plant_loop(fmu, states, inputs, values, T, r, tau, N, x0, u0, model=model,
+                          controller_parameters=params, **common)
 
 
 def _ident(where: str, value) -> str:

@@ -23,6 +23,9 @@ class DelaycompDelay(TableSlave):
         super().__init__(**kwargs)
         n = int(self.config["n"])
         self.n = n
+        #: structural: False builds the variant for delays of at least one communication
+        #: step, whose outputs declare no dependence on the inputs (no direct feedthrough)
+        self.feedthrough = bool(self.config.get("feedthrough", True))
         self.delay = 0.0
         self.u0 = [0.0] * n
         self.u = [0.0] * n
@@ -40,14 +43,20 @@ class DelaycompDelay(TableSlave):
             self.real_input(name, (lambda i=i: self.u[i]),
                             (lambda v, i=i: self.u.__setitem__(i, v)), "delayed signal, input")
         for i, (name, src) in enumerate(zip(self.output_names, self.input_names)):
-            # Declared dependent on its input: with delay = 0 the output is the input.
+            # The feedthrough variant declares the output dependent on its input (with
+            # delay = 0 the output is the input); the other one refuses delay = 0, so its
+            # output at t_k depends only on inputs of earlier grid points.
             self.real_output(name, (lambda i=i: self._output()[i]), "u(t - delay)",
-                             depends_on=(src,))
+                             depends_on=(src,) if self.feedthrough else ())
 
     def _setup(self):
         check_finite("delay", self.delay)
         if self.delay < 0:
             self.fail(f"delay = {self.delay!r} is not allowed: must be >= 0")
+        if not self.feedthrough and self.delay == 0:
+            self.fail("delay = 0.0 is not allowed: this delay FMU is built without direct "
+                      "feedthrough (feedthrough = false), so delay must be >= one "
+                      "communication step")
         for i, v in enumerate(self.u0):
             check_finite(f"u0[{i + 1}]", v)
         self.line = None
@@ -78,6 +87,10 @@ class DelaycompDelay(TableSlave):
                 D = steps_of(self.delay, step_size)
             except ValueError as exc:  # names the delay, its value and what is allowed
                 self.fail(str(exc))
+            if D == 0 and not self.feedthrough:
+                self.fail(f"delay = {self.delay!r} is not allowed: this delay FMU is built "
+                          "without direct feedthrough (feedthrough = false), so delay must be "
+                          f">= one communication step, {step_size!r}")
             self.line = DelayLine(self.n, D, self.u0)
             self._h = step_size
         elif is_roundoff_step(step_size, self._h):

@@ -1,0 +1,301 @@
+"""A user's plant FMU in the loop: what its modelDescription offers, and the loop around it.
+
+``[plant] fmu = "Plant.fmu"`` in a loop file (:mod:`.loopfile`) names any FMI 2.0
+co-simulation FMU (C, Python, any exporting tool). ``states`` name the plant outputs that
+form the measured state x (in order), ``inputs`` the plant inputs that receive u (in
+order), ``parameters`` values set before initialization. The predictor's model comes from
+``[controller]``: ``A`` and ``B`` (LTI, with ``K``) or ``model = "file.py"``.
+
+The modelDescription is read here with the standard library only (zip and XML): this layer
+knows nothing of FMI calls. Each problem is a one-line :class:`ParameterError` naming the
+key and the variable. The two delays are built without direct feedthrough whenever their
+delay is at least one base step, so a plant whose outputs depend on its inputs at the same
+instant (an ``acceleration`` output, say) is no algebraic loop.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.etree import ElementTree
+
+import numpy as np
+
+from ..errors import BadFileError, ParameterError
+from ..names import indexed
+from .loop import (
+    BuiltinFmu,
+    Connection,
+    FmuFile,
+    Instance,
+    Loop,
+    ModelFmu,
+    Port,
+    Timing,
+    _delays,
+    _mat,
+    _vec,
+)
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A scalar variable of a modelDescription."""
+
+    name: str
+    type: str  # Real, Integer, Boolean, String, Enumeration
+    causality: str
+    variability: str
+    start: str | None = None
+
+
+@dataclass(frozen=True)
+class FmuInterface:
+    """What a loop needs to know of an FMU file, read from its modelDescription."""
+
+    path: Path
+    model_name: str
+    fmi_version: str
+    co_simulation: str | None  # the CS modelIdentifier, None without CS
+    model_exchange: str | None  # the ME modelIdentifier, None without ME
+    variables: Mapping[str, Variable] = field(default_factory=dict)
+    #: the continuous states of Model Exchange, in order (names), and their derivatives
+    states: tuple[str, ...] = ()
+    derivatives: tuple[str, ...] = ()
+    platforms: tuple[str, ...] = ()
+
+    def of(self, causality: str, type_: str = "Real") -> list[str]:
+        return [v.name for v in self.variables.values()
+                if v.causality == causality and v.type == type_]
+
+
+def platform_folder() -> str:
+    """The FMI 2.0 binaries folder of this host (linux64, win64, darwin64)."""
+    bits = "64" if sys.maxsize > 2**32 else "32"
+    if sys.platform.startswith("win"):
+        return f"win{bits}"
+    if sys.platform == "darwin":
+        return f"darwin{bits}"
+    return f"linux{bits}"
+
+
+def read_interface(path: str | Path) -> FmuInterface:
+    """The :class:`FmuInterface` of the FMU file ``path``; a file that is not an FMI 2.0
+    FMU raises :class:`BadFileError` (one line)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadFileError(path, "no such FMU file")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+            if "modelDescription.xml" not in names:
+                raise BadFileError(path, "is not an FMU: it has no modelDescription.xml")
+            root = ElementTree.fromstring(zf.read("modelDescription.xml"))
+    except zipfile.BadZipFile:
+        raise BadFileError(path, "is not an FMU: not a zip archive") from None
+    except ElementTree.ParseError as exc:
+        raise BadFileError(path, f"has a modelDescription.xml that is not XML: {exc}"
+                           ) from None
+    version = root.get("fmiVersion", "")
+    if version != "2.0":
+        raise BadFileError(path, f"is an FMI {version or '?'} FMU: delaycomp's master takes "
+                                 "FMI 2.0")
+    cs, me = root.find("CoSimulation"), root.find("ModelExchange")
+    variables: dict[str, Variable] = {}
+    ordered: list[Variable] = []
+    for sv in root.iter("ScalarVariable"):
+        typed = next((c for c in sv if c.tag in ("Real", "Integer", "Boolean", "String",
+                                                 "Enumeration")), None)
+        var = Variable(sv.get("name", ""), typed.tag if typed is not None else "?",
+                       sv.get("causality", "local"), sv.get("variability", "continuous"),
+                       typed.get("start") if typed is not None else None)
+        variables[var.name] = var
+        ordered.append(var)
+    states, ders = [], []
+    structure = root.find("ModelStructure")
+    if structure is not None and structure.find("Derivatives") is not None:
+        for unknown in structure.find("Derivatives"):
+            der = ordered[int(unknown.get("index")) - 1]
+            ders.append(der.name)
+            real = next(sv for sv in root.iter("ScalarVariable")
+                        if sv.get("name") == der.name).find("Real")
+            states.append(ordered[int(real.get("derivative")) - 1].name)
+    platforms = tuple(sorted({n.split("/")[1] for n in names
+                              if n.startswith("binaries/") and n.count("/") >= 2
+                              and not n.endswith("/")}))
+    return FmuInterface(path, root.get("modelName", ""), version,
+                        cs.get("modelIdentifier") if cs is not None else None,
+                        me.get("modelIdentifier") if me is not None else None,
+                        variables, tuple(states), tuple(ders), platforms)
+
+
+def _names(where: str, value) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not (isinstance(value, (list, tuple)) and value
+            and all(isinstance(v, str) and v for v in value)):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be a list of "
+                             "variable names")
+    dup = next((v for v in value if list(value).count(v) > 1), None)
+    if dup is not None:
+        raise ParameterError(f"{where}: variable {dup!r} is named twice")
+    return list(value)
+
+
+def check_mapping(fmu: FmuInterface, states, inputs, parameters: Mapping | None,
+                  where: str = "plant") -> tuple[list[str], list[str], dict]:
+    """Check ``states``, ``inputs`` and ``parameters`` against the FMU; return them
+    (names as lists, parameter values as numbers, booleans or strings)."""
+    name = fmu.path.name
+    if fmu.co_simulation is None:
+        raise ParameterError(f"{where}.fmu = {name!r} is not allowed: it has no "
+                             "co-simulation interface (FMI 2.0 CS)")
+    here = platform_folder()
+    if here not in fmu.platforms:
+        have = ", ".join(fmu.platforms) or "none (sources only)"
+        raise ParameterError(f"{where}.fmu = {name!r} is not allowed: it has no binary for "
+                             f"{here} (binaries: {have})")
+    states = _names(f"{where}.states", states)
+    inputs = _names(f"{where}.inputs", inputs)
+    outs, ins = fmu.of("output"), fmu.of("input")
+    for s in states:
+        var = fmu.variables.get(s)
+        if var is None or var.causality != "output" or var.type != "Real":
+            what = "no variable" if var is None else f"a {var.type} {var.causality}"
+            raise ParameterError(f"{where}.states: {s!r} is {what} of {name}: must be a Real "
+                                 f"output ({', '.join(outs) or 'it has none'})")
+    for u in inputs:
+        var = fmu.variables.get(u)
+        if var is None or var.causality != "input" or var.type != "Real":
+            what = "no variable" if var is None else f"a {var.type} {var.causality}"
+            raise ParameterError(f"{where}.inputs: {u!r} is {what} of {name}: must be a Real "
+                                 f"input ({', '.join(ins) or 'it has none'})")
+    values = {}
+    if parameters is not None and not isinstance(parameters, Mapping):
+        raise ParameterError(f"{where}.parameters is not allowed: must be a table "
+                             "{name = value}")
+    settable = [v.name for v in fmu.variables.values() if v.causality == "parameter"
+                and v.variability in ("fixed", "tunable")]
+    for pname, value in (parameters or {}).items():
+        var = fmu.variables.get(pname)
+        if var is None or pname not in settable:
+            raise ParameterError(f"{where}.parameters: {pname!r} is not a settable parameter "
+                                 f"of {name}: allowed are {', '.join(settable) or 'none'}")
+        if var.type == "Real":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    math.isfinite(value)):
+                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
+                                     "allowed: must be a finite number (Real)")
+            value = float(value)
+        elif var.type in ("Integer", "Enumeration"):
+            if isinstance(value, bool) or not (isinstance(value, int) or (
+                    isinstance(value, float) and value.is_integer())):
+                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
+                                     "allowed: must be an integer")
+            value = int(value)
+        elif var.type == "Boolean":
+            if not isinstance(value, bool):
+                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
+                                     "allowed: must be true or false")
+        elif not isinstance(value, str):
+            raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not allowed: "
+                                 "must be a string")
+        values[pname] = value
+    return states, inputs, values
+
+
+def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
+    """The delay FMU for ``n`` channels: without direct feedthrough when the delay is at
+    least one base step (``delay`` is on the grid: checked before)."""
+    if delay >= h * (1 - 1e-9):
+        return BuiltinFmu("delay", {"feedthrough": False, "n": n})
+    return BuiltinFmu("delay", {"n": n})
+
+
+def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
+                   fmu_parameters: Mapping | None, T: float, r: float, tau: float, N: int, x0,
+                   u0=None,
+                   *, A=None, B=None, K=None, mode: str = "compensated", model=None,
+                   controller_parameters: Mapping | None = None,
+                   r_true: float | None = None, tau_true: float | None = None,
+                   name: str = "loop", title: str = "",
+                   stop_time: float | None = None) -> Loop:
+    """The loop plant FMU (as it is) -> measurement delay -> controller -> input delay.
+
+    The controller is delaycomp's LTI controller with the model ``A``, ``B`` and gain
+    ``K`` (``u = K x``, the paper's sign), or the controller FMU of the model file
+    ``model`` (with ``controller_parameters``: its parameters and settings, as
+    :func:`~delaycomp.system.model_loop` takes them). ``x0`` is the history of the measured
+    state on ``[-r, 0]`` (the measurement delay's initial output); the FMU's own initial
+    state is set by its parameters. Recorded: the states and the controller's outputs.
+    """
+    fmu = read_interface(fmu_path)
+    states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters)
+    n, m = len(states), len(inputs)
+    x0 = np.asarray(x0, dtype=float).ravel()
+    u0 = np.zeros(m) if u0 is None else np.asarray(u0, dtype=float).ravel()
+    if x0.shape != (n,):
+        raise ParameterError(f"parameter x0 has {x0.size} values: must have one per state "
+                             f"({', '.join(states)})")
+    if u0.shape != (m,):
+        raise ParameterError(f"parameter u0 has {u0.size} values: must have one per input "
+                             f"({', '.join(inputs)})")
+    timing = Timing(T, N)
+    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    if model is None:
+        A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
+        if A.shape != (n, n):
+            raise ParameterError(f"controller.A has shape {A.shape}: must be n x n = {n} x {n} "
+                                 f"(one row per state: {', '.join(states)})")
+        if B.shape != (n, m):
+            raise ParameterError(f"controller.B has shape {B.shape}: must be n x m = {n} x {m} "
+                                 f"(one column per input: {', '.join(inputs)})")
+        if K.shape != (m, n):
+            raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
+                                 "(u = K x)")
+        ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
+                        {"T": T, "r": r, "tau": tau, "mode": mode, **_mat("A", A),
+                         **_mat("B", B), **_mat("K", K), **_vec("u0", u0)})
+        ctrl_in, ctrl_out = indexed("y", n), indexed("u", m)
+        # no LtiDesign: the exact analyses (lifted loop, critical delay) would take A, B
+        # for the plant, and the plant here is the FMU
+    else:
+        from ..model import load_model
+
+        mdl = load_model(model)
+        if (mdl.n, mdl.m) != (n, m):
+            raise ParameterError(f"controller.model {Path(model).name} has n = {mdl.n} "
+                                 f"states and m = {mdl.m} inputs: plant.states names {n}, "
+                                 f"plant.inputs {m}")
+        params = dict(controller_parameters or {})
+        ctrl = Instance("controller", "controller",
+                        ModelFmu("model_controller", Path(model)),
+                        {"T": T, "r": r, "tau": tau, "N": N, **_vec("u0", u0),
+                         **_vec("z0", x0), **params})
+        ctrl_in, ctrl_out = [f"y_{s}" for s in mdl.states], list(mdl.inputs)
+    instances = (
+        Instance("plant", "plant", FmuFile(Path(fmu_path)), values),
+        Instance("meas_delay", "meas_delay", _delay_source(n, r_loop, timing.h),
+                 {"delay": r_loop, **_vec("u0", x0)}),
+        ctrl,
+        Instance("input_delay", "input_delay", _delay_source(m, tau_loop, timing.h),
+                 {"delay": tau_loop, **_vec("u0", u0)}),
+    )
+    ys_in, ys_out = indexed("u", n), indexed("y", n)
+    dl_in, dl_out = indexed("u", m), indexed("y", m)
+
+    def c(a, av, b, bv):
+        return Connection(Port(a, av), Port(b, bv))
+
+    connections = tuple(
+        [c("plant", x, "meas_delay", i) for x, i in zip(states, ys_in)]
+        + [c("meas_delay", o, "controller", i) for o, i in zip(ys_out, ctrl_in)]
+        + [c("controller", u, "input_delay", i) for u, i in zip(ctrl_out, dl_in)]
+        + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, inputs)])
+    recorded = tuple([Port("plant", s) for s in states]
+                     + [Port("controller", u) for u in ctrl_out])
+    return Loop(instances, connections, timing, recorded, name, title, stop_time)

@@ -1,0 +1,50 @@
+"""Compile the C test plant FMU (``Oscillator``) with the system C compiler.
+
+The FMU is a zip of ``modelDescription.xml``, ``binaries/linux64/Oscillator.so`` and its
+``sources/``; the FMI 2.0 headers come from the installed fmpy (``fmpy/c-code``). Nothing
+here uses pythonfmu: this is the "FMU nobody here generated with pythonfmu" of issue 14.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+MODEL = "Oscillator"
+
+
+class CompilerMissing(RuntimeError):
+    """No C compiler on PATH (the tests that need this FMU fail with this message)."""
+
+
+def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu") -> Path:
+    """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path."""
+    import fmpy
+
+    if not sys.platform.startswith("linux"):
+        raise CompilerMissing(f"the C test FMU is built for linux64 only, not {sys.platform}")
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        raise CompilerMissing("no C compiler (gcc or cc) on PATH: the C test FMU needs one")
+    headers = Path(fmpy.__file__).resolve().parent / "c-code"
+    out_dir = Path(out_dir)
+    work = out_dir / f"{MODEL}-build"
+    (work / "binaries" / "linux64").mkdir(parents=True, exist_ok=True)
+    lib = work / "binaries" / "linux64" / f"{MODEL}.so"
+    proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
+                           "-fPIC", f"-I{headers}", "-o", str(lib),
+                           str(HERE / "oscillator.c"), "-lm"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")
+    target = out_dir / name
+    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.write(HERE / "modelDescription.xml", "modelDescription.xml")
+        zf.write(lib, f"binaries/linux64/{MODEL}.so")
+        zf.write(HERE / "oscillator.c", "sources/oscillator.c")
+        zf.write(HERE / "README.md", "documentation/README.md")
+    shutil.rmtree(work)
+    return target
