@@ -1,8 +1,6 @@
 """``python -m delaycomp``: the same as the ``delaycomp`` command."""
 
-import sys
-
-from delaycomp.cli import main
+from delaycomp.cli import entry
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -793,6 +793,27 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def entry() -> None:
+    """The ``delaycomp`` command: :func:`main`, then the exit.
+
+    When an FMU was loaded in this process, the process leaves with ``os._exit`` after the
+    atexit handlers have run and the streams are flushed: unloading a pythonfmu FMU in the
+    interpreter's teardown corrupted the heap ("corrupted double-linked list", SIGABRT) in
+    2 of 100 library runs that exited with instances loaded (measured), after the result
+    was written. Our child processes leave the same way.
+    """
+    rc = main()
+    fmu = sys.modules.get("delaycomp.orchestrator.fmu")
+    if fmu is not None and getattr(fmu, "_UNPACKED", None):
+        import atexit
+
+        atexit._run_exitfuncs()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    sys.exit(rc)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()
 
