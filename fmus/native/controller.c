@@ -229,12 +229,7 @@ void model_input_set(Instance *c) { c->d.m.proposal_valid = 0; }
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;
-    if (!(isfinite(t) && isfinite(h) && h > 0)) {
-        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 "
-                  "from a finite time",
-                  num(h).s, num(t).s);
-        return -1;
-    }
+    if (check_step(c, t, h) != 0) return -1;
     if (check_inputs_finite(c, VR_Y, NX, t) != 0) return -1;
     if (m->at_sample) {  /* commit u_i: held, and the newest entry of the history */
         const double *u;

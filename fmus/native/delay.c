@@ -57,12 +57,7 @@ static long steps_of(Instance *c, double delay, double h) {
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;
-    if (!(isfinite(t) && isfinite(h) && h > 0)) {
-        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 "
-                  "from a finite time",
-                  num(h).s, num(t).s);
-        return -1;
-    }
+    if (check_step(c, t, h) != 0) return -1;
     if (!m->has_line) {
         long D = steps_of(c, c->d.real[VR_DELAY], h);
         if (D < 0) return -1;

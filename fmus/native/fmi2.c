@@ -174,6 +174,13 @@ int check_real_parameters_finite(Instance *c) {
     return 0;
 }
 
+int check_step(Instance *c, double t, double h) {
+    if (isfinite(t) && isfinite(h) && h > 0) return 0;
+    log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 from a "
+              "finite time", num(h).s, num(t).s);
+    return -1;
+}
+
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
     for (size_t k = 0; k < count; k++) {
         double v = c->d.real[first + k];

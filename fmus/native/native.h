@@ -101,6 +101,8 @@ char *matrix_text(const double *a, size_t rows, size_t cols);
 int check_real_parameters_finite(Instance *c);
 /* Refuse a non-finite input (the first one), naming it, its value and the time. */
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t);
+/* A step must be finite and > 0 from a finite time (the Python FMUs' message). */
+int check_step(Instance *c, double t, double h);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
 

@@ -24,12 +24,7 @@ void model_input_set(Instance *c) { (void)c; }
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;
-    if (!(isfinite(t) && isfinite(h) && h > 0)) {
-        log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 "
-                  "from a finite time",
-                  num(h).s, num(t).s);
-        return -1;
-    }
+    if (check_step(c, t, h) != 0) return -1;
     if (check_inputs_finite(c, VR_U, NU, t) != 0) return -1;
     double *Ad = c->buf, *Bd = c->buf + NX * NX;
     if (!m->has_h || h != m->h) {
