@@ -318,22 +318,9 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
     A = _per_point(A, P, (n, n), "A")
     B = _per_point(B, P, (n, m), "B")
     K = _per_point(K, P, (m, n), "K")
-    T = _per_point(T, P, (), "T")
-    r = _per_point(r, P, (), "r")
-    tau = _per_point(tau, P, (), "tau")
-    r_true = r if r_true is None else _per_point(r_true, P, (), "r_true")
-    tau_true = tau if tau_true is None else _per_point(tau_true, P, (), "tau_true")
-    x0 = _per_point(x0, P, (n,), "x0")
-    u0 = _per_point(u0, P, (m,), "u0")
-    Ns = np.broadcast_to(np.asarray(N), (P,)).astype(np.int64)
+    T, r, tau, r_true, tau_true, x0, u0, Ns = _timing(P, n, m, T, r, tau, N, r_true,
+                                                      tau_true, x0, u0)
     modes = np.broadcast_to(np.asarray(mode, dtype=object), (P,))
-    for name, v in (("T", T), ("r", r), ("tau", tau), ("r_true", r_true),
-                    ("tau_true", tau_true)):
-        if not np.all(np.isfinite(v)) or np.any(v < 0) or (name == "T" and np.any(v <= 0)):
-            raise BatchError(f"{name} is not allowed: must be finite and "
-                             f"{'> 0' if name == 'T' else '>= 0'} at every point")
-    if np.any(Ns < 1):
-        raise BatchError("N is not allowed: must be a positive integer at every point")
     bad = [md for md in set(modes.tolist()) if md not in MODES]
     if bad:
         raise BatchError(f"mode = {bad[0]!r} is not allowed: must be one of {', '.join(MODES)}")
@@ -345,6 +332,27 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
                          modes[idx] == "compensated", float(stop), record)
         parts.append((idx, res))
     return _merge(parts, P)
+
+
+def _timing(P: int, n: int, m: int, T, r, tau, N, r_true, tau_true, x0, u0):
+    """Timing and histories per point, checked: ``T > 0``, delays ``>= 0`` and finite,
+    ``N >= 1``; the true delays default to the assumed ones."""
+    T = _per_point(T, P, (), "T")
+    r = _per_point(r, P, (), "r")
+    tau = _per_point(tau, P, (), "tau")
+    r_true = r if r_true is None else _per_point(r_true, P, (), "r_true")
+    tau_true = tau if tau_true is None else _per_point(tau_true, P, (), "tau_true")
+    x0 = _per_point(x0, P, (n,), "x0")
+    u0 = _per_point(u0, P, (m,), "u0")
+    Ns = np.broadcast_to(np.asarray(N), (P,)).astype(np.int64)
+    for name, v in (("T", T), ("r", r), ("tau", tau), ("r_true", r_true),
+                    ("tau_true", tau_true)):
+        if not np.all(np.isfinite(v)) or np.any(v < 0) or (name == "T" and np.any(v <= 0)):
+            raise BatchError(f"{name} is not allowed: must be finite and "
+                             f"{'> 0' if name == 'T' else '>= 0'} at every point")
+    if np.any(Ns < 1):
+        raise BatchError("N is not allowed: must be a positive integer at every point")
+    return T, r, tau, r_true, tau_true, x0, u0, Ns
 
 
 def _count(matrices, scalars, vectors, mode=None) -> int:
@@ -700,16 +708,8 @@ def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_tru
         raise BatchError(why)
     P = _count([], [T, r, tau, N, r_true, tau_true], [x0, u0])
     n, m = model.n, model.m
-    T = _per_point(T, P, (), "T")
-    r = _per_point(r, P, (), "r")
-    tau = _per_point(tau, P, (), "tau")
-    r_true = r if r_true is None else _per_point(r_true, P, (), "r_true")
-    tau_true = tau if tau_true is None else _per_point(tau_true, P, (), "tau_true")
-    x0 = _per_point(x0, P, (n,), "x0")
-    u0 = _per_point(u0, P, (m,), "u0")
-    Ns = np.broadcast_to(np.asarray(N), (P,)).astype(np.int64)
-    if np.any(Ns < 1) or np.any(~(T > 0)):
-        raise BatchError("N and T are not allowed: must be > 0 at every point")
+    T, r, tau, r_true, tau_true, x0, u0, Ns = _timing(P, n, m, T, r, tau, N, r_true,
+                                                      tau_true, x0, u0)
     parts = []
     for Nv in np.unique(Ns):
         idx = np.flatnonzero(Ns == Nv)

@@ -108,12 +108,7 @@ def _nested(f, p, z, segments, rtol, atol) -> np.ndarray:
             continue
         u = np.asarray(u, dtype=float)
         ok, reason, z_end = _python_dop853(slot, z, duration, u)
-        if ok and not np.isfinite(z_end).all():
-            ok, reason = False, "the state is not finite"
-        if not ok:
-            raise IntegrationError(f"ODE solve failed {elapsed:.6g} s into a window "
-                                   f"(input {u.tolist()}): {reason}")
-        z = z_end
+        z = _checked(ok, reason, z_end, elapsed, u)
         elapsed += duration
     return np.array(z, dtype=float)
 
@@ -145,6 +140,12 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         # step size too small, or the step budget spent on a tiny state: the scaled error
         # underflowed (a failure of a solve that can progress is retried in vain, fast)
         ok, reason, z_end = _python_dop853(slot, z, duration, u)
+    return _checked(ok, reason, z_end, elapsed, u)
+
+
+def _checked(ok: bool, reason: str, z_end: np.ndarray, elapsed: float,
+             u: np.ndarray) -> np.ndarray:
+    """``z_end`` of a solve that succeeded with a finite state; else IntegrationError."""
     if ok and not np.isfinite(z_end).all():
         ok, reason = False, "the state is not finite"
     if not ok:
