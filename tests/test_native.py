@@ -620,16 +620,22 @@ def test_fuzz_native_controller_behaves_as_the_python_slave(native_dir, T, r, ta
             except refused:
                 got.append(("refused", c.last_message))
             outcome.append(got)
-        py, nat = outcome
-        assert len(py) == len(nat)
-        for p, n in zip(py, nat):
-            if isinstance(p, tuple):
-                assert p == n
-            else:
-                assert p == n or (np.isnan(p) and np.isnan(n)) or \
-                    abs(p - n) <= 1e-12 * max(1.0, abs(p))
+        assert_same_outcome(*outcome)
     finally:
         comp.terminate()
+
+
+def assert_same_outcome(py: list, nat: list) -> None:
+    """The Python slave's and the native FMU's outputs step by step, and the refusal that
+    ended either run (same message), equal to 1e-12 relative (round-off of the exact
+    flows)."""
+    assert len(py) == len(nat)
+    for p, n in zip(py, nat):
+        if isinstance(p, tuple):
+            assert p == n
+        else:
+            assert p == n or (np.isnan(p) and np.isnan(n)) or \
+                abs(p - n) <= 1e-12 * max(1.0, abs(p))
 
 
 def test_hugely_negative_a_native_is_exact_where_scipy_overflows(native_dir):
@@ -684,13 +690,6 @@ def test_fuzz_native_delay_and_plant_behave_as_the_python_slaves(native_dir, kin
             except refused:
                 got.append(("refused", c.last_message))
             outcome.append(got)
-        py, nat = outcome
-        assert len(py) == len(nat)
-        for p, n in zip(py, nat):
-            if isinstance(p, tuple):
-                assert p == n
-            else:
-                assert p == n or (np.isnan(p) and np.isnan(n)) or \
-                    abs(p - n) <= 1e-12 * max(1.0, abs(p))
+        assert_same_outcome(*outcome)
     finally:
         comp.terminate()
