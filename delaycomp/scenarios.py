@@ -19,7 +19,7 @@ from .errors import ParameterError
 from .grid import on_grid
 from .lti import MODES, split_delay
 from .names import indexed
-from .system import Loop, lti_loop, model_loop
+from .system import Loop, LtiPoint, lti_design, lti_loop, model_loop
 
 __all__ = [
     "SCENARIOS",
@@ -107,6 +107,9 @@ class Scenario:
     check: Callable[[dict], None] = lambda p: None
     #: for LTI scenarios: parameters -> (A, B, K) of ``x' = A x + B u``, ``u = K x``
     lti: Callable[[dict], tuple] | None = None
+    #: for LTI scenarios: parameters -> the arguments of :func:`~delaycomp.system.lti_design`
+    #: (the builder is then ``lti_loop`` of the same arguments), for :meth:`design`
+    lti_args: Callable[[dict], dict] | None = None
 
     def make(self, params: dict) -> Loop:
         """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
@@ -115,13 +118,28 @@ class Scenario:
         with a new ``T`` or ``N`` it may not, and the loop then has none (a run names
         ``--stop-time``; critical-delay and sweeps, which choose their own, just work).
         """
-        loop = self.builder(params).replace(name=self.name, title=self.title)
+        loop = self.builder(params)
         stop = self.default_stop_time
-        return loop.replace(stop_time=stop if on_grid(stop, loop.h) else None)
+        return loop.replace(name=self.name, title=self.title,
+                            stop_time=stop if on_grid(stop, loop.h) else None)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         """The loop for ``NAME=VALUE`` assignments over the defaults."""
         return self.make(self.resolve(assignments))
+
+    def design(self, params: dict) -> LtiPoint | None:
+        """For an LTI scenario, the design and timing of resolved ``params`` without the
+        loop's instances (validated as :meth:`make` validates them; a batch sweep's grid
+        point); ``None`` for the others.
+
+        Examples
+        --------
+        >>> sc = get("example-3.6")
+        >>> pt = sc.design(sc.resolve(["k=1.5"]))
+        >>> pt.lti.K.tolist(), pt.timing == sc.loop(["k=1.5"]).timing
+        ([[-1.5]], True)
+        """
+        return None if self.lti_args is None else lti_design(**self.lti_args(params))
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -182,10 +200,14 @@ def _example_3_6_matrices(p: dict) -> tuple:
     return [[1.0]], [[1.0]], [[-p["k"]]]
 
 
-def _example_3_6(p: dict) -> Loop:
+def _example_3_6_args(p: dict) -> dict:
     A, B, K = _example_3_6_matrices(p)
-    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], [p["x0"]],
-                    [p["u0"]], r_true=p["r_true"], tau_true=p["tau_true"])
+    return dict(A=A, B=B, K=K, T=p["T"], r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"],
+                x0=[p["x0"]], u0=[p["u0"]], r_true=p["r_true"], tau_true=p["tau_true"])
+
+
+def _example_3_6(p: dict) -> Loop:
+    return lti_loop(**_example_3_6_args(p))
 
 
 def _mode_param() -> Param:
@@ -213,6 +235,7 @@ EXAMPLE_3_6 = Scenario(
     default_stop_time=20.0,
     check=_check_timing,
     lti=_example_3_6_matrices,
+    lti_args=_example_3_6_args,
 )
 
 # -- the nonlinear examples and Corollary 3.7 -------------------------------------------
@@ -330,10 +353,14 @@ def _corollary_3_7_matrices(p: dict) -> tuple:
     return np.eye(n, k=1), np.eye(n)[:, -1:], deadbeat_gain(n, p["T"])
 
 
-def _corollary_3_7(p: dict) -> Loop:
+def _corollary_3_7_args(p: dict) -> dict:
     A, B, K = _corollary_3_7_matrices(p)
-    return lti_loop(A, B, K, p["T"], p["r"], p["tau"], p["N"], p["mode"], p["x0"], p["u0"],
-                    r_true=p["r_true"], tau_true=p["tau_true"])
+    return dict(A=A, B=B, K=K, T=p["T"], r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"],
+                x0=p["x0"], u0=p["u0"], r_true=p["r_true"], tau_true=p["tau_true"])
+
+
+def _corollary_3_7(p: dict) -> Loop:
+    return lti_loop(**_corollary_3_7_args(p))
 
 
 COROLLARY_3_7 = Scenario(
@@ -353,6 +380,7 @@ COROLLARY_3_7 = Scenario(
     default_stop_time=10.0,
     check=_corollary_3_7_check,
     lti=_corollary_3_7_matrices,
+    lti_args=_corollary_3_7_args,
 )
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (

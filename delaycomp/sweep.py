@@ -326,17 +326,23 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         raise ParameterError(f"{scenario} has no stop time: give --stop-time")
     jobs = []
     loops = []
-    for values in points(axes):
-        point_sets = (*sets, *(f"{n}={_fmt(v)}" for n, v in zip(names, values)))
+    source = (str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
+              else scenario)
+    job_engine = "inprocess" if engine == "batch" else engine
+    # a batch sweep of an LTI source needs each point's design, not its loop's instances:
+    # Scenario.design / LoopFile.design validate it with the same code as make
+    design = getattr(sc, "design", None) if engine == "batch" and not exact else None
+    texts = [[f"{a.name}={_fmt(v)}" for v in a.values] for a in axes]
+    for point_texts in itertools.product(*texts):
+        point_sets = (*sets, *point_texts)
         try:
             # validate every point before running any
-            loops.append(sc.make(sc.resolve(list(point_sets))))
+            p = sc.resolve(list(point_sets))
+            item = design(p) if design is not None else None
+            loops.append(item if item is not None else sc.make(p))
         except ParameterError as exc:
-            where = ", ".join(f"{n}={_fmt(v)}" for n, v in zip(names, values))
-            raise ParameterError(f"grid point {where}: {exc}") from None
-        jobs.append(Job(str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
-                        else scenario, point_sets, float(stop),
-                        "inprocess" if engine == "batch" else engine, fmu_dir, exact))
+            raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
+        jobs.append(Job(source, point_sets, float(stop), job_engine, fmu_dir, exact))
     if engine == "batch" and not exact:
         results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
                              chunk, notes if notes is not None else [], verbosity)

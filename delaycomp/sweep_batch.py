@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import batch
+from .system import BuiltinFmu, Loop, ModelFmu
 
 #: Points per chunk at most: arrays of this many float64 (128 KiB) stay in a core's L2
 #: cache, where one ufunc call costs the least per point (measured in bench/batch.py).
@@ -93,24 +94,23 @@ def _lti_bytes(n: int, m: int, N: int, periods: int, ring_ticks: int, L: int) ->
 
 
 def lti_point(loop) -> dict | str:
-    """The batch ingredients of an LTI loop (:class:`delaycomp.system.Loop`), or why not."""
-    from .system import BuiltinFmu
-
-    why = _standard(loop, BuiltinFmu)
-    if why:
-        return why
+    """The batch ingredients of an LTI loop (:class:`delaycomp.system.Loop`, or the
+    :class:`delaycomp.system.LtiPoint` of a grid point whose loop is the standard one by
+    construction), or why not."""
+    if isinstance(loop, Loop):
+        why = _standard(loop, BuiltinFmu)
+        if why:
+            return why
     d = loop.lti
-    md, idl = loop.by_role("meas_delay"), loop.by_role("input_delay")
-    return dict(A=np.atleast_2d(d.A), B=np.atleast_2d(d.B),
-                K=np.atleast_2d(d.K).reshape(d.m, d.n), T=loop.T, N=loop.N, r=d.r, tau=d.tau,
-                r_true=float(md.parameters["delay"]), tau_true=float(idl.parameters["delay"]),
-                x0=np.ravel(d.x0), u0=np.ravel(d.u0), mode=d.mode)
+    return dict(A=d.A, B=d.B, K=d.K, T=loop.timing.T, N=loop.timing.N, r=d.r, tau=d.tau,
+                r_true=d.r if d.r_true is None else d.r_true,
+                tau_true=d.tau if d.tau_true is None else d.tau_true,
+                x0=d.x0, u0=d.u0, mode=d.mode)
 
 
 def model_point(loop) -> tuple[dict, tuple, object] | str:
     """The batch ingredients of a model loop, its group key and model, or why not."""
     from .model import load_model
-    from .system import ModelFmu
 
     why = _standard(loop, ModelFmu)
     if why:
@@ -143,8 +143,6 @@ def model_point(loop) -> tuple[dict, tuple, object] | str:
 
 def _standard(loop, kind) -> str | None:
     """Why ``loop`` is not the standard four-instance loop the batch engine runs."""
-    from .system import BuiltinFmu
-
     roles = {i.role: i for i in loop.instances}
     if len(loop.instances) != 4 or len(roles) != 4:
         return "the loop is not the standard plant, delays and controller"

@@ -21,6 +21,7 @@ tests/test_engines.py). Tolerances:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 
@@ -348,3 +349,86 @@ def test_loop_file_sweeps_on_the_batch_engine():
     assert any("4 of 4 points" in n for n in notes), notes
     for x, y in zip(b, s):
         assert_same(x, y, LTI_REL)
+
+
+# -- grid points without their loops ------------------------------------------------------
+
+MIMO_LOOP = """
+T = 0.5
+N = 10
+r = 0.3
+tau = 0.5
+[plant]
+A = [[0.0, 1.0], [-1.0, 0.2]]
+B = [[0.0], [1.0]]
+x0 = [1.0, -0.5]
+state = "q"
+input = "f"
+[controller]
+K = [[-0.5, -1.2]]
+u0 = [0.25]
+"""
+
+
+def _lti_sources(tmp_path):
+    from delaycomp.scenarios import loop_file
+
+    mimo = tmp_path / "mimo.toml"
+    mimo.write_text(MIMO_LOOP, encoding="utf-8")
+    return {
+        "example-3.6": ["k=1.5", "r=0.4", "mode=uncompensated", "r_true=0.45"],
+        "corollary-3.7": ["n=4", "r=0.3", "tau=1", "tau_true=1.2", "x0=1,2,3,4"],
+        str(loop_file("example-3.6")): ["r=0.25", "controller.mode=uncompensated",
+                                        "tau_true=0.1"],
+        str(mimo): ["r_true=0.4", "controller.u0=[0.5]"],
+    }
+
+
+def test_a_grid_points_design_is_its_loops_design(tmp_path):
+    """What a batch sweep reads of an LTI point without building its loop
+    (``Scenario.design``, ``LoopFile.design``) is what it reads of the loop."""
+    from delaycomp.system import LtiDesign
+
+    for source, sets in _lti_sources(tmp_path).items():
+        sc = scenarios.open_source(source)
+        p = sc.resolve(sets)
+        point, loop = sc.design(p), sc.make(p)
+        assert point.timing == loop.timing, source
+        for f in dataclasses.fields(LtiDesign):
+            a, b = getattr(point.lti, f.name), getattr(loop.lti, f.name)
+            assert np.array_equal(a, b) and type(a) is type(b), (source, f.name)
+        a, b = sweep_batch.lti_point(point), sweep_batch.lti_point(loop)
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a), source
+    assert scenarios.get("example-2.4").design(scenarios.get("example-2.4").resolve()) is None
+
+
+@pytest.mark.parametrize("sets", [
+    ["r=0.305"], ["tau=0.5"], ["N=0"], ["controller.K=2"], ["controller.K=1,2"],
+    ["controller.u0=1,2"], ["plant.state=1x"], ["controller.allow_unstable=2"],
+    ["plant.x0=[true]"], ["r_true=-1"], ["controller.mode=sideways"], ["speed=3"],
+])
+def test_a_loop_files_design_refuses_what_its_loop_refuses(sets):
+    from delaycomp.errors import ParameterError
+    from delaycomp.scenarios import loop_file
+
+    lf = scenarios.open_source(loop_file("example-3.6"))
+    try:
+        data = lf.resolve(sets)
+    except ParameterError:
+        return  # refused before either is built
+    with pytest.raises(ParameterError) as built:
+        lf.make(data)
+    with pytest.raises(ParameterError) as designed:
+        lf.design(data)
+    assert str(designed.value) == str(built.value)
+
+
+def test_a_batch_sweep_of_a_loop_file_names_a_bad_point(tmp_path):
+    """Every point is validated before any runs, on the design path too."""
+    from delaycomp.errors import ParameterError
+
+    mimo = tmp_path / "mimo.toml"
+    mimo.write_text(MIMO_LOOP, encoding="utf-8")
+    with pytest.raises(ParameterError, match=r"grid point T=0\.3: .*tau = 0\.5"):
+        sweep.run_sweep(str(mimo), [sweep.parse_grid("T=0.5:0.3:2")], [], stop=3.0,
+                        engine="batch")

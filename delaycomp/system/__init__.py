@@ -12,14 +12,18 @@ from .loop import (
     Instance,
     Loop,
     LtiDesign,
+    LtiPoint,
     ModelFmu,
     Port,
     Role,
     Source,
     Timing,
+    design_loop,
+    lti_design,
     lti_loop,
     model_loop,
 )
 
 __all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiDesign",
-           "ModelFmu", "Port", "Role", "Source", "Timing", "lti_loop", "model_loop"]
+           "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing", "design_loop",
+           "lti_design", "lti_loop", "model_loop"]

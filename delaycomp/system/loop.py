@@ -319,17 +319,35 @@ def _delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[flo
     return (r if r_true is None else r_true), (tau if tau_true is None else tau_true)
 
 
-def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
-             state: str = "x", inp: str = "u", r_true: float | None = None,
-             tau_true: float | None = None, name: str = "loop", title: str = "",
-             stop_time: float | None = None) -> Loop:
-    """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
+@dataclass(frozen=True)
+class LtiPoint:
+    """An LTI loop's design and timing without its instances: what a batch sweep needs of
+    a grid point (:meth:`delaycomp.scenarios.Scenario.design`). It carries the same
+    ``lti`` and ``timing`` fields as the :class:`Loop` that :func:`design_loop` builds from
+    it, validated by the same code (:func:`lti_design`)."""
 
-    ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``, with ``u = K x``
-    (the paper's sign). The history of x on ``[-r, 0]`` is the constant ``x0`` (the
-    measurement delay's initial history), the controller's output history on
-    ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs apply the loop's true delays
-    ``r_true``, ``tau_true`` (default: the assumed ``r``, ``tau``).
+    lti: LtiDesign
+    timing: Timing
+
+
+def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
+               r_true: float | None = None, tau_true: float | None = None) -> LtiPoint:
+    """The validated design and timing of the LTI loop :func:`lti_loop` builds.
+
+    Every check of :func:`lti_loop` happens here (shapes, finite entries, histories, mode,
+    the base grid of the delays), so a point that passes builds a valid loop.
+
+    Examples
+    --------
+    >>> pt = lti_design([[1.0]], [[1.0]], [[-2.0]], 1.0, 0.3, 0.0, 100, "compensated",
+    ...                 [1.0], [0.0])
+    >>> pt.lti.K, pt.timing.h
+    (array([[-2.]]), 0.01)
+    >>> lti_design([[1.0]], [[1.0]], [[-2.0]], 1.0, 0.305, 0.0, 100, "compensated",
+    ...            [1.0], [0.0])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: parameter r = 0.305 is not allowed: must be a multiple ...
     """
     A = np.atleast_2d(np.asarray(A, dtype=float))
     B = np.atleast_2d(np.asarray(B, dtype=float))
@@ -344,7 +362,7 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
         raise ParameterError(f"matrix K has shape {K.shape}: must be m x n = {m} x {n} "
                              "(u = K x)")
     for label, M in (("A", A), ("B", B), ("K", K)):
-        if not np.all(np.isfinite(M)):
+        if not np.isfinite(M).all():
             raise ParameterError(f"matrix {label} has entries that are not finite numbers")
     x0 = np.asarray(x0, dtype=float).ravel()
     u0 = np.asarray(u0, dtype=float).ravel()
@@ -356,7 +374,18 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
         raise ParameterError(f"parameter mode = {mode!r} is not allowed: must be "
                              f"{' or '.join(MODES)}")
     timing = Timing(T, N)
-    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    _delays(timing, r, tau, r_true, tau_true)
+    return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true), timing)
+
+
+def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "loop",
+                title: str = "", stop_time: float | None = None) -> Loop:
+    """The standard four-instance loop of a validated :class:`LtiPoint`."""
+    d, timing = point.lti, point.timing
+    A, B, K, x0, u0 = d.A, d.B, d.K, d.x0, d.u0
+    n, m = d.n, d.m
+    r_loop = d.r if d.r_true is None else d.r_true
+    tau_loop = d.tau if d.tau_true is None else d.tau_true
     xs, us = indexed(state, n), indexed(inp, m)
     instances = (
         Instance("plant", "plant",
@@ -365,15 +394,31 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
         Instance("meas_delay", "meas_delay", BuiltinFmu("delay", {"n": n}),
                  {"delay": r_loop, **_vec("u0", x0)}),
         Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
-                 {"T": T, "r": r, "tau": tau, "mode": mode, **_mat("A", A), **_mat("B", B),
-                  **_mat("K", K), **_vec("u0", u0)}),
+                 {"T": timing.T, "r": d.r, "tau": d.tau, "mode": d.mode, **_mat("A", A),
+                  **_mat("B", B), **_mat("K", K), **_vec("u0", u0)}),
         Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
                  {"delay": tau_loop, **_vec("u0", u0)}),
     )
     recorded = tuple([Port("plant", x) for x in xs] + [Port("controller", u) for u in us])
-    design = LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true)
     return Loop(instances, _chain(xs, indexed("y", n), us, us), timing, recorded, name,
-                title, stop_time, design)
+                title, stop_time, d)
+
+
+def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
+             state: str = "x", inp: str = "u", r_true: float | None = None,
+             tau_true: float | None = None, name: str = "loop", title: str = "",
+             stop_time: float | None = None) -> Loop:
+    """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
+
+    ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``, with ``u = K x``
+    (the paper's sign). The history of x on ``[-r, 0]`` is the constant ``x0`` (the
+    measurement delay's initial history), the controller's output history on
+    ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs apply the loop's true delays
+    ``r_true``, ``tau_true`` (default: the assumed ``r``, ``tau``). The same as
+    ``design_loop(lti_design(...))``.
+    """
+    return design_loop(lti_design(A, B, K, T, r, tau, N, mode, x0, u0, r_true, tau_true),
+                       state, inp, name, title, stop_time)
 
 
 def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,

@@ -40,7 +40,7 @@ unstable (spectral radius of ``Ad + Bd K`` at least 1) is refused: the controlle
 
 from __future__ import annotations
 
-import copy
+import functools
 import math
 import re
 from pathlib import Path
@@ -51,7 +51,7 @@ import tomllib
 
 from ..errors import BadFileError, ParameterError
 from ..lti import MODES
-from .loop import Loop, lti_loop, model_loop
+from .loop import Loop, LtiPoint, design_loop, lti_design, model_loop
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
 PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu", "states",
@@ -142,13 +142,19 @@ def _array(where: str, value, ndim: int) -> np.ndarray:
                              ) from None
     if ndim == 2 and arr.ndim == 1:
         arr = arr.reshape(1, -1) if arr.size else arr.reshape(0, 0)
-    if arr.ndim != ndim or arr.size == 0 or any(isinstance(v, bool) for v in np.ravel(
-            np.asarray(value, dtype=object))):
+    if arr.ndim != ndim or arr.size == 0 or _has_bool(value):
         raise ParameterError(f"{where} is not allowed: must be "
                              f"{'a list of numbers' if ndim == 1 else 'a list of rows of numbers'}")
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"{where} is not allowed: every entry must be a finite number")
     return arr
+
+
+def _has_bool(value) -> bool:
+    """Whether a (nested) list holds a TOML boolean, which numpy would take for 0 or 1."""
+    if isinstance(value, (list, tuple)):
+        return any(_has_bool(v) for v in value)
+    return isinstance(value, bool)
 
 
 def _flag(where: str, value) -> bool:
@@ -172,9 +178,8 @@ def check_sign(A, B, K, T: float) -> float:
     ...
     delaycomp.system.loopfile.SignError: controller K: the delay-free sampled loop ...
     """
-    from ..lti import sampled_radius
-
-    rho = sampled_radius(A, B, K, T)
+    A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
+    rho = _radius(A.shape, A.tobytes(), B.shape, B.tobytes(), K.shape, K.tobytes(), T)
     if not rho < 1.0:
         raise SignError(
             f"controller K: the delay-free sampled loop is unstable (spectral radius of "
@@ -182,6 +187,18 @@ def check_sign(A, B, K, T: float) -> float:
             "python-control's lqr/dlqr return K for u = -K x (pass -K); set "
             "allow_unstable = true (--allow-unstable) to study an unstable design")
     return rho
+
+
+@functools.lru_cache(maxsize=256)
+def _radius(sa, a, sb, b, sk, k, T: float) -> float:
+    """:func:`~delaycomp.lti.sampled_radius` by value, remembered: a sweep's grid points
+    share their matrices and repeat the guard."""
+    from ..lti import sampled_radius
+
+    def mat(shape, data):
+        return np.frombuffer(data, dtype=float).reshape(shape)
+
+    return sampled_radius(mat(sa, a), mat(sb, b), mat(sk, k), T)
 
 
 # -- the file ------------------------------------------------------------------------------
@@ -247,7 +264,9 @@ class LoopFile:
     def resolve(self, assignments: list[str] | dict | None = None) -> dict:
         """The file's data with ``NAME=VALUE`` overrides (``r``, ``plant.x0``,
         ``controller.K``); the keys are checked, the values when the loop is built."""
-        data = copy.deepcopy(self.data)
+        # overrides replace top-level keys and keys of a section, nothing deeper (and the
+        # loop is built without changing its data): a copy two levels deep suffices
+        data = {k: dict(v) if isinstance(v, dict) else v for k, v in self.data.items()}
         items = assignments.items() if isinstance(assignments, dict) else (
             _split(a) for a in (assignments or []))
         for key, text in items:
@@ -262,7 +281,11 @@ class LoopFile:
                 _check_keys(self.path.name, {name: 0}, TOP_KEYS)
                 data[name] = value
             elif section in SECTIONS:
-                data.setdefault(section, {})[name] = value
+                table = data.setdefault(section, {})
+                if not isinstance(table, dict):
+                    raise ParameterError(f"--set {key}: {section} in {self.path.name} is "
+                                         "not a table")
+                table[name] = value
             else:
                 raise ParameterError(f"--set {key}: unknown section {section!r}: allowed "
                                      f"are {', '.join(SECTIONS)} (or a top-level key: "
@@ -272,6 +295,11 @@ class LoopFile:
     def make(self, data: dict) -> Loop:
         """The loop of resolved ``data``."""
         return build(data, self.base, self.name, self.title, where=self.path.name)
+
+    def design(self, data: dict) -> LtiPoint | None:
+        """The design and timing of resolved ``data`` without the loop's instances (for an
+        LTI loop file; ``None`` otherwise): see :func:`design`."""
+        return design(data, where=self.path.name)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         return self.make(self.resolve(assignments))
@@ -284,62 +312,93 @@ def _split(assignment: str) -> tuple[str, str]:
     return name.strip(), value
 
 
-def build(data: dict, base: Path, name: str = "loop", title: str = "",
-          where: str = "loop") -> Loop:
-    """The :class:`Loop` of a loop file's ``data`` (paths relative to ``base``)."""
+def _top(data: dict, where: str) -> dict:
+    """The loop file's top-level values (timing, delays, mode), checked."""
     _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS,
                 OTHER_TABLES)
     plant = data.get("plant")
-    ctrl = dict(data.get("controller") or {})
     if not isinstance(plant, dict):
         raise ParameterError(f"{where}: a [plant] table is required (A and B, or model)")
     if "T" not in data:
         raise ParameterError(f"{where}: T (the sampling period) is required")
-    T = _real("T", data["T"], positive=True)
-    N = _int("N", data.get("N", DEFAULT_N))
-    r = _real("r", data.get("r", 0.0), nonneg=True)
-    tau = _real("tau", data.get("tau", 0.0), nonneg=True)
-    r_true = None if data.get("r_true") is None else _real("r_true", data["r_true"],
-                                                            nonneg=True)
-    tau_true = None if data.get("tau_true") is None else _real("tau_true", data["tau_true"],
-                                                                nonneg=True)
-    stop = None if data.get("stop_time") is None else _real("stop_time", data["stop_time"],
-                                                             positive=True)
+    ctrl = dict(data.get("controller") or {})
+    top = dict(plant=plant, ctrl=ctrl, T=_real("T", data["T"], positive=True),
+               N=_int("N", data.get("N", DEFAULT_N)),
+               r=_real("r", data.get("r", 0.0), nonneg=True),
+               tau=_real("tau", data.get("tau", 0.0), nonneg=True))
+    for key in ("r_true", "tau_true"):
+        top[key] = None if data.get(key) is None else _real(key, data[key], nonneg=True)
+    top["stop"] = None if data.get("stop_time") is None else _real(
+        "stop_time", data["stop_time"], positive=True)
     mode = ctrl.get("mode", "compensated")
     if mode not in MODES:
         raise ParameterError(f"controller.mode = {mode!r} is not allowed: must be "
                              f"{' or '.join(MODES)}")
-    common = dict(r_true=r_true, tau_true=tau_true, name=name, title=title, stop_time=stop)
+    top["mode"] = mode
+    if "fmu" not in plant:
+        if ("A" in plant) == ("model" in plant):
+            raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
+                                 "\"file.py\", not both")
+        if "x0" not in plant:
+            raise ParameterError(f"{where}: plant.x0 (the initial state) is required")
+    return top
+
+
+def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
+    """The design of an LTI loop file (``[plant] A, B``) and its state and input names,
+    checked as :func:`build` checks them: shapes and grid
+    (:func:`~delaycomp.system.lti_design`), zero-order hold, the sign guard."""
+    plant, ctrl, T, tau = top["plant"], top["ctrl"], top["T"], top["tau"]
+    x0 = _array("plant.x0", plant["x0"], 1)
+    _check_keys(f"{where} [plant]", plant, ("A", "B", "x0", "state", "input"))
+    _check_keys(f"{where} [controller]", ctrl, ("mode", "K", "u0", "allow_unstable"))
+    if "B" not in plant or "K" not in ctrl:
+        raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
+    A = _array("plant.A", plant["A"], 2)
+    B = _array("plant.B", plant["B"], 2)
+    K = _array("controller.K", ctrl["K"], 2)
+    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
+    names = (_ident("plant.state", plant.get("state", "x")),
+             _ident("plant.input", plant.get("input", "u")))
+    point = lti_design(A, B, K, T, top["r"], tau, top["N"], top["mode"], x0, u0,
+                       top["r_true"], top["tau_true"])
+    if tau > 0:
+        from ..grid import split
+
+        if split(tau, T)[1] != 0.0:
+            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
+                                 f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+    if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
+        check_sign(A, B, K, T)
+    return point, *names
+
+
+def design(data: dict, where: str = "loop") -> LtiPoint | None:
+    """The design and timing of an LTI loop file's ``data`` without the loop's instances
+    (checked as :func:`build` checks it; a batch sweep's grid point); ``None`` for a loop
+    file that is not LTI."""
+    top = _top(data, where)
+    plant = top["plant"]
+    if "fmu" in plant or "A" not in plant:
+        return None
+    return _lti(top, where)[0]
+
+
+def build(data: dict, base: Path, name: str = "loop", title: str = "",
+          where: str = "loop") -> Loop:
+    """The :class:`Loop` of a loop file's ``data`` (paths relative to ``base``)."""
+    top = _top(data, where)
+    plant, ctrl, T, N, r, tau, mode = (top[k] for k in ("plant", "ctrl", "T", "N", "r",
+                                                         "tau", "mode"))
+    stop = top["stop"]
+    common = dict(r_true=top["r_true"], tau_true=top["tau_true"], name=name, title=title,
+                  stop_time=stop)
     if "fmu" in plant:
         return _fmu_plant(plant, ctrl, base, where, T, N, r, tau, mode, common)
-    if ("A" in plant) == ("model" in plant):
-        raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
-                             "\"file.py\", not both")
-    if "x0" not in plant:
-        raise ParameterError(f"{where}: plant.x0 (the initial state) is required")
-    x0 = _array("plant.x0", plant["x0"], 1)
     if "A" in plant:
-        _check_keys(f"{where} [plant]", plant, ("A", "B", "x0", "state", "input"))
-        _check_keys(f"{where} [controller]", ctrl, ("mode", "K", "u0", "allow_unstable"))
-        if "B" not in plant or "K" not in ctrl:
-            raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
-        A = _array("plant.A", plant["A"], 2)
-        B = _array("plant.B", plant["B"], 2)
-        K = _array("controller.K", ctrl["K"], 2)
-        m = B.shape[1]
-        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(m)
-        loop = lti_loop(A, B, K, T, r, tau, N, mode, x0, u0,
-                        state=_ident("plant.state", plant.get("state", "x")),
-                        inp=_ident("plant.input", plant.get("input", "u")), **common)
-        if tau > 0:
-            from ..grid import split
-
-            if split(tau, T)[1] != 0.0:
-                raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
-                                     f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
-        if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
-            check_sign(A, B, K, T)
-        return loop
+        point, state, inp = _lti(top, where)
+        return design_loop(point, state, inp, name=name, title=title, stop_time=stop)
+    x0 = _array("plant.x0", plant["x0"], 1)
     _check_keys(f"{where} [plant]", plant, ("model", "x0", "tolerance"))
     model_path = Path(str(plant["model"]))
     if not model_path.is_absolute():
