@@ -47,7 +47,14 @@ class Chunk:
 
 
 def run_chunk(chunk: Chunk) -> list[dict]:
-    """The sweep's metric dicts of every point of ``chunk`` (a top-level function)."""
+    """The sweep's metric dicts of every point of ``chunk``."""
+    return compute_chunk(chunk).rows()
+
+
+def compute_chunk(chunk: Chunk) -> batch.BatchResult:
+    """The metrics of every point of ``chunk`` as arrays (a top-level function: worker
+    processes and Dask run it and send the arrays back, which pickle much faster than one
+    dict per point)."""
     a = chunk.arrays
     if chunk.kind == "lti":
         res = batch.simulate_lti(a["A"], a["B"], a["K"], a["T"], a["N"], a["r"], a["tau"],
@@ -60,7 +67,7 @@ def run_chunk(chunk: Chunk) -> list[dict]:
         res = batch.simulate_model(model, model.params(**dict(chunk.params)), a["T"], a["N"],
                                    a["r"], a["tau"], a["x0"], a["u0"], chunk.stop,
                                    a["r_true"], a["tau_true"], pad=chunk.pad)
-    return res.rows()
+    return res.without_trajectories()
 
 
 def available_memory() -> int:
@@ -243,7 +250,8 @@ def run_chunks(chunks: list, workers: int, scheduler: str | None, progress) -> l
         except ImportError:
             raise RuntimeError("--scheduler needs Dask: pip install 'delaycomp[dask]'") from None
         with Client(scheduler) as client:
-            out = client.gather(client.map(run_chunk, jobs, pure=False))
+            out = [r.rows() for r in client.gather(client.map(compute_chunk, jobs,
+                                                                 pure=False))]
         progress.tick(sum(len(i) for i, _ in chunks))
         return out
     if workers > 1 and len(jobs) > 1:
@@ -256,8 +264,8 @@ def run_chunks(chunks: list, workers: int, scheduler: str | None, progress) -> l
         out = []
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
                                  initializer=_worker_init) as pool:
-            for (idx, _), res in zip(chunks, pool.map(run_chunk, jobs)):
-                out.append(res)
+            for (idx, _), res in zip(chunks, pool.map(compute_chunk, jobs)):
+                out.append(res.rows())
                 progress.tick(len(idx))
         return out
     out = []
