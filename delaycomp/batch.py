@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .grid import GRID_RTOL
+from .grid import on_grid_array
 from .grid import split as split_delay
 from .lti import MODES, LTIPredictor, discretize, periods_in
 
@@ -209,7 +209,7 @@ def _ticks(name: str, value: np.ndarray, h: np.ndarray) -> np.ndarray:
     """``value / h`` as integers; :class:`BatchError` if some point is off the base grid."""
     ratio = np.asarray(value, dtype=float) / h
     steps = np.rint(ratio)
-    bad = ~(np.abs(ratio - steps) <= GRID_RTOL * np.maximum(1.0, np.abs(ratio)))
+    bad = ~on_grid_array(value, h)
     if np.any(bad) or np.any(ratio < 0):
         p = int(np.flatnonzero(bad | (ratio < 0))[0])
         raise BatchError(f"{name} = {float(np.ravel(value)[p])!r} (point {p}) is not allowed: "

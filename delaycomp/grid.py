@@ -47,6 +47,21 @@ def on_grid(value: float, step: float) -> bool:
     return nearest_multiple(value, step) is not None
 
 
+def on_grid_array(values, step):
+    """:func:`on_grid` elementwise over arrays (``values`` and ``step`` broadcast), with the
+    same floating-point arithmetic: the same answer for every element.
+
+    >>> on_grid_array([0.3, 0.305, float("nan")], 0.01).tolist()
+    [True, False, False]
+    """
+    import numpy as np
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.asarray(values, dtype=float) / np.asarray(step, dtype=float)
+        return np.isfinite(ratio) & (np.abs(ratio - np.rint(ratio))
+                                     <= GRID_RTOL * np.maximum(1.0, np.abs(ratio)))
+
+
 def check_steps(name: str, value: float, steps: float, unit: str) -> None:
     """Refuse a window of more than :data:`MAX_STEPS` steps of ``unit``."""
     if not steps <= MAX_STEPS:

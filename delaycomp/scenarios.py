@@ -19,7 +19,7 @@ from .errors import ParameterError
 from .grid import on_grid
 from .lti import MODES, split_delay
 from .names import indexed
-from .system import Loop, LtiPoint, lti_design, lti_loop, model_loop
+from .system import Loop, LtiBatch, LtiPoint, lti_design, lti_designs, lti_loop, model_loop
 
 __all__ = [
     "SCENARIOS",
@@ -140,6 +140,15 @@ class Scenario:
         ([[-1.5]], True)
         """
         return None if self.lti_args is None else lti_design(**self.lti_args(params))
+
+    def designs(self, params: list[dict]) -> LtiBatch | None:
+        """:meth:`design` of many resolved points at once, as arrays
+        (:func:`~delaycomp.system.lti_designs`: the same checks, vectorized); ``None`` for
+        a scenario that is not LTI, or points that do not stack or fail a check (validate
+        those one by one with :meth:`design`, which names what is wrong)."""
+        if self.lti_args is None:
+            return None
+        return lti_designs([self.lti_args(p) for p in params])
 
     def param(self, name: str) -> Param:
         for p in self.params:

@@ -34,6 +34,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .scenarios import open_source
+from .system import LtiBatch
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -330,19 +331,30 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
               else scenario)
     job_engine = "inprocess" if engine == "batch" else engine
     # a batch sweep of an LTI source needs each point's design, not its loop's instances:
-    # Scenario.design / LoopFile.design validate it with the same code as make
-    design = getattr(sc, "design", None) if engine == "batch" and not exact else None
+    # Scenario.designs (all points at once), else Scenario.design / LoopFile.design (one
+    # by one) validate it with the same checks as make
+    batched = engine == "batch" and not exact
+    design = getattr(sc, "design", None) if batched else None
     texts = [[f"{a.name}={_fmt(v)}" for v in a.values] for a in axes]
-    for point_texts in itertools.product(*texts):
+    grid_texts = list(itertools.product(*texts))
+    params = []
+    for point_texts in grid_texts:
         point_sets = (*sets, *point_texts)
         try:
             # validate every point before running any
-            p = sc.resolve(list(point_sets))
-            item = design(p) if design is not None else None
-            loops.append(item if item is not None else sc.make(p))
+            params.append(sc.resolve(list(point_sets)))
         except ParameterError as exc:
             raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
         jobs.append(Job(source, point_sets, float(stop), job_engine, fmu_dir, exact))
+    loops = sc.designs(params) if batched and hasattr(sc, "designs") else None
+    if loops is None:
+        loops = []
+        for p, point_texts in zip(params, grid_texts):
+            try:
+                item = design(p) if design is not None else None
+                loops.append(item if item is not None else sc.make(p))
+            except ParameterError as exc:
+                raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
     if engine == "batch" and not exact:
         results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
                              chunk, notes if notes is not None else [], verbosity)
@@ -363,7 +375,9 @@ def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
 
     if not (math.isfinite(stop) and stop > 0):
         raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
-    for timing in {loop.timing for loop in loops}:  # as the per-point engine asks
+    timings = loops.timings() if isinstance(loops, LtiBatch) else {
+        loop.timing for loop in loops}
+    for timing in timings:  # as the per-point engine asks
         timing.ticks(stop)
     try:
         be = batch.get_backend(backend)

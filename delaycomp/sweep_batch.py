@@ -15,6 +15,7 @@ FMU file or ``held_sample``) is returned with the reason, for the per-point engi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import batch
-from .system import BuiltinFmu, Loop, ModelFmu
+from .system import BuiltinFmu, Loop, LtiBatch, ModelFmu
 
 #: Points per chunk at most: arrays of this many float64 (128 KiB) stay in a core's L2
 #: cache, where one ufunc call costs the least per point (measured in bench/batch.py).
@@ -168,15 +169,22 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
             limit: int | None) -> tuple[list, list[tuple[int, str]], list[str]]:
     """Chunks for the batchable points, and ``(index, reason)`` for the others.
 
-    ``loops`` are the grid's points (:class:`delaycomp.system.Loop`). Returns ``(chunks,
-    fallback, notes)`` where each chunk comes with the point indices it covers:
-    ``[(indices, Chunk), ...]``.
+    ``loops`` are the grid's points (:class:`delaycomp.system.Loop` or
+    :class:`delaycomp.system.LtiPoint` each), or all of them as one
+    :class:`delaycomp.system.LtiBatch`. Returns ``(chunks, fallback, notes)`` where each
+    chunk comes with the point indices it covers: ``[(indices, Chunk), ...]``.
     """
     groups: dict[tuple, list[int]] = {}
     fallback: list[tuple[int, str]] = []
     notes: list[str] = []
     data: dict[int, dict] = {}
     models: dict[tuple, object] = {}
+    stacked: dict[tuple, dict] = {}
+    if isinstance(loops, LtiBatch):  # all points in one group, already arrays
+        key = ("lti", loops.A.shape[1:], loops.B.shape[1:])
+        groups[key] = list(range(len(loops)))
+        stacked[key] = {f.name: getattr(loops, f.name) for f in dataclasses.fields(loops)}
+        loops = []
     for i, loop in enumerate(loops):
         if loop.lti is not None:
             got = lti_point(loop)
@@ -200,7 +208,7 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
     chunks = []
     for key, idx in groups.items():
         P = len(idx)
-        arr = _arrays([data[i] for i in idx], key[0] == "lti")
+        arr = stacked.get(key) or _arrays([data[i] for i in idx], key[0] == "lti")
         h = arr["T"] / arr["N"]
         if key[0] == "lti":
             n, m = key[1][0], key[2][1]

@@ -432,3 +432,71 @@ def test_a_batch_sweep_of_a_loop_file_names_a_bad_point(tmp_path):
     with pytest.raises(ParameterError, match=r"grid point T=0\.3: .*tau = 0\.5"):
         sweep.run_sweep(str(mimo), [sweep.parse_grid("T=0.5:0.3:2")], [], stop=3.0,
                         engine="batch")
+
+
+def _design_args(k: float, r: float, **changes) -> dict:
+    args = dict(A=[[0.0, 1.0], [0.5, 0.0]], B=[[0.0], [1.0]], K=[[-k, -1.5]], T=0.5, N=10,
+                r=r, tau=0.5, mode="compensated", x0=[1.0, 0.0], u0=[0.25], r_true=None,
+                tau_true=0.6)
+    args.update(changes)
+    return args
+
+
+def test_designs_of_many_points_are_their_designs_one_by_one():
+    """The vectorized validation (``lti_designs``) gives what ``lti_design`` gives point by
+    point, stacked (the true delays filled in with the assumed ones)."""
+    from delaycomp.system import lti_design, lti_designs
+
+    args = [_design_args(k, r, mode=mode) for k in (0.5, 1.0, 2.5) for r in (0.0, 0.35)
+            for mode in ("compensated", "uncompensated")]
+    batch_ = lti_designs(args)
+    one = [lti_design(**a) for a in args]
+    assert len(batch_) == len(args)
+    for name in ("A", "B", "K", "x0", "u0", "r", "tau", "mode"):
+        assert np.array_equal(getattr(batch_, name),
+                              np.array([getattr(p.lti, name) for p in one])), name
+    assert batch_.r_true.tolist() == [p.lti.r for p in one]
+    assert batch_.tau_true.tolist() == [0.6] * len(one)
+    assert batch_.timings() == {p.timing for p in one}
+
+
+@pytest.mark.parametrize("changes", [
+    dict(r=0.305), dict(r=-0.1), dict(tau_true=math.nan), dict(r_true=0.33), dict(T=0.0),
+    dict(T=math.inf), dict(N=0), dict(N=10.0), dict(K=[[1.0, 2.0, 3.0]]),
+    dict(A=[[0.0, math.inf], [0.5, 0.0]]), dict(x0=[1.0]), dict(u0=[0.0, 1.0]),
+    dict(mode="sideways"), dict(A=[[0.0, 1.0]]), dict(B=[[1.0]]),
+], ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+def test_designs_of_many_points_accept_no_point_that_one_by_one_refuses(changes):
+    """One bad point anywhere in the grid: the batch is refused (``None``: validate one by
+    one), and ``lti_design`` names what is wrong with that point."""
+    from delaycomp.errors import ParameterError
+    from delaycomp.system import lti_design, lti_designs
+
+    good = [_design_args(k, 0.3) for k in (0.5, 1.0, 2.0)]
+    bad = {**_design_args(1.5, 0.3), **changes}
+    for at in range(len(good) + 1):
+        assert lti_designs([*good[:at], bad, *good[at:]]) is None
+    with pytest.raises(ParameterError):
+        lti_design(**bad)
+
+
+def test_a_batch_sweep_over_the_dimension_runs_each_shape_as_its_own_group():
+    """Corollary 3.7 swept over ``n``: the points do not stack (one by one, one group per
+    shape) and equal the per-point engine."""
+    axes = [sweep.parse_grid("n=2:4:3"), sweep.parse_grid("r=0:0.5:2")]
+    notes: list[str] = []
+    b = sweep.run_sweep("corollary-3.7", axes, [], stop=4.0,
+                        engine="batch", notes=notes)
+    s = sweep.run_sweep("corollary-3.7", axes, [], stop=4.0, engine="inprocess")
+    assert any("6 of 6 points in 3 chunks" in n for n in notes), notes
+    for x, y in zip(b, s):
+        assert_same(x, y, LTI_REL)
+
+
+def test_a_bulk_batch_sweep_names_a_bad_grid_point():
+    from delaycomp.errors import ParameterError
+
+    with pytest.raises(ParameterError, match=r"grid point k=1, r=0\.105: .*multiple of the"):
+        sweep.run_sweep("example-3.6", [sweep.parse_grid("k=1:2:2"),
+                                        sweep.parse_grid("r=0.1:0.11:3")], [],
+                        stop=2.0, engine="batch")

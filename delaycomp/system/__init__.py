@@ -11,6 +11,7 @@ from .loop import (
     FmuFile,
     Instance,
     Loop,
+    LtiBatch,
     LtiDesign,
     LtiPoint,
     ModelFmu,
@@ -20,10 +21,11 @@ from .loop import (
     Timing,
     design_loop,
     lti_design,
+    lti_designs,
     lti_loop,
     model_loop,
 )
 
-__all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiDesign",
-           "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing", "design_loop",
-           "lti_design", "lti_loop", "model_loop"]
+__all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiBatch",
+           "LtiDesign", "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing", "design_loop",
+           "lti_design", "lti_designs", "lti_loop", "model_loop"]
