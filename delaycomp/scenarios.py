@@ -163,18 +163,57 @@ class Scenario:
         items = assignments.items() if isinstance(assignments, dict) else (
             _split(a) for a in (assignments or []))
         for name, text in items:
-            p = self.param(name)
-            try:
-                value = p.parse(str(text))
-            except ValueError:
-                raise ParameterError(
-                    f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
-            if not p.ok(value):
-                raise ParameterError(
-                    f"parameter {name} = {text!r} is not allowed: must be {p.allowed}")
-            values[name] = value
+            values[name] = self._parse(name, text)
         self.check(values)
         return values
+
+    def _parse(self, name: str, text) -> object:
+        """The value of one assignment, checked against its parameter's range."""
+        p = self.param(name)
+        try:
+            value = p.parse(str(text))
+        except ValueError:
+            raise ParameterError(
+                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
+        if not p.ok(value):
+            raise ParameterError(
+                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}")
+        return value
+
+    def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> list[dict] | None:
+        """:meth:`resolve` of ``sets`` followed by each point's assignments, for every
+        point of a grid, parsing each distinct assignment once; ``None`` if some point is
+        refused (resolve the points one by one to name it).
+
+        Examples
+        --------
+        >>> sc = get("example-3.6")
+        >>> grid = sc.resolve_grid(["mode=uncompensated"], [("k=1", "r=0"), ("k=1", "r=0.5")])
+        >>> grid == [sc.resolve(["mode=uncompensated", "k=1", f"r={r}"]) for r in (0, 0.5)]
+        True
+        >>> sc.resolve_grid([], [("r=0.305",)]) is None   # off the base grid
+        True
+        """
+        try:
+            base = {p.name: p.default for p in self.params}  # checked per point below
+            for text in sets:
+                name, value = _split(text)
+                base[name] = self._parse(name, value)
+            parsed: dict[str, tuple[str, object]] = {}
+            out = []
+            for texts in points:
+                values = dict(base)
+                for text in texts:
+                    got = parsed.get(text)
+                    if got is None:
+                        name, value = _split(text)
+                        got = parsed[text] = (name, self._parse(name, value))
+                    values[got[0]] = got[1]
+                self.check(values)
+                out.append(values)
+            return out
+        except ParameterError:
+            return None
 
 
 def _split(assignment: str) -> tuple[str, str]:

@@ -325,52 +325,59 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     stop = sc.default_stop_time if stop is None else stop
     if stop is None:
         raise ParameterError(f"{scenario} has no stop time: give --stop-time")
-    jobs = []
-    loops = []
     source = (str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
               else scenario)
     job_engine = "inprocess" if engine == "batch" else engine
+    texts = [[f"{a.name}={_fmt(v)}" for v in a.values] for a in axes]
+    grid_texts = list(itertools.product(*texts))
+
+    def job(i: int) -> Job:
+        return Job(source, (*sets, *grid_texts[i]), float(stop), job_engine, fmu_dir, exact)
+
+    # validate every point before running any: all at once where the source can
+    # (Scenario.resolve_grid), else (or to name a refused point) one by one
+    params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
+              else None)
+    if params is None:
+        params = [_named(texts, sc.resolve, [*sets, *texts]) for texts in grid_texts]
+    batched = engine == "batch" and not exact
     # a batch sweep of an LTI source needs each point's design, not its loop's instances:
     # Scenario.designs (all points at once), else Scenario.design / LoopFile.design (one
     # by one) validate it with the same checks as make
-    batched = engine == "batch" and not exact
-    design = getattr(sc, "design", None) if batched else None
-    texts = [[f"{a.name}={_fmt(v)}" for v in a.values] for a in axes]
-    grid_texts = list(itertools.product(*texts))
-    params = []
-    for point_texts in grid_texts:
-        point_sets = (*sets, *point_texts)
-        try:
-            # validate every point before running any
-            params.append(sc.resolve(list(point_sets)))
-        except ParameterError as exc:
-            raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
-        jobs.append(Job(source, point_sets, float(stop), job_engine, fmu_dir, exact))
     loops = sc.designs(params) if batched and hasattr(sc, "designs") else None
     if loops is None:
+        design = getattr(sc, "design", None) if batched else None
         loops = []
         for p, point_texts in zip(params, grid_texts):
-            try:
-                item = design(p) if design is not None else None
-                loops.append(item if item is not None else sc.make(p))
-            except ParameterError as exc:
-                raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
-    if engine == "batch" and not exact:
-        results = _run_batch(jobs, loops, float(stop), workers, scheduler, array_backend,
+            item = _named(point_texts, design, p) if design is not None else None
+            loops.append(item if item is not None else _named(point_texts, sc.make, p))
+    rows = [dict(zip(names, values)) for values in points(axes)]
+    if batched:
+        results = _run_batch(job, loops, float(stop), workers, scheduler, array_backend,
                              chunk, notes if notes is not None else [], verbosity)
-        return [{**dict(zip(names, values)), **res}
-                for values, res in zip(points(axes), results)]
-    if not exact and engine == "fmu":
-        _prebuild(jobs)
-    return [{**dict(zip(names, values)), **res}
-            for values, res in zip(points(axes), _run_jobs(jobs, workers, scheduler,
-                                                           _Progress(len(jobs), verbosity)))]
+    else:
+        jobs = [job(i) for i in range(len(grid_texts))]
+        if not exact and engine == "fmu":
+            _prebuild(jobs)
+        results = _run_jobs(jobs, workers, scheduler, _Progress(len(jobs), verbosity))
+    for row, res in zip(rows, results):
+        row.update(res)
+    return rows
 
 
-def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
-               scheduler: str | None, backend: str, chunk: int | None,
-               notes: list[str], verbosity: int = 1) -> list[dict]:
-    """The batch engine for the points it takes, the per-point engine for the others."""
+def _named(point_texts: tuple[str, ...], fn, arg):
+    """``fn(arg)``, with a refusal named after the grid point."""
+    try:
+        return fn(arg)
+    except ParameterError as exc:
+        raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
+
+
+def _run_batch(job, loops, stop: float, workers: int, scheduler: str | None,
+               backend: str, chunk: int | None, notes: list[str],
+               verbosity: int = 1) -> list[dict]:
+    """The batch engine for the points it takes, the per-point engine for the others
+    (``job(i)`` is point ``i``'s :class:`Job`)."""
     from . import batch, sweep_batch
 
     if not (math.isfinite(stop) and stop > 0):
@@ -385,8 +392,9 @@ def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
         raise ParameterError(f"--array-backend: {exc}") from None
     chunks, fallback, msgs = sweep_batch.prepare(loops, stop, be.name, workers, chunk)
     notes.extend(msgs)
-    progress = _Progress(len(jobs), verbosity)
-    results: list[dict | None] = [None] * len(jobs)
+    total = len(loops)
+    progress = _Progress(total, verbosity)
+    results: list[dict | None] = [None] * total
     try:
         for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(chunks, workers, scheduler,
                                                                  progress)):
@@ -395,13 +403,13 @@ def _run_batch(jobs: list[Job], loops: list, stop: float, workers: int,
     except batch.BatchError as exc:
         raise ParameterError(str(exc)) from None
     done = sum(len(idx) for idx, _ in chunks)
-    notes.append(f"batch engine ({be.name}, {be.device}): {done} of {len(jobs)} points in "
+    notes.append(f"batch engine ({be.name}, {be.device}): {done} of {total} points in "
                  f"{len(chunks)} chunk{'s' if len(chunks) != 1 else ''}")
     if fallback:
         reasons = sorted({why for _, why in fallback})
         notes.append(f"per-point engine (inprocess): {len(fallback)} points, because "
                      + "; ".join(reasons))
-        rest = _run_jobs([jobs[i] for i, _ in fallback], workers, scheduler, progress)
+        rest = _run_jobs([job(i) for i, _ in fallback], workers, scheduler, progress)
         for (i, _), row in zip(fallback, rest):
             results[i] = row
     return results

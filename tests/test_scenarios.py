@@ -9,6 +9,7 @@ import pytest
 
 from delaycomp import scenarios
 from delaycomp.check import CASES
+from delaycomp.errors import ParameterError
 from delaycomp.models import corollary_4_1, unicycle
 from delaycomp.simulate import run_loop
 
@@ -157,3 +158,35 @@ def test_scenario_parameters_are_checked(scenario, sets, message):
 
 
 
+
+
+GRIDS = {  # sets, then one point's assignments per row (a grid in product order)
+    "example-3.6": (["mode=uncompensated"], [("k=1", "r=0"), ("k=1", "r=0.5"),
+                                              ("k=2.5", "r=0.98")]),
+    "example-2.4": (["tau=0.2"], [("r=0",), ("r=0.37",)]),
+    "example-3.8": (["p=sin"], [("r=0.5", "T=0.5"), ("r=1", "T=1")]),
+    "corollary-3.7": ([], [("n=2",), ("n=4",), ("n=3", "x0=1,2,3")]),
+    "corollary-4.1": ([], [("tau=0",), ("tau=0.4",)]),
+    "proposition-4.2": (["law=printed"], [("x0=1,0,0.5",), ("x0=-2,1,0",)]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(GRIDS))
+def test_resolve_grid_is_resolve_point_by_point(name):
+    """A grid resolved at once (each distinct assignment parsed once) equals each point
+    resolved on its own; a cross-parameter default (corollary-3.7's x0 follows n) is
+    filled in per point."""
+    sc = scenarios.get(name)
+    sets, grid = GRIDS[name]
+    assert sc.resolve_grid(sets, grid) == [sc.resolve([*sets, *pt]) for pt in grid]
+
+
+@pytest.mark.parametrize("sets,point", [
+    ([], ("r=0.305",)), (["k=x"], ("r=0",)), ([], ("speed=3",)), ([], ("tau=0.5",)),
+    (["T=0"], ()),
+])
+def test_resolve_grid_refuses_what_resolve_refuses(sets, point):
+    sc = scenarios.get("example-3.6")
+    with pytest.raises(ParameterError):
+        sc.resolve([*sets, *point])
+    assert sc.resolve_grid(sets, [("k=1",), point, ("k=2",)]) is None
