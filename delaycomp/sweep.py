@@ -24,7 +24,9 @@ points it cannot take run on the per-point in-process engine, and ``notes`` says
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import gc
 import itertools
 import math
 from dataclasses import dataclass
@@ -334,24 +336,26 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     def job(i: int) -> Job:
         return Job(source, (*sets, *grid_texts[i]), float(stop), job_engine, fmu_dir, exact)
 
-    # validate every point before running any: all at once where the source can
-    # (Scenario.resolve_grid), else (or to name a refused point) one by one
-    params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
-              else None)
-    if params is None:
-        params = [_named(texts, sc.resolve, [*sets, *texts]) for texts in grid_texts]
     batched = engine == "batch" and not exact
-    # a batch sweep of an LTI source needs each point's design, not its loop's instances:
-    # Scenario.designs (all points at once), else Scenario.design / LoopFile.design (one
-    # by one) validate it with the same checks as make
-    loops = sc.designs(params) if batched and hasattr(sc, "designs") else None
-    if loops is None:
-        design = getattr(sc, "design", None) if batched else None
-        loops = []
-        for p, point_texts in zip(params, grid_texts):
-            item = _named(point_texts, design, p) if design is not None else None
-            loops.append(item if item is not None else _named(point_texts, sc.make, p))
-    rows = [dict(zip(names, values)) for values in points(axes)]
+    with _gc_paused():
+        # validate every point before running any: all at once where the source can
+        # (Scenario.resolve_grid), else (or to name a refused point) one by one
+        params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
+                  else None)
+        if params is None:
+            params = [_named(texts, sc.resolve, [*sets, *texts]) for texts in grid_texts]
+        # a batch sweep of an LTI source needs each point's design, not its loop's
+        # instances: Scenario.designs (all points at once), else Scenario.design /
+        # LoopFile.design (one by one) validate it with the same checks as make
+        loops = sc.designs(params) if batched and hasattr(sc, "designs") else None
+        if loops is None:
+            design = getattr(sc, "design", None) if batched else None
+            loops = []
+            for p, point_texts in zip(params, grid_texts):
+                item = _named(point_texts, design, p) if design is not None else None
+                loops.append(item if item is not None else _named(point_texts, sc.make, p))
+        del params
+        rows = [dict(zip(names, values)) for values in points(axes)]
     if batched:
         results = _run_batch(job, loops, float(stop), workers, scheduler, array_backend,
                              chunk, notes if notes is not None else [], verbosity)
@@ -360,9 +364,25 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         if not exact and engine == "fmu":
             _prebuild(jobs)
         results = _run_jobs(jobs, workers, scheduler, _Progress(len(jobs), verbosity))
-    for row, res in zip(rows, results):
-        row.update(res)
+    with _gc_paused():
+        for row, res in zip(rows, results):
+            row.update(res)
     return rows
+
+
+@contextlib.contextmanager
+def _gc_paused():
+    """Python's cyclic garbage collector paused while a grid's points are built: millions
+    of small dicts and no cycles, where each collection would walk every live object
+    (measured: a fifth of a 250 000-point sweep). Reference counting still frees
+    everything; the collector runs again afterwards, as it was."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _named(point_texts: tuple[str, ...], fn, arg):
