@@ -500,3 +500,18 @@ def test_a_bulk_batch_sweep_names_a_bad_grid_point():
         sweep.run_sweep("example-3.6", [sweep.parse_grid("k=1:2:2"),
                                         sweep.parse_grid("r=0.1:0.11:3")], [],
                         stop=2.0, engine="batch")
+
+
+def test_api_sweep_defaults_to_the_batch_engine_and_equals_per_point():
+    from delaycomp import api
+    from delaycomp.scenarios import loop_file
+
+    notes: list[str] = []
+    grid = {"r": [0.0, 0.3, 0.6], "r_true": [0.3, 0.7]}
+    b = api.sweep(loop_file("example-3.6"), grid, stop_time=6.0, notes=notes, chunk=4)
+    s = api.sweep(loop_file("example-3.6"), grid, stop_time=6.0, engine="inprocess")
+    assert notes == ["batch engine (numpy, cpu): 6 of 6 points in 2 chunks"]
+    assert [(x["r"], x["r_true"]) for x in b] == [(r, t) for r in grid["r"]
+                                                  for t in grid["r_true"]]
+    for x, y in zip(b, s):
+        assert_same(x, y, LTI_REL)

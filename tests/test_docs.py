@@ -42,3 +42,11 @@ def test_every_page_in_the_nav_exists():
     assert len(pages) > 15
     missing = [p for p in pages if not (REPO / "docs" / p).is_file()]
     assert missing == []
+
+
+def test_stability_map_page_code_prints_what_its_comment_says(capsys):
+    page = (REPO / "docs" / "howto" / "stability-maps.md").read_text(encoding="utf-8")
+    (block,) = _python_blocks(page)
+    exec(compile(block, "stability-maps", "exec"), {})
+    shown = re.search(r"print\(notes\)\s+# (.*)", block).group(1)
+    assert capsys.readouterr().out.strip() == shown
