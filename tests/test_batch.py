@@ -464,7 +464,8 @@ def test_designs_of_many_points_are_their_designs_one_by_one():
     dict(r=0.305), dict(r=-0.1), dict(tau_true=math.nan), dict(r_true=0.33), dict(T=0.0),
     dict(T=math.inf), dict(N=0), dict(N=10.0), dict(K=[[1.0, 2.0, 3.0]]),
     dict(A=[[0.0, math.inf], [0.5, 0.0]]), dict(x0=[1.0]), dict(u0=[0.0, 1.0]),
-    dict(mode="sideways"), dict(A=[[0.0, 1.0]]), dict(B=[[1.0]]),
+    dict(mode="sideways"), dict(mode=["compensated"]), dict(A=[[0.0, 1.0]]), dict(B=[[1.0]]),
+    dict(A=[[[0.0]]]), dict(K="x"), dict(T="1"), dict(r=None), dict(tau="0.5"),
 ], ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
 def test_designs_of_many_points_accept_no_point_that_one_by_one_refuses(changes):
     """One bad point anywhere in the grid: the batch is refused (``None``: validate one by

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -310,9 +311,9 @@ def _mat(label: str, M) -> dict:
 
 def _delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[float, float]:
     for name, value in (("r", r), ("tau", tau), ("r_true", r_true), ("tau_true", tau_true)):
-        if value is None:
+        if value is None and name in ("r_true", "tau_true"):  # default: the assumed one
             continue
-        if not (math.isfinite(value) and value >= 0):
+        if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
             raise ParameterError(f"parameter {name} = {value!r} is not allowed: must be a "
                                  "finite number >= 0")
         timing.check_on_grid(name, value)
@@ -349,13 +350,12 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
     ...
     delaycomp.errors.ParameterError: parameter r = 0.305 is not allowed: must be a multiple ...
     """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    B = np.atleast_2d(np.asarray(B, dtype=float))
-    K = np.atleast_2d(np.asarray(K, dtype=float))
+    A, B, K = (np.atleast_2d(_floats(f"matrix {label}", M))
+               for label, M in (("A", A), ("B", B), ("K", K)))
     n = A.shape[0]
-    if A.shape != (n, n):
+    if A.ndim != 2 or A.shape != (n, n):
         raise ParameterError(f"matrix A has shape {A.shape}: must be square (n x n)")
-    if B.shape[0] != n:
+    if B.ndim != 2 or B.shape[0] != n:
         raise ParameterError(f"matrix B has shape {B.shape}: must have n = {n} rows")
     m = B.shape[1]
     if K.shape != (m, n):
@@ -364,8 +364,8 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
     for label, M in (("A", A), ("B", B), ("K", K)):
         if not np.isfinite(M).all():
             raise ParameterError(f"matrix {label} has entries that are not finite numbers")
-    x0 = np.asarray(x0, dtype=float).ravel()
-    u0 = np.asarray(u0, dtype=float).ravel()
+    x0 = _floats("parameter x0", x0).ravel()
+    u0 = _floats("parameter u0", u0).ravel()
     if x0.shape != (n,):
         raise ParameterError(f"parameter x0 has {x0.size} values: must have n = {n}")
     if u0.shape != (m,):
@@ -457,13 +457,22 @@ def lti_designs(args: list[dict]) -> LtiBatch | None:
         mode = np.array([a["mode"] for a in args], dtype=object)
         ok = (A.shape[1:] == (n, n) and K.shape[1:] == (m, n) and x0.shape[1] == n
               and u0.shape[1] == m and np.isfinite(A).all() and np.isfinite(B).all()
-              and np.isfinite(K).all() and set(mode.tolist()) <= set(MODES)
+              and np.isfinite(K).all() and all(isinstance(md, str) and md in MODES
+                                               for md in mode.tolist())
               and bool(np.all(np.isfinite(T_a) & (T_a > 0))) and bool(np.all(N_a >= 1)))
         for d in (r, tau, r_true, tau_true):
             ok = ok and bool(np.all(np.isfinite(d) & (d >= 0) & grid.on_grid_array(d, h)))
     if not ok:
         return None
     return LtiBatch(A, B, K, T_a, N_a, r, tau, r_true, tau_true, x0, u0, mode)
+
+
+def _floats(what: str, value) -> np.ndarray:
+    """``value`` as an array of floats, or a one-line ParameterError naming ``what``."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} = {value!r} is not allowed: must be numbers") from None
 
 
 def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "loop",
