@@ -36,7 +36,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .scenarios import open_source
-from .system import LtiBatch
+from .system import LtiBatch, Timing
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -356,6 +356,8 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
                 loops.append(item if item is not None else _named(point_texts, sc.make, p))
         del params
         rows = [dict(zip(names, values)) for values in points(axes)]
+    if not exact:  # --exact takes rho from the lifted model: no run, no stop time
+        _check_stop(loops, grid_texts, float(stop))
     if batched:
         results = _run_batch(job, loops, float(stop), workers, scheduler, array_backend,
                              chunk, notes if notes is not None else [], verbosity)
@@ -368,6 +370,22 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         for row, res in zip(rows, results):
             row.update(res)
     return rows
+
+
+def _check_stop(loops, grid_texts: list[tuple[str, ...]], stop: float) -> None:
+    """Refuse a stop time that is not a whole number of some point's base step, naming the
+    first such point (before anything runs, for every engine)."""
+    if not (math.isfinite(stop) and stop > 0):
+        raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
+    if isinstance(loops, LtiBatch):
+        pairs = list(zip(loops.T.tolist(), loops.N.tolist()))
+    else:
+        pairs = [(loop.timing.T, loop.timing.N) for loop in loops]
+    seen = set()
+    for i, (T, N) in enumerate(pairs):
+        if (T, N) not in seen:
+            seen.add((T, N))
+            _named(grid_texts[i], Timing(T, N).ticks, stop)
 
 
 @contextlib.contextmanager
@@ -400,12 +418,6 @@ def _run_batch(job, loops, stop: float, workers: int, scheduler: str | None,
     (``job(i)`` is point ``i``'s :class:`Job`)."""
     from . import batch, sweep_batch
 
-    if not (math.isfinite(stop) and stop > 0):
-        raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
-    timings = loops.timings() if isinstance(loops, LtiBatch) else {
-        loop.timing for loop in loops}
-    for timing in timings:  # as the per-point engine asks
-        timing.ticks(stop)
     try:
         be = batch.get_backend(backend)
     except batch.BatchError as exc:

@@ -516,3 +516,15 @@ def test_api_sweep_defaults_to_the_batch_engine_and_equals_per_point():
                                                   for t in grid["r_true"]]
     for x, y in zip(b, s):
         assert_same(x, y, LTI_REL)
+
+
+@pytest.mark.parametrize("engine", ["batch", "inprocess", "fmu"])
+def test_a_stop_time_off_some_points_grid_names_the_point(engine):
+    """T = 1.5, N = 50 has h = 0.03, and 20 s is not a whole number of it: refused before
+    anything runs (no FMU is built), naming the point, whatever the engine."""
+    from delaycomp.errors import ParameterError
+
+    axes = [sweep.parse_grid("T=0.5:1.5:3"), sweep.parse_grid("N=50:100:2")]
+    with pytest.raises(ParameterError, match=r"^grid point T=1\.5, N=50: --stop-time 20\.0 "
+                                             r"is not allowed: .* h = T/N = 0\.03$"):
+        sweep.run_sweep("example-3.6", axes, ["r=0.3"], stop=20.0, engine=engine)
