@@ -114,8 +114,8 @@ def get_backend(name: str = "numpy") -> Backend:
         try:
             import cupy
         except ImportError:
-            raise BatchError("array backend cupy is not installed: pip install cupy-cuda12x "
-                             "(needs an NVIDIA GPU)") from None
+            raise BatchError("array backend cupy is not installed: pip install "
+                             "'delaycomp[cupy]' (CUDA 12; needs an NVIDIA GPU)") from None
         try:
             count = cupy.cuda.runtime.getDeviceCount()
         except Exception as exc:  # noqa: BLE001 - no driver, no device: say so in one line
@@ -486,6 +486,8 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
         for i in range(kmax // N + 1):
             k0 = i * N
             bi = i % nb
+            if not is_np and i > 0:  # row 0 of this block: the last step's result
+                xb = be.put(xb, (bi, 0), xp.stack(x))
             # the controller at the sampling instant k0
             if Dr_uniform:
                 src = k0 - int(Dr[0])
@@ -505,6 +507,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
                         "overflowed)", T, h)
             U = be.put(U, i % Ru, held)
             rows = min(N, kmax - k0 + 1)
+            later = []  # other libraries: rows 1.. of this block, written once at its end
             for row in range(rows):
                 k = k0 + row
                 v, changed = plant_input(k, row, v)
@@ -531,10 +534,12 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
                             np.add(out, tmp, out=out)
                         np.add(out, bv[a], out=out)
                     x = [xb[bi1, row1, a] for a in range(n)]
-                else:
+                else:  # JAX arrays are immutable: one write a block, not one a tick
                     x = [_dot(Ad_d[a], x) + bv[a] for a in range(n)]
-                    for a in range(n):
-                        xb = be.put(xb, (bi1, row1, a), x[a])
+                    if row1:
+                        later.append(xp.stack(x))
+            if later:
+                xb = be.put(xb, (bi, slice(1, 1 + len(later))), xp.stack(later))
             acc.block(xb[bi, :rows], k0, T, h)
     res = acc.finish(T, h)
     if record:
