@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import gc
 import itertools
 import math
@@ -36,7 +37,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .scenarios import open_source
-from .system import LtiBatch, Timing
+from .system import FmuFile, LtiBatch, Timing
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -437,12 +438,20 @@ def _run_batch(job, loops, stop: float, workers: int, scheduler: str | None,
     done = sum(len(idx) for idx, _ in chunks)
     notes.append(f"batch engine ({be.name}, {be.device}): {done} of {total} points in "
                  f"{len(chunks)} chunk{'s' if len(chunks) != 1 else ''}")
-    if fallback:
-        reasons = sorted({why for _, why in fallback})
-        notes.append(f"per-point engine (inprocess): {len(fallback)} points, because "
+    # the others point by point: in-process, or as FMUs where the loop holds an FMU file
+    # (the in-process engine runs delaycomp's own slaves only)
+    by_engine: dict[str, list[tuple[int, str]]] = {}
+    for i, why in fallback:
+        files = any(isinstance(inst.source, FmuFile) for inst in loops[i].instances)
+        by_engine.setdefault("fmu" if files else "inprocess", []).append((i, why))
+    for name, items in by_engine.items():
+        reasons = sorted({why for _, why in items})
+        notes.append(f"per-point engine ({name}): {len(items)} points, because "
                      + "; ".join(reasons))
-        rest = _run_jobs([job(i) for i, _ in fallback], workers, scheduler, progress)
-        for (i, _), row in zip(fallback, rest):
+        jobs = [dataclasses.replace(job(i), engine=name) for i, _ in items]
+        if name == "fmu":
+            _prebuild(jobs)
+        for (i, _), row in zip(items, _run_jobs(jobs, workers, scheduler, progress)):
             results[i] = row
     return results
 

@@ -252,6 +252,15 @@ def test_sweep_over_the_measurement_delay(folder):
     rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0)
     assert [row["r"] for row in rows] == [0.0, 0.2, 0.4]
     assert all(row["stable"] == 1 for row in rows), rows
+    # the batch engine does not take a plant FMU: every point runs point by point, and the
+    # notes say so and why
+    notes: list[str] = []
+    batched = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0,
+                        engine="batch", notes=notes)
+    assert notes == ["batch engine (numpy, cpu): 0 of 3 points in 0 chunks",
+                     "per-point engine (fmu): 3 points, because the plant is an FMU file"],\
+        notes
+    assert batched == rows
 
 
 def test_delay_built_without_feedthrough_declares_none_and_refuses_a_zero_delay(tmp_path):
