@@ -348,7 +348,12 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         # a batch sweep of an LTI source needs each point's design, not its loop's
         # instances: Scenario.designs (all points at once), else Scenario.design /
         # LoopFile.design (one by one) validate it with the same checks as make
-        loops = sc.designs(params) if batched and hasattr(sc, "designs") else None
+        loops = None
+        if batched and hasattr(sc, "designs"):
+            try:
+                loops = sc.designs(params)
+            except ParameterError:  # one by one below, which names the point
+                loops = None
         if loops is None:
             design = getattr(sc, "design", None) if batched else None
             loops = []

@@ -421,6 +421,27 @@ def test_a_loop_files_design_refuses_what_its_loop_refuses(sets):
     with pytest.raises(ParameterError) as designed:
         lf.design(data)
     assert str(designed.value) == str(built.value)
+    good = lf.resolve(["r=0.2"])
+    assert lf.designs([good, data]) is None and lf.designs([data, good]) is None
+    assert lf.designs([good, good]) is not None
+
+
+def test_a_loop_files_designs_are_its_designs_one_by_one(tmp_path):
+    """``LoopFile.designs`` (lists shared by the points parsed once, the checks vectorized)
+    stacks what ``LoopFile.design`` gives point by point."""
+    mimo = tmp_path / "mimo.toml"
+    mimo.write_text(MIMO_LOOP, encoding="utf-8")
+    lf = scenarios.open_source(str(mimo))
+    datas = [lf.resolve([f"r={r}", f"r_true={rt}", f"T={T}", "controller.u0=[0.5]"])
+             for r in (0.0, 0.3) for rt in (0.1, 0.45) for T in (0.5, 0.25)]
+    many = lf.designs(datas)
+    one = [lf.design(d) for d in datas]
+    assert len(many) == len(one) == 8
+    for name in ("A", "B", "K", "x0", "u0", "r", "tau", "mode"):
+        assert np.array_equal(getattr(many, name),
+                              np.array([getattr(p.lti, name) for p in one])), name
+    assert many.r_true.tolist() == [p.lti.r_true for p in one]
+    assert many.timings() == {p.timing for p in one}
 
 
 def test_a_batch_sweep_of_a_loop_file_names_a_bad_point(tmp_path):

@@ -51,7 +51,7 @@ import tomllib
 
 from ..errors import BadFileError, ParameterError
 from ..lti import MODES
-from .loop import Loop, LtiPoint, design_loop, lti_design, model_loop
+from .loop import Loop, LtiBatch, LtiPoint, design_loop, lti_design, lti_designs, model_loop
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
 PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu", "states",
@@ -301,6 +301,10 @@ class LoopFile:
         LTI loop file; ``None`` otherwise): see :func:`design`."""
         return design(data, where=self.path.name)
 
+    def designs(self, datas: list[dict]) -> LtiBatch | None:
+        """The designs of many resolved points at once, or ``None``: see :func:`designs`."""
+        return designs(datas, where=self.path.name)
+
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         return self.make(self.resolve(assignments))
 
@@ -344,32 +348,49 @@ def _top(data: dict, where: str) -> dict:
     return top
 
 
-def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
-    """The design of an LTI loop file (``[plant] A, B``) and its state and input names,
-    checked as :func:`build` checks them: shapes and grid
-    (:func:`~delaycomp.system.lti_design`), zero-order hold, the sign guard."""
-    plant, ctrl, T, tau = top["plant"], top["ctrl"], top["T"], top["tau"]
-    x0 = _array("plant.x0", plant["x0"], 1)
+def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str], bool]:
+    """The :func:`~delaycomp.system.lti_design` arguments of an LTI loop file
+    (``[plant] A, B``), its state and input names, and whether the sign guard applies;
+    the keys and values checked as :func:`build` checks them (``array`` parses a list)."""
+    plant, ctrl = top["plant"], top["ctrl"]
+    x0 = array("plant.x0", plant["x0"], 1)
     _check_keys(f"{where} [plant]", plant, ("A", "B", "x0", "state", "input"))
     _check_keys(f"{where} [controller]", ctrl, ("mode", "K", "u0", "allow_unstable"))
     if "B" not in plant or "K" not in ctrl:
         raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
-    A = _array("plant.A", plant["A"], 2)
-    B = _array("plant.B", plant["B"], 2)
-    K = _array("controller.K", ctrl["K"], 2)
-    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
+    A = array("plant.A", plant["A"], 2)
+    B = array("plant.B", plant["B"], 2)
+    K = array("controller.K", ctrl["K"], 2)
+    u0 = array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
     names = (_ident("plant.state", plant.get("state", "x")),
              _ident("plant.input", plant.get("input", "u")))
-    point = lti_design(A, B, K, T, top["r"], tau, top["N"], top["mode"], x0, u0,
-                       top["r_true"], top["tau_true"])
+    guard = not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False))
+    args = dict(A=A, B=B, K=K, T=top["T"], r=top["r"], tau=top["tau"], N=top["N"],
+                mode=top["mode"], x0=x0, u0=u0, r_true=top["r_true"],
+                tau_true=top["tau_true"])
+    return args, names, guard
+
+
+def _lti_last(args: dict, guard: bool) -> None:
+    """The checks of an LTI loop file after its design's: zero-order hold, the sign guard."""
+    T, tau = args["T"], args["tau"]
     if tau > 0:
         from ..grid import split
 
         if split(tau, T)[1] != 0.0:
             raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
                                  f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
-    if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
-        check_sign(A, B, K, T)
+    if guard:
+        check_sign(args["A"], args["B"], args["K"], T)
+
+
+def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
+    """The design of an LTI loop file and its state and input names, checked as
+    :func:`build` checks them: keys, shapes and grid (:func:`~delaycomp.system.lti_design`),
+    zero-order hold, the sign guard."""
+    args, names, guard = _lti_args(top, where)
+    point = lti_design(**args)
+    _lti_last(args, guard)
     return point, *names
 
 
@@ -382,6 +403,38 @@ def design(data: dict, where: str = "loop") -> LtiPoint | None:
     if "fmu" in plant or "A" not in plant:
         return None
     return _lti(top, where)[0]
+
+
+def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
+    """:func:`design` of many resolved points at once (a batch sweep's grid): each point's
+    keys and lists are checked as :func:`build` checks them (a list shared by the points,
+    one no ``--set`` replaced, is parsed once), the design's checks are made vectorized
+    (:func:`~delaycomp.system.lti_designs`). ``None`` where the points are not LTI, do not
+    stack or some point is refused: check those one by one with :func:`design`, which
+    names what is wrong."""
+    parsed: dict[tuple, tuple] = {}
+
+    def array(what: str, value, ndim: int) -> np.ndarray:
+        key = (what, id(value), ndim)
+        hit = parsed.get(key)
+        if hit is None or hit[0] is not value:  # the list itself kept: its id stays its own
+            hit = parsed[key] = (value, _array(what, value, ndim))
+        return hit[1]
+
+    try:
+        points = []
+        for data in datas:
+            top = _top(data, where)
+            if "fmu" in top["plant"] or "A" not in top["plant"]:
+                return None
+            points.append(_lti_args(top, where, array))
+        batch = lti_designs([args for args, _, _ in points])
+        if batch is not None:
+            for args, _, guard in points:
+                _lti_last(args, guard)
+        return batch
+    except ParameterError:
+        return None
 
 
 def build(data: dict, base: Path, name: str = "loop", title: str = "",
