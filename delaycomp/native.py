@@ -40,6 +40,7 @@ import delaycomp
 import delaycomp.fmus
 
 from .build import CONFIG_NAME, DEFAULT_CONFIG, FMUS
+from .tmpfiles import zip_folder
 
 __all__ = ["NATIVE_KINDS", "NativeBuildError", "build_native", "build_native_fmu",
            "compile_host", "compiler", "host_argv", "native_archive", "native_fmu_dir",
@@ -285,12 +286,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         doc.mkdir()
         shutil.copy2(FMUS[kind].folder / "README.md", doc / "README.md")
         shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
-        part = target.with_name(target.name + ".part")
-        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
-            for path in sorted(stage.rglob("*")):
-                if path.is_file():
-                    zf.write(path, path.relative_to(stage).as_posix())
-        part.replace(target)
+        zip_folder(stage, target)
     return target
 
 

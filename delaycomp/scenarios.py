@@ -105,11 +105,18 @@ class Scenario:
     builder: Callable[[dict], Loop]
     default_stop_time: float
     check: Callable[[dict], None] = lambda p: None
-    #: for LTI scenarios: parameters -> (A, B, K) of ``x' = A x + B u``, ``u = K x``
-    lti: Callable[[dict], tuple] | None = None
     #: for LTI scenarios: parameters -> the arguments of :func:`~delaycomp.system.lti_design`
     #: (the builder is then ``lti_loop`` of the same arguments), for :meth:`design`
     lti_args: Callable[[dict], dict] | None = None
+
+    @property
+    def lti(self) -> Callable[[dict], tuple] | None:
+        """For LTI scenarios: parameters -> ``(A, B, K)`` of ``x' = A x + B u``,
+        ``u = K x`` (from :attr:`lti_args`); ``None`` for the others."""
+        args = self.lti_args
+        if args is None:
+            return None
+        return lambda p: tuple(args(p)[key] for key in ("A", "B", "K"))
 
     def make(self, params: dict) -> Loop:
         """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
@@ -244,14 +251,10 @@ def _check_timing(p: dict) -> None:
     _check_grid(p, zoh=False)
 
 
-def _example_3_6_matrices(p: dict) -> tuple:
-    return [[1.0]], [[1.0]], [[-p["k"]]]
-
-
 def _example_3_6_args(p: dict) -> dict:
-    A, B, K = _example_3_6_matrices(p)
-    return dict(A=A, B=B, K=K, T=p["T"], r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"],
-                x0=[p["x0"]], u0=[p["u0"]], r_true=p["r_true"], tau_true=p["tau_true"])
+    return dict(A=[[1.0]], B=[[1.0]], K=[[-p["k"]]], T=p["T"], r=p["r"], tau=p["tau"],
+                N=p["N"], mode=p["mode"], x0=[p["x0"]], u0=[p["u0"]], r_true=p["r_true"],
+                tau_true=p["tau_true"])
 
 
 def _example_3_6(p: dict) -> Loop:
@@ -282,7 +285,6 @@ EXAMPLE_3_6 = Scenario(
     builder=_example_3_6,
     default_stop_time=20.0,
     check=_check_timing,
-    lti=_example_3_6_matrices,
     lti_args=_example_3_6_args,
 )
 
@@ -394,17 +396,13 @@ def _corollary_3_7_check(p: dict) -> None:
     _check_lengths(p, p["n"], 1, indexed("x", p["n"]), ("u",))
 
 
-def _corollary_3_7_matrices(p: dict) -> tuple:
+def _corollary_3_7_args(p: dict) -> dict:
     from .predictors import deadbeat_gain
 
     n = p["n"]
-    return np.eye(n, k=1), np.eye(n)[:, -1:], deadbeat_gain(n, p["T"])
-
-
-def _corollary_3_7_args(p: dict) -> dict:
-    A, B, K = _corollary_3_7_matrices(p)
-    return dict(A=A, B=B, K=K, T=p["T"], r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"],
-                x0=p["x0"], u0=p["u0"], r_true=p["r_true"], tau_true=p["tau_true"])
+    return dict(A=np.eye(n, k=1), B=np.eye(n)[:, -1:], K=deadbeat_gain(n, p["T"]), T=p["T"],
+                r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"], x0=p["x0"], u0=p["u0"],
+                r_true=p["r_true"], tau_true=p["tau_true"])
 
 
 def _corollary_3_7(p: dict) -> Loop:
@@ -427,7 +425,6 @@ COROLLARY_3_7 = Scenario(
     builder=_corollary_3_7,
     default_stop_time=10.0,
     check=_corollary_3_7_check,
-    lti=_corollary_3_7_matrices,
     lti_args=_corollary_3_7_args,
 )
 

@@ -54,6 +54,7 @@ from lxml import etree
 
 from .errors import DelaycompError, ParameterError
 from .system import ROLES, BuiltinFmu, Connection, FmuFile, Instance, Loop, ModelFmu, Port, Timing
+from .tmpfiles import zip_folder
 
 SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -374,12 +375,7 @@ def pack(spec: Loop, info: SystemInfo, out: str | Path,
             if not target.exists():
                 shutil.copyfile(src, target)
         out.parent.mkdir(parents=True, exist_ok=True)
-        part = out.with_name(out.name + ".part")
-        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
-            for f in sorted(folder.rglob("*")):
-                if f.is_file():
-                    zf.write(f, f.relative_to(folder).as_posix())
-        part.replace(out)
+        zip_folder(folder, out)
     return out
 
 

@@ -2,7 +2,8 @@
 
 A folder made by :func:`temp_dir` is named ``<prefix><pid>-<random>``; :func:`sweep`
 removes the folders of a prefix whose process is gone (killed before its cleanup ran).
-:func:`build_lock` lets one process build a cache entry while the others wait.
+:func:`build_lock` lets one process build a cache entry while the others wait;
+:func:`zip_folder` writes an archive (an FMU, an SSP) that appears whole or not at all.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import contextlib
 import os
 import shutil
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -85,3 +87,15 @@ def build_lock(target: Path) -> Iterator[None]:
     finally:
         fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
+
+
+def zip_folder(folder: Path, target: Path) -> Path:
+    """Zip every file below ``folder`` (paths relative to it, sorted) into ``target``,
+    written as ``target.part`` and renamed: a reader never sees half an archive."""
+    part = target.with_name(target.name + ".part")
+    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                zf.write(path, path.relative_to(folder).as_posix())
+    part.replace(target)
+    return target

@@ -161,19 +161,14 @@ def check_mapping(fmu: FmuInterface, states, inputs, parameters: Mapping | None,
                              f"{here} (binaries: {have})")
     states = _names(f"{where}.states", states)
     inputs = _names(f"{where}.inputs", inputs)
-    outs, ins = fmu.of("output"), fmu.of("input")
-    for s in states:
-        var = fmu.variables.get(s)
-        if var is None or var.causality != "output" or var.type != "Real":
-            what = "no variable" if var is None else f"a {var.type} {var.causality}"
-            raise ParameterError(f"{where}.states: {s!r} is {what} of {name}: must be a Real "
-                                 f"output ({', '.join(outs) or 'it has none'})")
-    for u in inputs:
-        var = fmu.variables.get(u)
-        if var is None or var.causality != "input" or var.type != "Real":
-            what = "no variable" if var is None else f"a {var.type} {var.causality}"
-            raise ParameterError(f"{where}.inputs: {u!r} is {what} of {name}: must be a Real "
-                                 f"input ({', '.join(ins) or 'it has none'})")
+    for key, names, causality in (("states", states, "output"), ("inputs", inputs, "input")):
+        for s in names:
+            var = fmu.variables.get(s)
+            if var is None or var.causality != causality or var.type != "Real":
+                what = "no variable" if var is None else f"a {var.type} {var.causality}"
+                have = ", ".join(fmu.of(causality)) or "it has none"
+                raise ParameterError(f"{where}.{key}: {s!r} is {what} of {name}: must be a "
+                                     f"Real {causality} ({have})")
     values = {}
     if parameters is not None and not isinstance(parameters, Mapping):
         raise ParameterError(f"{where}.parameters is not allowed: must be a table "
