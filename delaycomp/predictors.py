@@ -16,10 +16,12 @@ The closed forms of Example 2.4 and of the unicycle live with their models in
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import warnings
 from collections.abc import Callable, Sequence
+from fractions import Fraction
 
 import numpy as np
 from scipy.integrate import ode, solve_ivp
@@ -314,14 +316,64 @@ def chain_predictor(theta: Callable, theta_inv: Callable, n: int) -> Callable:
 def deadbeat_gain(n: int, T: float) -> np.ndarray:
     """Row ``K`` with ``e^{A0 T} + G(T) B0 K`` nilpotent (chain of ``n`` integrators).
 
-    Ackermann's formula for the exact discretization with every pole at zero:
-    ``K = -e_n' [Bd, Ad Bd, ..., Ad^{n-1} Bd]^{-1} Ad^n``.
+    Ackermann's formula for the exact discretization with every pole at zero,
+    ``K = -e_n' [Bd, Ad Bd, ..., Ad^{n-1} Bd]^{-1} Ad^n``, evaluated in exact rational
+    arithmetic: for ``T = 1`` the entries of ``Ad = e^{A0}`` and ``Bd`` are ``1/k!``, and the
+    time scaling ``xi_j(s) = T^{j-1} x_j(T s)`` turns the chain with period ``T`` into the one
+    with period 1, so ``K_j(T) = K_j(1) / T^{n-j+1}`` (``T`` is taken as the exact rational
+    its float is). Each entry is the float nearest the exact gain: the same on every
+    machine, whatever its BLAS or libm.
+
+    Parameters
+    ----------
+    n : int
+        Number of integrators, ``n >= 1``.
+    T : float
+        Sampling period, ``T > 0``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The gain, shape ``(1, n)``, for ``u = K x``.
+
+    Examples
+    --------
+    >>> deadbeat_gain(3, 1.0).tolist()
+    [[-1.0, -2.0, -1.8333333333333333]]
+    >>> deadbeat_gain(2, 0.5).tolist()       # -(1/T^2, 3/(2T))
+    [[-4.0, -3.0]]
     """
-    A0 = np.eye(n, k=1)
-    B0 = np.zeros((n, 1))
-    B0[-1, 0] = 1.0
-    Ad, Bd = flow(A0, B0, T)
-    ctrb = np.hstack([np.linalg.matrix_power(Ad, j) @ Bd for j in range(n)])
-    e_n = np.zeros((1, n))
-    e_n[0, -1] = 1.0
-    return -e_n @ np.linalg.solve(ctrb, np.linalg.matrix_power(Ad, n))
+    t = Fraction(T)
+    return np.array([[float(k / t ** (n - j)) for j, k in enumerate(_unit_deadbeat_gain(n))]])
+
+
+@functools.cache
+def _unit_deadbeat_gain(n: int) -> tuple[Fraction, ...]:
+    """The dead-beat gain of :func:`deadbeat_gain` for ``T = 1``, as exact rationals."""
+    Ad = [[Fraction(1, math.factorial(j - i)) if j >= i else Fraction(0) for j in range(n)]
+          for i in range(n)]
+    Bd = [Fraction(1, math.factorial(n - i)) for i in range(n)]
+
+    def mat_vec(M, v):
+        return [sum((a * b for a, b in zip(row, v)), Fraction(0)) for row in M]
+
+    # columns Ad^j Bd, j = 0..n-1, and Ad^n (as rows of the product Ad^n)
+    cols, v = [], Bd
+    for _ in range(n):
+        cols.append(v)
+        v = mat_vec(Ad, v)
+    # e_n' C^{-1} = w' with C' w = e_n: solve by Gaussian elimination (C is invertible:
+    # the chain is controllable)
+    aug = [[cols[i][j] for j in range(n)] + [Fraction(int(i == n - 1))] for i in range(n)]
+    for c in range(n):
+        piv = next(r for r in range(c, n) if aug[r][c] != 0)
+        aug[c], aug[piv] = aug[piv], aug[c]
+        for r in range(n):
+            if r != c and aug[r][c] != 0:
+                f = aug[r][c] / aug[c][c]
+                aug[r] = [x - f * y for x, y in zip(aug[r], aug[c])]
+    w = [aug[i][n] / aug[i][i] for i in range(n)]
+    # K(1) = -w' Ad^n; Ad^n = e^{n A0} has entries n^(j-i) / (j-i)!
+    adn = [[Fraction(n ** (j - i), math.factorial(j - i)) if j >= i else Fraction(0)
+            for j in range(n)] for i in range(n)]
+    return tuple(-sum((w[i] * adn[i][j] for i in range(n)), Fraction(0)) for j in range(n))

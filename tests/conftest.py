@@ -18,6 +18,14 @@ settings.load_profile(os.environ.get("DELAYCOMP_HYPOTHESIS_PROFILE", "ci"))
 REPO = Path(__file__).resolve().parent.parent
 
 
+def machine_blas_settings(environ=None) -> list[str]:
+    """The machine's ``OPENBLAS_*`` settings as ``NAME=VALUE`` for a child started with a
+    cleared environment (``env -i``): some processors need them (other kernels crash or
+    compute wrong results there), so a test never drops them (tests/test_machines.py)."""
+    environ = os.environ if environ is None else environ
+    return [f"{k}={v}" for k, v in sorted(environ.items()) if k.startswith("OPENBLAS_")]
+
+
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory) -> Path:
     """Folder with the default FMUs, built by the same code as ``delaycomp build``."""

@@ -21,6 +21,8 @@ import pytest
 from delaycomp import check, scenarios, ssp, thirdparty
 from delaycomp.simulate import run_loop
 
+from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_csv_close
+
 pytestmark = pytest.mark.fmu
 
 #: one reference case per scenario, and the prefix (s) each test runs
@@ -77,21 +79,22 @@ def test_master_reproduces_our_trajectory_and_the_reference(packed, master, name
     res = thirdparty.run_ssp(master, path, stop)
     assert res.success, res.message
     assert res.names == ours.names
-    np.testing.assert_array_equal(res.times, ours.times)
+    assert_columns_close(res.times, ours.times, SAME_ARITHMETIC_ULPS, "time")
     assert np.all(np.abs(res.data - ours.data) <= OURS_RTOL * (1 + np.abs(ours.data))), (
         f"largest difference from our master {np.abs(res.data - ours.data).max():.3g}")
     err, ok = _compare_prefix(c, res, stop)
     assert ok, f"largest error against the reference {err:.3g}"
 
 
-def test_jacobi_variant_runs_bit_identically_in_our_master(packed):
-    """The variant is the same loop: our master gives the very same numbers on it."""
+def test_jacobi_variant_runs_identically_in_our_master(packed):
+    """The variant is the same loop: our master gives the same numbers on it (the same
+    arithmetic: to the last bits)."""
     from delaycomp.ssp import Archive
 
     _, stop, path, ours = packed["corollary-3.7"]
     with Archive(path) as archive:
         res = run_loop(archive.system.spec, stop, fmus=archive.fmus())
-    np.testing.assert_array_equal(res.data, ours.data)
+    assert_columns_close(res.data, ours.data, SAME_ARITHMETIC_ULPS, "jacobi")
 
 
 PROBES = [("tau=0", 1), ("tau=1", 201)]
@@ -155,8 +158,9 @@ def test_check_rows_for_both_masters():
 
 
 def test_cli_runs_a_jacobi_ssp_in_each_master(tmp_path):
-    """``delaycomp ssp --jacobi`` then ``run FILE.ssp --master M``: Ecos writes the very CSV
-    of ``run NAME`` (measured bit-identical); libcosim matches it to round-off."""
+    """``delaycomp ssp --jacobi`` then ``run FILE.ssp --master M``: each master's CSV is
+    ``run NAME``'s to round-off (Ecos's measured bit-identical here, but another process
+    on another kernel is only held to the last bits)."""
     from .test_cli import cli
 
     packed = tmp_path / "e38.ssp"
@@ -170,7 +174,7 @@ def test_cli_runs_a_jacobi_ssp_in_each_master(tmp_path):
         a = np.loadtxt(out, delimiter=",", skiprows=1)
         b = np.loadtxt(tmp_path / "ours.csv", delimiter=",", skiprows=1)
         assert np.all(np.abs(a - b) <= OURS_RTOL * (1 + np.abs(b))), master
-    assert (tmp_path / "ecos.csv").read_bytes() == (tmp_path / "ours.csv").read_bytes()
+    assert_csv_close(tmp_path / "ecos.csv", tmp_path / "ours.csv", SAME_ARITHMETIC_ULPS)
 
 
 BAD = [
