@@ -727,8 +727,12 @@ def _cmd_list(args) -> int:
             if len(head) > len(indent):  # a long default: the text on the next line
                 print(head.rstrip())
                 head = indent
-            print(textwrap.fill(f"{p.help}; {p.allowed}", LIST_WIDTH, initial_indent=head,
-                                subsequent_indent=indent, break_on_hyphens=False))
+            # an equation ("h = T/N", "u = -k x") stays on one line: its spaces are held by
+            # a placeholder while the text is wrapped
+            text = f"{p.help}; {p.allowed}".replace(" = ", "\0=\0")
+            print(textwrap.fill(text, LIST_WIDTH, initial_indent=head,
+                                subsequent_indent=indent,
+                                break_on_hyphens=False).replace("\0", " "))
     return 0
 
 

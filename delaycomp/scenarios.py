@@ -74,6 +74,15 @@ def real(name, default, help, allowed="a finite number", ok=lambda v: True) -> P
     return Param(name, default, help, allowed, _real, ok)
 
 
+#: The allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
+#: ``tau`` under continuous input): what :func:`_check_grid` enforces through
+#: :func:`delaycomp.grid.on_grid`, as ``delaycomp list`` and the README say it.
+ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
+#: ``tau`` under zero-order hold (Theorem 3.2); :data:`ZOH_TAU_PAD` where ``pad=1`` is offered.
+ZOH_TAU = "a finite multiple l*T of T, l >= 0"
+ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
+
+
 def _vector(text: str) -> tuple[float, ...]:
     return tuple(_real(part) for part in text.split(","))
 
@@ -233,9 +242,9 @@ def _split(assignment: str) -> tuple[str, str]:
 def _true_delay_params() -> tuple[Param, ...]:
     return (
         Param("r_true", None, "the loop's true measurement delay (default: r, the one the "
-              "controller assumes)", "a finite number >= 0", _real, lambda v: v >= 0),
+              "controller assumes)", ON_BASE_GRID, _real, lambda v: v >= 0),
         Param("tau_true", None, "the loop's true input delay (default: tau)",
-              "a finite number >= 0", _real, lambda v: v >= 0),
+              ON_BASE_GRID, _real, lambda v: v >= 0),
     )
 
 
@@ -272,9 +281,8 @@ EXAMPLE_3_6 = Scenario(
     params=(
         real("k", 2.0, "feedback gain, u = -k x"),
         real("T", 1.0, "sampling period", "a finite number > 0", lambda v: v > 0),
-        real("r", 0.3, "measurement delay", "a finite number >= 0", lambda v: v >= 0),
-        real("tau", 0.0, "input delay", "a finite multiple l*T of T, l >= 0",
-             lambda v: v >= 0),
+        real("r", 0.3, "measurement delay", ON_BASE_GRID, lambda v: v >= 0),
+        real("tau", 0.0, "input delay", ZOH_TAU, lambda v: v >= 0),
         Param("N", 100, "base steps per sampling period (h = T/N)", "a positive integer",
               _positive_int, lambda v: v >= 1),
         _mode_param(),
@@ -290,11 +298,11 @@ EXAMPLE_3_6 = Scenario(
 
 # -- the nonlinear examples and Corollary 3.7 -------------------------------------------
 
-def _timing_params(T, r, tau, N=100) -> tuple[Param, ...]:
+def _timing_params(T, r, tau, tau_allowed: str, N=100) -> tuple[Param, ...]:
     return (
         real("T", T, "sampling period", "a finite number > 0", lambda v: v > 0),
-        real("r", r, "measurement delay", "a finite number >= 0", lambda v: v >= 0),
-        real("tau", tau, "input delay", "a finite number >= 0", lambda v: v >= 0),
+        real("r", r, "measurement delay", ON_BASE_GRID, lambda v: v >= 0),
+        real("tau", tau, "input delay", tau_allowed, lambda v: v >= 0),
         Param("N", N, "base steps per sampling period (h = T/N)", "a positive integer",
               _positive_int, lambda v: v >= 1),
         *_true_delay_params(),
@@ -321,9 +329,11 @@ def _check_grid(p: dict, zoh: bool) -> None:
                 f"parameter {name} = {p[name]!r} is not allowed: must be a multiple of the "
                 f"base step h = T/N = {h!r} (raise N)")
     if zoh and not p.get("pad") and split_delay(p["tau"], T)[1] != 0.0:
+        # only a scenario that has the pad parameter suggests it (corollary-3.7 has none)
+        hint = "; set pad=1 to pad the input delay (Remark 3.3(b))" if "pad" in p else ""
         raise ParameterError(
             f"parameter tau = {p['tau']!r} is not allowed: zero-order hold needs a multiple "
-            f"l*T (l >= 0) of T = {T!r}; set pad=1 to pad the input delay (Remark 3.3(b))")
+            f"l*T (l >= 0) of T = {T!r}{hint}")
 
 
 def _check_lengths(p: dict, n: int, m: int, states, inputs) -> None:
@@ -348,7 +358,8 @@ def _model_scenario(name: str, title: str, module: str, defaults: dict, own: tup
                           pad=p.get("pad", False), r_true=p["r_true"],
                           tau_true=p["tau_true"])
 
-    params = (*_timing_params(defaults["T"], defaults["r"], defaults["tau"]),
+    tau_allowed = ZOH_TAU_PAD if zoh else ON_BASE_GRID
+    params = (*_timing_params(defaults["T"], defaults["r"], defaults["tau"], tau_allowed),
               *_history_params(defaults["x0"], defaults["u0"]), _PREDICTOR,
               *((_PAD,) if zoh else ()), *own)
     return Scenario(name, title, params, make, stop, check)
@@ -415,7 +426,7 @@ COROLLARY_3_7 = Scenario(
     params=(
         Param("n", 3, "number of integrators", "an integer from 1 to 12", _positive_int,
               lambda v: 1 <= v <= 12),
-        *_timing_params(1.0, 0.5, 1.0),
+        *_timing_params(1.0, 0.5, 1.0, ZOH_TAU),
         Param("x0", None, "initial state, comma-separated (default 1,-1,0.5,1,... of length "
                           "n), constant on [-r, 0]", "comma-separated finite numbers",
               _vector, lambda v: True),

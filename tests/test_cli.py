@@ -98,3 +98,60 @@ def test_list_names_every_parameter():
     assert proc.returncode == 0
     for name in ("k", "T", "r", "tau", "N", "mode", "x0", "u0"):
         assert f"    {name} " in proc.stdout
+
+
+def test_list_says_which_delays_lie_on_the_base_grid():
+    """``list`` states the grid rule the checks enforce: ``r`` (and the true delays) a
+    whole number of base steps everywhere; ``tau`` a multiple of ``T`` under zero-order
+    hold (base steps with ``pad=1``), base steps under continuous input."""
+    from delaycomp.scenarios import ON_BASE_GRID, SCENARIOS, ZOH_TAU, ZOH_TAU_PAD
+
+    proc = cli("list")
+    assert proc.returncode == 0
+    assert max(len(line) for line in proc.stdout.splitlines()) <= 100
+    blocks = {b.split(":", 1)[0]: " ".join(b.split()) for b in proc.stdout.split("\n\n")}
+    assert blocks.keys() == SCENARIOS.keys()
+    tau = {"example-3.6": ZOH_TAU, "corollary-3.7": ZOH_TAU,
+           "example-3.8": ZOH_TAU_PAD, "proposition-4.2": ZOH_TAU_PAD,
+           "example-2.4": ON_BASE_GRID, "corollary-4.1": ON_BASE_GRID}
+    assert ON_BASE_GRID == "a finite number >= 0, a whole number of base steps h = T/N"
+    for name, text in blocks.items():
+        assert f"measurement delay; {ON_BASE_GRID} tau " in text, name
+        assert f"input delay; {tau[name]} N " in text, name
+        for true in ("r_true (= r)", "tau_true (= tau)"):
+            start = text.index(true)
+            assert ON_BASE_GRID in text[start:start + 200], (name, true)
+
+
+@pytest.mark.parametrize("name", ["example-3.6", "example-2.4", "example-3.8",
+                                  "corollary-3.7", "corollary-4.1", "proposition-4.2"])
+def test_what_list_allows_for_r_and_tau_is_what_is_accepted(name):
+    """The allowed-range text of ``r`` and ``tau`` is true: an off-grid value is refused
+    exactly where the text says so, and the refusal names the rule."""
+    from delaycomp import scenarios
+    from delaycomp.errors import ParameterError
+
+    sc = scenarios.get(name)
+    T, N = sc.param("T").default, sc.param("N").default
+    h = T / N
+    assert sc.param("r").allowed == scenarios.ON_BASE_GRID
+    sc.resolve([f"r={7 * h!r}"])
+    with pytest.raises(ParameterError, match="must be a multiple of the base step h = T/N"):
+        sc.resolve([f"r={7.5 * h!r}"])
+    with pytest.raises(ParameterError, match="whole number of base steps"):
+        sc.resolve(["r=-1"])          # the parse-time message is the list's text
+    allowed = sc.param("tau").allowed
+    has_pad = any(p.name == "pad" for p in sc.params)
+    half = [f"tau={T / 2!r}"]          # on the base grid (N even), not a multiple of T
+    with pytest.raises(ParameterError, match=r"tau = .* is not allowed"):  # off any grid
+        sc.resolve([f"tau={T + 0.5 * h!r}", *(["pad=1"] if has_pad else [])])
+    if allowed == scenarios.ON_BASE_GRID:
+        sc.resolve(half)
+    else:
+        assert allowed.startswith(scenarios.ZOH_TAU)
+        with pytest.raises(ParameterError, match="multiple l\\*T") as exc:
+            sc.resolve(half)
+        # the pad hint only where the scenario has pad, and pad=1 then takes the half period
+        assert ("pad=1" in str(exc.value)) == has_pad == ("pad=1" in allowed)
+        if has_pad:
+            sc.resolve([*half, "pad=1"])

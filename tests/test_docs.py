@@ -50,3 +50,64 @@ def test_stability_map_page_code_prints_what_its_comment_says(capsys):
     exec(compile(block, "stability-maps", "exec"), {})
     shown = re.search(r"print\(notes\)\s+# (.*)", block).group(1)
     assert capsys.readouterr().out.strip() == shown
+
+
+README = REPO / "README.md"
+
+
+def test_readme_states_the_grid_rule_of_r_and_tau_as_list_does():
+    """The README's Example 3.6 table and its ``list`` bullet give the allowed ranges of
+    ``r`` and ``tau`` in the words ``delaycomp list`` prints (:mod:`delaycomp.scenarios`)."""
+    from delaycomp import scenarios
+
+    text = README.read_text(encoding="utf-8")
+    plain = " ".join(text.replace("`", "").split())
+    sc = scenarios.get("example-3.6")
+    for name in ("r", "tau"):
+        p = sc.param(name)
+        row = f"| {name} | {p.default:g} | {p.help} ({p.allowed}) |"
+        assert row in plain, row
+    assert sc.param("r").allowed == scenarios.ON_BASE_GRID
+    assert f'is "{scenarios.ON_BASE_GRID}", as list says' in plain
+    assert f'zero-order hold tau is "{scenarios.ZOH_TAU}"' in plain
+    # the old, too weak wording of the README's rows is gone
+    assert "measurement delay (>= 0, a multiple" not in plain
+
+
+def test_readme_python_example_installs_what_it_imports():
+    """The README's first command installs the extra its Python example needs (so the
+    example runs after it; .ci/wheel-smoke runs it so), the extra exists and brings every
+    third-party module the example imports beyond the core dependencies."""
+    import ast
+    import sys
+
+    import tomllib
+
+    text = README.read_text(encoding="utf-8")
+    example = REPO / "docs" / "examples" / "own_plant.py"
+    first = re.search(r"```sh\n(.*)\n```", text).group(1)  # the README's first command
+    line = re.match(r"python3 -m venv \.venv && \.venv/bin/pip install '\.\[(\w+)\]' && ",
+                    first)
+    assert line, f"README's first command installs no extra: {first}"
+    extra = line.group(1)
+    assert "\n.venv/bin/python docs/examples/own_plant.py\n" in text  # how to run it
+    assert f'pip install "$(ls dist/delaycomp-*.whl)[{extra}]"' in text  # the wheel form
+    assert f"| `{extra}` | python-control |" in text                     # the extras table
+    project = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    extras = project["optional-dependencies"]
+    assert extras[extra] == ["control>=0.10"]
+    assert any(extra in spec for spec in extras["test"] if spec.startswith("delaycomp["))
+
+    def names(specs):
+        return {re.match(r"[A-Za-z0-9_.-]+", s).group(0).lower() for s in specs}
+
+    installed = names(project["dependencies"]) | names(extras[extra]) | {"delaycomp"}
+    imported = {(node.module if isinstance(node, ast.ImportFrom) else alias.name)
+                .split(".")[0]
+                for node in ast.walk(ast.parse(example.read_text(encoding="utf-8")))
+                if isinstance(node, ast.Import | ast.ImportFrom)
+                for alias in node.names}
+    third_party = imported - set(sys.stdlib_module_names)
+    assert "control" in third_party
+    assert third_party <= installed, third_party - installed
+    assert "control" not in names(project["dependencies"])
