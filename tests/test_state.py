@@ -6,7 +6,10 @@ Each test runs a closed loop through fmpy, saves the state of every FMU at a tic
 not a sampling instant (so held outputs, half-filled buffers and the sample counter all
 matter), runs to the end, restores, runs again, and then restores the serialized state
 into freshly instantiated FMUs. The three continuations must be equal bit for bit: no
-tolerance, since the same code runs on the same numbers.
+tolerance, since the same code runs on the same numbers in one process (the same BLAS
+kernel and libm on both sides), and a restored state is the same state, bytes and all
+(the one place besides archives and generated text where bytes are the contract; every
+other comparison of computed numbers is to round-off, tests/roundoff.py).
 """
 
 from __future__ import annotations
