@@ -47,10 +47,9 @@ import time
 from pathlib import Path
 
 from . import __version__, scenarios
-from .errors import BadFileError
+from .errors import BadFileError, SspError
 from .model import ModelError
 from .scenarios import ParameterError
-from .ssp import SspError
 
 
 class UsageError(Exception):
@@ -308,17 +307,19 @@ def _cmd_build(args) -> int:
 
 
 def _cmd_ssp(args) -> int:
-    from . import ssp
-
     if args.scenario is None:
         if args.set or args.jacobi or args.native:
             raise UsageError("--set, --jacobi and --native need a scenario to pack")
+        from . import ssp
+
         for path in ssp.write_all(args.out):
             print(path.parent)
         return 0
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
     _, _, loop = _loop(args)
+    from . import ssp  # the arguments are checked: now the SSP writer (lxml)
+
     if args.jacobi:
         from .thirdparty import CompensationError, pack_jacobi
 
@@ -607,12 +608,13 @@ def _cmd_sweep(args) -> int:
 
 
 def _cmd_critical_delay(args) -> int:
-    from .critical import critical_delay_report, critical_delay_table
-
     _outputs(args)
     scenario, sets = _source(args)
     if (args.out or args.plot) and not args.grid:
         raise UsageError("--out and --plot write the table of --grid: give --grid")
+    # the arguments are checked: now the maths (scipy) the answer needs
+    from .critical import critical_delay_report, critical_delay_table
+
     if args.grid:
         from .outputs import clear_previous
 
@@ -631,17 +633,19 @@ def _cmd_critical_delay(args) -> int:
 
 
 def _cmd_check(args) -> int:
-    from . import check
+    from . import cases as refs
 
-    try:
+    try:  # the cases first: a bad one is refused before the masters (fmpy, ...) load
         if args.loop is not None:
             if args.case:
                 raise KeyError("--case and LOOP.toml exclude each other")
-            cases = [check.loop_case(args.loop, args.set)]
+            cases = [refs.loop_case(args.loop, args.set)]
         elif args.set:
             raise KeyError("--set applies to a LOOP.toml")
         else:
-            cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
+            cases = [refs.case(c) for c in args.case] if args.case else list(refs.CASES)
+        from . import check
+
         if args.master:
             for name in args.master:
                 if name not in check.PROVIDERS.masters:

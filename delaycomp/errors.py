@@ -37,3 +37,7 @@ class SimulationFailed(DelaycompError, RuntimeError):
     def __init__(self, message: str, result=None):
         super().__init__(message)
         self.result = result
+
+
+class SspError(DelaycompError, ValueError):
+    """An SSD, SSV or SSP archive that :mod:`delaycomp.ssp` cannot read (one-line message)."""

@@ -21,9 +21,9 @@ from scipy.optimize import brentq
 # the base grid is decided in one place; re-exported for the FMUs' imports
 from .grid import GRID_RTOL, MAX_STEPS, check_steps  # noqa: F401
 from .grid import split as split_delay
+from .names import MODES  # the modes, used here and re-exported where the maths lives
 
 Mode = Literal["compensated", "uncompensated"]
-MODES: tuple[str, ...] = ("compensated", "uncompensated")
 
 
 def as_matrices(A, B) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,9 @@
-"""Names of vector signals, shared by the FMU slaves and the scenarios."""
+"""Names shared by the FMU slaves, the system model and the scenarios: the controller's
+modes and the names of vector signals. Standard library only, so that what only names
+things (``delaycomp list``, ``--help``) imports no maths."""
+
+#: the controller's modes: the predictor's ``u = K Phi(y, past inputs)`` or ``u = K y``
+MODES: tuple[str, ...] = ("compensated", "uncompensated")
 
 
 def indexed(base: str, count: int) -> list[str]:

@@ -17,8 +17,8 @@ import numpy as np
 
 from .errors import ParameterError
 from .grid import on_grid
-from .lti import MODES, split_delay
-from .names import indexed
+from .grid import split as split_delay
+from .names import MODES, indexed
 from .system import Loop, LtiBatch, LtiPoint, lti_design, lti_designs, lti_loop, model_loop
 
 __all__ = [

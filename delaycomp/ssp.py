@@ -52,7 +52,7 @@ from pathlib import Path
 
 from lxml import etree
 
-from .errors import DelaycompError, ParameterError
+from .errors import ParameterError, SspError
 from .system import ROLES, BuiltinFmu, Connection, FmuFile, Instance, Loop, ModelFmu, Port, Timing
 from .tmpfiles import zip_folder
 
@@ -81,10 +81,6 @@ FMU_MIME = "application/x-fmu-sharedlibrary"
 
 #: FMU kinds whose build config names a model file (``config["model"]``)
 _MODEL_PREFIX = "builtin:"
-
-
-class SspError(DelaycompError, ValueError):
-    """An SSD, SSV or SSP archive that this module cannot read (one-line message)."""
 
 
 def tag(name: str) -> str:

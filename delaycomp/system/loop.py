@@ -45,8 +45,7 @@ import numpy as np
 
 from .. import grid
 from ..errors import ParameterError
-from ..lti import MODES
-from ..names import indexed
+from ..names import MODES, indexed
 
 Role = Literal["plant", "meas_delay", "controller", "input_delay"]
 #: the roles of a closed loop, in signal order: plant -> meas_delay -> controller ->

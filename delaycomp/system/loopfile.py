@@ -50,7 +50,7 @@ import numpy as np
 import tomllib
 
 from ..errors import BadFileError, ParameterError
-from ..lti import MODES
+from ..names import MODES
 from .loop import Loop, LtiBatch, LtiPoint, design_loop, lti_design, lti_designs, model_loop
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
