@@ -357,7 +357,7 @@ def _unit_deadbeat_gain(n: int) -> tuple[Fraction, ...]:
     def mat_vec(M, v):
         return [sum((a * b for a, b in zip(row, v)), Fraction(0)) for row in M]
 
-    # columns Ad^j Bd, j = 0..n-1, and Ad^n (as rows of the product Ad^n)
+    # the controllability matrix's columns Ad^j Bd, j = 0..n-1
     cols, v = [], Bd
     for _ in range(n):
         cols.append(v)

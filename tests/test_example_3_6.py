@@ -18,8 +18,7 @@ from delaycomp.scenarios import lti_loop
 from delaycomp.simulate import run_loop
 
 from .conftest import REPO
-from .roundoff import assert_columns_close
-from .test_references import EXACT_ULPS
+from .roundoff import EXACT_ULPS, assert_columns_close
 
 pytestmark = pytest.mark.fmu
 
