@@ -2,7 +2,8 @@
 
 One registry (:data:`FMUS`) drives the build and the tests. Every FMU bundles the slave
 module, the subset of :mod:`delaycomp` it imports, and ``delaycomp_fmu.json`` (its
-dimensions and the package version).
+dimensions and the package version). :func:`probe_instantiation` reports what a built
+FMU imports when a host instantiates it, and how long that takes.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -198,6 +200,98 @@ def build_model(model_path: str | Path, out_dir: Path) -> list[Path]:
 def build_all(out_dir: Path) -> list[Path]:
     """Build the LTI loop's FMUs (plant, delay, controller) with default dimensions."""
     return [build_fmu(kind, out_dir) for kind, spec in FMUS.items() if not spec.template]
+
+
+#: What :func:`probe_instantiation` runs in a fresh interpreter: what pythonfmu's binary does
+#: at ``fmi2Instantiate`` (the resources folder first on ``sys.path``, the module named in
+#: ``slavemodule.txt`` imported, its slave class called with ``instance_name`` and
+#: ``resources``), timed from before the import to the instance.
+_PROBE = """
+import importlib, json, sys, time
+resources, module, name = sys.argv[1:4]
+before = set(sys.modules)
+started = time.perf_counter()
+sys.path.insert(0, resources)
+slave = getattr(importlib.import_module(module), name)(instance_name="probe",
+                                                      resources=resources, visible=False)
+seconds = time.perf_counter() - started
+print(json.dumps({"seconds": seconds, "modules": sorted(set(sys.modules) - before)}))
+"""
+
+
+@dataclass(frozen=True)
+class Instantiation:
+    """What instantiating a Python FMU imported (:func:`probe_instantiation`)."""
+
+    #: wall time of the import of the slave module and of the instance [s]
+    seconds: float
+    #: every module it imported (the interpreter's own start-up modules excluded)
+    modules: tuple[str, ...]
+
+    @property
+    def packages(self) -> tuple[str, ...]:
+        """The installed packages among :attr:`modules` (top-level names; neither the
+        standard library nor the FMU's own bundled modules)."""
+        own = ("delaycomp", "delaycomp_")
+        tops = {m.split(".")[0] for m in self.modules}
+        return tuple(sorted(t for t in tops if not t.startswith(("_", *own))
+                            and t not in sys.stdlib_module_names
+                            and t != "cython_runtime"))  # Cython makes it, no package
+
+    @property
+    def subpackages(self) -> tuple[str, ...]:
+        """``package.subpackage`` names of :attr:`packages` (``scipy.linalg``, ...)."""
+        return tuple(sorted({".".join(m.split(".")[:2]) for m in self.modules
+                             if "." in m and m.split(".")[0] in self.packages
+                             and not m.split(".")[1].startswith("_")}))
+
+    @property
+    def delaycomp_modules(self) -> tuple[str, ...]:
+        """The modules of the bundled :mod:`delaycomp` it imported."""
+        return tuple(m for m in self.modules if m.startswith("delaycomp."))
+
+
+def probe_instantiation(fmu: str | Path) -> Instantiation:
+    """Instantiate the Python FMU ``fmu`` in a fresh interpreter, as pythonfmu's binary
+    does in a host, and report what that imported and how long it took.
+
+    A host that loads a Python FMU pays this once per process (a second instance finds the
+    modules loaded). The interpreter is this one (``sys.executable``) with its installed
+    packages; the FMU's bundled :mod:`delaycomp` comes first, as in a host.
+
+    Raises
+    ------
+    RuntimeError
+        The FMU is not a pythonfmu FMU, or its instantiation failed (the child's error).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     probe = probe_instantiation(build_fmu("delay", Path(tmp)))
+    >>> probe.packages, "scipy" in probe.modules
+    (('numpy', 'pythonfmu'), False)
+    """
+    from .tmpfiles import temp_dir
+
+    with temp_dir("delaycomp-probe-") as tmp, zipfile.ZipFile(fmu) as zf:
+        zf.extractall(tmp)
+        resources = Path(tmp) / "resources"
+        try:
+            module = (resources / "slavemodule.txt").read_text(encoding="utf-8").strip()
+        except OSError:
+            raise RuntimeError(f"{fmu} is not a pythonfmu FMU (no "
+                               "resources/slavemodule.txt)") from None
+        import xml.etree.ElementTree as ET
+
+        cs = ET.parse(Path(tmp) / "modelDescription.xml").getroot().find("CoSimulation")
+        name = cs.get("modelIdentifier") if cs is not None else None
+        proc = subprocess.run([sys.executable, "-c", _PROBE, str(resources), module,
+                               str(name)], cwd=tmp, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"instantiating {Path(fmu).name} failed:\n{proc.stderr.strip()}")
+    res = json.loads(proc.stdout)
+    return Instantiation(res["seconds"], tuple(res["modules"]))
 
 
 def _build_in_this_process(request: dict) -> None:

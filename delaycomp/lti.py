@@ -16,7 +16,6 @@ from typing import Literal
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.optimize import brentq
 
 # the base grid is decided in one place; re-exported for the FMUs' imports
 from .grid import GRID_RTOL, MAX_STEPS, check_steps  # noqa: F401
@@ -212,6 +211,10 @@ def critical_delay(
     brackets the first crossing and Brent's method inside the bracket. Raises
     ``ValueError`` if the loop is unstable at ``r = 0`` or stays stable up to ``r_max``.
     """
+    # the one root search of the module: scipy.optimize (0.1 s to import) is loaded here,
+    # not by the FMUs that import this module for its flows (issue "Start fast", item 2)
+    from scipy.optimize import brentq
+
     if rho_of_r(0.0) >= 1.0:
         raise ValueError("the loop is unstable without delay (r = 0)")
     lo = 0.0

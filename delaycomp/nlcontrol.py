@@ -32,8 +32,8 @@ import numpy as np
 from . import grid
 from .delayline import DelayLine
 from .grid import check_steps
+from .grid import split as split_delay
 from .history import InputHistory
-from .lti import split_delay
 from .model import Model
 from .predictors import DEFAULT_TOL, integrate, numerical_predictor
 

@@ -69,3 +69,83 @@ def test_the_probe_sees_an_import_when_there_is_one():
     res = run_probe("critical-delay", "example-3.6", "--periods", "10")
     assert res["code"] in (0, 1), res
     assert "scipy" in res["modules"]
+
+
+# -- Python FMUs: what instantiating one imports (issue "Start fast", items 2 and 3) ------
+
+#: Per FMU: the packages its maths needs, and the bundled delaycomp modules it may import.
+#: The LTI plant and controller need a matrix exponential (scipy.linalg); the delay copies
+#: values; the model FMUs of Example 2.4 use the model's own exact step and Phi (scipy's
+#: ODE solver is loaded at a model's first numerical solve, never at instantiation).
+FMU_NEEDS = {
+    "delay": (("numpy", "pythonfmu"),
+              {"delayline", "fmuslave", "grid", "names"}),
+    "plant": (("numpy", "pythonfmu", "scipy.linalg"),
+              {"fmuslave", "grid", "lti", "names"}),
+    "controller": (("numpy", "pythonfmu", "scipy.linalg"),
+                   {"controller", "fmuslave", "grid", "lti", "names"}),
+    "model_plant": (("numpy", "pythonfmu"),
+                    {"delayline", "errors", "fmuslave", "grid", "history", "model", "names",
+                     "nlcontrol", "predictors"}),
+    "model_controller": (("numpy", "pythonfmu"),
+                         {"delayline", "errors", "fmuslave", "grid", "history", "model",
+                          "names", "nlcontrol", "predictors"}),
+}
+
+IMPORTS_OF = """
+import importlib, json, sys
+before = set(sys.modules)
+for name in sys.argv[1:]:
+    importlib.import_module(name)
+print(json.dumps(sorted(set(sys.modules) - before)))
+"""
+
+
+def installed_modules(modules) -> set[str]:
+    """The modules of installed packages (neither the standard library nor delaycomp's)."""
+    return {m for m in modules if not m.startswith(("_", "delaycomp"))
+            and m.split(".")[0] not in sys.stdlib_module_names}
+
+
+@pytest.fixture(scope="module")
+def python_fmus(fmu_dir, tmp_path_factory):
+    from delaycomp.build import build_fmu
+    from delaycomp.models import path as builtin_model
+
+    out = tmp_path_factory.mktemp("probe-fmus")
+    model = {"model": str(builtin_model("example_2_4"))}
+    return {"delay": fmu_dir / "DelaycompDelay.fmu",
+            "plant": fmu_dir / "DelaycompPlantLTI.fmu",
+            "controller": fmu_dir / "DelaycompControllerLTI.fmu",
+            "model_plant": build_fmu("model_plant", out, model),
+            "model_controller": build_fmu("model_controller", out, model)}
+
+
+@pytest.mark.parametrize("kind", FMU_NEEDS)
+def test_a_python_fmu_imports_only_what_its_maths_needs(kind, python_fmus):
+    """Instantiated as pythonfmu's binary does it (:func:`delaycomp.build.probe_instantiation`),
+    the FMU imports no installed module that importing its short list alone would not
+    (no matplotlib, fmpy, lxml; no scipy.optimize for a matrix exponential), and of the
+    bundled delaycomp only its maths (no CLI, SSP, masters or plotting)."""
+    from delaycomp.build import probe_instantiation
+
+    needs, own = FMU_NEEDS[kind]
+    probe = probe_instantiation(python_fmus[kind])
+    proc = subprocess.run([sys.executable, "-c", IMPORTS_OF, *needs], capture_output=True,
+                          text=True, timeout=120, check=True)
+    allowed = installed_modules(json.loads(proc.stdout))
+    extra = {".".join(m.split(".")[:2]) for m in installed_modules(probe.modules) - allowed}
+    assert not extra, f"instantiating the {kind} FMU imported {sorted(extra)[:12]}"
+    bundled = {m.split(".", 1)[1] for m in probe.delaycomp_modules}
+    assert bundled <= own, f"the {kind} FMU imported delaycomp.{sorted(bundled - own)}"
+    assert "pythonfmu" in probe.packages  # the probe did instantiate a pythonfmu slave
+
+
+def test_the_fmu_probe_sees_what_an_fmu_imports(python_fmus):
+    """Not vacuous: the LTI plant's matrix exponential does load scipy.linalg, which the
+    delay's allowed list would refuse."""
+    from delaycomp.build import probe_instantiation
+
+    probe = probe_instantiation(python_fmus["plant"])
+    assert "scipy.linalg" in probe.subpackages
+    assert "scipy" not in FMU_NEEDS["delay"][0]

@@ -9,7 +9,7 @@ import math
 
 from delaycomp.delayline import DelayLine, steps_of
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, is_roundoff_step
-from delaycomp.lti import GRID_RTOL
+from delaycomp.grid import GRID_RTOL
 from delaycomp.names import indexed
 
 
