@@ -35,8 +35,17 @@
 static const char *const NAMES[NI] = {"plant", "meas_delay", "controller", "input_delay"};
 
 typedef struct {
+    char name[256];
+    char causality[32];
+    char type;                   /* r(eal), b(oolean), s(tring), ? (another) */
+    fmi2ValueReference vr;
+} Var;
+
+typedef struct {
     char dir[4096];
     char *xml;
+    Var *vars;                   /* the ScalarVariables, in modelDescription order */
+    size_t nvars;
     char guid[128], ident[256];
     void *lib;
     fmi2Component c;
@@ -102,22 +111,40 @@ static int attribute(const char *tag, const char *attr, char *out, size_t size) 
     return 1;
 }
 
+/* the variable table of a modelDescription, read once (a 40-state loop sets thousands of
+ * parameters: a scan of the XML per name would take seconds) */
+static void read_variables(Fmu *f) {
+    size_t cap = 0;
+    char vr[32];
+    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
+        if (f->nvars == cap) {
+            cap = cap ? 2 * cap : 64;
+            f->vars = realloc(f->vars, cap * sizeof *f->vars);
+            if (f->vars == NULL) die("out of memory");
+        }
+        Var *v = &f->vars[f->nvars];
+        if (!attribute(p, "name", v->name, sizeof v->name) ||
+            !attribute(p, "valueReference", vr, sizeof vr))
+            die("%s: a ScalarVariable without name or valueReference", f->dir);
+        if (!attribute(p, "causality", v->causality, sizeof v->causality))
+            strcpy(v->causality, "local");
+        v->vr = (fmi2ValueReference)strtoul(vr, NULL, 10);
+        const char *t = strchr(p, '>');
+        if (t == NULL) die("%s: a ScalarVariable without its end", f->dir);
+        while (*t && *t != '<') t++;
+        v->type = strncmp(t, "<Real", 5) == 0 ? 'r' : strncmp(t, "<Boolean", 8) == 0 ? 'b'
+                  : strncmp(t, "<String", 7) == 0 ? 's' : '?';
+        f->nvars++;
+    }
+}
+
 /* value reference and type (Real, Boolean, String) of variable `name` */
 static fmi2ValueReference lookup(const Fmu *f, const char *name, char *type) {
-    char want[300], vr[32];
-    snprintf(want, sizeof want, " name=\"%s\"", name);
-    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
-        const char *end = strchr(p, '>');
-        const char *hit = strstr(p, want);
-        if (hit == NULL || hit > end) continue;
-        if (!attribute(p, "valueReference", vr, sizeof vr)) die("%s: no valueReference", name);
-        const char *t = end + 1;
-        while (*t && *t != '<') t++;
-        if (strncmp(t, "<Real", 5) == 0) *type = 'r';
-        else if (strncmp(t, "<Boolean", 8) == 0) *type = 'b';
-        else if (strncmp(t, "<String", 7) == 0) *type = 's';
-        else die("%s: unsupported type", name);
-        return (fmi2ValueReference)strtoul(vr, NULL, 10);
+    for (size_t i = 0; i < f->nvars; i++) {
+        if (strcmp(f->vars[i].name, name) != 0) continue;
+        if (f->vars[i].type == '?') die("%s: unsupported type", name);
+        *type = f->vars[i].type;
+        return f->vars[i].vr;
     }
     die("%s has no variable %s", f->dir, name);
     return 0;
@@ -126,21 +153,14 @@ static fmi2ValueReference lookup(const Fmu *f, const char *name, char *type) {
 /* the Real variables of causality `causality`, in modelDescription order: their value
  * references into vrs[] and names into names[] (at most max); returns how many */
 static size_t ports(const Fmu *f, const char *causality, fmi2ValueReference *vrs,
-                    char (*names)[64], size_t max) {
+                    const char **names, size_t max) {
     size_t n = 0;
-    char caus[32], vr[32];
-    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
-        if (!attribute(p, "causality", caus, sizeof caus) || strcmp(caus, causality) != 0)
-            continue;
-        const char *t = strchr(p, '>');
-        if (t == NULL) break;
-        while (*t && *t != '<') t++;
-        if (strncmp(t, "<Real", 5) != 0) continue;
+    for (size_t i = 0; i < f->nvars; i++) {
+        const Var *v = &f->vars[i];
+        if (v->type != 'r' || strcmp(v->causality, causality) != 0) continue;
         if (n == max) die("%s: more than %zu %ss", f->dir, max, causality);
-        if (!attribute(p, "valueReference", vr, sizeof vr) ||
-            !attribute(p, "name", names[n], sizeof names[n]))
-            die("%s: a ScalarVariable without valueReference or name", f->dir);
-        vrs[n++] = (fmi2ValueReference)strtoul(vr, NULL, 10);
+        names[n] = v->name;
+        vrs[n++] = v->vr;
     }
     return n;
 }
@@ -160,6 +180,7 @@ static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
     if (!root || !cs || !attribute(root, "guid", f->guid, sizeof f->guid) ||
         !attribute(cs, "modelIdentifier", f->ident, sizeof f->ident))
         die("%s: not a co-simulation FMU", f->dir);
+    read_variables(f);
     snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->ident);
     f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
     if (f->lib == NULL) die("cannot load %s: %s", path, dlerror());
@@ -190,7 +211,7 @@ static void put(Fmu *f, fmi2ValueReference vr, double v) {
 typedef struct {           /* the Real inputs and outputs of one FMU */
     size_t nin, nout;
     fmi2ValueReference in[MAXPORTS], out[MAXPORTS];
-    char in_name[MAXPORTS][64], out_name[MAXPORTS][64];
+    const char *in_name[MAXPORTS], *out_name[MAXPORTS];
 } Ports;
 
 static double now(void) {
@@ -301,6 +322,7 @@ int main(int argc, char **argv) {
     for (int i = 0; i < NI; i++) {
         dlclose(fmu[i].lib);
         free(fmu[i].xml);
+        free(fmu[i].vars);
     }
     return 0;
 }
