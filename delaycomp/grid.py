@@ -73,10 +73,13 @@ def same_step(step: float, h: float) -> bool:
     native FMUs use the same arithmetic (``same_step`` of ``fmus/native/fmi2.c``).
 
     A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes
-    steps ``t_{k+1} - t_k = h (1 + d)`` with ``|d| <= (k + 1) eps``
-    (``|t_k - (t0 + k h)| <= eps |t_k| / 2`` per rounded time, ``eps = 2^-52``): far
-    inside :data:`GRID_RTOL` for any run shorter than ``GRID_RTOL / eps``, about 4.5
-    million steps (longer, the plant recomputes, exactly, at each step; the delay refuses).
+    steps ``t_{k+1} - t_k = h (1 + d)``: each time is rounded (``k h``, then ``t0 + k h``,
+    each off by ``eps / 2`` of itself, ``eps = 2^-52``) and so is their difference, so
+    ``|d| <= (2 k + 3 + |t0| / h) eps``, and ``|d| <= (k + 1) eps`` from ``t0 = 0``: far
+    inside :data:`GRID_RTOL` for runs shorter than ``GRID_RTOL / eps``, about 4.5 million
+    steps (longer, the plant discretizes every step, exactly; the delay refuses them).
+    Reusing the plant's ``Ad(h)`` for a step ``h (1 + d)`` errs by ``~ |d| h |x'|`` against
+    that step, and not at all against the grid ``t0 + k h`` the host means.
 
     Parameters
     ----------
