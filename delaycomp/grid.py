@@ -15,6 +15,8 @@ Examples
 3
 >>> split(2.5, 1.0)
 (2, 0.5)
+>>> same_step(0.3 - 0.2, 0.1)        # 0.09999999999999998: the step 0.1 of the grid
+True
 """
 
 from __future__ import annotations
@@ -60,6 +62,46 @@ def on_grid_array(values, step):
         ratio = np.asarray(values, dtype=float) / np.asarray(step, dtype=float)
         return np.isfinite(ratio) & (np.abs(ratio - np.rint(ratio))
                                      <= GRID_RTOL * np.maximum(1.0, np.abs(ratio)))
+
+
+def same_step(step: float, h: float) -> bool:
+    """Is ``step`` the step ``h`` of an FMU's own grid, up to round-off of the host's times?
+
+    The one rule by which an FMU that keeps something per step size (the plant's
+    discretization ``Ad(h), Bd(h)``, the delay's line of ``delay / h`` steps) decides that
+    a communication step is the one it already knows: ``|step - h| <= GRID_RTOL h``. The
+    native FMUs use the same arithmetic (``same_step`` of ``fmus/native/fmi2.c``).
+
+    A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes
+    steps ``t_{k+1} - t_k = h (1 + d)``: each time is rounded (``k h``, then ``t0 + k h``,
+    each off by ``eps / 2`` of itself, ``eps = 2^-52``) and so is their difference, so
+    ``|d| <= (2 k + 3 + |t0| / h) eps``, and ``|d| <= (k + 1) eps`` from ``t0 = 0``: far
+    inside :data:`GRID_RTOL` for runs shorter than ``GRID_RTOL / eps``, about 4.5 million
+    steps (longer, the plant discretizes every step, exactly; the delay refuses them).
+    Reusing the plant's ``Ad(h)`` for a step ``h (1 + d)`` errs by ``~ |d| h |x'|`` against
+    that step, and not at all against the grid ``t0 + k h`` the host means.
+
+    Parameters
+    ----------
+    step : float
+        The communication step the host passed (finite, > 0).
+    h : float
+        The step the FMU keys its data on (> 0).
+
+    Returns
+    -------
+    bool
+        True when ``step`` is ``h`` up to :data:`GRID_RTOL` relative to ``h``.
+
+    Examples
+    --------
+    >>> h = 0.01
+    >>> [same_step((k + 1) * h - k * h, h) for k in (0, 7, 123456)]
+    [True, True, True]
+    >>> same_step(h * (1 + 1e-12), h), same_step(h * (1 + 1e-6), h), same_step(h / 2, h)
+    (True, False, False)
+    """
+    return abs(step - h) <= GRID_RTOL * h
 
 
 def check_steps(name: str, value: float, steps: float, unit: str) -> None:

@@ -343,13 +343,23 @@ def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
 
 
 def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
-              timing: bool = False) -> list[str]:
-    """The C host's command line for the scalar loop ``loop`` (a
-    :class:`~delaycomp.system.loop.Loop`) with the FMUs unpacked in ``dirs`` (instance ->
-    folder): stop time, base step, folders, every parameter."""
+              timing: bool = False, exact_grid: bool = False) -> list[str]:
+    """The C host's command line for the LTI loop ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`, scalar or with vectors) with the FMUs unpacked
+    in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
+
+    Parameters
+    ----------
+    timing : bool
+        The host prints the wall time of its stepping loop to stderr (``--timing``).
+    exact_grid : bool
+        The host keeps time as the FMI guides ask (``--exact-grid``): ``t_k = t0 + k h``
+        computed from ``k``, each step ``t_{k+1} - t_k``; else every step is ``h``.
+    """
     sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
             for inst in loop.instances for k, v in inst.parameters.items()]
-    return [str(exe), *(["--timing"] if timing else []), repr(stop), repr(loop.T / loop.N),
+    return [str(exe), *(["--timing"] if timing else []),
+            *(["--exact-grid"] if exact_grid else []), repr(stop), repr(loop.T / loop.N),
             *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
             *sets]
 

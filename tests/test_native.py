@@ -232,6 +232,42 @@ def test_c_host_without_python_equals_our_master(native_dir, chost, tmp_path, c)
     assert_columns_close(rows[:, 1:], ours.data, SAME_ARITHMETIC_ULPS, "C host")
 
 
+def test_c_host_runs_a_vector_loop_and_an_exact_grid(native_dir, chost, tmp_path):
+    """A MIMO loop (3 states, 2 inputs) in the C host: our master's numbers (same binaries,
+    same calls); with ``--exact-grid`` (steps ``t_{k+1} - t_k`` of ``t_k = k h``, off from
+    ``h`` in the last bits) the very same numbers, bit for bit: from ``t0 = 0`` the first
+    step is ``h`` exactly, every later one is ``h`` for the FMUs' grid rule
+    (``delaycomp.grid.same_step``), so the plant reuses ``Ad(h), Bd(h)`` and the delays and
+    the controller do what they do on constant steps."""
+    rng = np.random.default_rng(7)
+    A = rng.standard_normal((3, 3)) * 0.5
+    B = rng.standard_normal((3, 2))
+    K = -rng.standard_normal((2, 3)) * 0.3
+    spec = lti_loop(A, B, K, T=0.5, r=0.35, tau=0.5, N=10, mode="compensated",
+                    x0=(1.0, -0.5, 0.25), u0=(0.3, -0.2))
+    fmus = native_fmus(spec, native_dir / "mimo")
+    dirs = unpack(fmus, tmp_path)
+    runs = {}
+    for exact in (False, True):
+        proc = subprocess.run(["env", "-i", *machine_blas_settings(),
+                               *host_argv(chost, spec, 20.0, dirs, exact_grid=exact)],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        lines = proc.stdout.splitlines()
+        assert lines[0] == ("time,plant.x1,plant.x2,plant.x3,controller.u1,controller.u2")
+        runs[exact] = np.array([line.split(",") for line in lines[1:]], dtype=float)
+    steps = np.diff(np.arange(401) * (spec.T / spec.N))
+    assert len(set(steps.tolist())) > 1  # the exact grid's steps are not all h
+    assert np.array_equal(runs[True], runs[False])
+    ours = run_loop(spec, 20.0, fmus=fmus)
+    assert runs[False].shape == (401, 6)
+    assert_columns_close(runs[False][:, 1:], ours.data, SAME_ARITHMETIC_ULPS, "C host")
+    bad = subprocess.run([str(chost), "--exact", "1", "0.1"], capture_output=True, text=True)
+    assert bad.returncode == 1
+    assert bad.stderr == ("host: error: unknown option --exact (allowed: --timing, "
+                          "--exact-grid)\n")
+
+
 def test_native_binary_needs_only_libc_and_libm(native_dir, tmp_path):
     for ident in ("DelaycompDelay", "DelaycompPlantLTI", "DelaycompControllerLTI"):
         with zipfile.ZipFile(native_dir / f"{ident}.fmu") as zf:

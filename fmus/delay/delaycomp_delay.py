@@ -9,7 +9,7 @@ import math
 
 from delaycomp.delayline import DelayLine, steps_of
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, is_roundoff_step
-from delaycomp.grid import GRID_RTOL
+from delaycomp.grid import same_step
 from delaycomp.names import indexed
 
 
@@ -95,7 +95,7 @@ class DelaycompDelay(TableSlave):
             self._h = step_size
         elif is_roundoff_step(step_size, self._h):
             return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
-        elif abs(step_size - self._h) > GRID_RTOL * self._h:
+        elif not same_step(step_size, self._h):
             # round-off is not another step size: libcosim keeps time in integer
             # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "

@@ -68,7 +68,7 @@ int model_step(Instance *c, double t, double h) {
         m->head = 0;
         m->h = h;
         m->has_line = 1;
-    } else if (fabs(h - m->h) > GRID_RTOL * m->h) {
+    } else if (!same_step(h, m->h)) {
         log_error(c, "step size %s is not allowed: this delay runs on a fixed communication "
                   "step, %s", num(h).s, num(m->h).s);
         return -1;

@@ -181,6 +181,8 @@ int check_step(Instance *c, double t, double h) {
     return -1;
 }
 
+int same_step(double step, double h) { return fabs(step - h) <= GRID_RTOL * h; }
+
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
     for (size_t k = 0; k < count; k++) {
         double v = c->d.real[first + k];

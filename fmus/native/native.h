@@ -15,8 +15,8 @@
 #include "config.h"
 
 #define STRING_MAX 256       /* longest String parameter value, terminator included */
-#define GRID_RTOL 1e-9       /* delaycomp.lti.GRID_RTOL */
-#define MAX_STEPS 1000000.0  /* delaycomp.lti.MAX_STEPS */
+#define GRID_RTOL 1e-9       /* delaycomp.grid.GRID_RTOL */
+#define MAX_STEPS 1000000.0  /* delaycomp.grid.MAX_STEPS */
 
 /* The FMI 2.0 co-simulation states (FMI 2.0.4, 4.2.4), as bits for the call masks. */
 typedef enum {
@@ -103,6 +103,9 @@ int check_real_parameters_finite(Instance *c);
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t);
 /* A step must be finite and > 0 from a finite time (the Python FMUs' message). */
 int check_step(Instance *c, double t, double h);
+/* Is `step` the step h an FMU keys its data on, up to round-off of the host's times:
+ * |step - h| <= GRID_RTOL h (delaycomp.grid.same_step, the same arithmetic)? */
+int same_step(double step, double h);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
 

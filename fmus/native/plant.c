@@ -1,5 +1,6 @@
 /* DelaycompPlantLTI, native: x' = A x + B u, u held over each step, exactly discretized:
- * x_{k+1} = Ad x_k + Bd u_k, [Ad Bd; 0 I] = expm([A B; 0 0] h). The twin of
+ * x_{k+1} = Ad x_k + Bd u_k, [Ad Bd; 0 I] = expm([A B; 0 0] h), recomputed only for a
+ * step that is not the cached one up to GRID_RTOL (same_step). The twin of
  * fmus/plant/delaycomp_plant_lti.py: same variables, checks and messages. */
 #include <math.h>
 #include <stdlib.h>
@@ -27,7 +28,10 @@ int model_step(Instance *c, double t, double h) {
     if (check_step(c, t, h) != 0) return -1;
     if (check_inputs_finite(c, VR_U, NU, t) != 0) return -1;
     double *Ad = c->buf, *Bd = c->buf + NX * NX;
-    if (!m->has_h || h != m->h) {
+    /* a step within GRID_RTOL of the cached one is that step (same_step, the rule of
+     * delaycomp.grid.same_step): a host's exact grid t0 + k h passes steps that differ in
+     * the last bits, and each would otherwise cost a matrix exponential */
+    if (!m->has_h || !same_step(h, m->h)) {
         if (flow(&c->d.real[VR_A], &c->d.real[VR_B], NX, NU, h, Ad, Bd) != 0) {
             log_error(c, "out of memory computing the discretization");
             return -1;

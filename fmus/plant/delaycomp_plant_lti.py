@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
+from delaycomp.grid import same_step
 from delaycomp.lti import discretize
 from delaycomp.names import indexed
 
@@ -29,7 +30,7 @@ class DelaycompPlantLTI(TableSlave):
         self.x0 = np.zeros(n)
         self.x = np.zeros(n)
         self.u = np.zeros(m)
-        self._h = None  # step size of the cached discretization
+        self._h = None  # step size of the cached discretization (grid.same_step keys it)
         self._Ad = self._Bd = None
 
         def elem(mat, i, j):
@@ -78,7 +79,11 @@ class DelaycompPlantLTI(TableSlave):
             self.fail(f"step size {step_size!r} at t = {t!r} is not allowed: must be a "
                       "finite number > 0")
         check_inputs(self.input_names, self.u, t)
-        if step_size != self._h:
+        if self._h is None or not same_step(step_size, self._h):
+            # a step within GRID_RTOL of the cached one is that step (a host's exact grid
+            # t0 + k h passes steps that differ in the last bits): Ad(h), Bd(h) serve it,
+            # off by ~ |step - h| |x'| (README.md beside this file); another step is
+            # discretized and becomes the key
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
             self._zeros = np.zeros(self.n)
             self._h = step_size

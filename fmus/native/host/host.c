@@ -1,18 +1,24 @@
 /* A small closed-loop FMI 2.0 co-simulation host in C (no Python anywhere).
  *
- * Runs the scalar loop  plant -> meas_delay -> controller -> input_delay -> plant  of
- * delaycomp's LTI scenarios with the FMUs unpacked in four folders (the two delays may
- * share one). Value references, types, GUIDs and model identifiers are read from each
- * folder's modelDescription.xml. The step order is delaycomp's master (Gauss-Seidel along
- * the signal chain, orchestrator/master.py): at t_k = t0 + k h the plant's state is read,
- * passed through the measurement delay to the controller, the control through the input
- * delay to the plant; then every FMU steps from t_k to t_k + h. One CSV row per tick,
- * written to stdout after the run: time, plant.x, controller.u (%.17g, exact).
+ * Runs the loop  plant -> meas_delay -> controller -> input_delay -> plant  of delaycomp's
+ * LTI scenarios, scalar or with vectors (n states, m inputs), with the FMUs unpacked in four
+ * folders (the two delays may share one). Value references, types, GUIDs and model
+ * identifiers are read from each folder's modelDescription.xml; each FMU's Real outputs are
+ * connected, in the order of its modelDescription, to the next FMU's Real inputs (plant x1
+ * .. xn to the measurement delay's u1 .. un, and so on; the counts must agree). The step
+ * order is delaycomp's master (Gauss-Seidel along the signal chain, orchestrator/master.py):
+ * at t_k = t0 + k h the plant's state is read, passed through the measurement delay to the
+ * controller, the control through the input delay to the plant; then every FMU steps from
+ * t_k to t_{k+1}. One CSV row per tick, written to stdout after the run: time, the plant's
+ * outputs, the controller's outputs (%.17g, exact), headed plant.NAME, controller.NAME.
  *
- * usage: host [--timing] STOP_TIME H plant=DIR meas_delay=DIR controller=DIR input_delay=DIR
- *             [INSTANCE.VARIABLE=VALUE ...]
+ * usage: host [--timing] [--exact-grid] STOP_TIME H plant=DIR meas_delay=DIR controller=DIR
+ *             input_delay=DIR [INSTANCE.VARIABLE=VALUE ...]
  * --timing: print the wall time of the stepping loop (initialization excluded) to stderr.
- * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl
+ * --exact-grid: step as the FMI guides ask an importer to keep time: t_k = t0 + k h computed
+ *   from k, each step t_{k+1} - t_k (steps that differ from H and from one another in the
+ *   last bits). Default: every step is H, from t_k = t0 + k h.
+ * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl -lm
  */
 #define _POSIX_C_SOURCE 200809L
 #include <dlfcn.h>
@@ -29,8 +35,17 @@
 static const char *const NAMES[NI] = {"plant", "meas_delay", "controller", "input_delay"};
 
 typedef struct {
+    char name[256];
+    char causality[32];
+    char type;                   /* r(eal), b(oolean), s(tring), ? (another) */
+    fmi2ValueReference vr;
+} Var;
+
+typedef struct {
     char dir[4096];
     char *xml;
+    Var *vars;                   /* the ScalarVariables, in modelDescription order */
+    size_t nvars;
     char guid[128], ident[256];
     void *lib;
     fmi2Component c;
@@ -96,25 +111,58 @@ static int attribute(const char *tag, const char *attr, char *out, size_t size) 
     return 1;
 }
 
+/* the variable table of a modelDescription, read once (a 40-state loop sets thousands of
+ * parameters: a scan of the XML per name would take seconds) */
+static void read_variables(Fmu *f) {
+    size_t cap = 0;
+    char vr[32];
+    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
+        if (f->nvars == cap) {
+            cap = cap ? 2 * cap : 64;
+            f->vars = realloc(f->vars, cap * sizeof *f->vars);
+            if (f->vars == NULL) die("out of memory");
+        }
+        Var *v = &f->vars[f->nvars];
+        if (!attribute(p, "name", v->name, sizeof v->name) ||
+            !attribute(p, "valueReference", vr, sizeof vr))
+            die("%s: a ScalarVariable without name or valueReference", f->dir);
+        if (!attribute(p, "causality", v->causality, sizeof v->causality))
+            strcpy(v->causality, "local");
+        v->vr = (fmi2ValueReference)strtoul(vr, NULL, 10);
+        const char *t = strchr(p, '>');
+        if (t == NULL) die("%s: a ScalarVariable without its end", f->dir);
+        while (*t && *t != '<') t++;
+        v->type = strncmp(t, "<Real", 5) == 0 ? 'r' : strncmp(t, "<Boolean", 8) == 0 ? 'b'
+                  : strncmp(t, "<String", 7) == 0 ? 's' : '?';
+        f->nvars++;
+    }
+}
+
 /* value reference and type (Real, Boolean, String) of variable `name` */
 static fmi2ValueReference lookup(const Fmu *f, const char *name, char *type) {
-    char want[300], vr[32];
-    snprintf(want, sizeof want, " name=\"%s\"", name);
-    for (const char *p = strstr(f->xml, "<ScalarVariable"); p; p = strstr(p + 1, "<ScalarVariable")) {
-        const char *end = strchr(p, '>');
-        const char *hit = strstr(p, want);
-        if (hit == NULL || hit > end) continue;
-        if (!attribute(p, "valueReference", vr, sizeof vr)) die("%s: no valueReference", name);
-        const char *t = end + 1;
-        while (*t && *t != '<') t++;
-        if (strncmp(t, "<Real", 5) == 0) *type = 'r';
-        else if (strncmp(t, "<Boolean", 8) == 0) *type = 'b';
-        else if (strncmp(t, "<String", 7) == 0) *type = 's';
-        else die("%s: unsupported type", name);
-        return (fmi2ValueReference)strtoul(vr, NULL, 10);
+    for (size_t i = 0; i < f->nvars; i++) {
+        if (strcmp(f->vars[i].name, name) != 0) continue;
+        if (f->vars[i].type == '?') die("%s: unsupported type", name);
+        *type = f->vars[i].type;
+        return f->vars[i].vr;
     }
     die("%s has no variable %s", f->dir, name);
     return 0;
+}
+
+/* the Real variables of causality `causality`, in modelDescription order: their value
+ * references into vrs[] and names into names[] (at most max); returns how many */
+static size_t ports(const Fmu *f, const char *causality, fmi2ValueReference *vrs,
+                    const char **names, size_t max) {
+    size_t n = 0;
+    for (size_t i = 0; i < f->nvars; i++) {
+        const Var *v = &f->vars[i];
+        if (v->type != 'r' || strcmp(v->causality, causality) != 0) continue;
+        if (n == max) die("%s: more than %zu %ss", f->dir, max, causality);
+        names[n] = v->name;
+        vrs[n++] = v->vr;
+    }
+    return n;
 }
 
 static void *sym(Fmu *f, const char *name) {
@@ -132,6 +180,7 @@ static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
     if (!root || !cs || !attribute(root, "guid", f->guid, sizeof f->guid) ||
         !attribute(cs, "modelIdentifier", f->ident, sizeof f->ident))
         die("%s: not a co-simulation FMU", f->dir);
+    read_variables(f);
     snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->ident);
     f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
     if (f->lib == NULL) die("cannot load %s: %s", path, dlerror());
@@ -153,15 +202,17 @@ static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
 
 #define CHECK(call, what) do { if ((call) > fmi2Warning) die("%s failed", what); } while (0)
 
-static double get(Fmu *f, fmi2ValueReference vr) {
-    double v;
-    CHECK(f->get_real(f->c, &vr, 1, &v), "fmi2GetReal");
-    return v;
-}
-
 static void put(Fmu *f, fmi2ValueReference vr, double v) {
     CHECK(f->set_real(f->c, &vr, 1, &v), "fmi2SetReal");
 }
+
+#define MAXPORTS 1000  /* the largest dimension of a delaycomp FMU */
+
+typedef struct {           /* the Real inputs and outputs of one FMU */
+    size_t nin, nout;
+    fmi2ValueReference in[MAXPORTS], out[MAXPORTS];
+    const char *in_name[MAXPORTS], *out_name[MAXPORTS];
+} Ports;
 
 static double now(void) {
     struct timespec ts;
@@ -170,13 +221,17 @@ static double now(void) {
 }
 
 int main(int argc, char **argv) {
-    int timing = argc > 1 && strcmp(argv[1], "--timing") == 0;
-    if (timing) {
+    int timing = 0, exact_grid = 0;
+    while (argc > 1 && strncmp(argv[1], "--", 2) == 0) {
+        if (strcmp(argv[1], "--timing") == 0) timing = 1;
+        else if (strcmp(argv[1], "--exact-grid") == 0) exact_grid = 1;
+        else die("unknown option %s (allowed: --timing, --exact-grid)", argv[1]);
         argv++;
         argc--;
     }
-    if (argc < 7) die("usage: host STOP_TIME H plant=DIR meas_delay=DIR controller=DIR "
-                      "input_delay=DIR [INSTANCE.VARIABLE=VALUE ...]");
+    if (argc < 7) die("usage: host [--timing] [--exact-grid] STOP_TIME H plant=DIR "
+                      "meas_delay=DIR controller=DIR input_delay=DIR "
+                      "[INSTANCE.VARIABLE=VALUE ...]");
     double stop = strtod(argv[1], NULL), h = strtod(argv[2], NULL);
     if (!(h > 0) || !(stop > 0)) die("STOP_TIME and H must be > 0");
     static Fmu fmu[NI];
@@ -212,34 +267,54 @@ int main(int argc, char **argv) {
         }
     }
     for (int i = 0; i < NI; i++) CHECK(fmu[i].exit_init(fmu[i].c), "fmi2ExitInitializationMode");
-    char type;
-    fmi2ValueReference x = lookup(&fmu[0], "x", &type), pu = lookup(&fmu[0], "u", &type);
-    fmi2ValueReference mu = lookup(&fmu[1], "u", &type), my = lookup(&fmu[1], "y", &type);
-    fmi2ValueReference cy = lookup(&fmu[2], "y", &type), cu = lookup(&fmu[2], "u", &type);
-    fmi2ValueReference iu = lookup(&fmu[3], "u", &type), iy = lookup(&fmu[3], "y", &type);
+    static Ports io[NI];
+    for (int i = 0; i < NI; i++) {
+        io[i].nin = ports(&fmu[i], "input", io[i].in, io[i].in_name, MAXPORTS);
+        io[i].nout = ports(&fmu[i], "output", io[i].out, io[i].out_name, MAXPORTS);
+    }
+    for (int i = 0; i < NI; i++) {  /* each FMU's outputs feed the next one's inputs */
+        const Ports *src = &io[i], *dst = &io[(i + 1) % NI];
+        if (src->nout == 0 || src->nout != dst->nin)
+            die("%s has %zu Real outputs and %s %zu Real inputs: they must agree (and be "
+                "at least one)", NAMES[i], src->nout, NAMES[(i + 1) % NI], dst->nin);
+    }
+    size_t nx = io[0].nout, nu = io[2].nout, width = 1 + nx + nu;
     long ticks = lround(stop / h);
-    double *rows = malloc(3 * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
-    if (rows == NULL) die("out of memory");
+    double *rows = malloc(width * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
+    double *v = malloc(MAXPORTS * sizeof(double));
+    if (rows == NULL || v == NULL) die("out of memory");
     double started = now();
     for (long k = 0;; k++) {
         double t = (double)k * h;  /* t_k = t0 + k h, t0 = 0 */
-        double xv = get(&fmu[0], x);
-        put(&fmu[1], mu, xv);
-        put(&fmu[2], cy, get(&fmu[1], my));
-        double uv = get(&fmu[2], cu);
-        put(&fmu[3], iu, uv);
-        put(&fmu[0], pu, get(&fmu[3], iy));
-        rows[3 * k] = t;
-        rows[3 * k + 1] = xv;
-        rows[3 * k + 2] = uv;
+        double *row = rows + width * (size_t)k;
+        row[0] = t;
+        for (int i = 0; i < NI; i++) {  /* plant, meas_delay, controller, input_delay */
+            Fmu *src = &fmu[i], *dst = &fmu[(i + 1) % NI];
+            const Ports *ps = &io[i], *pd = &io[(i + 1) % NI];
+            CHECK(src->get_real(src->c, ps->out, ps->nout, v), "fmi2GetReal");
+            CHECK(dst->set_real(dst->c, pd->in, pd->nin, v), "fmi2SetReal");
+            if (i == 0) memcpy(row + 1, v, nx * sizeof(double));
+            if (i == 2) memcpy(row + 1 + nx, v, nu * sizeof(double));
+        }
         if (k == ticks) break;
-        for (int i = 0; i < NI; i++) CHECK(fmu[i].do_step(fmu[i].c, t, h, fmi2True), "fmi2DoStep");
+        /* the exact grid: t_{k+1} - t_k with both times computed from their index */
+        double step = exact_grid ? (double)(k + 1) * h - t : h;
+        for (int i = 0; i < NI; i++)
+            CHECK(fmu[i].do_step(fmu[i].c, t, step, fmi2True), "fmi2DoStep");
     }
     if (timing) fprintf(stderr, "host: %ld ticks in %.9f s\n", ticks, now() - started);
-    printf("time,plant.x,controller.u\n");
-    for (long k = 0; k <= ticks; k++)
-        printf("%.17g,%.17g,%.17g\n", rows[3 * k], rows[3 * k + 1], rows[3 * k + 2]);
+    printf("time");
+    for (size_t j = 0; j < nx; j++) printf(",plant.%s", io[0].out_name[j]);
+    for (size_t j = 0; j < nu; j++) printf(",controller.%s", io[2].out_name[j]);
+    printf("\n");
+    for (long k = 0; k <= ticks; k++) {
+        const double *row = rows + width * (size_t)k;
+        printf("%.17g", row[0]);
+        for (size_t j = 1; j < width; j++) printf(",%.17g", row[j]);
+        printf("\n");
+    }
     free(rows);
+    free(v);
     for (int i = 0; i < NI; i++) {
         CHECK(fmu[i].terminate(fmu[i].c), "fmi2Terminate");
         fmu[i].free_instance(fmu[i].c);
@@ -247,6 +322,7 @@ int main(int argc, char **argv) {
     for (int i = 0; i < NI; i++) {
         dlclose(fmu[i].lib);
         free(fmu[i].xml);
+        free(fmu[i].vars);
     }
     return 0;
 }
