@@ -13,16 +13,50 @@ import sys
 QUIET, NORMAL, VERBOSE = 0, 1, 2
 
 
+class NoBar:
+    """What :func:`bar` returns when no bar shows: counts, draws nothing, imports nothing.
+
+    >>> with NoBar(10) as b:
+    ...     b.update(4)
+    >>> b.n, b.total
+    (4, 10)
+    """
+
+    def __init__(self, total: int):
+        self.total, self.n = total, 0
+
+    def update(self, count: int = 1) -> None:
+        self.n += count
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> NoBar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):  # no such method, or a closed stream
+        return False
+
+
 def bar(total: int, desc: str, verbosity: int = NORMAL, unit: str = "it"):
     """A tqdm bar on standard error with an estimate of the time left.
 
-    Disabled with ``verbosity == QUIET`` and when standard error is not a terminal.
+    With ``verbosity == QUIET``, or when standard error is not a terminal, a :class:`NoBar`
+    instead: tqdm (30 ms to import) is loaded only for a bar that shows.
     """
+    if verbosity <= QUIET or not _terminal(sys.stderr):
+        return NoBar(total)
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
-                disable=True if verbosity <= QUIET else None, dynamic_ncols=True,
-                mininterval=0.2)
+                dynamic_ncols=True, mininterval=0.2)
 
 
 def info(message: str, verbosity: int, level: int = NORMAL) -> None:

@@ -6,6 +6,7 @@ runs a loop (``run``, sweeps, the cross-check, the benchmark) goes through it.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -329,9 +330,8 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
         in ``message``.
     """
     ticks = loop.timing.ticks(stop_time - t0)
-    with single_threaded_blas():
-        return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
-                    progress)
+    return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
+                progress)
 
 
 def single_threaded_blas():
@@ -358,18 +358,23 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                                    final=ticks)
     components = list(master.components.values())
     success, message = True, ""
-    try:
-        master.setup(stop_time, spec.parameters())
-        master.initialize()
-        if guard:
-            with np.errstate(all="ignore"):
+    with contextlib.ExitStack() as stack:
+        # BLAS on one thread where Python maths runs in this process (the in-process
+        # slaves, pythonfmu FMUs); a loop of native FMUs does not pay for threadpoolctl
+        if any(getattr(c, "runs_python", True) for c in components):
+            stack.enter_context(single_threaded_blas())
+        try:
+            master.setup(stop_time, spec.parameters())
+            master.initialize()
+            if guard:
+                with np.errstate(all="ignore"):
+                    _run_until(master, ticks, progress)
+            else:
                 _run_until(master, ticks, progress)
-        else:
-            _run_until(master, ticks, progress)
-    except SimulationError as exc:
-        success, message = False, str(exc)
-    finally:
-        master.terminate()
+        except SimulationError as exc:
+            success, message = False, str(exc)
+        finally:
+            master.terminate()
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
     notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
              for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]

@@ -10,7 +10,9 @@ from collections.abc import Sequence
 from ctypes import byref, c_double, c_int, c_size_t, c_void_p
 from pathlib import Path
 
+import fmpy
 from fmpy import extract, read_model_description
+from fmpy import platform as fmpy_platform
 from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -49,9 +51,29 @@ _DISPATCH = fmi2CallbackLoggerTYPE(_route)
 
 
 #: FMUs unpacked in this process, by (path, modification time, size): unpacking costs
-#: about 40 ms per FMU (they carry two platforms' binaries), more than a short run of the
-#: loop; instances of one FMU, and later runs, share the folder. Removed at exit.
+#: milliseconds per FMU, more than a short run of the loop; instances of one FMU, and later
+#: runs, share the folder. Removed at exit.
 _UNPACKED: dict[tuple[str, int, int], tuple[object, str]] = {}
+#: The binaries folders of this platform (FMI 2.0 names it ``linux64``, FMI 3.0
+#: ``x86_64-linux``).
+_PLATFORMS = {fmpy_platform, getattr(fmpy, "platform_tuple", fmpy_platform)}
+
+
+def needed_to_run(name: str) -> bool:
+    """Is the member ``name`` of an FMU needed to run it here? Its modelDescription, its
+    ``resources/`` (handed to it as ``fmuResourceLocation``), and this platform's
+    ``binaries/`` folder (the library and whatever it loads beside it); not its
+    ``sources/``, ``documentation/`` or other platforms' binaries (a Python FMU carries a
+    Windows DLL of 0.26 MB).
+
+    >>> [needed_to_run(n) for n in ("modelDescription.xml", "resources/a.json",
+    ...  f"binaries/{fmpy_platform}/m.so", "binaries/other64/m.dll", "sources/m.c")]
+    [True, True, True, False, False]
+    """
+    top, _, rest = name.partition("/")
+    if top == "binaries":
+        return rest.partition("/")[0] in _PLATFORMS
+    return top not in ("sources", "documentation")
 
 
 def _unpacked(path: Path) -> tuple[object, str]:
@@ -62,7 +84,8 @@ def _unpacked(path: Path) -> tuple[object, str]:
     if hit is None or not Path(hit[1]).is_dir():
         md = read_model_description(str(path))
         # named after this process: a later process removes it if this one was killed
-        hit = _UNPACKED[key] = (md, extract(str(path), mkdtemp("delaycomp-fmu-")))
+        hit = _UNPACKED[key] = (md, extract(str(path), mkdtemp("delaycomp-fmu-"),
+                                            include=needed_to_run))
     return hit
 
 
@@ -94,6 +117,8 @@ class FmuComponent(ComponentBase):
         self._vars = {v.name: v for v in self.md.modelVariables}
         self.input_names = [v.name for v in self.md.modelVariables if v.causality == "input"]
         self.output_names = [v.name for v in self.md.modelVariables if v.causality == "output"]
+        #: pythonfmu's binary runs its slave in the host's interpreter: this one
+        self.runs_python = (self.md.generationTool or "").startswith("PythonFMU")
         self.feedthrough_outputs = frozenset(
             u.variable.name for u in self.md.outputs
             if u.dependencies is None or any(d.causality == "input" for d in u.dependencies)

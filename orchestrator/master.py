@@ -75,6 +75,9 @@ class ComponentBase:
     messages: list
     last_message: str | None
     worst_status: int
+    #: whether stepping it runs Python code in this interpreter (and so this numpy); a
+    #: component that does not know says True
+    runs_python: bool = True
 
     def _var(self, name: str):
         try:

@@ -26,7 +26,8 @@ def test_bench_quick_writes_report_and_plot(tmp_path):
     for heading in ("## Targets", "## 1. Wall time per simulated second",
                     "## 2. The master's own share", "## 3. Predictor cost per sample",
                     "## 4. Accuracy against cost", "## 5. Native C FMUs", "## 6. Start",
-                    "## 9. Exact-grid steps"):
+                    "## 7. Python FMUs: what instantiating one imports",
+                    "## 8. A packed loop against OMSimulator", "## 9. Exact-grid steps"):
         assert heading in text
     # the continuous-input loop's observed order is printed and is first order
     order = [line for line in text.splitlines() if line.startswith("| example-2.4/default")

@@ -211,6 +211,11 @@ DOUBLE_FREE = textwrap.dedent('''
     print("LAST", comp.last_message)
     comp.terminate()
     print("DONE")
+    # leave as `delaycomp` does with FMUs loaded (delaycomp.cli.entry): unloading a pythonfmu
+    # FMU in the interpreter's teardown corrupts the heap now and then, after the test
+    import os
+    sys.stdout.flush()
+    os._exit(0)
 ''')
 
 

@@ -11,8 +11,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+from .roundoff import EPS, assert_columns_close
 
 #: what a command that does no maths, runs no FMU and writes no SSP must not import
 HEAVY = ("scipy", "matplotlib", "fmpy", "lxml", "pythonfmu")
@@ -149,3 +152,72 @@ def test_the_fmu_probe_sees_what_an_fmu_imports(python_fmus):
     probe = probe_instantiation(python_fmus["plant"])
     assert "scipy.linalg" in probe.subpackages
     assert "scipy" not in FMU_NEEDS["delay"][0]
+
+
+# -- a packed loop of native FMUs (issue "Start fast", item 4) ----------------------------
+
+#: the probe above, leaving with os._exit once it has printed (as ``delaycomp`` itself does
+#: with FMUs loaded: see :func:`delaycomp.cli.entry`)
+PROBE_EXIT = PROBE + "sys.stdout.flush()\nimport os\nos._exit(0)\n"
+
+
+@pytest.fixture(scope="module")
+def native_ssp(tmp_path_factory):
+    out = tmp_path_factory.mktemp("packed") / "ex36-native.ssp"
+    proc = subprocess.run([sys.executable, "-m", "delaycomp", "ssp", "example-3.6",
+                           "--native", "--out", str(out), "-q"], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_a_packed_native_run_loads_neither_a_progress_bar_nor_a_blas_limiter(native_ssp):
+    """No bar shows (``-q``, or standard error not a terminal): tqdm is not imported; no
+    Python maths runs in the process (native FMUs): threadpoolctl is not imported."""
+    proc = subprocess.run([sys.executable, "-c", PROBE_EXIT, "run", str(native_ssp),
+                           "--stop-time", "1"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout)
+    assert res["code"] == 0 and "101 rows to t = 1" in res["out"], res
+    loaded = sorted({"tqdm", "threadpoolctl", "scipy", "matplotlib"} & set(res["modules"]))
+    assert not loaded, f"a packed native run imported {loaded}"
+
+
+def test_blas_runs_on_one_thread_where_python_maths_runs(native_ssp, fmu_dir, monkeypatch):
+    """The limit is entered for a loop of Python FMUs (their slaves use this numpy), not for
+    one of native FMUs; the run is the same either way."""
+    from delaycomp import scenarios, simulate
+    from delaycomp.ssp import Archive
+
+    entered = []
+    real = simulate.single_threaded_blas
+
+    def counting():
+        entered.append(1)
+        return real()
+
+    monkeypatch.setattr(simulate, "single_threaded_blas", counting)
+    sc = scenarios.get("example-3.6")
+    python = simulate.run_loop(sc.make(sc.resolve([])), 1.0, fmu_dir)
+    assert python.success and entered == [1]
+    with Archive(native_ssp, None) as archive:
+        native = simulate.run_loop(archive.system.spec, 1.0, fmus=archive.fmus())
+    assert native.success and entered == [1]
+    # twins: the same maths in C and in Python, 1e-12 of each signal's peak as in
+    # tests/test_native.py (measured at most 3.4e-14, fmus/native/README.md)
+    assert_columns_close(native.data, python.data, 1e-12 / EPS, "native vs Python")
+
+
+def test_an_fmu_is_unpacked_with_what_running_it_needs(fmu_dir):
+    """modelDescription, resources and this platform's binaries; not the sources, the
+    documentation or another platform's library (a Python FMU carries a Windows DLL)."""
+    import fmpy
+
+    from delaycomp.orchestrator.fmu import FmuComponent
+
+    comp = FmuComponent("delay", fmu_dir / "DelaycompDelay.fmu")
+    root = Path(comp._unzipdir)
+    assert (root / "modelDescription.xml").is_file()
+    assert (root / "resources" / "slavemodule.txt").is_file()
+    assert [p.name for p in (root / "binaries").iterdir()] == [fmpy.platform]
+    assert not (root / "documentation").exists() and not (root / "sources").exists()
