@@ -189,15 +189,21 @@ def test_native_equals_python_fmus_and_reference(native_dir, fmu_dir, c):
     assert cmp.passed, cmp
 
 
-def test_native_equals_inprocess_on_a_random_mimo_loop(native_dir):
-    """n = 3 states, m = 2 inputs, r and tau with a fractional part of r: every block of
-    the predictor (E, Q_p B for p <= l + q, Q_{l+q+1} B with r~) enters."""
+def random_mimo_loop():
+    """A random loop: n = 3 states, m = 2 inputs, ``T = 0.5``, ``r = 0.35``
+    (a fractional part of ``T``), ``tau = 0.5``, ``N = 10``, compensated."""
     rng = np.random.default_rng(7)
     A = rng.standard_normal((3, 3)) * 0.5
     B = rng.standard_normal((3, 2))
     K = -rng.standard_normal((2, 3)) * 0.3
-    spec = lti_loop(A, B, K, T=0.5, r=0.35, tau=0.5, N=10, mode="compensated",
+    return lti_loop(A, B, K, T=0.5, r=0.35, tau=0.5, N=10, mode="compensated",
                     x0=(1.0, -0.5, 0.25), u0=(0.3, -0.2))
+
+
+def test_native_equals_inprocess_on_a_random_mimo_loop(native_dir):
+    """n = 3 states, m = 2 inputs, r and tau with a fractional part of r: every block of
+    the predictor (E, Q_p B for p <= l + q, Q_{l+q+1} B with r~) enters."""
+    spec = random_mimo_loop()
     native = run_loop(spec, 5.0, fmus=native_fmus(spec, native_dir / "mimo"))
     python = run_loop(spec, 5.0, engine="inprocess")
     assert native.success, native.message
@@ -239,12 +245,7 @@ def test_c_host_runs_a_vector_loop_and_an_exact_grid(native_dir, chost, tmp_path
     step is ``h`` exactly, every later one is ``h`` for the FMUs' grid rule
     (``delaycomp.grid.same_step``), so the plant reuses ``Ad(h), Bd(h)`` and the delays and
     the controller do what they do on constant steps."""
-    rng = np.random.default_rng(7)
-    A = rng.standard_normal((3, 3)) * 0.5
-    B = rng.standard_normal((3, 2))
-    K = -rng.standard_normal((2, 3)) * 0.3
-    spec = lti_loop(A, B, K, T=0.5, r=0.35, tau=0.5, N=10, mode="compensated",
-                    x0=(1.0, -0.5, 0.25), u0=(0.3, -0.2))
+    spec = random_mimo_loop()
     fmus = native_fmus(spec, native_dir / "mimo")
     dirs = unpack(fmus, tmp_path)
     runs = {}
