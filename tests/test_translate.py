@@ -1,0 +1,225 @@
+"""Model files as C (issue 23, item 1, first piece): :mod:`delaycomp.translate`.
+
+The generated C is compiled with the project's compiler and flags and called through
+ctypes at random points, against the model's own Python functions, for every branch of the
+string parameters; what cannot be traced is refused with the line of the user's file.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import subprocess
+import textwrap
+
+import casadi  # the native extra, part of the test extra: never skipped
+import numpy as np
+import pytest
+
+from delaycomp.model import load_model
+from delaycomp.models import path as builtin_model
+from delaycomp.native import compiler
+from delaycomp.translate import TranslationError, translate
+
+from .roundoff import EPS
+
+#: The C evaluates the expression graph CasADi traced from the Python function, rewritten
+#: in a few places (``x**3`` as ``x*(x*x)``, ``2*x`` as a doubling, constants folded), with
+#: C's libm for numpy's: each rewrite moves a result by a few roundings of the terms it
+#: combines. At points with |x|, |u| <= 2 the terms are below 1e3, so 1e3 EPS of
+#: max(1, |value|) holds a correct translation and refuses any wrong term or branch.
+ULPS = 1e3
+
+
+def compile_translation(tr, tmp_path):
+    src = tmp_path / "model.c"
+    src.write_text(tr.source(), encoding="utf-8")
+    lib = tmp_path / "model.so"
+    proc = subprocess.run([*compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror",
+                           "-fPIC", "-shared", str(src), "-o", str(lib), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    return ctypes.CDLL(str(lib))
+
+
+def call_c(lib, fn, values: dict) -> np.ndarray:
+    """Call the C function ``fn`` (a CFunction) with ``values`` for its arguments."""
+    c_fn = getattr(lib, fn.name)
+    args, keep = [], []
+    for a in fn.args:
+        if a in ("t", "h"):
+            args.append(ctypes.c_double(values[a]))
+        else:
+            arr = np.ascontiguousarray(values[a], dtype=float)
+            keep.append(arr)
+            args.append(arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+    out = np.zeros(fn.n_out)
+    args.append(out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+    c_fn.restype = ctypes.c_int
+    assert c_fn(*args) == 0
+    return out
+
+
+def check_against_python(tr, lib, points: int = 50, seed: int = 3):
+    model = tr.model
+    rng = np.random.default_rng(seed)
+    compared = 0
+    for (name, index), fn in tr.functions.items():
+        choice = tr.choices[index]
+        for _ in range(points):
+            x = rng.uniform(-2, 2, model.n)
+            u = rng.uniform(-2, 2, model.m)
+            num = {key: (rng.uniform(0.2, 2.0) if key == "T" else
+                         float(model.parameters[key]) * rng.uniform(0.5, 1.5))
+                   for key in tr.numeric}
+            t, h = rng.uniform(0, 10), rng.uniform(0.01, 0.5)
+            p = {**model.parameters, **choice, **num}
+            if name == "f":
+                want = model.f(x, u, p)
+            elif name == "step":
+                want = model.step(x, u, h, p)
+            else:
+                want = model.k(t, x, p) if model.control == "continuous" else model.k(x, p)
+            got = call_c(lib, fn, {"x": x, "u": u, "t": t, "h": h,
+                                   "p": [num[key] for key in tr.numeric]})
+            want = np.asarray(want, dtype=float)
+            bound = ULPS * EPS * np.maximum(1.0, np.abs(want))
+            assert np.all(np.abs(got - want) <= bound), (name, choice, x, u, got, want)
+            compared += 1
+    return compared
+
+
+@pytest.mark.parametrize("name", ["example_2_4", "example_3_8", "corollary_4_1"])
+def test_a_shipped_model_translates_and_its_c_equals_its_python(name, tmp_path):
+    tr = translate(load_model(builtin_model(name)))
+    lib = compile_translation(tr, tmp_path)
+    branches = max(1, len(tr.choices))
+    assert {key[0] for key in tr.functions} >= {"f", "k"}
+    assert len(tr.functions) >= 2 * branches
+    assert check_against_python(tr, lib) == 50 * len(tr.functions)
+
+
+def test_branches_on_a_string_parameter_are_one_c_function_each(tmp_path):
+    """Example 3.8's ``p = "square"`` or ``"sin"``: two f's that differ, each equal to the
+    Python f with that choice."""
+    tr = translate(load_model(builtin_model("example_3_8")))
+    assert [c["p"] for c in tr.choices] == ["square", "sin"]
+    assert "sin(" in tr.functions["f", 1].code and "sin(" not in tr.functions["f", 0].code
+    lib = compile_translation(tr, tmp_path)
+    x, u = np.array([0.3, 1.2]), np.array([0.7])
+    square = call_c(lib, tr.functions["f", 0], {"x": x, "u": u, "p": [1.0]})
+    sine = call_c(lib, tr.functions["f", 1], {"x": x, "u": u, "p": [1.0]})
+    assert square[0] == pytest.approx(1.2 + 1.2 ** 2 * 0.7, rel=1e-15)
+    assert sine[0] == pytest.approx(1.2 + math.sin(1.2) * 0.7, rel=1e-15)
+
+
+def write_model(tmp_path, body: str, name: str = "mine"):
+    path = tmp_path / f"{name}.py"
+    path.write_text(textwrap.dedent('''
+        import math
+        import numpy as np
+        STATES = ("x1", "x2")
+        INPUTS = ("u",)
+        CONTROL = "zoh"
+        PARAMETERS = {"a": 0.5}
+    ''') + textwrap.dedent(body), encoding="utf-8")
+    return load_model(path)
+
+
+def test_a_users_model_with_math_numpy_and_np_where_translates(tmp_path):
+    """``math.sin`` of the state, numpy's functions, a numeric parameter and a branch on
+    the state written as ``np.where``: traced, and equal to the Python on both sides."""
+    model = write_model(tmp_path, '''
+        def f(x, u, p):
+            return np.array([x[1] + p["a"] * math.sin(x[0]),
+                             np.where(x[0] > 0, -x[1], 2.0 * x[1]) + np.tanh(u[0])])
+
+        def k(x, p):
+            return np.array([-np.clip(x[0] + 2.0 * x[1], -1.0, 1.0) / p["T"]])
+    ''')
+    tr = translate(model)
+    assert tr.numeric == ("a", "T")
+    lib = compile_translation(tr, tmp_path)
+    assert check_against_python(tr, lib, points=200) == 400
+
+
+@pytest.mark.parametrize("body,operation,line", [
+    ('''
+        def f(x, u, p):
+            if x[0] > 0:
+                return np.array([x[1], u[0]])
+            return np.array([-x[1], u[0]])
+
+        def k(x, p):
+            return np.array([-x[0]])
+     ''', "a Python branch", "if x[0] > 0:"),
+    ('''
+        def f(x, u, p):
+            return np.array([x[1], u[0]])
+
+        def k(x, p):
+            gain = float(x[0])
+            return np.array([-gain])
+     ''', "float() of a value", "gain = float(x[0])"),
+    ('''
+        def f(x, u, p):
+            return np.array([x[1], max(u[0], 0.0)])
+
+        def k(x, p):
+            return np.array([-x[0]])
+     ''', "a Python branch", "max(u[0], 0.0)"),
+])
+def test_what_does_not_trace_is_refused_with_its_line(tmp_path, body, operation, line):
+    model = write_model(tmp_path, body)
+    with pytest.raises(TranslationError) as err:
+        translate(model)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert operation in msg and "mine.py:" in msg and line in msg, msg
+    assert "the Python FMUs run it" in msg
+    # the tracer put back what it replaced
+    assert math.cos(0.0) == 1.0 and isinstance(math.sin(0.5), float)
+    assert math.isnan(float(casadi.SX.sym("z")))  # CasADi's own float() again
+
+
+def test_a_shipped_model_that_does_not_trace_yet_is_refused_precisely():
+    """Proposition 4.2's set tolerance uses Python's ``max`` on the state: refused, naming
+    the file and the line (issue 23 will write it with numpy)."""
+    with pytest.raises(TranslationError, match=r"proposition_4_2\.py:\d+ \(`return SET_TOL"):
+        translate(load_model(builtin_model("proposition_4_2")))
+
+
+def test_a_step_that_does_not_trace_is_reported_not_fatal():
+    """``step`` is optional (the plant can integrate ``f``): Example 2.4's exact step
+    converts the state with ``float()``, so it is reported, and ``f`` and ``k`` stand."""
+    tr = translate(load_model(builtin_model("example_2_4")))
+    assert ("step", 0) not in tr.functions
+    assert "float()" in tr.untranslated["step"] and "example_2_4.py:" in tr.untranslated["step"]
+
+
+def test_a_string_parameter_without_choices_is_refused(tmp_path):
+    model = write_model(tmp_path, '''
+        PARAMETERS = {"mode": "fast"}
+
+        def f(x, u, p):
+            return np.array([x[1], u[0]])
+
+        def k(x, p):
+            return np.array([-x[0] if p["mode"] == "fast" else -2.0 * x[0]])
+    ''', name="free")
+    with pytest.raises(TranslationError, match="'mode' has no CHOICES"):
+        translate(model)
+
+
+def test_a_wrong_number_of_outputs_is_refused(tmp_path):
+    model = write_model(tmp_path, '''
+        def f(x, u, p):
+            return np.array([x[1], u[0]])
+
+        def k(x, p):
+            if isinstance(x[0], float):
+                return np.array([-x[0]])
+            return np.array([-x[0], -x[1]])
+    ''', name="wide")
+    with pytest.raises(TranslationError, match=r"returned 2 values, must be 1"):
+        translate(model)
