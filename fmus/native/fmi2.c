@@ -18,6 +18,10 @@
 #include <string.h>
 
 #include "native.h"
+#if defined(KIND_MODEL_PLANT)
+#include "model.h"
+#include "ode.h"
+#endif
 
 #define ANY_STATE (StateInstantiated | StateInitializationMode | StateStepComplete | \
                    StateTerminated | StateError)
@@ -731,6 +735,9 @@ static int model_state_ok(const Data *d, size_t nbuf) {
            (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
 #elif defined(KIND_PLANT)
     return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU;
+#elif defined(KIND_MODEL_PLANT)
+    return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
+                         d->m.branch < MODEL_NBRANCH);
 #elif defined(KIND_CONTROLLER)
     if (!d->m.built) return nbuf == 0;
     return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&

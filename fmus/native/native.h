@@ -40,6 +40,10 @@ typedef struct {
     int has_h;       /* Ad, Bd are computed for step h */
     double h;
 } ModelData;
+#elif defined(KIND_MODEL_PLANT)
+typedef struct {
+    int branch;      /* the branch of model.c for the String parameters (model_setup) */
+} ModelData;
 #elif defined(KIND_CONTROLLER)
 typedef struct {
     int built;               /* the predictor matrices exist (initialized) */
