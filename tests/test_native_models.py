@@ -22,7 +22,7 @@ from delaycomp.model import load_model
 from delaycomp.native import build_native_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
-from delaycomp.simulate import make_master, parameters_of, run_loop, stop_ticks
+from delaycomp.simulate import run_loop, stop_ticks
 from delaycomp.translate import TranslationError
 
 #: DOP853's error control holds each step's local error to about ``tol (1 + |x|)`` (tol =
@@ -178,28 +178,17 @@ def test_a_choice_by_string_or_by_index_selects_the_branch(params, native_dir):
         comp.terminate()
 
 
-def test_fmu_state_continues_bit_identically(native_dir, fmu_dir):
+def test_fmu_state_continues_bit_identically(native_dir):
+    """Saved half-way, the loop with the native plant continues as it did, bit for bit,
+    in the same master and in a fresh one (``tests/test_native.py``'s restore run)."""
+    from .test_native import _restore_run
+
     sc = scenarios.get("example-3.8")
     loop = sc.make(sc.resolve([]))
     fmus = {"plant": native_plant(loop, native_dir / "state")}
-    stop = 6.0
-    ticks = stop_ticks(stop, loop.T, loop.N)
-    master, rec = make_master(loop, fmu_dir, fmus=fmus)
-    try:
-        master.setup(stop, parameters_of(loop))
-        master.initialize()
-        master.run_until(ticks // 2)
-        state = master.get_state()
-        n0 = len(rec.rows)
-        master.run_until(ticks)
-        first = rec.rows[n0:]
-        master.set_state(state)
-        n1 = len(rec.rows)
-        master.run_until(ticks)
-        second = rec.rows[n1:]
-    finally:
-        master.terminate()
-    assert len(first) > 10 and second == first
+    ticks = stop_ticks(6.0, loop.T, loop.N)
+    first, second, third = _restore_run(fmus, loop, 6.0, ticks // 2)
+    assert len(first) > 10 and second == first and third == first
 
 
 def write_model(tmp_path, body: str):
