@@ -285,12 +285,9 @@ def _source_files(md) -> list[str]:
     return md.buildConfigurations[0].sourceFileSets[0].sourceFiles
 
 
-@pytest.mark.parametrize("kind", sorted(NATIVE_KINDS))
-def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind):
-    ident = FMUS[kind].model_identifier
-    nat = read_model_description(str(native_dir / f"{ident}.fmu"), validate=True)
-    py = read_model_description(str(fmu_dir / f"{ident}.fmu"), validate=True)
-
+def assert_same_table(nat, py) -> None:
+    """Two model descriptions (fmpy's) with the same variables (names, value references,
+    types, causalities, variabilities, starts, descriptions) and output dependencies."""
     def table(md):
         return [(v.name, v.valueReference, v.type, v.causality, v.variability, v.start,
                  v.description) for v in md.modelVariables]
@@ -298,6 +295,14 @@ def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind)
     assert table(nat) == table(py)
     assert [(u.variable.name, [d.name for d in u.dependencies]) for u in nat.outputs] == \
         [(u.variable.name, [d.name for d in u.dependencies]) for u in py.outputs]
+
+
+@pytest.mark.parametrize("kind", sorted(NATIVE_KINDS))
+def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind):
+    ident = FMUS[kind].model_identifier
+    nat = read_model_description(str(native_dir / f"{ident}.fmu"), validate=True)
+    py = read_model_description(str(fmu_dir / f"{ident}.fmu"), validate=True)
+    assert_same_table(nat, py)
     cs = nat.coSimulation
     assert not cs.needsExecutionTool and cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
     assert _source_files(nat) == ["fmi2.c", "linalg.c", NATIVE_KINDS[kind]]
@@ -375,17 +380,23 @@ BAD_PARAMETERS = [
 def test_bad_parameter_is_fmi2error_with_the_python_message(native_dir, kind, params):
     slave = SlaveComponent("x", kind, dict(DEFAULT_CONFIG[kind]))
     slave.setup(0.0, 10.0, params)
-    with pytest.raises(SlaveRefused):
-        slave.initialize()
     comp = _component(native_dir, kind)
     try:
         comp.setup(0.0, 10.0, params)
-        with pytest.raises(FMICallException) as info:
-            comp.initialize()
-        assert info.value.status == 3  # fmi2Error
-        assert comp.last_message == slave.last_message
+        assert_initialize_refused_alike(slave, comp)
     finally:
         comp.terminate()
+
+
+def assert_initialize_refused_alike(slave, comp) -> None:
+    """The Python slave and the native FMU, set up alike, both refuse to initialize: the
+    FMU with fmi2Error, and with the slave's message."""
+    with pytest.raises(SlaveRefused):
+        slave.initialize()
+    with pytest.raises(FMICallException) as info:
+        comp.initialize()
+    assert info.value.status == 3  # fmi2Error
+    assert comp.last_message == slave.last_message
 
 
 def test_bad_input_and_bad_step_are_fmi2error_with_the_python_message(native_dir):
@@ -395,15 +406,22 @@ def test_bad_input_and_bad_step_are_fmi2error_with_the_python_message(native_dir
         try:
             for c in (slave, comp):
                 c.setup(0.0, 1.0, {"delay": 0.2})
-                c.initialize()
-                c.set_inputs(list(inputs), list(inputs.values()))
-            with pytest.raises(SlaveRefused):
-                slave.do_step(*step)
-            with pytest.raises(FMICallException):
-                comp.do_step(*step)
-            assert comp.last_message == slave.last_message
+            assert_step_refused_alike(slave, comp, inputs, step)
         finally:
             comp.terminate()
+
+
+def assert_step_refused_alike(slave, comp, inputs: dict, step) -> None:
+    """Both, set up alike, initialized and given ``inputs``, refuse ``do_step(*step)``,
+    the FMU with the slave's message."""
+    for c in (slave, comp):
+        c.initialize()
+        c.set_inputs(list(inputs), list(inputs.values()))
+    with pytest.raises(SlaveRefused):
+        slave.do_step(*step)
+    with pytest.raises(FMICallException):
+        comp.do_step(*step)
+    assert comp.last_message == slave.last_message
 
 
 def _latest(comp) -> str:

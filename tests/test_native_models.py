@@ -14,16 +14,22 @@ import textwrap
 
 import numpy as np
 import pytest
-from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
 
 from delaycomp import scenarios
 from delaycomp.model import load_model
 from delaycomp.native import build_native_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
-from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
+from delaycomp.orchestrator.inprocess import SlaveComponent
 from delaycomp.simulate import run_loop, stop_ticks
 from delaycomp.translate import TranslationError
+
+from .test_native import (
+    _restore_run,
+    assert_initialize_refused_alike,
+    assert_same_table,
+    assert_step_refused_alike,
+)
 
 #: DOP853's error control holds each step's local error to about ``tol (1 + |x|)`` (tol =
 #: 1e-10, the FMUs' default); the Python plant steps exactly (or with the same method);
@@ -130,12 +136,7 @@ BAD = [
 def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params, native_dir):
     slave, comp = _both(model_name, params, native_dir)
     try:
-        with pytest.raises(SlaveRefused):
-            slave.initialize()
-        with pytest.raises(FMICallException) as info:
-            comp.initialize()
-        assert info.value.status == 3  # fmi2Error
-        assert comp.last_message == slave.last_message
+        assert_initialize_refused_alike(slave, comp)
     finally:
         comp.terminate()
 
@@ -144,14 +145,7 @@ def test_a_bad_input_or_step_is_refused_with_the_python_message(native_dir):
     for step, u in (((0.0, 0.1), float("nan")), ((0.0, -0.1), 1.0), ((0.0, float("inf")), 1.0)):
         slave, comp = _both("example_3_8", {"x0[1]": 0.5}, native_dir)
         try:
-            for c in (slave, comp):
-                c.initialize()
-                c.set_inputs(["u"], [u])
-            with pytest.raises(SlaveRefused):
-                slave.do_step(*step)
-            with pytest.raises(FMICallException):
-                comp.do_step(*step)
-            assert comp.last_message == slave.last_message
+            assert_step_refused_alike(slave, comp, {"u": u}, step)
         finally:
             comp.terminate()
 
@@ -181,8 +175,6 @@ def test_a_choice_by_string_or_by_index_selects_the_branch(params, native_dir):
 def test_fmu_state_continues_bit_identically(native_dir):
     """Saved half-way, the loop with the native plant continues as it did, bit for bit,
     in the same master and in a fresh one (``tests/test_native.py``'s restore run)."""
-    from .test_native import _restore_run
-
     sc = scenarios.get("example-3.8")
     loop = sc.make(sc.resolve([]))
     fmus = {"plant": native_plant(loop, native_dir / "state")}
@@ -271,14 +263,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     nat = read_model_description(str(nat_path), validate=True)
     py = read_model_description(str(build_fmu("model_plant", tmp_path / "py", config)),
                                 validate=True)
-
-    def table(md):
-        return [(v.name, v.valueReference, v.type, v.causality, v.variability, v.start,
-                 v.description) for v in md.modelVariables]
-
-    assert table(nat) == table(py)
-    assert [(u.variable.name, [d.name for d in u.dependencies]) for u in nat.outputs] == \
-        [(u.variable.name, [d.name for d in u.dependencies]) for u in py.outputs]
+    assert_same_table(nat, py)
     assert nat.coSimulation.modelIdentifier == py.coSimulation.modelIdentifier
     assert not nat.coSimulation.needsExecutionTool and nat.guid != py.guid
     files = nat.buildConfigurations[0].sourceFileSets[0].sourceFiles
