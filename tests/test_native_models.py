@@ -34,8 +34,8 @@ from .test_native import (
 #: DOP853's error control holds each step's local error to about ``tol (1 + |x|)`` (tol =
 #: 1e-10, the FMUs' default); the Python plant steps exactly (or with the same method);
 #: the loops are stable, so the differences of K steps add up to at most K tol of each
-#: signal's scale. Measured: at most 6e-15 of the peak (the steps are short and the flows
-#: smooth, so DOP853 is exact to round-off here).
+#: signal's scale. Measured: 0 (Example 2.4), 3.3e-16 (Example 3.8: its translated exact
+#: step) and 5.0e-16 (Corollary 4.1: DOP853 against the exact flow) of the peak.
 TOL = 1e-10
 
 CASES = [("example-2.4", []), ("example-3.8", []), ("example-3.8", ["p=sin"]),

@@ -190,11 +190,16 @@ def test_a_shipped_model_that_does_not_trace_yet_is_refused_precisely():
 
 
 def test_a_step_that_does_not_trace_is_reported_not_fatal():
-    """``step`` is optional (the plant can integrate ``f``): Example 2.4's exact step
-    converts the state with ``float()``, so it is reported, and ``f`` and ``k`` stand."""
-    tr = translate(load_model(builtin_model("example_2_4")))
-    assert ("step", 0) not in tr.functions
-    assert "float()" in tr.untranslated["step"] and "example_2_4.py:" in tr.untranslated["step"]
+    """``step`` is optional (the plant can integrate ``f``): the unicycle's exact flow
+    (Corollary 4.1) converts the input with ``float()``, so it is reported, and ``f`` and
+    ``k`` stand; Example 2.4's and Example 3.8's steps translate, for every branch."""
+    tr = translate(load_model(builtin_model("corollary_4_1")))
+    assert ("step", 0) not in tr.functions and ("f", 0) in tr.functions
+    assert "float()" in tr.untranslated["step"] and "unicycle.py:" in tr.untranslated["step"]
+    for name in ("example_2_4", "example_3_8"):
+        tr = translate(load_model(builtin_model(name)))
+        assert not tr.untranslated
+        assert [key for key in tr.functions if key[0] == "step"] == [("step", 0), ("step", 1)]
 
 
 def test_a_string_parameter_without_choices_is_refused(tmp_path):

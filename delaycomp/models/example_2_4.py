@@ -58,9 +58,9 @@ def predictor(x, segments, p):
 
 
 def step(x, u, h, p):
-    """The predictor over one segment; for a batch, the same terms with U = 0 at its start."""
-    if np.ndim(x) == 1:
-        return predictor(x, [(h, u)], p)
+    """The predictor over one segment: its terms with ``U = 0`` at the start (the same
+    arithmetic as :func:`predictor` of one segment), for a point or a batch, and without
+    ``float()``, so that delaycomp.translate traces it."""
     x1, x2, x3 = x
     v, d = u[0], h
     IG = (1.0 + v) * (v * d**3 / 6.0)

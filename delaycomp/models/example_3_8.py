@@ -55,6 +55,6 @@ predictor = chain_predictor(theta, theta_inv, 2)
 def step(x, u, h, p):
     """Exact: ``x2(s) = x2 + u s``, ``x1(s) = x1 + x2 s + u s^2/2 + P(x2(s)) - P(x2)``."""
     x1, x2 = x
-    v = float(np.ravel(u)[0]) if np.ndim(x) == 1 else u[0]
+    v = u[0]  # a point or a batch; no float(): delaycomp.translate traces it
     x2e = x2 + v * h
     return np.array([x1 + x2 * h + v * h * h / 2.0 + P_of(x2e, p) - P_of(x2, p), x2e])

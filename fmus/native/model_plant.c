@@ -132,6 +132,7 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
+#if !MODEL_HAS_STEP
 typedef struct {
     int branch;
     const double *u;
@@ -142,6 +143,7 @@ static int rhs(void *ctx, const double *x, double *dx) {
     const Rhs *r = ctx;
     return gen_f(r->branch, x, r->u, r->p, dx);
 }
+#endif
 
 int model_step(Instance *c, double t, double h) {
     Data *d = &c->d;
