@@ -264,6 +264,7 @@ def translate(model: Model) -> Translation:
     with _tracing(ca):
         for name, kind, fn, width in wanted:
             args = SIGNATURES[kind]
+            traced = {}  # a function translates for every branch or not at all
             for index, choice in enumerate(choices):
                 p = {**model.parameters, **choice}
                 p.update({key: cells["p"][i] for i, key in enumerate(numeric)})
@@ -276,17 +277,16 @@ def translate(model: Model) -> Translation:
                     label = f" with {choice}" if choice else ""
                     reason = (f"model {model.name}: {name}{label} cannot be translated to "
                               f"C: {what}, at {_where(exc, skip)}; the Python FMUs run it")
-                    if name == "step":
-                        untranslated[name] = reason
-                        break
-                    raise TranslationError(reason) from None
-                func = ca.Function(f"{name}_{index}", [sym[a] for a in args], [out])
-                functions[name, index] = CFunction(
-                    f"{name}_{index}", args, width, emit_c(ca, func, f"{name}_{index}", args))
+                    if name != "step":
+                        raise TranslationError(reason) from None
+                    untranslated[name] = reason
+                    break
+                cname = f"{name}_{index}"
+                func = ca.Function(cname, [sym[a] for a in args], [out])
+                traced[name, index] = CFunction(cname, args, width,
+                                                emit_c(ca, func, cname, args))
             else:
-                continue
-            for key in [key for key in functions if key[0] == name]:
-                del functions[key]  # a function translates for every choice or not at all
+                functions.update(traced)
     return Translation(model, choices, numeric, functions, untranslated)
 
 

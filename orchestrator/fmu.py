@@ -12,7 +12,6 @@ from pathlib import Path
 
 import fmpy
 from fmpy import extract, read_model_description
-from fmpy import platform as fmpy_platform
 from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -56,7 +55,7 @@ _DISPATCH = fmi2CallbackLoggerTYPE(_route)
 _UNPACKED: dict[tuple[str, int, int], tuple[object, str]] = {}
 #: The binaries folders of this platform (FMI 2.0 names it ``linux64``, FMI 3.0
 #: ``x86_64-linux``).
-_PLATFORMS = {fmpy_platform, getattr(fmpy, "platform_tuple", fmpy_platform)}
+_PLATFORMS = {fmpy.platform, getattr(fmpy, "platform_tuple", fmpy.platform)}
 
 
 def needed_to_run(name: str) -> bool:
@@ -67,7 +66,7 @@ def needed_to_run(name: str) -> bool:
     Windows DLL of 0.26 MB).
 
     >>> [needed_to_run(n) for n in ("modelDescription.xml", "resources/a.json",
-    ...  f"binaries/{fmpy_platform}/m.so", "binaries/other64/m.dll", "sources/m.c")]
+    ...  f"binaries/{fmpy.platform}/m.so", "binaries/other64/m.dll", "sources/m.c")]
     [True, True, True, False, False]
     """
     top, _, rest = name.partition("/")

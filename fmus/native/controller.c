@@ -37,27 +37,11 @@ static void split_delay(double r, double T, long *q, double *rest) {
     *rest = fmax(r - fl * T, 0.0);
 }
 
-/* The Integer twin of mode (delaycomp.fmuslave, item 9): 0 leaves the String in charge,
- * k = 1, 2 selects compensated, uncompensated; a String changed from its start value to
- * another choice, or an index outside 0 .. 2, is refused. */
+/* The Integer twin of mode (delaycomp.fmuslave, item 9): k = 1, 2 selects compensated,
+ * uncompensated (resolve_choice_index). */
 static int resolve_mode_index(Instance *c) {
     static const char *const choices[] = {"compensated", "uncompensated"};
-    int k = c->d.integer[VR_MODE_INDEX];
-    if (k == 0) return 0;
-    if (k < 1 || k > 2) {
-        log_error(c, "mode_index = %d is not allowed: must be 0 (as mode says) or 1 .. 2 "
-                  "(compensated, uncompensated)", k);
-        return -1;
-    }
-    char *mode = c->d.string[STRING_SLOT[VR_MODE]];
-    if (strcmp(mode, STRING_START[STRING_SLOT[VR_MODE]]) != 0 &&
-        strcmp(mode, choices[k - 1]) != 0) {
-        log_error(c, "mode = '%s' and mode_index = %d ('%s') disagree: set one of them", mode,
-                  k, choices[k - 1]);
-        return -1;
-    }
-    snprintf(mode, STRING_MAX, "%s", choices[k - 1]);
-    return 0;
+    return resolve_choice_index(c, "mode", VR_MODE, VR_MODE_INDEX, choices, 2);
 }
 
 int model_setup(Instance *c) {

@@ -178,6 +178,39 @@ int check_real_parameters_finite(Instance *c) {
     return 0;
 }
 
+#if NSTRING > 0
+void join_choices(const char *const *choices, int count, char *buf, size_t size) {
+    buf[0] = '\0';
+    for (int j = 0; j < count; j++) {
+        strncat(buf, j ? ", " : "", size - strlen(buf) - 1);
+        strncat(buf, choices[j], size - strlen(buf) - 1);
+    }
+}
+
+int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_string,
+                         fmi2ValueReference vr_index, const char *const *choices,
+                         int count) {
+    int k = c->d.integer[vr_index];
+    if (k == 0) return 0;
+    if (k < 1 || k > count) {
+        char listed[STRING_MAX * 4];
+        join_choices(choices, count, listed, sizeof listed);
+        log_error(c, "%s_index = %d is not allowed: must be 0 (as %s says) or 1 .. %d (%s)",
+                  name, k, name, count, listed);
+        return -1;
+    }
+    char *value = c->d.string[STRING_SLOT[vr_string]];
+    if (strcmp(value, STRING_START[STRING_SLOT[vr_string]]) != 0 &&
+        strcmp(value, choices[k - 1]) != 0) {
+        log_error(c, "%s = '%s' and %s_index = %d ('%s') disagree: set one of them", name,
+                  value, name, k, choices[k - 1]);
+        return -1;
+    }
+    snprintf(value, STRING_MAX, "%s", choices[k - 1]);
+    return 0;
+}
+#endif
+
 int check_step(Instance *c, double t, double h) {
     if (isfinite(t) && isfinite(h) && h > 0) return 0;
     log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 from a "
@@ -206,7 +239,7 @@ int alloc_buf(Instance *c, size_t n) {
     if (n == 0) return 0;
     c->buf = calloc(n, sizeof(double));
     if (c->buf == NULL) {
-        log_error(c, "out of memory: the model needs %zu numbers", n);
+        log_error(c, "out of memory: the model needs %lu numbers", (unsigned long)n);
         return -1;
     }
     c->nbuf = n;
@@ -600,8 +633,8 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
     const Snapshot *s = FMUstate;
     size_t need = sizeof(Snapshot) + (size_t)s->h.nbuf * sizeof(double);
     if (size < need) {
-        log_error(c, "fmi2SerializeFMUstate: size = %zu is not allowed: must be at least %zu",
-                  size, need);
+        log_error(c, "fmi2SerializeFMUstate: size = %lu is not allowed: must be at least %lu",
+                  (unsigned long)size, (unsigned long)need);
         return fmi2Error;
     }
     memcpy(serializedState, s, need);
@@ -614,15 +647,15 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serialized
     if (c == NULL || serializedState == NULL || FMUstate == NULL) return fmi2Error;
     Header h;
     if (size < sizeof(Snapshot)) {
-        log_error(c, "fmi2DeSerializeFMUstate: %zu bytes are not allowed: not a state of "
-                  "this FMU (too short)", size);
+        log_error(c, "fmi2DeSerializeFMUstate: %lu bytes are not allowed: not a state of "
+                  "this FMU (too short)", (unsigned long)size);
         return fmi2Error;
     }
     memcpy(&h, serializedState, sizeof h);
     if (h.nbuf > (size - sizeof(Snapshot)) / sizeof(double) ||
         size != sizeof(Snapshot) + (size_t)h.nbuf * sizeof(double)) {
-        log_error(c, "fmi2DeSerializeFMUstate: %zu bytes are not allowed: not a state of "
-                  "this FMU (wrong length)", size);
+        log_error(c, "fmi2DeSerializeFMUstate: %lu bytes are not allowed: not a state of "
+                  "this FMU (wrong length)", (unsigned long)size);
         return fmi2Error;
     }
     Snapshot *s = malloc(size);

@@ -23,32 +23,12 @@ static void parameters(const Instance *c, double *p) {
 }
 
 #if NCHOICE > 0
-/* Apply each nonzero <name>_index to its String; the Python FMUs' messages. */
+/* Apply each nonzero <name>_index to its String (resolve_choice_index). */
 static int resolve_choice_twins(Instance *c) {
-    for (size_t s = 0; s < NCHOICE; s++) {
-        int k = c->d.integer[CHOICE_INDEX_VR[s]];
-        if (k == 0) continue;
-        int count = CHOICE_COUNT[s];
-        const char *const *values = CHOICE_VALUES[s];
-        if (k < 1 || k > count) {
-            char listed[STRING_MAX * 4] = "";
-            for (int j = 0; j < count; j++) {
-                strncat(listed, j ? ", " : "", sizeof listed - strlen(listed) - 1);
-                strncat(listed, values[j], sizeof listed - strlen(listed) - 1);
-            }
-            log_error(c, "%s_index = %d is not allowed: must be 0 (as %s says) or 1 .. %d "
-                      "(%s)", CHOICE_NAME[s], k, CHOICE_NAME[s], count, listed);
+    for (size_t s = 0; s < NCHOICE; s++)
+        if (resolve_choice_index(c, CHOICE_NAME[s], CHOICE_VR[s], CHOICE_INDEX_VR[s],
+                                 CHOICE_VALUES[s], CHOICE_COUNT[s]) != 0)
             return -1;
-        }
-        char *value = c->d.string[STRING_SLOT[CHOICE_VR[s]]];
-        if (strcmp(value, STRING_START[STRING_SLOT[CHOICE_VR[s]]]) != 0 &&
-            strcmp(value, values[k - 1]) != 0) {
-            log_error(c, "%s = '%s' and %s_index = %d ('%s') disagree: set one of them",
-                      CHOICE_NAME[s], value, CHOICE_NAME[s], k, values[k - 1]);
-            return -1;
-        }
-        snprintf(value, STRING_MAX, "%s", values[k - 1]);
-    }
     return 0;
 }
 
@@ -63,11 +43,8 @@ static int branch_of(Instance *c, int *branch) {
         for (int j = 0; j < CHOICE_COUNT[s]; j++)
             if (strcmp(value, CHOICE_VALUES[s][j]) == 0) pos = j;
         if (pos < 0) {
-            char listed[STRING_MAX * 4] = "";
-            for (int j = 0; j < CHOICE_COUNT[s]; j++) {
-                strncat(listed, j ? ", " : "", sizeof listed - strlen(listed) - 1);
-                strncat(listed, CHOICE_VALUES[s][j], sizeof listed - strlen(listed) - 1);
-            }
+            char listed[STRING_MAX * 4];
+            join_choices(CHOICE_VALUES[s], CHOICE_COUNT[s], listed, sizeof listed);
             log_error(c, "%s = '%s' is not allowed: must be one of %s", CHOICE_NAME[s], value,
                       listed);
             return -1;
@@ -97,8 +74,8 @@ int model_setup(Instance *c) {
     for (size_t i = 0; i < NX; i++) {
         double v = d->real[VR_X0 + i];
         if (!isfinite(v)) {
-            log_error(c, "x0[%zu] = %s is not allowed: must be a finite number", i + 1,
-                      num(v).s);
+            log_error(c, "x0[%lu] = %s is not allowed: must be a finite number",
+                      (unsigned long)(i + 1), num(v).s);
             return -1;
         }
     }
@@ -153,11 +130,11 @@ int model_step(Instance *c, double t, double h) {
     double p[MODEL_NP > 0 ? MODEL_NP : 1];
     parameters(c, p);
     double *x = c->buf + ode_work_size(NX);  /* the new state, committed when finite */
-    memcpy(x, &d->real[VR_X], NX * sizeof(double));
 #if MODEL_HAS_STEP
     int failed = gen_step(d->m.branch, &d->real[VR_X], u, h, p, x) != 0;
     const char *reason = failed ? "the model's step failed" : "";
 #else
+    memcpy(x, &d->real[VR_X], NX * sizeof(double));  /* the solver starts from x(t) */
     Rhs ctx = {d->m.branch, u, p};
     double u_size = 0.0;
     for (size_t j = 0; j < NU; j++) u_size = fmax(u_size, fabs(u[j]));

@@ -105,6 +105,17 @@ char *matrix_text(const double *a, size_t rows, size_t cols);
 int check_real_parameters_finite(Instance *c);
 /* Refuse a non-finite input (the first one), naming it, its value and the time. */
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t);
+#if NSTRING > 0
+/* "a, b, c": the choices of a String parameter, into buf (truncated to size). */
+void join_choices(const char *const *choices, int count, char *buf, size_t size);
+/* The Integer twin <name>_index of a String parameter with choices (delaycomp.fmuslave,
+ * item 7): 0 leaves the String in charge, k = 1 .. count selects choices[k - 1]; an index
+ * out of range, or a String changed from its start value to another choice, is refused
+ * with the Python FMUs' message (-1, logged). */
+int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_string,
+                         fmi2ValueReference vr_index, const char *const *choices,
+                         int count);
+#endif
 /* A step must be finite and > 0 from a finite time (the Python FMUs' message). */
 int check_step(Instance *c, double t, double h);
 /* Is `step` the step h an FMU keys its data on, up to round-off of the host's times:
