@@ -89,13 +89,14 @@ def check_against_python(tr, lib, points: int = 50, seed: int = 3):
     return compared
 
 
-@pytest.mark.parametrize("name", ["example_2_4", "example_3_8", "corollary_4_1"])
+@pytest.mark.parametrize("name", ["example_2_4", "example_3_8", "corollary_4_1",
+                                  "proposition_4_2"])
 def test_a_shipped_model_translates_and_its_c_equals_its_python(name, tmp_path):
     tr = translate(load_model(builtin_model(name)))
     lib = compile_translation(tr, tmp_path)
     branches = max(1, len(tr.choices))
-    assert {key[0] for key in tr.functions} >= {"f", "k"}
-    assert len(tr.functions) >= 2 * branches
+    assert {key[0] for key in tr.functions} == {"f", "k", "step"}
+    assert len(tr.functions) == 3 * branches
     assert check_against_python(tr, lib) == 50 * len(tr.functions)
 
 
@@ -182,24 +183,98 @@ def test_what_does_not_trace_is_refused_with_its_line(tmp_path, body, operation,
     assert math.isnan(float(casadi.SX.sym("z")))  # CasADi's own float() again
 
 
-def test_a_shipped_model_that_does_not_trace_yet_is_refused_precisely():
-    """Proposition 4.2's set tolerance uses Python's ``max`` on the state: refused, naming
-    the file and the line (issue 23 will write it with numpy)."""
-    with pytest.raises(TranslationError, match=r"proposition_4_2\.py:\d+ \(`return SET_TOL"):
-        translate(load_model(builtin_model("proposition_4_2")))
+def test_a_step_that_does_not_trace_is_reported_not_fatal(tmp_path):
+    """``step`` is optional (the plant can integrate ``f``): one that converts the input
+    with ``float()`` is reported, and ``f`` and ``k`` stand; every shipped model's step
+    translates, for every branch."""
+    model = write_model(tmp_path, '''
+        def f(x, u, p):
+            return np.array([x[1], u[0]])
 
+        def k(x, p):
+            return np.array([-x[0] - x[1]])
 
-def test_a_step_that_does_not_trace_is_reported_not_fatal():
-    """``step`` is optional (the plant can integrate ``f``): the unicycle's exact flow
-    (Corollary 4.1) converts the input with ``float()``, so it is reported, and ``f`` and
-    ``k`` stand; Example 2.4's and Example 3.8's steps translate, for every branch."""
-    tr = translate(load_model(builtin_model("corollary_4_1")))
+        def step(x, u, h, p):
+            v = float(u[0])
+            return np.array([x[0] + x[1] * h + v * h * h / 2.0, x[1] + v * h])
+    ''', name="floaty")
+    tr = translate(model)
     assert ("step", 0) not in tr.functions and ("f", 0) in tr.functions
-    assert "float()" in tr.untranslated["step"] and "unicycle.py:" in tr.untranslated["step"]
-    for name in ("example_2_4", "example_3_8"):
+    assert "float()" in tr.untranslated["step"] and "floaty.py:" in tr.untranslated["step"]
+    for name in ("example_2_4", "example_3_8", "corollary_4_1", "proposition_4_2"):
         tr = translate(load_model(builtin_model(name)))
         assert not tr.untranslated
-        assert [key for key in tr.functions if key[0] == "step"] == [("step", 0), ("step", 1)]
+        branches = range(max(1, len(tr.choices)))
+        assert sorted(tr.functions) == [(fn, i) for fn in ("f", "k", "step") for i in branches]
+
+
+#: The unicycle's C against its Python at the branch edges: the exact step's ``sinc`` (``omega
+#: h / 2 == 0``: omega = 0, -0, or so small that the product underflows) and Proposition
+#: 4.2's sets (chained ``x2 = 0`` or ``x1 = 0`` exactly, all zero, just inside and outside
+#: ``SET_TOL``; printed: C3 and C2 states) and huge states. The Python and the C compute the
+#: same operations in the same order with the same libm (glibc's ``sin`` for ``math.sin``),
+#: only CasADi's graph in between: measured 0 at every point here. A few EPS of each value
+#: allow another libm or a CasADi that folds a constant otherwise; a wrong set or a wrong
+#: term is off by far more.
+EDGE_ULPS = 4
+
+
+def _unicycle_edge_points(rng):
+    tol = 1e-12
+    states = [np.zeros(3), np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.0, -0.0]),
+              np.array([1.0, 0.0, 0.0]), np.array([-2.0, -0.0, 0.0]),
+              np.array([0.0, 0.3, 0.0]), np.array([1e60, -1e60, 1.0]),
+              np.array([1e-300, -1e-300, 0.0])]
+    for y in (tol, -tol, np.nextafter(tol, 0), np.nextafter(tol, 1), 2 * tol, 0.5 * tol):
+        states += [np.array([0.0, y, 0.0]), np.array([1.0, y, 0.0]),
+                   np.array([y, 0.0, 0.0]), np.array([y, 0.0, 0.7])]
+    for a, theta in ((1.0, 0.4), (-1.5, 1.1), (0.2, -2.0)):  # chained x2 ~ 0, x3 != 0: C2
+        states.append(np.array([a * math.cos(theta), a * math.sin(theta), theta]))
+    states += [rng.uniform(-2, 2, 3) for _ in range(40)]
+    inputs = [np.array([1.0, 0.0]), np.array([-0.5, -0.0]), np.array([0.7, 5e-324]),
+              np.array([0.0, 0.0]), np.array([0.0, 1.3]), np.array([2.0, 1e-300]),
+              np.array([1e100, 3.0])]
+    inputs += [rng.uniform(-2, 2, 2) for _ in range(10)]
+    return states, inputs
+
+
+@pytest.mark.parametrize("name", ["proposition_4_2", "corollary_4_1"])
+def test_the_unicycle_models_translate_and_their_c_equals_their_python_at_the_edges(
+        name, tmp_path):
+    """Section 4's models (the exact flow, Proposition 4.2's sets written with
+    ``np.where``) translate fully; ``k`` and ``step`` in C equal the Python functions on
+    both sides of every branch, within EDGE_ULPS EPS of each value (measured: 0)."""
+    tr = translate(load_model(builtin_model(name)))
+    assert not tr.untranslated
+    branches = range(max(1, len(tr.choices)))
+    assert sorted(tr.functions) == [(fn, i) for fn in ("f", "k", "step") for i in branches]
+    lib = compile_translation(tr, tmp_path)
+    model = tr.model
+    states, inputs = _unicycle_edge_points(np.random.default_rng(7))
+    worst, compared = 0.0, 0
+    for index, choice in enumerate(tr.choices):
+        for T in (1.0, 0.5, 1.7):
+            p = {**model.parameters, **choice, "T": T}
+            num = [p[key] for key in tr.numeric]
+            for x in states:
+                for fn_name in ("k", "step"):
+                    cases = ([(None, 0.3 * T)] if fn_name == "k"
+                             else [(u, h) for u in inputs for h in (T, 0.1, 0.0)])
+                    for u, h in cases:
+                        if fn_name == "k":
+                            want = (model.k(h, x, p) if model.control == "continuous"
+                                    else model.k(x, p))
+                        else:
+                            want = model.step(x, u, h, p)
+                        got = call_c(lib, tr.functions[fn_name, index],
+                                     {"x": x, "u": u, "t": h, "h": h, "p": num})
+                        want = np.asarray(want, dtype=float)
+                        assert np.all(np.isfinite(want)), (fn_name, x, u, h)
+                        err = np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want)))
+                        worst = max(worst, err / EPS)
+                        compared += 1
+    assert compared > 1000
+    assert worst <= EDGE_ULPS, worst
 
 
 def test_a_string_parameter_without_choices_is_refused(tmp_path):

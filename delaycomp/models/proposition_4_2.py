@@ -21,7 +21,12 @@ import math
 import numpy as np
 
 from delaycomp.models import unicycle
-from delaycomp.models.unicycle import f, predictor, step  # noqa: F401  (model interface)
+from delaycomp.models.unicycle import (  # noqa: F401  (f, predictor, step: the interface)
+    f,
+    predictor,
+    select,
+    step,
+)
 
 STATES = unicycle.STATES
 INPUTS = unicycle.INPUTS
@@ -34,34 +39,49 @@ BATCH = True  # f, k and step also take a batch: x of shape (3, P), u (2, P), p[
 
 
 def _tols(x1, x2, x3):
-    """(linear, quadratic) set tolerances for the state (x1, x2, x3)."""
+    """(linear, quadratic) set tolerances for the state (x1, x2, x3).
+
+    ``select(y > 1.0, y, 1.0)`` is Python's ``max(1.0, y)`` (NaN included), written so that
+    delaycomp.translate traces it (no Python branch on the state)."""
     sq = x1 * x1 + x2 * x2 + x3 * x3
-    return SET_TOL * max(1.0, math.sqrt(sq)), SET_TOL * max(1.0, sq)
+    root = math.sqrt(sq)
+    return SET_TOL * select(root > 1.0, root, 1.0), SET_TOL * select(sq > 1.0, sq, 1.0)
 
 
 def corrected(x1, x2, x3, T):
+    """The corrected law at a point.
+
+    Written so that delaycomp.translate traces it: the three sets are chosen with
+    :func:`~delaycomp.models.unicycle.select` (``np.where`` for symbols), not ``if``, and
+    ``min`` is a ``select`` too; ``math``'s functions stay. Every set's values are computed
+    as before (``1 - cos a``, the first set's denominator, is replaced by 1 where that set
+    is not taken: ``x2 = 0`` must not divide by zero): the set taken gives the same
+    numbers as the former ``if`` version, bit for bit."""
     tol, _ = _tols(x1, x2, x3)
-    if abs(x2) > tol:
-        a = min(math.sqrt(abs(x2)), math.pi / 2)
-        b = -a * (x1 * math.sin(a) + x2 * math.cos(a)) / (1.0 - math.cos(a))
-        return b / T, a / T
-    if abs(x1) > tol:
-        return -x1 / T, 0.0
-    return 0.0, -x3 / T
+    c1 = abs(x2) > tol
+    c2 = abs(x1) > tol
+    root = math.sqrt(abs(x2))
+    a = select(math.pi / 2 < root, math.pi / 2, root)  # min(root, pi/2)
+    b = -a * (x1 * math.sin(a) + x2 * math.cos(a)) / select(c1, 1.0 - math.cos(a), 1.0)
+    return (select(c1, b / T, select(c2, -x1 / T, 0.0)),
+            select(c1, a / T, select(c2, 0.0, -x3 / T)))
 
 
 def printed(x1, x2, x3, T):
-    """(4.9) in the order C3, C2, C1 with a scaled tolerance; then (4.10)-(4.11)."""
+    """(4.9) in the order C3, C2, C1 with a scaled tolerance; then (4.10)-(4.11).
+
+    The sets are chosen with :func:`~delaycomp.models.unicycle.select`, not ``if``, so
+    that delaycomp.translate traces it; C2's denominator is replaced by 1 where C2 is not
+    taken (``x1 = x3 = 0`` must not divide by zero): the set taken gives the same numbers
+    as the former ``if`` version, bit for bit."""
     lin, quad = _tols(x1, x2, x3)
-    if abs(2 * x2 - x1 * x3) <= quad:                     # C3
-        k1, k2 = -x1 / T, -x3 / T
-    elif abs(x2) <= lin and abs(x1 * x3) > quad:          # C2
-        den = T * (x1 * x1 + x3 * x3)
-        k1, k2 = -x1 * x3 * x3 / den, x3 * x1 * x1 / den
-    else:                                                 # C1
-        root = math.sqrt(abs(x2))
-        k1 = -2.0 / T * math.copysign(root, x2) - 2.0 / T * x1
-        k2 = root / T
+    c3 = abs(2 * x2 - x1 * x3) <= quad
+    c2 = np.logical_and(abs(x2) <= lin, abs(x1 * x3) > quad)
+    den = select(c2, T * (x1 * x1 + x3 * x3), 1.0)
+    root = math.sqrt(abs(x2))
+    k1 = select(c3, -x1 / T, select(c2, -x1 * x3 * x3 / den,
+                                    -2.0 / T * math.copysign(root, x2) - 2.0 / T * x1))
+    k2 = select(c3, -x3 / T, select(c2, x3 * x1 * x1 / den, root / T))
     return k1 + x2 * k2, k2  # v = u1 + x2 omega (4.3)
 
 

@@ -22,7 +22,26 @@ def dynamics(s, u):
     return np.array([u[0] * math.cos(s[2]), u[0] * math.sin(s[2]), u[1]])
 
 
+def select(cond, a, b):
+    """``a`` where ``cond`` else ``b``, for one point: a Python choice of the very value
+    (its type and its NaN too) for a number, ``np.where`` (an ``if_else``) for the CasADi
+    symbol that delaycomp.translate traces. Both ``a`` and ``b`` are computed: guard what
+    the branch not taken would divide by."""
+    if isinstance(cond, (bool, np.bool_)):
+        return a if cond else b
+    return np.where(cond, a, b)
+
+
 def flow(s, u, h):
+    """The exact step of (4.1) from ``s`` over ``h`` with ``u = (v, omega)`` held.
+
+    For a point it is written so that delaycomp.translate traces it (the plant's ``step``
+    in C): no ``float()`` of the input and no Python ``if`` on it; ``sinc`` (1 where
+    ``omega h / 2 == 0``) is chosen with ``np.where``, its denominator guarded so that the
+    branch not taken never divides by zero. ``math``'s functions stay (the tracer accepts
+    them; numpy's may differ from them in the last bit), so a point's arithmetic is the
+    former ``float()`` and ``if`` version's, bit for bit.
+    """
     if np.ndim(s) == 2:  # a batch: s (3, P), u (2, P), h (P,)
         v, w = u[0], u[1]
         half = 0.5 * w * h
@@ -31,9 +50,10 @@ def flow(s, u, h):
         heading = s[2] + half
         return np.array([s[0] + v * h * sinc * np.cos(heading),
                          s[1] + v * h * sinc * np.sin(heading), s[2] + w * h])
-    v, w = float(u[0]), float(u[1])
+    v, w = np.asarray(u)[:2].tolist()  # Python floats (symbols when traced), as float() gave
     half = 0.5 * w * h
-    sinc = math.sin(half) / half if half != 0.0 else 1.0
+    still = half == 0.0
+    sinc = select(still, 1.0, math.sin(half) / select(still, 1.0, half))
     heading = s[2] + half
     return np.array([s[0] + v * h * sinc * math.cos(heading),
                      s[1] + v * h * sinc * math.sin(heading), s[2] + w * h])
