@@ -103,8 +103,9 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
     b.add_argument("--native", action="store_true",
-                   help="build the delay, LTI plant and LTI controller as C FMUs (no Python "
-                        "needed in the host; needs a C compiler)")
+                   help="build C FMUs (no Python needed in the host; needs a C compiler): "
+                        "the delay, LTI plant and LTI controller, or with --model the "
+                        "model's plant, controller and delays (f, k, step translated to C)")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
@@ -135,9 +136,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
     r.add_argument("--native", action="store_true",
-                   help="LTI loops: run the native C FMUs (`delaycomp build --native`) in our "
-                        "master instead of the Python FMUs; with --fmu-dir DIR they are "
-                        "built into DIR/native")
+                   help="run the native C FMUs (`delaycomp build --native`: LTI loops and "
+                        "model files that translate) in our master instead of the Python "
+                        "FMUs; with --fmu-dir DIR they are built into DIR/native")
     r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos", "omsimulator"),
                    default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
@@ -234,7 +235,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu",
                    help="the container FMU to write")
     e.add_argument("--native", action="store_true",
-                   help="LTI loops: the container holds the native C FMUs (see Native C FMUs)")
+                   help="the container holds the native C FMUs (LTI loops and model files "
+                        "that translate; see Native C FMUs)")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -288,12 +290,12 @@ def _cmd_build(args) -> int:
     from .build import build_all, build_model
 
     if args.native:
-        from .native import build_native
+        from .native import build_native, build_native_model
 
-        if args.model:
-            raise UsageError("--native builds the LTI loop's FMUs; --model is not allowed "
-                             "with it")
-        paths = build_native(args.out)  # no compiler: one line naming what to install
+        # no compiler: one line naming what to install; a model that does not translate:
+        # one line naming the function, the operation and the line
+        paths = build_native_model(args.model, args.out) if args.model else \
+            build_native(args.out)
     elif args.model:
         paths = build_model(args.model, args.out)
     else:

@@ -351,11 +351,22 @@ def test_cli_no_compiler_exit_status_and_one_line(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_run_native_refuses_a_model_loop():
+def test_run_native_refuses_a_loop_with_a_users_fmu_file(tmp_path):
+    """A user's FMU (another tool's plant) has no native twin to build: refused, naming
+    the instance. (A model file's plant and controller have one:
+    tests/test_native_model_controller.py.)"""
+    import dataclasses
+
+    from delaycomp.system.loop import FmuFile
+
     sc = scenarios.get("example-3.8")
+    loop = sc.make(sc.resolve([]))
+    loop = dataclasses.replace(loop, instances=[
+        dataclasses.replace(i, source=FmuFile(tmp_path / "theirs.fmu")) if i.name == "plant"
+        else i for i in loop.instances])
     with pytest.raises(ValueError, match="--native is not allowed for this loop: instance "
-                                         "'plant' is a model_plant FMU"):
-        native_fmus(sc.make(sc.resolve([])))
+                                         "'plant' is a user's FMU file"):
+        native_fmus(loop)
 
 
 # -- FMI 2.0 semantics ---------------------------------------------------------------------------

@@ -18,7 +18,7 @@
 #include <string.h>
 
 #include "native.h"
-#if defined(KIND_MODEL_PLANT)
+#if defined(KIND_MODEL_PLANT) || defined(KIND_MODEL_CONTROLLER)
 #include "model.h"
 #include "ode.h"
 #endif
@@ -715,6 +715,17 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     Instance *c = comp;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!allowed(c, "fmi2DoStep", StateStepComplete)) return fmi2Error;
+    double t = currentCommunicationPoint, h = communicationStepSize, last = c->d.time;
+    /* the Python FMUs' rule (delaycomp.fmuslave.TableSlave._step_refusal): libcosim keeps
+     * time in integer nanoseconds, about 1e-12 relative off the sum of the steps; a jump
+     * or a step back is many orders larger */
+    if (isfinite(t) && isfinite(h) && h > 0 &&
+        fabs(t - last) > 1e-9 * fmax(fmax(fabs(last), h), 1.0)) {
+        log_error(c, "step from t = %s is not allowed: time %s; the last step ended at %s (a "
+                  "step must start where the last one ended)", num(t).s,
+                  t < last ? "goes backwards" : "jumps ahead", num(last).s);
+        return model_fault(c);
+    }
     if (model_step(c, currentCommunicationPoint, communicationStepSize) != 0)
         return model_fault(c);
     c->d.time = currentCommunicationPoint + communicationStepSize;
@@ -771,6 +782,8 @@ static int model_state_ok(const Data *d, size_t nbuf) {
 #elif defined(KIND_MODEL_PLANT)
     return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
                          d->m.branch < MODEL_NBRANCH);
+#elif defined(KIND_MODEL_CONTROLLER)
+    return model_state_ok_controller(d, nbuf);
 #elif defined(KIND_CONTROLLER)
     if (!d->m.built) return nbuf == 0;
     return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&

@@ -17,6 +17,7 @@
 #define STRING_MAX 256       /* longest String parameter value, terminator included */
 #define GRID_RTOL 1e-9       /* delaycomp.grid.GRID_RTOL */
 #define MAX_STEPS 1000000.0  /* delaycomp.grid.MAX_STEPS */
+#define ROUNDOFF_STEP_FRACTION 1e-6  /* delaycomp.fmuslave.ROUNDOFF_STEP_FRACTION */
 
 /* The FMI 2.0 co-simulation states (FMI 2.0.4, 4.2.4), as bits for the call masks. */
 typedef enum {
@@ -43,6 +44,28 @@ typedef struct {
 #elif defined(KIND_MODEL_PLANT)
 typedef struct {
     int branch;      /* the branch of model.c for the String parameters (model_setup) */
+} ModelData;
+#elif defined(KIND_MODEL_CONTROLLER)
+typedef struct {
+    int built;               /* the controller exists (initialized) */
+    int branch;              /* the branch of model.c for the String parameters */
+    int zoh;                 /* mode: 1 zero-order hold (Theorem 3.2), 0 continuous (2.1) */
+    int predictor;           /* 0 closed, 1 numerical, 2 none (PREDICTOR_CHOICES) */
+    long N;                  /* base steps per sampling period */
+    double h;                /* the base step T / N */
+    double tau_eff;          /* zoh: tau padded up to a multiple of T (Remark 3.3(b)) */
+    long W;                  /* input history: base steps of the window r + tau */
+    long D;                  /* zoh: the output's own delay line (padding), base steps */
+    long k_tick;             /* base steps since t0 */
+    long hist_head;          /* ring position of the oldest history entry */
+    long pad_head;           /* ring position of the oldest padding entry */
+    double z[NX];            /* continuous: the predictor state at the current tick */
+    double held[NU];         /* zoh: the control held over the current period */
+    int cache_valid;         /* cache_* are the evaluation of the current sample */
+    double cache_z[NX];
+    double cache_u[NU];
+    int y_held_valid;        /* held_sample: the input held over the step that ended */
+    double y_held[NX];
 } ModelData;
 #elif defined(KIND_CONTROLLER)
 typedef struct {
@@ -135,5 +158,9 @@ int model_setup(Instance *c);                      /* at fmi2ExitInitializationM
 int model_step(Instance *c, double t, double h);   /* fmi2DoStep */
 int model_output(Instance *c, fmi2ValueReference vr, double *value);  /* an output's value */
 void model_input_set(Instance *c);                 /* after fmi2SetReal of inputs */
+#if defined(KIND_MODEL_CONTROLLER)
+/* A restored state's buffer sizes and positions in range (model_controller.c). */
+int model_state_ok_controller(const Data *d, size_t nbuf);
+#endif
 
 #endif

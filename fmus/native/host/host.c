@@ -1,7 +1,8 @@
 /* A small closed-loop FMI 2.0 co-simulation host in C (no Python anywhere).
  *
  * Runs the loop  plant -> meas_delay -> controller -> input_delay -> plant  of delaycomp's
- * LTI scenarios, scalar or with vectors (n states, m inputs), with the FMUs unpacked in four
+ * scenarios (LTI, scalar or with vectors, and model files' nonlinear loops: n states, m
+ * inputs), with the FMUs unpacked in four
  * folders (the two delays may share one). Value references, types, GUIDs and model
  * identifiers are read from each folder's modelDescription.xml; each FMU's Real outputs are
  * connected, in the order of its modelDescription, to the next FMU's Real inputs (plant x1
@@ -37,7 +38,7 @@ static const char *const NAMES[NI] = {"plant", "meas_delay", "controller", "inpu
 typedef struct {
     char name[256];
     char causality[32];
-    char type;                   /* r(eal), b(oolean), s(tring), ? (another) */
+    char type;                   /* r(eal), i(nteger), b(oolean), s(tring), ? (another) */
     fmi2ValueReference vr;
 } Var;
 
@@ -59,6 +60,7 @@ typedef struct {
     fmi2GetRealTYPE *get_real;
     fmi2SetBooleanTYPE *set_boolean;
     fmi2SetStringTYPE *set_string;
+    fmi2SetIntegerTYPE *set_integer;
     fmi2DoStepTYPE *do_step;
 } Fmu;
 
@@ -133,12 +135,13 @@ static void read_variables(Fmu *f) {
         if (t == NULL) die("%s: a ScalarVariable without its end", f->dir);
         while (*t && *t != '<') t++;
         v->type = strncmp(t, "<Real", 5) == 0 ? 'r' : strncmp(t, "<Boolean", 8) == 0 ? 'b'
-                  : strncmp(t, "<String", 7) == 0 ? 's' : '?';
+                  : strncmp(t, "<String", 7) == 0 ? 's' : strncmp(t, "<Integer", 8) == 0 ? 'i'
+                  : '?';
         f->nvars++;
     }
 }
 
-/* value reference and type (Real, Boolean, String) of variable `name` */
+/* value reference and type (Real, Integer, Boolean, String) of variable `name` */
 static fmi2ValueReference lookup(const Fmu *f, const char *name, char *type) {
     for (size_t i = 0; i < f->nvars; i++) {
         if (strcmp(f->vars[i].name, name) != 0) continue;
@@ -194,6 +197,7 @@ static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
     f->get_real = (fmi2GetRealTYPE *)sym(f, "fmi2GetReal");
     f->set_boolean = (fmi2SetBooleanTYPE *)sym(f, "fmi2SetBoolean");
     f->set_string = (fmi2SetStringTYPE *)sym(f, "fmi2SetString");
+    f->set_integer = (fmi2SetIntegerTYPE *)sym(f, "fmi2SetInteger");
     f->do_step = (fmi2DoStepTYPE *)sym(f, "fmi2DoStep");
     snprintf(path, sizeof path, "file://%s/resources", f->dir);
     f->c = f->instantiate(instance, fmi2CoSimulation, f->guid, path, cb, fmi2False, fmi2False);
@@ -259,6 +263,13 @@ int main(int argc, char **argv) {
         const char *value = eq + 1;
         if (type == 'r') {
             put(&fmu[i], vr, strtod(value, NULL));
+        } else if (type == 'i') {
+            char *end;
+            long k = strtol(value, &end, 10);
+            if (*value == '\0' || *end != '\0' || k < -2147483647L || k > 2147483647L)
+                die("%s: %s is not an Integer", argv[a], value);
+            fmi2Integer ki = (fmi2Integer)k;
+            CHECK(fmu[i].set_integer(fmu[i].c, &vr, 1, &ki), "fmi2SetInteger");
         } else if (type == 'b') {
             fmi2Boolean b = strcmp(value, "true") == 0 || strcmp(value, "1") == 0;
             CHECK(fmu[i].set_boolean(fmu[i].c, &vr, 1, &b), "fmi2SetBoolean");

@@ -1,0 +1,415 @@
+"""The native predictor-controller of a user model (issue 23, items 1 and 2 for the
+controller): ``k`` and the exact ``step`` in C from :mod:`delaycomp.translate`, the
+numerical predictor by ``fmus/native/ode.c``, both families (continuous input, Theorem
+2.1; zero-order hold, Theorem 3.2, padding included); the twin of the Python model
+controller FMU.
+
+Against the Python FMUs (whole loops in our master, and the controller alone driven by the
+same measurements), against the independent reference traces (``delaycomp check``'s
+native rows, here for every nonlinear case that translates), and for the FMI semantics:
+refusals with the Python messages, the FMU state, the table, the command line.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import textwrap
+import zipfile
+
+import numpy as np
+import pytest
+
+from delaycomp import scenarios
+from delaycomp.build import build_fmu
+from delaycomp.check import PROVIDERS
+from delaycomp.models import path
+from delaycomp.native import build_native_fmu, compile_host, host_argv, native_fmus, unpack
+from delaycomp.orchestrator.fmu import FmuComponent
+from delaycomp.orchestrator.inprocess import SlaveComponent
+from delaycomp.simulate import run_loop, stop_ticks
+from delaycomp.translate import TranslationError
+
+from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
+from .test_native import (
+    _restore_run,
+    assert_initialize_refused_alike,
+    assert_same_table,
+    assert_step_refused_alike,
+)
+
+#: The ODE tolerance of the FMUs (rtol = atol, delaycomp.predictors.DEFAULT_TOL).
+TOL = 1e-10
+
+#: (scenario, --set): both families, both predictors, both shapes of Example 3.8, a delay
+#: that zero-order hold pads, and sparse sampling
+LOOPS = [("example-2.4", []), ("example-2.4", ["predictor=numerical"]),
+         ("example-2.4", ["T=1", "N=20"]), ("example-3.8", []), ("example-3.8", ["p=sin"]),
+         ("example-3.8", ["predictor=numerical"]), ("example-3.8", ["tau=0.3", "pad=true"]),
+         ("corollary-4.1", []), ("corollary-4.1", ["predictor=numerical"]),
+         ("proposition-4.2", []), ("proposition-4.2", ["law=printed"])]
+
+
+@pytest.fixture(scope="module")
+def native_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("native-model-controller")
+
+
+def _loop(name, sets):
+    sc = scenarios.get(name)
+    return sc.make(sc.resolve(sets))
+
+
+@pytest.mark.parametrize("name,sets", LOOPS, ids=lambda c: str(c))
+def test_native_loop_equals_the_python_loop(name, sets, native_dir, fmu_dir):
+    """Plant, controller and delays native against all Python, 10 s in our master.
+
+    Bound: the closed forms differ from the Python ones by round-off only (Example 2.4's
+    closed-form predictor over many segments against its exact step composed segment by
+    segment; the same arithmetic elsewhere); the numerical predictor is DOP853 at tol in
+    both, whose local errors are held to ``tol (1 + |x|)``. The loops are stable, so the
+    differences of K steps add up to at most ``K tol`` of each signal's scale. Measured:
+    7.8e-15 of the peak at most (Example 2.4, closed), 0 to 6.4e-16 elsewhere (0 for
+    Section 4's unicycle)."""
+    loop = _loop(name, sets)
+    stop = stop_ticks(10.0, loop.T, loop.N) * loop.h
+    python = run_loop(loop, stop, fmu_dir)
+    native = run_loop(loop, stop, fmu_dir, fmus=native_fmus(loop, native_dir))
+    assert python.success and native.success, native.message
+    assert python.names == native.names
+    ticks = len(python.times)
+    scale = np.maximum(1.0, np.max(np.abs(python.data), axis=0))
+    assert np.all(np.abs(native.data - python.data) <= ticks * TOL * scale)
+
+
+def test_native_rows_of_check_pass_for_every_nonlinear_case():
+    """``delaycomp check --master native``: every reference case whose model translates
+    runs natively and meets the reference's tolerance (independent computations,
+    ``reference/README.md``) and the Python FMUs' within ``NATIVE_RTOL``."""
+    from delaycomp.check import CASES
+
+    cases = [c for c in CASES if c.id.split("/")[0] in (
+        "example-2.4", "example-3.8", "corollary-4.1", "proposition-4.2")]
+    rows = list(PROVIDERS.providers["native"](cases))
+    assert {r.case for r in rows} == {c.id for c in cases}
+    assert {r.master for r in rows} == {"native", "native-vs-python"}
+    assert all(r.passed for r in rows), [r for r in rows if not r.passed]
+
+
+def _drive(comp, params, ys, h, names, outputs):
+    """Set up and step ``comp`` over the measurements ``ys`` (one row per base step):
+    the output read at each tick after its input is set, as our master does."""
+    comp.setup(0.0, h * len(ys), params)
+    comp.initialize()
+    out = []
+    for k, y in enumerate(ys):
+        comp.set_inputs(names, list(y))
+        out.append(comp.get_outputs(outputs))
+        comp.do_step(k * h, h)
+    return np.array(out)
+
+
+#: (model, parameters of the controller): each family, predictor, padding and held_sample
+DRIVEN = [
+    ("example_2_4", {"T": 0.5, "N": 5, "r": 0.3, "tau": 0.7, "z0[1]": 1.0}),
+    ("example_2_4", {"T": 0.5, "N": 5, "r": 0.2, "tau": 0.1, "predictor": "numerical",
+                     "held_sample": True, "u0[1]": 0.3}),
+    ("example_2_4", {"T": 0.4, "N": 4, "r": 0.0, "tau": 0.3, "predictor": "none"}),
+    ("example_3_8", {"T": 1.0, "N": 4, "r": 0.5, "tau": 1.0}),
+    ("example_3_8", {"T": 1.0, "N": 4, "r": 0.25, "tau": 0.5, "pad": True,
+                     "predictor": "numerical", "p": "sin"}),
+    ("example_3_8", {"T": 1.0, "N": 4, "r": 0.75, "tau": 2.0, "held_sample": True,
+                     "p_index": 2, "predictor_index": 2}),
+    ("example_3_8", {"T": 1.0, "N": 4, "r": 0.0, "tau": 0.0, "predictor": "none",
+                     "mode_index": 2}),
+    ("corollary_4_1", {"T": 0.5, "N": 5, "r": 0.2, "tau": 0.4, "z0[3]": 0.3}),
+    ("proposition_4_2", {"T": 1.0, "N": 4, "r": 0.25, "tau": 1.0, "law": "printed"}),
+]
+
+
+@pytest.mark.parametrize("model_name,params", DRIVEN, ids=lambda p: str(p))
+def test_the_controller_alone_answers_as_the_python_one(model_name, params, native_dir):
+    """Both controllers read the same measurements (random, so every sample differs):
+    each output, at every base step, agrees. Bound: the closed forms to round-off; the
+    numerical predictor is DOP853 at tol in both, a prediction within ``tol (1 + |x|)``
+    per segment, and ``k`` is smooth: ``10 tol (1 + |u|)`` (measured: 1e-15)."""
+    from delaycomp.model import load_model
+
+    model = load_model(path(model_name))
+    names = [f"y_{s}" for s in model.states]
+    rng = np.random.default_rng(5)
+    ys = rng.uniform(-1, 1, (40, model.n))
+    h = params["T"] / params["N"]
+    config = {"model": str(path(model_name))}
+    slave = SlaveComponent("c", "model_controller", config)
+    comp = FmuComponent("c", build_native_fmu("model_controller", native_dir / "driven",
+                                              config))
+    try:
+        want = _drive(slave, params, ys, h, names, list(model.inputs))
+        got = _drive(comp, params, ys, h, names, list(model.inputs))
+    finally:
+        comp.terminate()
+    assert np.all(np.abs(got - want) <= 10 * TOL * (1 + np.abs(want)))
+    assert len(np.unique(want)) > 5  # the outputs move: the comparison means something
+
+
+def _both(model_file, params, native_dir):
+    config = {"model": str(model_file)}
+    slave = SlaveComponent("x", "model_controller", config)
+    comp = FmuComponent("x", build_native_fmu("model_controller", native_dir / "faults",
+                                              config))
+    for c in (slave, comp):
+        c.setup(0.0, 10.0, params)
+    return slave, comp
+
+
+BAD = [
+    ("example_3_8", {"T": float("nan")}),
+    ("example_3_8", {"T": 0.0}),
+    ("example_3_8", {"r": -0.5}),
+    ("example_3_8", {"tau": -1.0}),
+    ("example_3_8", {"tau": 0.5}),                    # zoh without padding
+    ("example_3_8", {"r": 0.005}),                    # off the base grid
+    ("example_3_8", {"T": 1.0, "N": 1, "r": 2e6}),    # a window of more than 10^6 steps
+    ("example_3_8", {"N": 0}),
+    ("example_3_8", {"tolerance": 1.0}),
+    ("example_3_8", {"tolerance": float("inf")}),
+    ("example_3_8", {"u0[1]": float("nan")}),
+    ("example_3_8", {"z0[2]": float("inf")}),
+    ("example_3_8", {"mode": "continuous"}),          # the model gives a zoh feedback
+    ("example_3_8", {"mode": "hold"}),
+    ("example_3_8", {"mode_index": 3}),
+    ("example_3_8", {"predictor": "exact"}),
+    ("example_3_8", {"predictor_index": 4}),
+    ("example_3_8", {"p": "cube"}),
+    ("example_3_8", {"p": "sin", "p_index": 1}),
+    ("example_2_4", {"mode": "zoh"}),
+    ("example_2_4", {"r": 0.3, "tau": 0.004}),        # r + tau off the base grid
+    ("example_2_4", {"law_index": 7}),
+]
+
+
+@pytest.mark.parametrize("model_name,params", BAD, ids=lambda p: str(p))
+def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params, native_dir):
+    slave, comp = _both(path(model_name), params, native_dir)
+    try:
+        assert_initialize_refused_alike(slave, comp)
+    finally:
+        comp.terminate()
+
+
+@pytest.mark.parametrize("step,y", [((0.0, 0.01), float("nan")), ((0.0, 0.02), 1.0),
+                                    ((0.5, 0.01), 1.0), ((0.0, -0.01), 1.0),
+                                    ((0.0, float("inf")), 1.0)], ids=str)
+def test_a_bad_input_or_step_is_refused_with_the_python_message(step, y, native_dir):
+    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 100}, native_dir)
+    try:
+        assert_step_refused_alike(slave, comp, {"y_x1": y}, step)
+    finally:
+        comp.terminate()
+
+
+def test_a_roundoff_sliver_step_moves_nothing(native_dir):
+    """A master that adds h to its time ends 1e-13 s short and takes a sliver step to the
+    stop time: both controllers accept it and stay where they are."""
+    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 2}, native_dir)
+    try:
+        for c in (slave, comp):
+            c.initialize()
+            c.set_inputs(["y_x1", "y_x2"], [0.4, -0.2])
+            c.do_step(0.0, 0.5 - 1e-13)
+            c.do_step(0.5 - 1e-13, 1e-13)
+            c.do_step(0.5, 0.5)
+        assert comp.get_outputs(["u"]) == slave.get_outputs(["u"])
+    finally:
+        comp.terminate()
+
+
+def _users_model(tmp_path, body: str, control: str = "zoh"):
+    file = tmp_path / "pendulum.py"
+    file.write_text(textwrap.dedent(f'''
+        import math
+        import numpy as np
+        STATES = ("angle", "rate")
+        INPUTS = ("torque",)
+        CONTROL = "{control}"
+        PARAMETERS = {{"g": 9.81, "friction": "viscous"}}
+        CHOICES = {{"friction": ("viscous", "none")}}
+
+        def f(x, u, p):
+            drag = 0.2 * x[1] if p["friction"] == "viscous" else 0.0
+            return np.array([x[1], -p["g"] * math.sin(x[0]) - drag + u[0]])
+    ''') + textwrap.dedent(body), encoding="utf-8")
+    return file
+
+
+def test_a_users_model_without_a_closed_form(tmp_path):
+    """A model that is not shipped (a pendulum: ``math.sin``, a numeric parameter, a
+    String choice) with its numerical predictor: the native loop equals the Python loop,
+    and predictor = 'closed' is refused alike (the model gives none)."""
+    from delaycomp.system.loopfile import read_loop
+
+    model = _users_model(tmp_path, '''
+        def k(x, p):
+            T = p["T"]
+            # gravity cancelled at the sample, then Example 3.8's dead-beat law for the
+            # double integrator left over: -x1 / T^2 - 3 x2 / (2 T)
+            return np.array([p["g"] * math.sin(x[0]) - x[0] / T**2 - 1.5 * x[1] / T])
+    ''')
+    loop_file = tmp_path / "loop.toml"
+    loop_file.write_text(textwrap.dedent(f'''
+        T = 0.2
+        N = 10
+        r = 0.1
+        tau = 0.4
+        stop_time = 4.0
+        [plant]
+        model = "{model.name}"
+        x0 = [0.8, 0.0]
+        [controller]
+        g = 9.0
+        friction = "none"
+        predictor = "numerical"
+    '''), encoding="utf-8")
+    loop = read_loop(loop_file)
+    python = run_loop(loop, 4.0)
+    native = run_loop(loop, 4.0, fmus=native_fmus(loop, tmp_path / "nat"))
+    assert python.success and native.success, native.message
+    scale = np.maximum(1.0, np.max(np.abs(python.data), axis=0))
+    assert np.all(np.abs(native.data - python.data) <= len(python.times) * TOL * scale)
+    angle = python.names.index("plant.angle")
+    assert abs(python.data[-1, angle]) < 1e-2 * abs(python.data[0, angle])  # it stabilizes
+    slave, comp = _both(model, {"predictor": "closed"}, tmp_path)
+    try:
+        assert_initialize_refused_alike(slave, comp)
+    finally:
+        comp.terminate()
+
+
+def test_a_closed_form_without_a_translatable_step_is_refused_in_one_line(tmp_path):
+    model = _users_model(tmp_path, '''
+        def k(x, p):
+            return np.array([-x[0] - x[1]])
+
+        def predictor(x, segments, p):
+            return x
+
+        def step(x, u, h, p):
+            if float(h) > 0:
+                return x
+            return x
+    ''')
+    with pytest.raises(TranslationError, match=r"pendulum\.py:\d+ \(`if float\(h\) > 0:`\)"
+                       r".*closed-form predictor composes the exact step"):
+        build_native_fmu("model_controller", tmp_path / "fmu", {"model": str(model)})
+
+
+def test_fmu_state_continues_bit_identically(native_dir):
+    """Saved half-way (mid-period, histories and padding line full), the native loop
+    continues as it did, bit for bit, in the same master and in a fresh one."""
+    loop = _loop("example-3.8", ["tau=0.3", "pad=true", "predictor=numerical"])
+    fmus = native_fmus(loop, native_dir / "state")
+    ticks = stop_ticks(6.0, loop.T, loop.N)
+    first, second, third = _restore_run(fmus, loop, 6.0, ticks // 2 + 7)
+    assert len(first) > 10 and second == first and third == first
+    loop = _loop("example-2.4", [])
+    fmus = native_fmus(loop, native_dir / "state")
+    ticks = stop_ticks(4.0, loop.T, loop.N)
+    first, second, third = _restore_run(fmus, loop, 4.0, ticks // 2 + 3)
+    assert len(first) > 10 and second == first and third == first
+
+
+@pytest.mark.parametrize("model_name", ["example_2_4", "example_3_8"])
+def test_the_model_description_is_the_python_table_and_the_sources_compile(
+        model_name, native_dir, tmp_path):
+    """Same variables, value references, types, starts and dependencies as the Python
+    model controller; ``sources/`` compile on their own with strict warnings."""
+    from fmpy import read_model_description
+
+    from delaycomp.native import CFLAGS, compiler
+
+    config = {"model": str(path(model_name))}
+    nat_path = build_native_fmu("model_controller", native_dir / "tables", config)
+    nat = read_model_description(str(nat_path), validate=True)
+    py = read_model_description(str(build_fmu("model_controller", tmp_path / "py", config)),
+                                validate=True)
+    assert_same_table(nat, py)
+    assert nat.coSimulation.modelIdentifier == py.coSimulation.modelIdentifier
+    files = nat.buildConfigurations[0].sourceFileSets[0].sourceFiles
+    assert files == ["fmi2.c", "linalg.c", "model_controller.c", "ode.c", "model_common.c",
+                     "model.c"]
+    src = tmp_path / "src"
+    with zipfile.ZipFile(nat_path) as zf:
+        zf.extractall(src, [n for n in zf.namelist() if n.startswith("sources/")])
+    out = tmp_path / "alone.so"
+    proc = subprocess.run([*compiler(), *CFLAGS, "-I", str(src / "sources"), "-o", str(out),
+                           *(str(src / "sources" / f) for f in files), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_cli_build_model_native_and_run_native(tmp_path):
+    """``delaycomp build --model FILE --native`` writes the native plant, controller and
+    delays; ``run --native`` runs a model scenario and prints the Python run's numbers."""
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "delaycomp", "build", "--model",
+                           str(path("example_3_8")), "--native", "--out", str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    built = sorted(p.name for p in out.iterdir())
+    assert built == ["DelaycompController_example_3_8_" + built[0].split("_")[-1],
+                     "DelaycompDelay.fmu", "DelaycompDelay_n2.fmu",
+                     "DelaycompPlant_example_3_8_" + built[0].split("_")[-1]]
+    for name in built:
+        with zipfile.ZipFile(out / name) as zf:
+            assert any(n.startswith("binaries/") for n in zf.namelist())
+            assert not any(n.endswith(".py") for n in zf.namelist())  # no Python inside
+    finals = []
+    for extra in ([], ["--native"]):
+        proc = subprocess.run([sys.executable, "-m", "delaycomp", "run", "example-3.8",
+                               "--stop-time", "5", "--fmu-dir", str(tmp_path / "fmus"),
+                               *extra], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        finals.append(np.array([float(v) for v in re.findall(
+            r"= (\S+?)(?:,|$)", proc.stdout.split("final", 1)[1].strip())]))
+    # Example 3.8 is dead-beat: the final values are round-off of the loop (~1e-16)
+    assert len(finals[0]) == 3 and np.max(np.abs(finals[1] - finals[0])) <= 1e-12
+
+
+@pytest.mark.parametrize("name,sets", [("example-2.4", []),
+                                       ("example-3.8", ["tau=0.3", "pad=true",
+                                                        "predictor=numerical"])], ids=str)
+def test_c_host_under_env_i_runs_a_nonlinear_loop(name, sets, native_dir, tmp_path):
+    """No Python, no environment: the C host (``fmus/native/host``) runs the native loop
+    of a model file and prints our master's numbers (the same binaries and calls)."""
+    loop = _loop(name, sets)
+    stop = stop_ticks(4.0, loop.T, loop.N) * loop.h
+    fmus = native_fmus(loop, native_dir / "host")
+    exe = compile_host(tmp_path / "host")
+    proc = subprocess.run(["env", "-i", *host_argv(exe, loop, stop, unpack(fmus, tmp_path))],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    rows = np.array([line.split(",") for line in lines[1:]], dtype=float)
+    ours = run_loop(loop, stop, fmus=fmus)
+    assert lines[0].split(",")[1:] == ours.names
+    assert rows.shape == (len(ours.times), 1 + len(ours.names))
+    assert_columns_close(rows[:, 1:], ours.data, SAME_ARITHMETIC_ULPS, "C host")
+
+
+def test_container_with_the_native_model_fmus(tmp_path):
+    """``delaycomp export-loop --native`` of a model loop: one container FMU holding the
+    native plant, controller and delays (no Python inside), run by fmpy, against the
+    independent reference of Example 3.8 at t0 + iT."""
+    from delaycomp.check import case, compare
+    from delaycomp.container import export_loop, simulate_loop
+
+    c = case("example-3.8/delayed")
+    loop = c.loop()
+    path = export_loop(loop, tmp_path / "loop.fmu", fmus=native_fmus(loop, tmp_path / "n"))
+    with zipfile.ZipFile(path) as zf:
+        assert not any(n.endswith((".py", "slavemodule.txt")) for n in zf.namelist())
+    names, times, data = simulate_loop(path, loop, c.stop_time())
+    cmp = compare(c, names, times, data, stride=1, ref_stride=loop.N)
+    assert cmp.passed, cmp
