@@ -10,7 +10,6 @@
 
 #include "native.h"
 #include "model.h"
-#include "model_config.h"
 #include "ode.h"
 #include "model_common.h"
 
