@@ -247,7 +247,8 @@ def _parser() -> argparse.ArgumentParser:
     p_ssp.add_argument("--jacobi", action="store_true",
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
     p_ssp.add_argument("--native", action="store_true",
-                       help="LTI loops: pack the native C FMUs instead of the Python ones")
+                       help="pack the native C FMUs instead of the Python ones (LTI loops "
+                            "and model files that translate)")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
                        help="a FILE.ssp for one scenario, else a folder for all of them")
 

@@ -502,13 +502,17 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
     for the configuration the FMU carries). The SSD, the parameter sets and any other file
     are copied unchanged, so libcosim, Ecos and our master run the archive as before.
 
+    A model file's plant and controller are rebuilt from the model file their Python FMU
+    carries (``resources/delaycomp_model_<id>.py``), under its own name, so the native
+    twin has the same modelIdentifier.
+
     Raises
     ------
     ValueError
-        An FMU of the archive has no native twin (a user model's plant or controller).
+        An FMU of the archive has no native twin (another tool's FMU).
+    delaycomp.translate.TranslationError
+        A model FMU's model does not translate to C.
     """
-    kinds = {spec.model_identifier: kind for kind, spec in FMUS.items()
-             if kind in NATIVE_KINDS}
     src, dest = Path(src), Path(dest)
     part = dest.with_name(dest.name + ".part")
     with tempfile.TemporaryDirectory(prefix="delaycomp-native-ssp-") as tmp, \
@@ -519,23 +523,49 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
             if item.filename.startswith("resources/") and item.filename.endswith(".fmu"):
                 inner = Path(tmp) / Path(item.filename).name
                 inner.write_bytes(data)
-                from fmpy import read_model_description
-
-                ident = read_model_description(str(inner)).coSimulation.modelIdentifier
-                if ident not in kinds:
-                    raise ValueError(f"{item.filename} ({ident}) is not allowed in a native "
-                                     "archive: native FMUs exist for the delay, the LTI "
-                                     "plant and the LTI controller only")
-                with zipfile.ZipFile(inner) as zf:
-                    config = json.loads(zf.read(f"resources/{CONFIG_NAME}"))
-                config.pop("version", None)
-                config.pop("native", None)
-                built = build_native_fmu(kinds[ident], Path(tmp) / "native", config,
-                                         inner.name)
+                kind, config = _twin_of(inner, item.filename, Path(tmp) / "models")
+                built = build_native_fmu(kind, Path(tmp) / "native", config, inner.name)
                 data = built.read_bytes()
             zout.writestr(item, data)
     part.replace(dest)
     return dest
+
+
+def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
+    """``(kind, config)`` of the native twin of the delaycomp FMU ``fmu``."""
+    from fmpy import read_model_description
+
+    from .build import model_identifier
+
+    kinds = {spec.model_identifier: kind for kind, spec in FMUS.items()
+             if kind in NATIVE_KINDS}
+    ident = read_model_description(str(fmu)).coSimulation.modelIdentifier
+    with zipfile.ZipFile(fmu) as zf:
+        names = set(zf.namelist())
+        config = json.loads(zf.read(f"resources/{CONFIG_NAME}")) if (
+            f"resources/{CONFIG_NAME}" in names) else {}
+        mid, name = config.get("model_id"), config.get("model_name")
+        module = f"resources/delaycomp_model_{mid}.py"
+        if ident in kinds:
+            return kinds[ident], {k: v for k, v in config.items()
+                                  if k not in ("version", "native")}
+        kind = next((k for k in MODEL_KINDS if mid and name and module in names
+                     and ident == f"{FMUS[k].model_identifier}_{mid}"), None)
+        if kind is None:
+            raise ValueError(f"{label} ({ident}) is not allowed in a native archive: native "
+                             "FMUs exist for delaycomp's delay, LTI plant and controller, "
+                             "and a model file's plant and controller")
+        folder = models / str(mid)
+        folder.mkdir(parents=True, exist_ok=True)
+        model_file = folder / f"{name}.py"
+        model_file.write_bytes(zf.read(module))
+    built_with = config.get("version")
+    config = {"model": str(model_file)}
+    if model_identifier(kind, config) != ident:
+        raise ValueError(f"{label} ({ident}) is not allowed in a native archive: it was "
+                         f"built by delaycomp {built_with!r}, this is "
+                         f"{delaycomp.__version__!r} (rebuild the archive)")
+    return kind, config
 
 
 def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:

@@ -625,14 +625,36 @@ def test_jacobi_archive_with_native_fmus_in_every_master(tmp_path, master):
     assert np.all(np.abs(a.data - b.data) <= 1e-12 * np.max(np.abs(b.data), axis=0))
 
 
-def test_native_archive_refuses_a_model_loop(tmp_path):
+def test_native_archive_refuses_an_fmu_without_a_native_twin(tmp_path):
+    """An FMU that is not delaycomp's (here: a model controller whose configuration lost
+    its model id, as another tool's FMU has none) has no twin to build: refused, naming
+    the file. (A model file's FMUs have one: tests/test_native_model_controller.py.)"""
+    import shutil
+
     from delaycomp.native import native_archive
     from delaycomp.ssp import pack, scenario_system
 
     spec, info = scenario_system("example-3.8", [])
     path = pack(spec, info, tmp_path / "m.ssp")
-    with pytest.raises(ValueError, match="is not allowed in a native archive"):
-        native_archive(path, tmp_path / "n.ssp")
+    hacked = tmp_path / "h.ssp"
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(hacked, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if "DelaycompController_" in item.filename:
+                inner = tmp_path / "inner.fmu"
+                inner.write_bytes(data)
+                patched = tmp_path / "patched.fmu"
+                with zipfile.ZipFile(inner) as a, zipfile.ZipFile(patched, "w") as b:
+                    for it in a.infolist():
+                        b.writestr(it, b"{}" if it.filename.endswith("delaycomp_fmu.json")
+                                   else a.read(it))
+                data = patched.read_bytes()
+            zout.writestr(item, data)
+    shutil.rmtree(tmp_path / "unused", ignore_errors=True)
+    with pytest.raises(ValueError, match=r"resources/DelaycompController_example_3_8_\w+\.fmu "
+                                         r"\(DelaycompController_example_3_8_\w+\) is not "
+                                         "allowed in a native archive"):
+        native_archive(hacked, tmp_path / "n.ssp")
 
 
 def test_container_with_native_fmus(tmp_path):
