@@ -493,6 +493,51 @@ def test_calls_in_the_wrong_state_are_refused(native_dir):
         comp.terminate()
 
 
+def test_terminate_after_a_fault_is_accepted_as_by_the_python_fmus(native_dir):
+    """A host ends every instance of a failed run with fmi2Terminate: after a refused step
+    both twins accept it (refused, OMSimulator's command line then called instances it had
+    freed: a use-after-free and a double free in the host)."""
+    slave = SlaveComponent("x", "delay", {"n": 1})
+    comp = _component(native_dir, "delay")
+    try:
+        for c in (slave, comp):
+            c.setup(0.0, 1.0, {"delay": 0.2})
+        assert_step_refused_alike(slave, comp, {"u": 1.0}, (0.0, -0.1))
+        slave.slave.terminate()  # pythonfmu's fmi2Terminate: accepted (no error logged)
+        assert slave.slave.phase == "terminated"
+        comp.fmu.terminate()  # fmi2OK: fmpy raises on anything else
+        with pytest.raises(FMICallException):
+            comp.fmu.doStep(0.0, 0.1)
+        assert "state 'terminated'" in _latest(comp)
+    finally:
+        comp.fmu.freeInstance()
+        comp.fmu = None
+        comp.terminate()
+
+
+def test_a_roundoff_sliver_step_of_the_delay_moves_nothing(native_dir):
+    """OMSimulator adds h to its time and ends 1.7e-13 s short of the stop time, then
+    takes that sliver: the delay (Python and native) accepts it and does not shift."""
+    slave = SlaveComponent("x", "delay", {"n": 1})
+    comp = _component(native_dir, "delay")
+    try:
+        outs = []
+        for c in (slave, comp):
+            c.setup(0.0, 1.0, {"delay": 0.2})
+            c.initialize()
+            for k in range(5):
+                c.set_inputs(["u"], [float(k + 1)])
+                c.do_step(k * 0.1, 0.1 - (1e-13 if k == 4 else 0.0))
+            c.do_step(0.5 - 1e-13, 1e-13)
+            c.set_inputs(["u"], [9.0])
+            outs.append(c.get_outputs(["y"]))
+            c.do_step(0.5, 0.1)
+            outs.append(c.get_outputs(["y"]))
+        assert outs[:2] == outs[2:] == [[4.0], [5.0]]
+    finally:
+        comp.terminate()
+
+
 def _restore_run(fmus, spec, stop, save_at):
     ticks = stop_ticks(stop, spec.T, spec.N)
     master, rec = make_master(spec, fmus=fmus)

@@ -5,7 +5,8 @@
  * is left as it was). A fault of the model (a bad parameter at fmi2ExitInitializationMode,
  * a non-finite input or a step it cannot take at fmi2DoStep, an output that overflows)
  * logs the reason, returns fmi2Error and puts the instance into the error state, from
- * which only getters, FMU-state calls, fmi2Reset and fmi2FreeInstance are accepted.
+ * which only getters, FMU-state calls, fmi2Terminate, fmi2Reset and fmi2FreeInstance are
+ * accepted.
  * The FMU state holds everything (Data and the model buffer), so a restored instance
  * continues bit-identically; it serializes to a self-checking byte string.
  * Memory: the C library's calloc/free (canNotUseMemoryManagementFunctions = true).
@@ -362,9 +363,14 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     return fmi2OK;
 }
 
+/* Also after a fault (the error state): hosts end every instance of a failed run with
+ * fmi2Terminate, and the Python FMUs accept it. Refused, it broke OMSimulator's command
+ * line: its terminate pass stopped at the refusing instance after it had freed the ones
+ * before, and its model's destructor called fmi2Terminate and fmi2FreeInstance on those
+ * again (a use-after-free and a double free in the host, seen with valgrind). */
 fmi2Status fmi2Terminate(fmi2Component comp) {
     Instance *c = comp;
-    if (!allowed(c, "fmi2Terminate", StateStepComplete)) return fmi2Error;
+    if (!allowed(c, "fmi2Terminate", StateStepComplete | StateError)) return fmi2Error;
     c->d.state = StateTerminated;
     return fmi2OK;
 }
