@@ -580,3 +580,25 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path):
     times = table[table.dtype.names[0]]
     last = np.append(times[1:] != times[:-1], True)  # each time's last row (after update)
     assert np.max(np.abs(rows[last] - want)) <= 1e-7 * scale
+
+
+@pytest.mark.parametrize("name,sets", [("example-2.4", []),
+                                       ("proposition-4.2", ["tau=0.5", "pad=true"])], ids=str)
+def test_valgrind_finds_no_error_and_no_leak_in_a_nonlinear_loop(name, sets, native_dir,
+                                                                 tmp_path):
+    """The C host running a native model loop (2 s) under valgrind: no invalid access,
+    every heap block freed (scripts/toolchain_proofs.py runs every nonlinear scenario)."""
+    import shutil
+
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        pytest.skip("valgrind is not installed (apt-get install valgrind)")
+    loop = _loop(name, sets)
+    stop = stop_ticks(2.0, loop.T, loop.N) * loop.h
+    dirs = unpack(native_fmus(loop, native_dir / "valgrind"), tmp_path)
+    proc = subprocess.run([valgrind, "--error-exitcode=9", "--leak-check=full",
+                           *host_argv(compile_host(tmp_path / "host"), loop, stop, dirs)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "All heap blocks were freed" in proc.stderr
+    assert "ERROR SUMMARY: 0 errors" in proc.stderr
