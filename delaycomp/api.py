@@ -174,17 +174,49 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
                        stop_time=stop_time)
 
 
+#: which FMUs :func:`run` and :func:`to_ssp` use: the native C FMUs where the loop has
+#: them here, else the Python ones (``auto``, the default, as the CLI); only native ones
+#: (an error where there are none); only the Python ones
+FMU_KINDS = ("auto", "native", "python")
+
+
+def _fmu_kind(fmus: str) -> None:
+    if fmus not in FMU_KINDS:
+        raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
+                             f"{', '.join(FMU_KINDS)}")
+
+
 def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
-        fmu_dir: str | Path | None = None) -> Result:
+        fmu_dir: str | Path | None = None, fmus: str = "auto") -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
-    step; ``engine="inprocess"`` runs the FMUs' slaves without the FMI layer (the same
-    numbers, faster). Raises :class:`SimulationFailed` if the run stops early."""
+    step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
+    same numbers, faster). ``fmus`` (:data:`FMU_KINDS`): with the FMU engine, the native C
+    FMUs where the loop has them (``auto``: LTI loops and model files that translate, with
+    a C compiler; a note in ``result.notes`` says when the Python FMUs ran instead), only
+    native ones, or the Python ones. Native FMUs are built into ``fmu_dir/native``. Raises
+    :class:`SimulationFailed` if the run stops early."""
     from .simulate import run_loop
 
+    _fmu_kind(fmus)
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
         raise ParameterError("stop_time is required (the loop has none)")
-    result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine)
+    fmu_dir = Path(fmu_dir) if fmu_dir else None
+    chosen, why = None, None
+    if engine == "fmu" and fmus != "python":
+        from .native import native_fmus, native_or_why
+
+        native_dir = fmu_dir / "native" if fmu_dir else None
+        if fmus == "native":
+            chosen = native_fmus(loop, native_dir)
+        else:
+            chosen, why = native_or_why(loop, native_dir)
+    elif fmus == "native":
+        raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
+                             "(the Python slaves run in this process)")
+    result = run_loop(loop, stop, fmu_dir, engine=engine, fmus=chosen)
+    if why:
+        result.notes.append(f"the Python FMUs ran (no native ones here: {why})")
     if not result.success:
         raise SimulationFailed(result.message, result)
     return result
@@ -200,17 +232,32 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
 
 
 def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
-           fmu_dir: str | Path | None = None) -> Path:
+           fmu_dir: str | Path | None = None, fmus: str = "auto") -> Path:
     """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
-    variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`)."""
+    variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`).
+    ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``), only
+    native ones, or the Python ones."""
     from . import ssp
 
+    _fmu_kind(fmus)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
     if jacobi:
         from .thirdparty import pack_jacobi
 
-        return pack_jacobi(loop, out, fmu_dir)
-    return ssp.pack(*ssp.loop_system(loop), out, fmu_dir)
+        path = pack_jacobi(loop, out, fmu_dir)
+    else:
+        path = ssp.pack(*ssp.loop_system(loop), out, fmu_dir)
+    if fmus != "python":
+        from .native import NativeBuildError, native_archive
+
+        try:
+            native_archive(path, path)
+        except (ValueError, NativeBuildError):
+            Path(path).with_name(Path(path).name + ".part").unlink(missing_ok=True)
+            if fmus == "native":
+                Path(path).unlink()
+                raise
+    return path
 
 
 def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = (),

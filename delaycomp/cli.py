@@ -102,10 +102,10 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
     b.add_argument("--out", required=True, type=Path, help="output folder")
-    b.add_argument("--native", action="store_true",
-                   help="build C FMUs (no Python needed in the host; needs a C compiler): "
-                        "the delay, LTI plant and LTI controller, or with --model the "
-                        "model's plant, controller and delays (f, k, step translated to C)")
+    _fmu_kind(b, "build C FMUs only (the default builds them where it can): the delay, "
+                 "LTI plant and LTI controller, or with --model the model's plant, "
+                 "controller and delays (f, k, step translated to C); an error where it "
+                 "cannot")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
@@ -135,10 +135,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
-    r.add_argument("--native", action="store_true",
-                   help="run the native C FMUs (`delaycomp build --native`: LTI loops and "
-                        "model files that translate) in our master instead of the Python "
-                        "FMUs; with --fmu-dir DIR they are built into DIR/native")
+    _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
+                 "runs them where it can); with --fmu-dir DIR they are built into "
+                 "DIR/native")
     r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos", "omsimulator"),
                    default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
@@ -234,9 +233,8 @@ def _parser() -> argparse.ArgumentParser:
     _common(e)
     e.add_argument("--out", required=True, type=Path, metavar="FILE.fmu",
                    help="the container FMU to write")
-    e.add_argument("--native", action="store_true",
-                   help="the container holds the native C FMUs (LTI loops and model files "
-                        "that translate; see Native C FMUs)")
+    _fmu_kind(e, "the container holds the native C FMUs, an error where the loop has "
+                 "none (the default holds them where it can)")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -246,9 +244,8 @@ def _parser() -> argparse.ArgumentParser:
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
                        help="pack the Jacobi variant, for libcosim and Ecos (see README)")
-    p_ssp.add_argument("--native", action="store_true",
-                       help="pack the native C FMUs instead of the Python ones (LTI loops "
-                            "and model files that translate)")
+    _fmu_kind(p_ssp, "pack the native C FMUs, an error where the loop has none (the "
+                     "default packs them where it can)")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
                        help="a FILE.ssp for one scenario, else a folder for all of them")
 
@@ -260,6 +257,36 @@ def _parser() -> argparse.ArgumentParser:
         loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
                           const=2, help="also say what is run (steps, estimates, snapping)")
     return p
+
+
+def _fmu_kind(p: argparse.ArgumentParser, native_help: str) -> None:
+    """``--native`` / ``--python``: which FMUs a command builds, runs or packs. Neither:
+    the native C FMUs wherever the loop has them here (LTI loops, model files that
+    translate, a C compiler), the Python FMUs otherwise, with a note saying why."""
+    kind = p.add_mutually_exclusive_group()
+    kind.add_argument("--native", action="store_true", help=native_help)
+    kind.add_argument("--python", action="store_true",
+                      help="the Python FMUs (pythonfmu: the host needs Python, see README) "
+                           "instead of the native default")
+
+
+def _chosen_fmus(args, loop) -> dict | None:
+    """The FMUs a command uses for ``loop`` (``_fmu_kind``): native ones, or ``None`` for
+    the Python FMUs of the build cache."""
+    if args.fmu_dir is not None and args.fmu_dir.exists() and not args.fmu_dir.is_dir():
+        raise BadFileError(args.fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
+    if args.python:
+        return None
+    if args.native:
+        return _native_fmus(loop, args.fmu_dir)
+    from .native import native_or_why
+    from .progress import info
+
+    fmus, why = native_or_why(loop, args.fmu_dir / "native" if args.fmu_dir else None)
+    if fmus is None:
+        info(f"note: the Python FMUs run this loop (no native ones here: {why}); "
+             "--python says so and skips the attempt", args.verbosity)
+    return fmus
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -289,30 +316,71 @@ def _loop(args):
 
 def _cmd_build(args) -> int:
     from .build import build_all, build_model
+    from .native import NativeBuildError, build_native, build_native_model
+    from .progress import info
+
+    def fallback(exc) -> None:
+        info(f"note: building the Python FMUs (no native ones here: "
+             f"{str(exc).splitlines()[0]}); --python says so and skips the attempt",
+             args.verbosity)
 
     if args.native:
-        from .native import build_native, build_native_model
-
         # no compiler: one line naming what to install; a model that does not translate:
         # one line naming the function, the operation and the line
         paths = build_native_model(args.model, args.out) if args.model else \
             build_native(args.out)
     elif args.model:
-        paths = build_model(args.model, args.out)
+        from .model import load_model
+
+        load_model(args.model)  # a bad model file is an error, not a reason to fall back
+        paths = None
+        if not args.python:
+            try:
+                paths = build_native_model(args.model, args.out)
+            except (NativeBuildError, ModelError) as exc:
+                fallback(exc)
+        if paths is None:
+            paths = build_model(args.model, args.out)
     else:
         from .ssp import pack_scenarios
 
-        paths = build_all(args.out)
-        paths += pack_scenarios(args.out, args.out)
+        paths = None
+        if not args.python:
+            try:
+                paths = build_native(args.out)  # packed below in place of the Python ones
+            except NativeBuildError as exc:
+                fallback(exc)
+        native = paths is not None
+        paths = paths if native else build_all(args.out)
+        archives = pack_scenarios(args.out, args.out)
+        if native:
+            _native_archives(archives, args.verbosity)
+        paths += archives
     for path in paths:
         print(path)
     return 0
 
 
+def _native_archives(archives, verbosity: int) -> None:
+    """Each archive of ``delaycomp build`` with its FMUs' native twins, where they exist
+    here (a note names an archive that keeps Python FMUs, and why)."""
+    from .native import NativeBuildError, native_archive
+    from .progress import info
+
+    for path in archives:
+        try:
+            native_archive(path, path)
+        except (ValueError, NativeBuildError) as exc:
+            Path(path).with_name(Path(path).name + ".part").unlink(missing_ok=True)
+            info(f"note: {Path(path).name} holds the Python FMUs (no native ones here: "
+                 f"{str(exc).splitlines()[0]})", verbosity)
+
+
 def _cmd_ssp(args) -> int:
     if args.scenario is None:
-        if args.set or args.jacobi or args.native:
-            raise UsageError("--set, --jacobi and --native need a scenario to pack")
+        if args.set or args.jacobi or args.native or args.python:
+            raise UsageError("--set, --jacobi, --native and --python need a scenario to "
+                             "pack")
         from . import ssp
 
         for path in ssp.write_all(args.out):
@@ -332,14 +400,20 @@ def _cmd_ssp(args) -> int:
             raise UsageError(str(exc)) from None
     else:
         path = ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir)
-    if args.native:  # the same archive with the native twins of its FMUs
-        from .native import native_archive
+    if not args.python:  # the same archive with the native twins of its FMUs
+        from .native import NativeBuildError, native_archive
+        from .progress import info
 
         try:
             native_archive(path, path)
-        except ValueError as exc:
-            Path(path).unlink()
-            raise UsageError(str(exc)) from None
+        except (ValueError, NativeBuildError) as exc:  # ModelError is a ValueError
+            Path(path).with_name(Path(path).name + ".part").unlink(missing_ok=True)
+            if args.native:
+                Path(path).unlink()
+                raise UsageError(str(exc).splitlines()[0]) from None
+            info(f"note: the archive holds the Python FMUs (no native ones here: "
+                 f"{str(exc).splitlines()[0]}); --python says so and skips the attempt",
+                 args.verbosity)
     print(path)
     return 0
 
@@ -359,8 +433,9 @@ def _cmd_run(args) -> int:
     if args.compare and not args.plot:
         raise UsageError("--compare draws both runs into --plot FILE.png: give --plot")
     if args.scenario.endswith(".ssp"):
-        if args.native:
-            raise UsageError("--native is not allowed with a FILE.ssp: the archive's FMUs run")
+        if args.native or args.python:
+            flag = "--native" if args.native else "--python"
+            raise UsageError(f"{flag} is not allowed with a FILE.ssp: the archive's FMUs run")
         return _run_ssp(args)
     if args.period is not None or args.steps is not None or args.role:
         raise UsageError("--period, --steps and --role apply to a FILE.ssp of another tool")
@@ -386,11 +461,12 @@ def _cmd_run(args) -> int:
                              ) from None
     from .plotting import UNITS_BY_LOOP
 
-    fmus = None
-    if args.native:
-        if args.engine != "fmu":
+    if args.engine != "fmu":  # the Python FMUs' slaves, called in this process
+        if args.native:
             raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
-        fmus = _native_fmus(loop, args.fmu_dir)
+        fmus = None
+    else:
+        fmus = _chosen_fmus(args, loop)
     return _execute(args, loop, stop, source.name, title_of_loop(loop, args.compare),
                     Timing.of_loop(loop), UNITS_BY_LOOP.get(source.name), label=mode,
                     others=others, fmus=fmus)
@@ -689,7 +765,7 @@ def _cmd_export_loop(args) -> int:
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
     _, _, loop = _loop(args)
-    fmus = _native_fmus(loop, args.fmu_dir) if args.native else None
+    fmus = _chosen_fmus(args, loop)
     path = export_loop(loop, args.out, args.fmu_dir, fmus)
     print(path)
     return 0

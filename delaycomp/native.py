@@ -43,10 +43,9 @@ from .build import CONFIG_NAME, DEFAULT_CONFIG, FMUS
 from .tmpfiles import zip_folder
 
 __all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "build_native",
-           "build_native_fmu", "build_native_model",
-           "compile_host", "compiler", "host_argv", "native_archive", "native_fmu_dir",
-           "native_fmu_path",
-           "native_fmus", "unpack"]
+           "build_native_fmu", "build_native_model", "compile_host", "compiler",
+           "host_argv", "native_archive", "native_fmu_dir", "native_fmu_path",
+           "native_fmus", "native_or_why", "unpack"]
 
 #: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
 SOURCE_DIR = Path(delaycomp.fmus.__file__).resolve().parent / "native"
@@ -523,12 +522,24 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
             if item.filename.startswith("resources/") and item.filename.endswith(".fmu"):
                 inner = Path(tmp) / Path(item.filename).name
                 inner.write_bytes(data)
+                if _is_native(inner):  # a native FMU already (delaycomp build packs them)
+                    zout.writestr(item, data)
+                    continue
                 kind, config = _twin_of(inner, item.filename, Path(tmp) / "models")
                 built = build_native_fmu(kind, Path(tmp) / "native", config, inner.name)
                 data = built.read_bytes()
             zout.writestr(item, data)
     part.replace(dest)
     return dest
+
+
+def _is_native(fmu: Path) -> bool:
+    """A delaycomp native FMU (its build configuration says so)?"""
+    with zipfile.ZipFile(fmu) as zf:
+        try:
+            return bool(json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"))
+        except (KeyError, ValueError):
+            return False
 
 
 def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
@@ -566,6 +577,21 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
                          f"built by delaycomp {built_with!r}, this is "
                          f"{delaycomp.__version__!r} (rebuild the archive)")
     return kind, config
+
+
+def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | None,
+                                                                str | None]:
+    """The native FMUs of ``loop`` where they can be had here (:func:`native_fmus`), else
+    ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
+    or a model that does not translate (or CasADi missing). The commands' default: native
+    where it exists, the Python FMUs otherwise."""
+    from .model import ModelError
+
+    try:
+        return native_fmus(loop, fmu_dir), None
+    except (ValueError, NativeBuildError, ModelError) as exc:
+        return None, str(exc).splitlines()[0].removeprefix(
+            "--native is not allowed for this loop: ")
 
 
 def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:

@@ -87,7 +87,7 @@ def test_bad_fmu_in_fmu_dir_is_one_line_exit_2(fmu_dir, tmp_path, case):
     shutil.copytree(fmu_dir, folder)
     make(folder / PLANT, fmu_dir)
     out = tmp_path / "out" / "result.csv"
-    proc = cli("run", "example-3.6", "--fmu-dir", str(folder), "--out", str(out),
+    proc = cli("run", "example-3.6", "--python", "--fmu-dir", str(folder), "--out", str(out),
                "--plot", str(tmp_path / "out" / "result.png"))
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
@@ -96,13 +96,30 @@ def test_bad_fmu_in_fmu_dir_is_one_line_exit_2(fmu_dir, tmp_path, case):
     assert not (tmp_path / "out").exists()
 
 
-def test_fmu_dir_that_is_a_file_is_one_line_exit_2(tmp_path):
+@pytest.mark.parametrize("fmus", [[], ["--python"], ["--native"]], ids=str)
+def test_fmu_dir_that_is_a_file_is_one_line_exit_2(tmp_path, fmus):
     not_a_dir = tmp_path / "fmus"
     not_a_dir.write_text("x", encoding="utf-8")
-    proc = cli("run", "example-3.6", "--fmu-dir", str(not_a_dir))
+    proc = cli("run", "example-3.6", *fmus, "--fmu-dir", str(not_a_dir))
     assert proc.returncode == 2
     assert proc.stderr.strip() == (f"delaycomp: error: {not_a_dir}: is not a folder "
                                    "(--fmu-dir wants a folder of FMUs)")
+
+
+@pytest.mark.parametrize("fmus", [[], ["--native"]], ids=str)
+def test_bad_native_fmu_in_fmu_dir_is_one_line_exit_2(tmp_path, fmus):
+    """The native FMUs of ``--fmu-dir DIR`` live in DIR/native (the default and
+    ``--native``): a corrupt one there is refused, not replaced or skipped."""
+    folder = tmp_path / "fmus" / "native"
+    folder.mkdir(parents=True)
+    (folder / "DelaycompPlantLTI.fmu").write_text("not an fmu", encoding="utf-8")
+    proc = cli("run", "example-3.6", *fmus, "--fmu-dir", str(tmp_path / "fmus"),
+               "--stop-time", "1")
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert lines[0] == (f"delaycomp: error: {folder / 'DelaycompPlantLTI.fmu'}: is not an "
+                        "FMU: not a zip archive")
 
 
 def test_failed_run_writes_only_a_partial_file(fmu_dir, tmp_path):
