@@ -70,7 +70,8 @@ def test_without_a_compiler_the_python_fmus_run_with_a_note(tmp_path):
     quiet = cli("run", "example-3.6", "--stop-time", "2", "--fmu-dir", str(tmp_path), "-q",
                 env=env)
     assert quiet.returncode == 0 and quiet.stderr == ""
-    strict = cli("run", "example-3.6", "--stop-time", "2", "--native", env=env)
+    strict = cli("run", "example-3.6", "--stop-time", "2", "--native", "--fmu-dir",
+                 str(tmp_path / "strict"), env=env)  # an empty folder: they must be built
     assert strict.returncode != 0 and strict.stderr.count("\n") == 1
     assert "Traceback" not in strict.stderr
 
