@@ -2,8 +2,9 @@
 
 For every scenario at its defaults (the LTI ones and the model files'):
 
-1. **OMSimulator's command line** runs the scenario's archive packed with the native FMUs
-   (``delaycomp ssp SCENARIO --native``) ``--runs`` times, each in a fresh folder under
+1. **OMSimulator's command line** runs the scenario's archives packed with the native FMUs
+   (``delaycomp ssp SCENARIO [--jacobi] --native``, as ``delaycomp build`` ships them)
+   ``--runs`` times, each in a fresh folder under
    ``env -i`` (no Python, no environment); counts the exit statuses (0 is a clean run; a
    signal or a nonzero status is a crash or a failure) and checks the last row against
    our master's run of the same archive.
@@ -38,6 +39,7 @@ from delaycomp.native import compile_host, host_argv, native_archive, native_fmu
 from delaycomp.omsimulator import locate
 from delaycomp.simulate import run_loop, stop_ticks
 from delaycomp.ssp import Archive, loop_system, pack
+from delaycomp.thirdparty import pack_jacobi
 
 REPO = Path(__file__).resolve().parent.parent
 FMUCHECK = REPO.parent / "shared" / "tools" / "fmucc" / "fmuCheck.linux64"
@@ -54,35 +56,42 @@ def oms_runs(work: Path, runs: int) -> tuple[list[str], dict[str, Path]]:
     for name in scenarios.SCENARIOS:
         sc = scenarios.get(name)
         loop = sc.make(sc.resolve([]))
-        python = pack(*loop_system(loop), work / f"{name}-python.ssp")
-        archive = native_archive(python, work / f"{name}.ssp")
-        archives[name] = archive
         stop = stop_ticks(loop.stop_time, loop.T, loop.N) * loop.h
-        with Archive(archive) as opened:
-            ours = run_loop(opened.system.spec, stop, fmus=opened.fmus())
-        statuses, worst = collections.Counter(), 0.0
-        for _ in range(runs):
-            folder = Path(tempfile.mkdtemp(prefix="oms-", dir=work))
-            result = folder / "result.csv"
-            proc = subprocess.run(["env", "-i", str(cli), f"--stopTime={stop!r}",
-                                   f"--resultFile={result}", str(archive)],
-                                  cwd=folder, capture_output=True, text=True, timeout=600)
-            bad = "error:" in proc.stdout + proc.stderr
-            statuses[_status(proc.returncode) + (" (errors logged)" if bad else "")] += 1
-            if proc.returncode == 0 and result.exists():
-                with open(result, newline="", encoding="utf-8") as fh:
-                    table = list(csv.reader(fh, skipinitialspace=True))
-                header, last = table[0], table[-1]
-                for j, signal in enumerate(ours.names):
-                    col = next(i for i, h in enumerate(header)
-                               if h.endswith("." + signal))
-                    scale = max(1.0, float(np.max(np.abs(ours.data[:, j]))))
-                    worst = max(worst, abs(float(last[col]) - ours.data[-1, j]) / scale)
-            shutil.rmtree(folder, ignore_errors=True)
-        rows.append(f"| {name} | {runs} | "
-                    f"{', '.join(f'{k}: {v}' for k, v in sorted(statuses.items()))} | "
-                    f"{worst:.2g} |")
+        for label, python in ((name, pack(*loop_system(loop), work / f"{name}-py.ssp")),
+                              (f"{name}-jacobi", pack_jacobi(loop, work /
+                                                             f"{name}-jacobi-py.ssp"))):
+            archive = native_archive(python, work / f"{label}.ssp")
+            archives[label] = archive
+            rows.append(_oms_row(cli, label, archive, stop, runs, work))
     return rows, archives
+
+
+def _oms_row(cli, name: str, archive: Path, stop: float, runs: int, work: Path) -> str:
+    """One archive ``runs`` times in OMSimulator's command line: a table row."""
+    with Archive(archive) as opened:
+        ours = run_loop(opened.system.spec, stop, fmus=opened.fmus())
+    statuses, worst = collections.Counter(), 0.0
+    for _ in range(runs):
+        folder = Path(tempfile.mkdtemp(prefix="oms-", dir=work))
+        result = folder / "result.csv"
+        proc = subprocess.run(["env", "-i", str(cli), f"--stopTime={stop!r}",
+                               f"--resultFile={result}", str(archive)],
+                              cwd=folder, capture_output=True, text=True, timeout=600)
+        bad = "error:" in proc.stdout + proc.stderr
+        statuses[_status(proc.returncode) + (" (errors logged)" if bad else "")] += 1
+        if proc.returncode == 0 and result.exists():
+            with open(result, newline="", encoding="utf-8") as fh:
+                table = list(csv.reader(fh, skipinitialspace=True))
+            header, last = table[0], table[-1]
+            for j, signal in enumerate(ours.names):
+                col = next(i for i, h in enumerate(header)
+                           if h.endswith("." + signal))
+                scale = max(1.0, float(np.max(np.abs(ours.data[:, j]))))
+                worst = max(worst, abs(float(last[col]) - ours.data[-1, j]) / scale)
+        shutil.rmtree(folder, ignore_errors=True)
+    return (f"| {name} | {runs} | "
+            f"{', '.join(f'{k}: {v}' for k, v in sorted(statuses.items()))} | "
+            f"{worst:.2g} |")
 
 
 def fmucheck(work: Path, archives: dict[str, Path], tool: Path) -> list[str]:

@@ -416,7 +416,8 @@ def test_container_with_the_native_model_fmus(tmp_path):
 
 
 @pytest.mark.parametrize("master", ["delaycomp", "libcosim", "ecos", "omsimulator"])
-@pytest.mark.parametrize("case_id", ["example-3.8/delayed", "proposition-4.2/default"])
+@pytest.mark.parametrize("case_id", ["example-2.4/default", "example-3.8/delayed",
+                                     "corollary-4.1/default", "proposition-4.2/default"])
 def test_native_model_archives_in_every_master(case_id, master, tmp_path):
     """``delaycomp ssp [--jacobi] --native`` of a model loop: the archive's model FMUs
     replaced by their native twins, rebuilt from the model file each Python FMU carries
