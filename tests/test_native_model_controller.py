@@ -244,34 +244,45 @@ def _users_model(tmp_path, body: str, control: str = "zoh"):
     return file
 
 
-def test_a_users_model_without_a_closed_form(tmp_path):
-    """A model that is not shipped (a pendulum: ``math.sin``, a numeric parameter, a
-    String choice) with its numerical predictor: the native loop equals the Python loop,
-    and predictor = 'closed' is refused alike (the model gives none)."""
-    from delaycomp.system.loopfile import read_loop
+#: the pendulum's feedback: gravity cancelled at the sample, then Example 3.8's dead-beat
+#: law for the double integrator left over, -x1 / T^2 - 3 x2 / (2 T)
+PENDULUM_K = '''
+    def k(x, p):
+        T = p["T"]
+        return np.array([p["g"] * math.sin(x[0]) - x[0] / T**2 - 1.5 * x[1] / T])
+'''
 
-    model = _users_model(tmp_path, '''
-        def k(x, p):
-            T = p["T"]
-            # gravity cancelled at the sample, then Example 3.8's dead-beat law for the
-            # double integrator left over: -x1 / T^2 - 3 x2 / (2 T)
-            return np.array([p["g"] * math.sin(x[0]) - x[0] / T**2 - 1.5 * x[1] / T])
-    ''')
+
+def _pendulum_loop(tmp_path, stop: float, x0: str, controller: str):
+    """The pendulum model file and a loop file of it (T = 0.2, N = 10, r = 0.1, tau =
+    0.4 = 2 T) with the ``[controller]`` lines given."""
+    model = _users_model(tmp_path, PENDULUM_K)
     loop_file = tmp_path / "loop.toml"
     loop_file.write_text(textwrap.dedent(f'''
         T = 0.2
         N = 10
         r = 0.1
         tau = 0.4
-        stop_time = 4.0
+        stop_time = {stop!r}
         [plant]
         model = "{model.name}"
-        x0 = [0.8, 0.0]
+        x0 = {x0}
         [controller]
+    ''') + textwrap.dedent(controller), encoding="utf-8")
+    return model, loop_file
+
+
+def test_a_users_model_without_a_closed_form(tmp_path):
+    """A model that is not shipped (a pendulum: ``math.sin``, a numeric parameter, a
+    String choice) with its numerical predictor: the native loop equals the Python loop,
+    and predictor = 'closed' is refused alike (the model gives none)."""
+    from delaycomp.system.loopfile import read_loop
+
+    model, loop_file = _pendulum_loop(tmp_path, 4.0, "[0.8, 0.0]", '''
         g = 9.0
         friction = "none"
         predictor = "numerical"
-    '''), encoding="utf-8")
+    ''')
     loop = read_loop(loop_file)
     python = run_loop(loop, 4.0)
     native = run_loop(loop, 4.0, fmus=native_fmus(loop, tmp_path / "nat"))
@@ -516,25 +527,10 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path):
     from delaycomp.omsimulator import locate
     from delaycomp.system.loopfile import read_loop
 
-    model_file = _users_model(tmp_path, '''
-        def k(x, p):
-            T = p["T"]
-            return np.array([p["g"] * math.sin(x[0]) - x[0] / T**2 - 1.5 * x[1] / T])
-    ''')
-    loop_file = tmp_path / "loop.toml"
-    loop_file.write_text(textwrap.dedent(f'''
-        T = 0.2
-        N = 10
-        r = 0.1
-        tau = 0.4
-        stop_time = 3.0
-        [plant]
-        model = "{model_file.name}"
-        x0 = [0.8, -0.3]
-        [controller]
+    model_file, loop_file = _pendulum_loop(tmp_path, 3.0, "[0.8, -0.3]", '''
         g = 9.0
         predictor = "numerical"
-    '''), encoding="utf-8")
+    ''')
     cli = [sys.executable, "-m", "delaycomp"]
     built = subprocess.run([*cli, "build", "--model", str(model_file), "--native", "--out",
                             str(tmp_path / "fmus")], capture_output=True, text=True)

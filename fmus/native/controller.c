@@ -185,15 +185,9 @@ static int output(Instance *c, const double **u) {
         const double *sample = c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? m->y_held : y;
         propose(c, sample, m->proposal);
         m->proposal_valid = 1;
-        int finite = 1, y_finite = 1;
-        for (size_t j = 0; j < NU; j++) finite &= isfinite(m->proposal[j]) != 0;
-        for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
-        if (!finite && y_finite) {
-            char *text = vector_text(m->proposal, NU);
-            log_error(c, "control %s = %s at t = %s is not allowed: must be finite (the "
-                      "feedback overflowed)", OUTPUT_NAMES, text ? text : "[...]",
-                      num(c->d.t0 + (double)m->next * c->d.real[VR_T]).s);
-            free(text);
+        if (check_control_finite(c, m->proposal, y,
+                                 c->d.t0 + (double)m->next * c->d.real[VR_T],
+                                 "the feedback overflowed") != 0) {
             *u = m->proposal;
             return -1;
         }

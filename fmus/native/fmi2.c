@@ -212,6 +212,19 @@ int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_st
 }
 #endif
 
+int check_control_finite(Instance *c, const double *u, const double *y, double t,
+                         const char *why) {
+    int finite = 1, y_finite = 1;
+    for (size_t j = 0; j < NU; j++) finite &= isfinite(u[j]) != 0;
+    for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
+    if (finite || !y_finite) return 0;
+    char *text = vector_text(u, NU);
+    log_error(c, "control %s = %s at t = %s is not allowed: must be finite (%s)",
+              OUTPUT_NAMES, text ? text : "[...]", num(t).s, why);
+    free(text);
+    return -1;
+}
+
 int check_step(Instance *c, double t, double h) {
     if (isfinite(t) && isfinite(h) && h > 0) return 0;
     log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 from a "

@@ -384,15 +384,8 @@ static int output(Instance *c, const double **u) {
     }
     const double *value = m->cache_u;
     if (m->zoh && m->D > 0) value = pad_line(c) + (size_t)m->pad_head * NU;
-    int finite = 1, y_finite = 1;
-    for (size_t j = 0; j < NU; j++) finite &= isfinite(value[j]) != 0;
-    for (size_t i = 0; i < NX; i++) y_finite &= isfinite(c->d.real[VR_Y + i]) != 0;
-    if (!finite && y_finite) {
-        char *text = vector_text(value, NU);
-        log_error(c, "control %s = %s at t = %s is not allowed: must be finite (the "
-                  "predictor or the feedback diverged)", OUTPUT_NAMES, text ? text : "[...]",
-                  num(sample_time(c)).s);
-        free(text);
+    if (check_control_finite(c, value, &c->d.real[VR_Y], sample_time(c),
+                             "the predictor or the feedback diverged") != 0) {
         *u = NULL;
         return -1;
     }

@@ -139,6 +139,11 @@ int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_st
                          fmi2ValueReference vr_index, const char *const *choices,
                          int count);
 #endif
+/* A controller's output u (NU values) must be finite where its measurement y (NX values)
+ * is: else -1 and the Python FMUs' message, `why` in its parentheses (a non-finite y is
+ * refused by the next doStep, naming the input). */
+int check_control_finite(Instance *c, const double *u, const double *y, double t,
+                         const char *why);
 /* A step must be finite and > 0 from a finite time (the Python FMUs' message). */
 int check_step(Instance *c, double t, double h);
 /* Is `step` the step h an FMU keys its data on, up to round-off of the host's times:
