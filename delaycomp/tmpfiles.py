@@ -91,11 +91,16 @@ def build_lock(target: Path) -> Iterator[None]:
 
 def zip_folder(folder: Path, target: Path) -> Path:
     """Zip every file below ``folder`` (paths relative to it, sorted) into ``target``,
-    written as ``target.part`` and renamed: a reader never sees half an archive."""
-    part = target.with_name(target.name + ".part")
-    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
-        for path in sorted(folder.rglob("*")):
-            if path.is_file():
-                zf.write(path, path.relative_to(folder).as_posix())
-    part.replace(target)
+    written as a part file of this process beside it and renamed: a reader never sees half
+    an archive, and two processes writing the same target (two runs building the same
+    native FMU into the cache) never write into one part file."""
+    part = target.with_name(f".{target.name}.{os.getpid()}.{os.urandom(4).hex()}.part")
+    try:
+        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+            for path in sorted(folder.rglob("*")):
+                if path.is_file():
+                    zf.write(path, path.relative_to(folder).as_posix())
+        part.replace(target)
+    finally:
+        part.unlink(missing_ok=True)
     return target

@@ -75,6 +75,7 @@ def linalg(tmp_path_factory):
     (tmp / "config.h").write_text(
         "#define KIND_PLANT 1\n#define NX 1\n#define NU 1\n#define NVR 1\n"
         "#define NSTRING 0\n#define INSTANTIATION_TOKEN \"stub\"\n"
+        "#define OUTPUT_NAMES \"['v']\"\n"
         "static const char *const VAR_NAME[NVR] = {\"v\"};\n"
         "static const char VAR_TYPE[NVR + 1] = \"r\";\n"
         "static const char VAR_CAUSALITY[NVR + 1] = \"p\";\n"
@@ -831,3 +832,20 @@ def test_fuzz_native_delay_and_plant_behave_as_the_python_slaves(native_dir, kin
         assert_same_outcome(*outcome)
     finally:
         comp.terminate()
+
+
+def test_concurrent_builds_of_one_native_fmu_give_one_whole_file(tmp_path):
+    """Native FMUs are the default: two runs at once build the same FMU into the same
+    cache. Each writes a part file of its own and renames it over the target, so every
+    build succeeds and the file is a whole FMU (four builds at once, twice)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from delaycomp.native import build_native_fmu
+
+    for _ in range(2):
+        with ThreadPoolExecutor(max_workers=4) as pool:
+            paths = list(pool.map(lambda _: build_native_fmu("delay", tmp_path), range(4)))
+        assert len(set(paths)) == 1
+        assert read_model_description(str(paths[0])).coSimulation.modelIdentifier == \
+            "DelaycompDelay"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["DelaycompDelay.fmu"]
