@@ -13,6 +13,11 @@ For every scenario at its defaults (the LTI ones and the model files'):
    reports its warnings and errors.
 3. **valgrind** runs the C host (``fmus/native/host``) on each nonlinear scenario's native
    loop (5 s): its errors and lost blocks.
+4. **Plain fmpy hosts** (``--fmpy-runs``): a fresh Python process runs each nonlinear
+   scenario's loop (5 s) through fmpy and leaves by the interpreter's normal exit (the FMU
+   libraries unloaded in its teardown, as any fmpy script does; ``delaycomp`` itself leaves
+   with ``os._exit``), with the native FMUs and with the Python FMUs, alternately; counts
+   the exit statuses (0 with the run's result printed is a clean run).
 
 Prints one markdown table per part. OMSimulator is found as ``delaycomp.omsimulator``
 finds it (``DELAYCOMP_OMSIMULATOR``). Usage::
@@ -141,11 +146,52 @@ def valgrind(work: Path) -> list[str]:
     return rows
 
 
+#: a plain fmpy host: the loop through fmpy, then the interpreter's normal exit
+FMPY_CHILD = """
+import sys
+from pathlib import Path
+from delaycomp import scenarios
+from delaycomp.native import native_fmus
+from delaycomp.simulate import run_loop, stop_ticks
+name, kind, folder = sys.argv[1:4]
+sc = scenarios.get(name)
+loop = sc.make(sc.resolve([]))
+stop = stop_ticks(5.0, loop.T, loop.N) * loop.h
+fmus = native_fmus(loop, Path(folder) / "native") if kind == "native" else None
+res = run_loop(loop, stop, Path(folder) / "python", fmus=fmus)
+print("ok" if res.success else "failed: " + res.message)
+"""
+
+
+def fmpy_runs(work: Path, runs: int) -> list[str]:
+    import sys
+
+    folder = work / "fmpy"
+    rows = []
+    for name in NONLINEAR:
+        counts = {"native": collections.Counter(), "python": collections.Counter()}
+        for _ in range(runs):
+            for kind in counts:
+                proc = subprocess.run([sys.executable, "-c", FMPY_CHILD, name, kind,
+                                       str(folder)], capture_output=True, text=True,
+                                      timeout=600)
+                clean = proc.returncode == 0 and proc.stdout.strip() == "ok"
+                counts[kind]["clean" if clean else _status(proc.returncode)
+                             + (f" ({proc.stderr.strip().splitlines()[-1]})"
+                                if proc.stderr.strip() else "")] += 1
+        rows.append(f"| {name} | {runs} | "
+                    + " | ".join(", ".join(f"{k}: {v}" for k, v in sorted(c.items()))
+                                 for c in counts.values()) + " |")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--fmucheck", type=Path, default=FMUCHECK)
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--fmpy-runs", type=int, default=0,
+                    help="plain fmpy host processes per scenario and FMU kind (part 4)")
     args = ap.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="delaycomp-proofs-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -158,6 +204,10 @@ def main() -> None:
     print("\n| scenario (C host, 5 s) | rows | valgrind errors | heap | status |\n"
           "|---|---|---|---|---|")
     print("\n".join(valgrind(work)))
+    if args.fmpy_runs:
+        print("\n| scenario (plain fmpy host, 5 s) | runs | native FMUs | Python FMUs |\n"
+              "|---|---|---|---|")
+        print("\n".join(fmpy_runs(work, args.fmpy_runs)))
 
 
 if __name__ == "__main__":
