@@ -470,7 +470,9 @@ def bench_speed(cases, repeats, fmu_dir, work: Path, max_periods: int = 20):
         py_argv = [*host_argv(exe, loop, stop, unpack(
             {**native, "controller": python},
             work / "unpacked-speed-py" / label.replace(" ", "_")), timing=True)]
-        py_env = cli_env({k: v for k, v in os.environ.items() if k.startswith("OPENBLAS_")})
+        # one BLAS thread, as our master runs the Python FMUs (run_loop's BLAS limit)
+        py_env = cli_env({**{k: v for k, v in os.environ.items() if k.startswith("OPENBLAS_")},
+                          "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         in_host, in_host_py = [], []
         for _ in range(max(repeats, 3)):
             in_host.append(_host_loop_time(argv, None))
@@ -739,7 +741,7 @@ def report_speed(spd) -> list[str]:
          "The last two: the same periods of the whole native loop (plant, delays and "
          "controller) in the C host under `env -i`, per sample (its stepping loop: what "
          "the native controller costs where no Python calls it, at most), and the Python "
-         "controller's column over it. The last two: the same loop in the same C host with "
+         "controller's column over it. Then the same loop in the same C host with "
          "the Python controller FMU in place of the native one (plant and delays native; "
          "libpython preloaded, `PYTHONHOME`, `PYTHONPATH`), timed alternately with the "
          "all-native loop, and the ratio of the two: with P, R and C the costs of the "
