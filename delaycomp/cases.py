@@ -140,7 +140,8 @@ def compare(c: RefCase, names: list[str], times: np.ndarray, data: np.ndarray,
     every ``stride``-th row of the trajectory (a run at a finer base step), ``ref_stride``
     every ``ref_stride``-th row of the reference (a run sampled at ``t0 + iT``). For
     ``first-order`` cases only the N = 100 bound is checked here (the halving needs a
-    second run, see :func:`first_order_ratio`).
+    second run at 2N: ``tests/test_scenarios.py`` and ``tests/test_native_model_controller.py``
+    check that the error halves).
     """
     header, ref = c.reference()
     ref = ref[::ref_stride]
