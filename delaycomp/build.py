@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
 import zipfile
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from xml.sax.saxutils import escape
 
 import delaycomp
 import delaycomp.fmus
@@ -165,8 +168,59 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
         if not built.is_file():
             raise RuntimeError(f"building the {kind} FMU failed: pythonfmu wrote no "
                                f"{target.name}")
+        if config.get("start"):
+            _exact_starts(built, config["start"])
         _publish(built, target)
     return target
+
+
+def start_text(typ: str, value) -> str:
+    """A start value as a modelDescription should hold it: a Real as ``repr`` (the
+    shortest text that reads back as the same double; pythonfmu writes 16 significant
+    digits, which may not), a Boolean as ``true``/``false``, an Integer, a String as it
+    is.
+
+    >>> start_text("Real", -11 / 6), start_text("Boolean", True), start_text("Integer", 3)
+    ('-1.8333333333333333', 'true', '3')
+    """
+    if typ == "Real":
+        return repr(float(value))
+    if typ == "Boolean":
+        return "true" if value else "false"
+    if typ == "Integer":
+        return str(int(value))
+    return str(value)
+
+
+def set_start(xml: str, name: str, value,
+              fmt: Callable[[str, object], str] = start_text) -> str:
+    """``xml`` (a modelDescription's text) with the start value of variable ``name`` set
+    to ``value``, written by ``fmt(type, value)``; the rest of the text as it was.
+    Raises ``ValueError`` for a name that is no variable with a start value."""
+    pattern = re.compile(r'(<ScalarVariable name="' + re.escape(escape(name, {'"': "&quot;"}))
+                         + r'"[^>]*>\s*<(Real|Integer|Boolean|String) start=")([^"]*)(")')
+    match = pattern.search(xml)
+    if match is None:
+        raise ValueError(f"no parameter {name!r} with a start value in the modelDescription")
+    text = escape(fmt(match.group(2), value), {'"': "&quot;"})
+    return xml[:match.start(3)] + text + xml[match.end(3):]
+
+
+def _exact_starts(fmu: Path, start: Mapping) -> None:
+    """Rewrite the modelDescription of the pythonfmu FMU ``fmu`` (built with a ``start``
+    table) so that each start value of the table reads back as the very value the slave
+    holds (:func:`start_text`)."""
+    part = fmu.with_name(fmu.name + ".exact")
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
+        for info in zin.infolist():
+            data = zin.read(info)
+            if info.filename == "modelDescription.xml":
+                xml = data.decode("utf-8")
+                for name, value in start.items():
+                    xml = set_start(xml, name, value)
+                data = xml.encode("utf-8")
+            zout.writestr(info, data)
+    os.replace(part, fmu)
 
 
 def _publish(built: Path, target: Path) -> None:

@@ -57,7 +57,6 @@ import zipfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -249,7 +248,9 @@ needs a Python with numpy and scipy on the host (pythonfmu).
 
 
 def variant_fmu(src: Path, start: dict, dest: Path) -> Path:
-    """``src`` with ``start`` as its parameters' start values (see the module docstring)."""
+    """``src`` with ``start`` as its parameters' start values (see the module docstring),
+    each written as it reads back exactly (:func:`delaycomp.build.start_text`)."""
+    from .build import set_start
     from .fmuslave import pinned_guid
 
     with zipfile.ZipFile(src) as zin:
@@ -259,7 +260,7 @@ def variant_fmu(src: Path, start: dict, dest: Path) -> Path:
         config["start"] = dict(start)
         xml = re.sub(r'guid="[^"]*"', f'guid="{pinned_guid(ident, config)}"', xml, count=1)
         for name, value in start.items():
-            xml = _set_start(xml, name, value)
+            xml = set_start(xml, name, value)
         dest.parent.mkdir(parents=True, exist_ok=True)
         tmp = dest.with_name(dest.name + ".part")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
@@ -273,27 +274,6 @@ def variant_fmu(src: Path, start: dict, dest: Path) -> Path:
                 zout.writestr(info, data)
         tmp.replace(dest)
     return dest
-
-
-def _format_start(kind: str, value) -> str:
-    """As pythonfmu writes a start value (``pythonfmu/variables.py``)."""
-    if kind == "Real":
-        return f"{float(value):.16g}"
-    if kind == "Boolean":
-        return str(bool(value)).lower()
-    if kind == "Integer":
-        return str(int(value))
-    return str(value)
-
-
-def _set_start(xml: str, name: str, value) -> str:
-    pattern = re.compile(r'(<ScalarVariable name="' + re.escape(escape(name, {'"': "&quot;"}))
-                         + r'"[^>]*>\s*<(Real|Integer|Boolean|String) start=")([^"]*)(")')
-    match = pattern.search(xml)
-    if match is None:
-        raise ValueError(f"no parameter {name!r} with a start value in the modelDescription")
-    text = escape(_format_start(match.group(2), value), {'"': "&quot;"})
-    return xml[:match.start(3)] + text + xml[match.end(3):]
 
 
 def write_model(c: RefCase, trace: Trace, folder: Path, fmu_src: Path | None) -> Path:

@@ -125,6 +125,23 @@ def _python_table(kind: str, config: dict) -> Element:
     return slave.to_xml(dict(FMUS[kind].options))
 
 
+def _exact_starts(root: Element, start: dict) -> None:
+    """Each start value of a build's ``start`` table, in the table tree as it reads back
+    exactly (:func:`delaycomp.build.start_text`: pythonfmu writes 16 digits); config.h and
+    the modelDescription are made from the tree. A name that is no variable of the FMU
+    is refused."""
+    from .build import start_text
+
+    by_name = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+    for name, value in start.items():
+        sv = by_name.get(name)
+        typed = next(iter(sv)) if sv is not None else None
+        if typed is None or typed.get("start") is None:
+            raise ValueError(f"no parameter {name!r} with a start value in the "
+                             "modelDescription")
+        typed.set("start", start_text(typed.tag, value))
+
+
 def _variables(root: Element) -> list[dict]:
     out = []
     for sv in root.find("ModelVariables"):
@@ -337,13 +354,15 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         from .model import load_model
         from .translate import translate
 
-        config = {"model": str(Path(config["model"]).resolve())}
+        config = {"model": str(Path(config["model"]).resolve()),
+                  **({"start": config["start"]} if config.get("start") else {})}
         translation = translate(load_model(config["model"]))
         _check_closed_form(kind, translation)
         ident = model_identifier(kind, config)
     else:
         ident = FMUS[kind].model_identifier
     root = _python_table(kind, config)
+    _exact_starts(root, config.get("start") or {})
     full = {**config, "version": delaycomp.__version__}
     guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
     model_c = NATIVE_KINDS.get(kind) or MODEL_KINDS[kind]

@@ -34,6 +34,32 @@ from operator import itemgetter
 from typing import Protocol
 
 
+def feedthrough_order(feed: set[str], edges: Iterable[tuple[str, str]]) -> list[str]:
+    """The components ``feed`` (those with direct feedthrough) in topological order of
+    the connections ``edges`` (``(src, dst)`` component names; Kahn's algorithm, ties by
+    name): the order in which the master visits them within a tick. Components on an
+    algebraic loop are left out (the caller refuses it).
+
+    >>> feedthrough_order({"ctrl", "delay_y", "delay_u"},
+    ...                   [("plant", "delay_y"), ("delay_y", "ctrl"), ("ctrl", "delay_u"),
+    ...                    ("delay_u", "plant")])
+    ['delay_y', 'ctrl', 'delay_u']
+    """
+    edges = list(edges)
+    preds = {n: {src for src, dst in edges if dst == n and src in feed} for n in feed}
+    order: list[str] = []
+    ready = sorted(n for n in feed if not preds[n])
+    while ready:
+        n = ready.pop(0)
+        order.append(n)
+        for m in sorted(feed):
+            if n in preds[m]:
+                preds[m].discard(n)
+                if not preds[m] and m not in order and m not in ready:
+                    ready.append(m)
+    return order
+
+
 class SimulationError(RuntimeError):
     """A component failed; the message names it, the time and the reason."""
 
@@ -252,19 +278,7 @@ class Master:
             sources[con.dst].append((con.dst_var, self._slot_of[(con.src, con.src_var)]))
 
         feed = {n for n, c in comps.items() if c.feedthrough_outputs}
-        # topological order of the feedthrough components (Kahn), edges src -> dst
-        preds = {n: {con.src for con in self.connections if con.dst == n and con.src in feed}
-                 for n in feed}
-        order: list[str] = []
-        ready = sorted(n for n in feed if not preds[n])
-        while ready:
-            n = ready.pop(0)
-            order.append(n)
-            for m in sorted(feed):
-                if n in preds[m]:
-                    preds[m].discard(n)
-                    if not preds[m] and m not in order and m not in ready:
-                        ready.append(m)
+        order = feedthrough_order(feed, ((con.src, con.dst) for con in self.connections))
         if len(order) != len(feed):
             cycle = _find_cycle(feed - set(order), self.connections)
             raise ValueError(f"algebraic loop {' -> '.join(cycle)}: every component in it "

@@ -40,3 +40,28 @@ def fmu_dir(tmp_path_factory) -> Path:
 def _isolated_cache(tmp_path_factory, monkeypatch):
     """Never touch the user's FMU cache from a test."""
     monkeypatch.setenv("DELAYCOMP_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+_EXIT_STATUS: list[int] = []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _EXIT_STATUS.append(int(exitstatus))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """Leave as the ``delaycomp`` command does (``delaycomp.cli.entry``) once pytest has
+    reported: the suite loads pythonfmu FMUs into this process through fmpy, and unloading
+    them in the interpreter's teardown corrupts the heap now and then ("corrupted
+    double-linked list", SIGABRT after the summary: a green run exiting 134). The exit
+    status is pytest's own."""
+    import sys
+
+    if "fmpy" in sys.modules and _EXIT_STATUS:
+        import atexit
+
+        atexit._run_exitfuncs()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_EXIT_STATUS[-1])
