@@ -7,6 +7,9 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 - :func:`run` co-simulates it and returns a :class:`~delaycomp.simulate.Result` (one numpy
   array per signal: ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
 - :func:`plot` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
+- :func:`build` writes the loop's FMUs, named after it, with its values as their start
+  values (ready to instantiate with no parameter set), and a wiring sheet: your
+  controller (``only=["controller"]``) to take into your own tool chain;
 - :func:`to_ssp` packs an SSP archive (``jacobi=True`` for libcosim and Ecos);
 - :func:`sweep` runs a grid and returns one row of metrics per point;
 - :func:`critical_delay` gives the largest measurement delay the uncompensated loop
@@ -65,8 +68,8 @@ from .system import model_loop as _model_loop
 from .system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
-           "Result", "SignError", "SimulationFailed", "critical_delay", "load", "lti",
-           "model", "plot", "run", "sweep", "to_ssp"]
+           "Result", "SignError", "SimulationFailed", "build", "critical_delay", "load",
+           "lti", "model", "plot", "run", "sweep", "to_ssp"]
 
 
 def load(path: str | Path, **overrides) -> Loop:
@@ -229,6 +232,48 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
     from .plotting import figure
 
     return figure(results, title, labels)
+
+
+def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
+          fmus: str = "auto"):
+    """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
+    (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
+    ``<name>_input_delay.fmu``) with the loop's values as their start values, and
+    ``<name>_wiring.txt``: each FMU's inputs and outputs, the connections, T and the base
+    step a host must use, and the delays a host provides when it takes only the
+    controller. ``delaycomp build LOOP.toml`` on the command line.
+
+    Parameters
+    ----------
+    loop : Loop
+        The loop (:func:`load`, :func:`lti`, :func:`model`); its ``name`` names the files.
+    out : path
+        Output folder (created; files of those names are replaced).
+    only : sequence of str, optional
+        ``"plant"``, ``"controller"``, ``"delays"``: only these (default: all).
+    fmus : str
+        As for :func:`run`: the native C FMUs where they exist (``auto``; the Python ones
+        with a note in ``.notes`` otherwise), only native ones, or the Python ones.
+
+    Returns
+    -------
+    delaycomp.loopbuild.LoopBuild
+        ``.fmus`` (role -> path), ``.wiring``, ``.native``, ``.notes``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from delaycomp import api
+    >>> loop = api.lti([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[-1.0, -1.6]], T=0.2,
+    ...                r=0.36, tau=0.4, N=20, x0=[1.0, 0.0], name="dbl")
+    >>> out = api.build(loop, tempfile.mkdtemp(), only=["controller"], fmus="python")
+    >>> sorted(p.name for p in out.paths)
+    ['dbl_controller.fmu', 'dbl_wiring.txt']
+    """
+    from .loopbuild import build_loop
+
+    _fmu_kind(fmus)
+    return build_loop(loop, out, only=only, fmus=fmus)
 
 
 def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,

@@ -49,6 +49,7 @@ from pathlib import Path
 from . import __version__, scenarios
 from .errors import BadFileError, SspError
 from .model import ModelError
+from .names import LOOP_GROUPS
 from .scenarios import ParameterError
 
 
@@ -85,6 +86,13 @@ def _file_path(text: str) -> Path:
 #: what a scenario argument is, for the help of every subcommand that takes one
 SCENARIO_HELP = "a scenario name (`delaycomp list` shows them)"
 
+BUILD_EXAMPLES = """examples:
+  delaycomp build my-loop.toml --out fmus          # my-loop_*.fmu and my-loop_wiring.txt
+  delaycomp build my-loop.toml --only controller   # the controller alone, and the sheet
+  delaycomp build my-loop.toml --set r=0.4 --python
+  delaycomp build --out build/fmus                 # every kind, and each scenario's SSP
+"""
+
 RUN_EXAMPLES = """examples:
   delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
   delaycomp run example-3.6 --stop-time 2000 --output-interval 1 --out long.csv
@@ -100,8 +108,29 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"delaycomp {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    b = sub.add_parser("build", help="build the FMUs and each scenario's SSP into a folder")
-    b.add_argument("--out", required=True, type=Path, help="output folder")
+    b = sub.add_parser("build", help="build a loop's FMUs (LOOP.toml), or the FMUs and "
+                                     "each scenario's SSP into a folder",
+                       description="With LOOP.toml: the FMUs of that loop, named after it "
+                                   "(LOOP_plant.fmu, LOOP_controller.fmu, ...), with the "
+                                   "loop's values as their start values, and LOOP_wiring.txt "
+                                   "(what connects to what, T and the base step, the delays "
+                                   "a host provides when it takes only the controller). "
+                                   "Without: the FMUs of every kind and each scenario's SSP "
+                                   "(or with --model a model file's FMUs) into --out.",
+                       epilog=BUILD_EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("loop", nargs="?", default=None, metavar="LOOP.toml",
+                   help="a loop file (or a scenario name): build that loop's FMUs")
+    b.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="output folder (with LOOP.toml: default the current folder)")
+    b.add_argument("--only", action=_Append, default=[], choices=tuple(LOOP_GROUPS),
+                   help="with LOOP.toml: build only the plant, the controller or the two "
+                        "delays (repeatable; default: all)")
+    b.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
+                   help="with LOOP.toml: override one of its keys (repeatable)")
+    b.add_argument("--allow-unstable", action="store_true",
+                   help="with LOOP.toml: let an LTI gain through with which the delay-free "
+                        "sampled loop is unstable (the sign guard; see README: loop files)")
     _fmu_kind(b, "build C FMUs only (the default builds them where it can): the delay, "
                  "LTI plant and LTI controller, or with --model the model's plant, "
                  "controller and delays (f, k, step translated to C); an error where it "
@@ -314,10 +343,44 @@ def _loop(args):
     return source, sets, source.loop(sets)
 
 
+def _cmd_build_loop(args) -> int:
+    """``build LOOP.toml``: the loop's FMUs with its values as start values, and its
+    wiring sheet (:func:`delaycomp.loopbuild.build_loop`)."""
+    from .loopbuild import build_loop
+    from .progress import info
+
+    if args.model is not None:
+        raise UsageError("--model is not allowed with LOOP.toml (a loop file names its "
+                         "model itself: [plant] model = \"FILE.py\")")
+    if str(args.loop).endswith(".ssp"):
+        raise UsageError(f"{args.loop}: build takes a loop file or a scenario name, not an "
+                         "SSP archive (its FMUs are inside it)")
+    _, _, loop = _loop(argparse.Namespace(scenario=args.loop, set=args.set,
+                                          allow_unstable=args.allow_unstable))
+    kind = "python" if args.python else "native" if args.native else "auto"
+    built = build_loop(loop, args.out if args.out is not None else Path.cwd(),
+                       only=args.only or None, fmus=kind,
+                       info=lambda text: info(text, args.verbosity))
+    for path in built.paths:
+        print(path)
+    return 0
+
+
 def _cmd_build(args) -> int:
     from .build import build_all, build_model
     from .native import NativeBuildError, build_native, build_native_model
     from .progress import info
+
+    if args.loop is not None:
+        return _cmd_build_loop(args)
+    for flag, given in (("--only", args.only), ("--set", args.set),
+                        ("--allow-unstable", args.allow_unstable)):
+        if given:
+            raise UsageError(f"{flag} is not allowed without LOOP.toml (delaycomp build "
+                             f"LOOP.toml {flag} ...)")
+    if args.out is None:
+        raise UsageError("the following arguments are required: --out (or name a LOOP.toml "
+                         "to build its FMUs)")
 
     def fallback(exc) -> None:
         info(f"note: building the Python FMUs (no native ones here: "

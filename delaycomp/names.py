@@ -5,6 +5,10 @@ things (``delaycomp list``, ``--help``) imports no maths."""
 #: the controller's modes: the predictor's ``u = K Phi(y, past inputs)`` or ``u = K y``
 MODES: tuple[str, ...] = ("compensated", "uncompensated")
 
+#: ``delaycomp build LOOP.toml --only GROUP``: the roles of the loop each group builds
+LOOP_GROUPS: dict[str, tuple[str, ...]] = {"plant": ("plant",), "controller": ("controller",),
+                                           "delays": ("meas_delay", "input_delay")}
+
 
 def indexed(base: str, count: int) -> list[str]:
     """``[base]`` for one channel, ``[base1, ..., baseN]`` otherwise."""
