@@ -914,6 +914,19 @@ def _split_sets(argv: list[str]) -> tuple[list[str], list[str]]:
     return sets, rest
 
 
+def _platform_notes(args) -> None:
+    """The native builds' notes of this command (a platform left out for want of its
+    cross compiler), each once, where the command writes FMUs for elsewhere (``build``,
+    ``ssp``, ``export-loop``); a run builds them for this machine only."""
+    native = sys.modules.get("delaycomp.native")
+    if native is not None:
+        from .progress import info
+
+        for text in native.pop_notes():
+            if args.command in ("build", "ssp", "export-loop"):
+                info(text, getattr(args, "verbosity", 1))
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
@@ -927,7 +940,9 @@ def main(argv: list[str] | None = None) -> int:
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
                    "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
-        return handler(args)
+        rc = handler(args)
+        _platform_notes(args)
+        return rc
     except (UsageError, ParameterError, ModelError, BadFileError, SspError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
         return 2

@@ -176,6 +176,11 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
                 native = False
         if not native and todo:
             staged = build_all(False, Path(tmp) / "python")
+        if native:
+            from .native import pop_notes
+
+            for text in pop_notes():  # platforms left out for want of a cross compiler
+                note(text)
         for inst in todo:
             check_starts(staged[inst.role], inst.parameters, f"{name}_{inst.role}.fmu")
         written = {}

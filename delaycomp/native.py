@@ -66,8 +66,85 @@ CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall",
           "-Werror")
 
 
+#: The other platforms a native FMU carries binaries for, cross-compiled where their
+#: compiler is here: FMI 2.0 folder -> (the variable that names the compiler, the
+#: compiler's default name, the Debian package, the library's suffix, flags beside CFLAGS).
+#: ``win64`` is FMI 2.0's name; Linux on aarch64 has none in FMI 2.0, whose 2.0.4+
+#: clarification names the FMI 3.0 platform tuple for such platforms: ``aarch64-linux``.
+CROSS_TARGETS = {
+    "win64": ("CC_WIN64", "x86_64-w64-mingw32-gcc", "gcc-mingw-w64-x86-64", ".dll",
+              ("-static-libgcc", "-D__USE_MINGW_ANSI_STDIO=1")),
+    "aarch64-linux": ("CC_AARCH64", "aarch64-linux-gnu-gcc", "gcc-aarch64-linux-gnu", ".so",
+                      ()),
+}
+
+#: notes of this process about platforms left out (each once; see :func:`pop_notes`)
+_NOTES: list[str] = []
+_NOTED: set[str] = set()
+
+
 class NativeBuildError(RuntimeError):
     """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
+
+
+def _note(text: str) -> None:
+    if text not in _NOTED:
+        _NOTED.add(text)
+        _NOTES.append(text)
+
+
+def pop_notes() -> list[str]:
+    """The notes about platforms left out since the last call (each note once per
+    process): the commands print them, :func:`delaycomp.api.build` returns them."""
+    out = list(_NOTES)
+    _NOTES.clear()
+    return out
+
+
+def requested_platforms() -> tuple[str, ...]:
+    """The cross platforms to build: ``$DELAYCOMP_PLATFORMS`` (comma-separated names of
+    :data:`CROSS_TARGETS`; empty: none), by default all of them."""
+    text = os.environ.get("DELAYCOMP_PLATFORMS")
+    if text is None:
+        return tuple(CROSS_TARGETS)
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in CROSS_TARGETS]
+    if bad:
+        raise NativeBuildError(f"DELAYCOMP_PLATFORMS names {bad[0]!r}: allowed are "
+                               f"{', '.join(CROSS_TARGETS)} (comma-separated; empty: this "
+                               "platform only)")
+    return names
+
+
+def cross_compilers() -> dict[str, list[str]]:
+    """The cross platforms that will be built (:func:`requested_platforms`) with their
+    compiler commands (``$CC_WIN64``, ``$CC_AARCH64``, else the default name on PATH).
+    A platform whose compiler is absent is left out with a note (:func:`pop_notes`);
+    a variable naming no program is an error."""
+    found = {}
+    for platform in requested_platforms():
+        var, default, package, _, _ = CROSS_TARGETS[platform]
+        given = os.environ.get(var)
+        argv = shlex.split(given) if given else [default]
+        if argv and shutil.which(argv[0]):
+            found[platform] = argv
+        elif given:
+            raise NativeBuildError(f"{var} = {given!r} is not allowed: no such program on "
+                                   f"PATH (set {var} to a C compiler for {platform}, or "
+                                   "unset it)")
+        else:
+            _note(f"note: native FMUs without {platform} binaries: no {default} here "
+                  f"(`apt-get install {package}`, or set {var}; DELAYCOMP_PLATFORMS chooses "
+                  "the platforms)")
+    return found
+
+
+def platforms_tag() -> str:
+    """The platforms native FMUs get here, as a name part of the build cache: this
+    machine's (fmpy's name) and the cross platforms with a compiler."""
+    import fmpy
+
+    return "+".join([fmpy.platform, *cross_compilers()])
 
 
 def compiler() -> list[str]:
@@ -341,6 +418,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         raise ValueError(f"kind {kind!r} is not allowed for a native FMU: must be one of "
                          f"{', '.join((*NATIVE_KINDS, *MODEL_KINDS))}")
     cc = compiler()
+    crosses = cross_compilers()
     if kind in MODEL_KINDS and not (config or {}).get("model"):
         raise ValueError(f"a native {kind} FMU needs config = {{'model': FILE.py}}")
     config = dict(DEFAULT_CONFIG[kind] if config is None else config)
@@ -393,14 +471,25 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         for name in FMI_HEADERS:
             shutil.copy2(fmi_header_dir() / name, src / name)
         (src / "config.h").write_text(_config_h(kind, config, root, guid), encoding="utf-8")
-        binary = stage / "binaries" / fmpy.platform / f"{ident}.so"
-        binary.parent.mkdir(parents=True)
-        argv = [*cc, *CFLAGS, "-I", str(src), "-o", str(binary),
-                *(str(src / s) for s in sources), "-lm"]
-        proc = subprocess.run(argv, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise NativeBuildError(f"compiling the native {kind} FMU failed "
-                                   f"({' '.join(argv[:1])}):\n{proc.stderr.strip()}")
+        targets = [(fmpy.platform, cc, ".so", ())] + [
+            (platform, argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
+            for platform, argv in crosses.items()]
+        builds = []
+        for platform, argv0, suffix, extra in targets:  # the compilers run at once
+            binary = stage / "binaries" / platform / f"{ident}{suffix}"
+            binary.parent.mkdir(parents=True)
+            argv = [*argv0, *CFLAGS, *extra, "-I", str(src), "-o", str(binary),
+                    *(str(src / s) for s in sources), "-lm"]
+            builds.append((platform, argv, subprocess.Popen(
+                argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
+        failed = []
+        for platform, argv, proc in builds:
+            _, err = proc.communicate()
+            if proc.returncode != 0:
+                failed.append(f"compiling the native {kind} FMU for {platform} failed "
+                              f"({argv[0]}):\n{err.strip()}")
+        if failed:
+            raise NativeBuildError(failed[0])
         (stage / "modelDescription.xml").write_bytes(description)
         res = stage / "resources"
         res.mkdir()
@@ -449,7 +538,8 @@ def native_fmu_dir() -> Path:
     """Build cache of native FMUs, beside the Python FMUs' cache, per source digest."""
     from .simulate import default_fmu_dir
 
-    return default_fmu_dir().parent / f"native-{delaycomp.__version__}-{sources_digest()}"
+    return default_fmu_dir().parent / (f"native-{delaycomp.__version__}-{sources_digest()}-"
+                                       f"{platforms_tag()}")
 
 
 def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
@@ -472,14 +562,56 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Pat
     return path
 
 
-def compile_host(exe: Path) -> Path:
-    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``."""
-    proc = subprocess.run([*compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-I",
-                           str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"), "-o",
-                           str(exe), "-ldl", "-lm"], capture_output=True, text=True)
+def compile_host(exe: Path, platform: str | None = None) -> Path:
+    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
+    machine, or cross-compiled for ``platform`` (a key of :data:`CROSS_TARGETS`: the host
+    then loads that platform's binaries of the FMUs; run it with :func:`host_command`)."""
+    if platform is None:
+        argv, extra, libs = compiler(), (), ["-ldl", "-lm"]
+    elif platform in CROSS_TARGETS:
+        var, default, package, _, extra = CROSS_TARGETS[platform]
+        given = os.environ.get(var)
+        argv = shlex.split(given) if given else [default]
+        if not argv or shutil.which(argv[0]) is None:
+            raise NativeBuildError(f"no {argv[0] if argv else var} here to build the C host "
+                                   f"for {platform} (`apt-get install {package}`, or set "
+                                   f"{var})")
+        libs = ["-lm"] if platform == "win64" else ["-ldl", "-lm"]
+    else:
+        raise ValueError(f"platform {platform!r} is not allowed: allowed are "
+                         f"{', '.join(CROSS_TARGETS)} (or None: this machine)")
+    proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *extra,
+                           "-I", str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"),
+                           "-o", str(exe), *libs], capture_output=True, text=True)
     if proc.returncode != 0:
         raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
     return Path(exe)
+
+
+#: how this machine runs a C host built for another platform: the emulator (a Debian
+#: package), its arguments before the program
+EMULATORS = {"win64": (("wine",), "wine"),
+             "aarch64-linux": (("qemu-aarch64", "-L", "/usr/aarch64-linux-gnu"), "qemu-user")}
+
+
+def emulator(platform: str) -> tuple[list[str], dict[str, str]]:
+    """The command prefix that runs a program built for ``platform`` here (wine for
+    ``win64``, qemu-user for ``aarch64-linux``) and the environment variables it needs
+    (wine: no debug output, no Mono or Gecko installers; ``WINEPREFIX`` is the caller's).
+    Raises :class:`NativeBuildError` naming the package to install where it is absent."""
+    prefix, package = EMULATORS[platform]
+    if shutil.which(prefix[0]) is None:
+        raise NativeBuildError(f"no {prefix[0]} here to run {platform} programs "
+                               f"(`apt-get install {package}`)")
+    env = {"WINEDEBUG": "-all", "WINEDLLOVERRIDES": "mscoree=d;mshtml=d"} \
+        if platform == "win64" else {}
+    return list(prefix), env
+
+
+def _host_path(path: Path, platform: str | None) -> str:
+    """A folder as the host built for ``platform`` names it (wine maps / to drive Z:)."""
+    text = str(Path(path).resolve())
+    return "Z:" + text.replace("/", "\\") if platform == "win64" else text
 
 
 def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
@@ -493,7 +625,8 @@ def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
 
 
 def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
-              timing: bool = False, exact_grid: bool = False) -> list[str]:
+              timing: bool = False, exact_grid: bool = False,
+              platform: str | None = None) -> list[str]:
     """The C host's command line for the LTI loop ``loop`` (a
     :class:`~delaycomp.system.loop.Loop`, scalar or with vectors) with the FMUs unpacked
     in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
@@ -505,12 +638,18 @@ def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
     exact_grid : bool
         The host keeps time as the FMI guides ask (``--exact-grid``): ``t_k = t0 + k h``
         computed from ``k``, each step ``t_{k+1} - t_k``; else every step is ``h``.
+    platform : str, optional
+        The host was built for this platform (:func:`compile_host`): the command starts
+        with its emulator (:func:`emulator`; its environment is the caller's to pass) and
+        names the folders as the emulated program sees them.
     """
     sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
             for inst in loop.instances for k, v in inst.parameters.items()]
-    return [str(exe), *(["--timing"] if timing else []),
+    prefix = emulator(platform)[0] if platform is not None else []
+    return [*prefix, str(exe), *(["--timing"] if timing else []),
             *(["--exact-grid"] if exact_grid else []), repr(stop), repr(loop.T / loop.N),
-            *(f"{n}={dirs[n]}" for n in ("plant", "meas_delay", "controller", "input_delay")),
+            *(f"{n}={_host_path(dirs[n], platform)}"
+              for n in ("plant", "meas_delay", "controller", "input_delay")),
             *sets]
 
 

@@ -20,9 +20,23 @@
  *   from k, each step t_{k+1} - t_k (steps that differ from H and from one another in the
  *   last bits). Default: every step is H, from t_k = t0 + k h.
  * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl -lm
+ * (delaycomp.native.compile_host). The same source builds for Windows (mingw-w64: it loads
+ * binaries/win64/ID.dll with LoadLibrary) and Linux on aarch64 (binaries/aarch64-linux/).
  */
 #define _POSIX_C_SOURCE 200809L
+#if defined(_WIN32)
+#include <windows.h>
+#define PLATFORM "win64"            /* FMI 2.0's folder and suffix for this platform */
+#define LIBRARY_SUFFIX ".dll"
+#else
 #include <dlfcn.h>
+#if defined(__aarch64__)
+#define PLATFORM "aarch64-linux"    /* FMI 2.0.4+: the FMI 3.0 platform tuple */
+#else
+#define PLATFORM "linux64"
+#endif
+#define LIBRARY_SUFFIX ".so"
+#endif
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -168,8 +182,26 @@ static size_t ports(const Fmu *f, const char *causality, fmi2ValueReference *vrs
     return n;
 }
 
+/* the shared library of an FMU: dlopen, or LoadLibrary on Windows */
+#if defined(_WIN32)
+static void *open_library(const char *path) { return (void *)LoadLibraryA(path); }
+static void *library_symbol(void *lib, const char *name) {
+    FARPROC p = GetProcAddress((HMODULE)lib, name);
+    void *q;
+    memcpy(&q, &p, sizeof q);  /* a function pointer as the data pointer the callers cast */
+    return q;
+}
+static void close_library(void *lib) { FreeLibrary((HMODULE)lib); }
+static const char *library_error(void) { return "LoadLibrary failed"; }
+#else
+static void *open_library(const char *path) { return dlopen(path, RTLD_NOW | RTLD_LOCAL); }
+static void *library_symbol(void *lib, const char *name) { return dlsym(lib, name); }
+static void close_library(void *lib) { dlclose(lib); }
+static const char *library_error(void) { return dlerror(); }
+#endif
+
 static void *sym(Fmu *f, const char *name) {
-    void *p = dlsym(f->lib, name);
+    void *p = library_symbol(f->lib, name);
     if (p == NULL) die("%s: no symbol %s", f->ident, name);
     return p;
 }
@@ -184,9 +216,9 @@ static void load(Fmu *f, const char *instance, fmi2CallbackFunctions *cb) {
         !attribute(cs, "modelIdentifier", f->ident, sizeof f->ident))
         die("%s: not a co-simulation FMU", f->dir);
     read_variables(f);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->ident);
-    f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (f->lib == NULL) die("cannot load %s: %s", path, dlerror());
+    snprintf(path, sizeof path, "%s/binaries/" PLATFORM "/%s" LIBRARY_SUFFIX, f->dir, f->ident);
+    f->lib = open_library(path);
+    if (f->lib == NULL) die("cannot load %s: %s", path, library_error());
     f->instantiate = (fmi2InstantiateTYPE *)sym(f, "fmi2Instantiate");
     f->free_instance = (fmi2FreeInstanceTYPE *)sym(f, "fmi2FreeInstance");
     f->setup = (fmi2SetupExperimentTYPE *)sym(f, "fmi2SetupExperiment");
@@ -219,9 +251,16 @@ typedef struct {           /* the Real inputs and outputs of one FMU */
 } Ports;
 
 static double now(void) {
+#if defined(_WIN32)
+    LARGE_INTEGER count, frequency;
+    QueryPerformanceCounter(&count);
+    QueryPerformanceFrequency(&frequency);
+    return (double)count.QuadPart / (double)frequency.QuadPart;
+#else
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+#endif
 }
 
 int main(int argc, char **argv) {
@@ -331,7 +370,7 @@ int main(int argc, char **argv) {
         fmu[i].free_instance(fmu[i].c);
     }
     for (int i = 0; i < NI; i++) {
-        dlclose(fmu[i].lib);
+        close_library(fmu[i].lib);
         free(fmu[i].xml);
         free(fmu[i].vars);
     }
