@@ -61,6 +61,7 @@ from .errors import (
     SimulationFailed,
 )
 from .model import ModelError
+from .names import FMU_KINDS
 from .simulate import Result
 from .system import Loop
 from .system import lti_loop as _lti_loop
@@ -180,7 +181,6 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
 #: which FMUs :func:`run` and :func:`to_ssp` use: the native C FMUs where the loop has
 #: them here, else the Python ones (``auto``, the default, as the CLI); only native ones
 #: (an error where there are none); only the Python ones
-FMU_KINDS = ("auto", "native", "python")
 
 
 def _fmu_kind(fmus: str) -> None:
@@ -272,7 +272,6 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     """
     from .loopbuild import build_loop
 
-    _fmu_kind(fmus)
     return build_loop(loop, out, only=only, fmus=fmus)
 
 

@@ -37,15 +37,12 @@ from pathlib import Path
 import delaycomp
 
 from .errors import ParameterError
-from .names import LOOP_GROUPS
+from .names import FMU_KINDS, LOOP_GROUPS
 from .system.loop import ROLES, FmuFile, Loop, ModelFmu
 
-#: ``--only`` groups: the roles each builds
-GROUPS = LOOP_GROUPS
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
              "controller": "the predictor-controller", "input_delay": "the input delay (tau)"}
-FMU_KINDS = ("auto", "native", "python")
 
 
 @dataclass(frozen=True)
@@ -80,17 +77,18 @@ def file_stem(name: str) -> str:
 
 
 def roles_of(only: Iterable[str] | None) -> tuple[str, ...]:
-    """The roles ``only`` names (:data:`GROUPS`), in signal order; ``None``: every role."""
+    """The roles ``only`` names (:data:`delaycomp.names.LOOP_GROUPS`), in signal order;
+    ``None``: every role."""
     if only is None:
         return ROLES
     chosen = set()
     for group in only:
-        if group not in GROUPS:
+        if group not in LOOP_GROUPS:
             raise ParameterError(f"--only {group!r} is not allowed: allowed are "
-                                 f"{', '.join(GROUPS)}")
-        chosen.update(GROUPS[group])
+                                 f"{', '.join(LOOP_GROUPS)}")
+        chosen.update(LOOP_GROUPS[group])
     if not chosen:
-        raise ParameterError("--only names nothing: allowed are " + ", ".join(GROUPS))
+        raise ParameterError("--only names nothing: allowed are " + ", ".join(LOOP_GROUPS))
     return tuple(r for r in ROLES if r in chosen)
 
 
@@ -124,7 +122,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     from .tmpfiles import temp_dir
 
     if fmus not in FMU_KINDS:
-        raise ParameterError(f"fmus = {fmus!r} is not allowed: allowed are "
+        raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
                              f"{', '.join(FMU_KINDS)}")
     roles = roles_of(only)
     name = file_stem(loop.name)
@@ -236,7 +234,9 @@ def _ports(fmu: Path | None) -> tuple[list[str], list[str], set[str]]:
 
 
 def _num(x) -> str:
-    return f"{float(x):.17g}" if float(x) != round(float(x), 12) else f"{float(x):g}"
+    """A number as it reads back (``repr``), ``1`` for ``1.0``."""
+    text = repr(float(x))
+    return text[:-2] if text.endswith(".0") else text
 
 
 def _vector(parameters: Mapping, base: str) -> list:

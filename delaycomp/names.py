@@ -5,6 +5,10 @@ things (``delaycomp list``, ``--help``) imports no maths."""
 #: the controller's modes: the predictor's ``u = K Phi(y, past inputs)`` or ``u = K y``
 MODES: tuple[str, ...] = ("compensated", "uncompensated")
 
+#: which FMUs a command or API call uses: the native C FMUs where the loop has them here,
+#: only native ones, or the Python (pythonfmu) ones
+FMU_KINDS: tuple[str, ...] = ("auto", "native", "python")
+
 #: ``delaycomp build LOOP.toml --only GROUP``: the roles of the loop each group builds
 LOOP_GROUPS: dict[str, tuple[str, ...]] = {"plant": ("plant",), "controller": ("controller",),
                                            "delays": ("meas_delay", "input_delay")}

@@ -123,20 +123,30 @@ def cross_compilers() -> dict[str, list[str]]:
     a variable naming no program is an error."""
     found = {}
     for platform in requested_platforms():
-        var, default, package, _, _ = CROSS_TARGETS[platform]
-        given = os.environ.get(var)
-        argv = shlex.split(given) if given else [default]
-        if argv and shutil.which(argv[0]):
+        argv = _cross_compiler(platform)
+        if argv is not None:
             found[platform] = argv
-        elif given:
-            raise NativeBuildError(f"{var} = {given!r} is not allowed: no such program on "
-                                   f"PATH (set {var} to a C compiler for {platform}, or "
-                                   "unset it)")
         else:
+            var, default, package, _, _ = CROSS_TARGETS[platform]
             _note(f"note: native FMUs without {platform} binaries: no {default} here "
                   f"(`apt-get install {package}`, or set {var}; DELAYCOMP_PLATFORMS chooses "
                   "the platforms)")
     return found
+
+
+def _cross_compiler(platform: str) -> list[str] | None:
+    """The compiler command for ``platform`` (its variable, else the default name on
+    PATH), ``None`` where the default is absent; a variable naming no program is an
+    error."""
+    var, default, _, _, _ = CROSS_TARGETS[platform]
+    given = os.environ.get(var)
+    argv = shlex.split(given) if given else [default]
+    if argv and shutil.which(argv[0]):
+        return argv
+    if given:
+        raise NativeBuildError(f"{var} = {given!r} is not allowed: no such program on PATH "
+                               f"(set {var} to a C compiler for {platform}, or unset it)")
+    return None
 
 
 def platforms_tag() -> str:
@@ -570,12 +580,10 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
         argv, extra, libs = compiler(), (), ["-ldl", "-lm"]
     elif platform in CROSS_TARGETS:
         var, default, package, _, extra = CROSS_TARGETS[platform]
-        given = os.environ.get(var)
-        argv = shlex.split(given) if given else [default]
-        if not argv or shutil.which(argv[0]) is None:
-            raise NativeBuildError(f"no {argv[0] if argv else var} here to build the C host "
-                                   f"for {platform} (`apt-get install {package}`, or set "
-                                   f"{var})")
+        argv = _cross_compiler(platform)
+        if argv is None:
+            raise NativeBuildError(f"no {default} here to build the C host for {platform} "
+                                   f"(`apt-get install {package}`, or set {var})")
         libs = ["-lm"] if platform == "win64" else ["-ldl", "-lm"]
     else:
         raise ValueError(f"platform {platform!r} is not allowed: allowed are "

@@ -638,7 +638,8 @@ def test_python_fmus_in_the_c_host_with_the_three_settings(chost, fmu_dir, tmp_p
     assert proc.returncode in (0, -6, -11, 134, 139), proc.stderr
 
 
-# -- native FMUs in the SSP archives, the Jacobi variant and the container --------------------
+# -- native FMUs in the SSP archives and the Jacobi variant (the container: see
+# test_native_model_controller) ------------------------------------------------------------
 @pytest.mark.parametrize("master", ["delaycomp", "libcosim", "ecos"])
 def test_jacobi_archive_with_native_fmus_in_every_master(tmp_path, master):
     """``delaycomp ssp --jacobi --native``: libcosim and Ecos load the native FMUs from the
@@ -701,22 +702,6 @@ def test_native_archive_refuses_an_fmu_without_a_native_twin(tmp_path):
                                          r"\(DelaycompController_example_3_8_\w+\) is not "
                                          "allowed in a native archive"):
         native_archive(hacked, tmp_path / "n.ssp")
-
-
-def test_container_with_native_fmus(tmp_path):
-    """``delaycomp export-loop --native``: the loop as one container FMU holding the
-    native FMUs, run by fmpy, against the reference at t0 + iT."""
-    from delaycomp.check import case
-    from delaycomp.container import export_loop, simulate_loop
-
-    c = case("example-3.6/fig3")
-    spec = _spec(c)
-    path = export_loop(spec, tmp_path / "loop.fmu", fmus=native_fmus(spec, tmp_path / "n"))
-    with zipfile.ZipFile(path) as zf:
-        assert not any(n.endswith(("slavemodule.txt", "fmi2slave.py")) for n in zf.namelist())
-    names, times, data = simulate_loop(path, spec, c.stop_time())
-    cmp = compare(c, names, times, data, stride=1, ref_stride=spec.N)
-    assert cmp.passed, cmp
 
 
 # -- fuzz: the native FMUs refuse and accept exactly what the Python slaves do --------------

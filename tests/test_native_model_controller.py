@@ -458,14 +458,15 @@ def test_c_host_under_env_i_runs_a_nonlinear_loop(name, sets, native_dir, tmp_pa
     assert_columns_close(rows[:, 1:], ours.data, SAME_ARITHMETIC_ULPS, "C host")
 
 
-@pytest.mark.parametrize("case_id", ["example-2.4/default", "example-3.8/delayed",
-                                     "example-3.8/sin", "corollary-4.1/default",
-                                     "proposition-4.2/default"])
+@pytest.mark.parametrize("case_id", ["example-3.6/fig3", "example-2.4/default",
+                                     "example-3.8/delayed", "example-3.8/sin",
+                                     "corollary-4.1/default", "proposition-4.2/default"])
 def test_container_with_the_native_model_fmus(case_id, tmp_path):
-    """``delaycomp export-loop --native`` of a model loop: one container FMU holding the
-    native plant, controller and delays (no Python inside), run by fmpy, against the
-    independent reference of each nonlinear scenario at t0 + iT (the reference's own
-    tolerance: round-off for the exact cases, the O(h) hold for the continuous ones)."""
+    """``delaycomp export-loop --native``: one container FMU holding the native plant,
+    controller and delays (no Python inside), run by fmpy, against the independent
+    reference of the LTI loop of Example 3.6 and of each nonlinear scenario at t0 + iT
+    (the reference's own tolerance: round-off for the exact cases, the O(h) hold for the
+    continuous ones)."""
     from delaycomp.check import case, compare
     from delaycomp.container import export_loop, simulate_loop
 
