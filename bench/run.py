@@ -41,7 +41,11 @@ Sections (the targets are those of the performance issue):
    each nonlinear scenario alone, its Python FMU against its native FMU, both through fmpy
    with the same measurements (target: native >= 30x faster); the whole loop in our master
    with all-Python against all-native FMUs; Example 2.4 in the C host (under ``env -i``)
-   against real time (target >= 1000x).
+   against real time (target >= 1000x);
+11. exported controllers (issue 33, item 5): ``delaycomp export-c`` of LTI loops (n = 2,
+   n = 20) and of each nonlinear scenario (closed-form and numerical predictor), driven
+   by ``bench/export_timing.c`` for 10^6 base steps: median, 99.9th percentile and
+   maximum of one step's time, beside the bound on its work (reported, not gated on).
 
 ``--sections`` runs only the sections named and puts their target rows and tables into
 the report already at ``--out``, where the other sections keep the numbers of their run.
@@ -356,6 +360,107 @@ def report_exact_grid(rows) -> list[str]:
                  f"{r['exact'] * 1e3:.1f} | {r['ratio']:.2f}x | "
                  f"{r['constant_process'] * 1e3:.1f} | {r['exact_process'] * 1e3:.1f} | "
                  f"{r['ratio_process']:.2f}x |")
+    return L
+
+
+# -- 11. exported controllers: the time of one step -------------------------------------
+
+def _lti_timing_loop(n: int):
+    """A stable LTI loop with n states, one input (T = 0.5, r = 0.35, tau = 0.5, N = 10):
+    its controller's work is what is timed (the measurements are synthetic)."""
+    import numpy as np
+
+    from delaycomp import api
+
+    rng = np.random.default_rng(n)
+    A = -np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    B = rng.standard_normal((n, 1))
+    K = -0.01 * rng.standard_normal((1, n))
+    return api.lti(A, B, K, T=0.5, r=0.35, tau=0.5, N=10, x0=[0.0] * n,
+                   name=f"lti-n{n}")
+
+
+def _work_bound(loop) -> str:
+    """The bound of item 1 on the work of one step of the loop's exported controller."""
+    from delaycomp.exportc import _controller
+    from delaycomp.nlcontrol import ZOHModelController
+
+    _, kind, slave = _controller(loop)
+    ctrl = slave.ctrl
+    if kind == "controller":
+        n, m, L = ctrl.n, ctrl.m, ctrl.predictor.L
+        return (f"sample: {n * n + n * m * L + m * n} multiply-adds (L = {L}); "
+                "between: a copy")
+    W = ctrl.history.W
+    zoh = isinstance(ctrl, ZOHModelController)
+    if slave.predictor == "closed":
+        where = "" if zoh else " + 1 per step (z)"
+        return f"<= {W} exact steps per sample{where}"
+    bound = f"<= 12 (M + 1) + 2 W = {12 * 100_001 + 2 * W:,} f-evaluations per sample"
+    if not zoh:
+        bound += f", + {12 * 100_001 + 2:,} per step (z's flow)"
+    return bound + f" (M = 100 000, W = {W})"
+
+
+def bench_export(ticks: int, work: Path) -> list[dict]:
+    """Each case's controller exported, driven for ``ticks`` base steps by
+    ``bench/export_timing.c`` (-O2): the median, 99.9th percentile and maximum of the time
+    of one step, and of the sample steps."""
+    import subprocess
+
+    from delaycomp.exportc import closed_loop_io, export_c
+    from delaycomp.native import compiler
+
+    cases = [(f"LTI n = {n}, m = 1", _lti_timing_loop(n)) for n in (2, 20)]
+    for name, sets in SPEED_CASES:
+        if "p=sin" in sets:
+            continue
+        sc = scenarios.get(name)
+        cases.append((_case_label(name, sets), sc.make(sc.resolve(list(sets)))))
+    rows = []
+    for label, loop in cases:
+        folder = work / f"export-{len(rows)}"
+        export_c(loop, folder, "ctl")
+        exe = folder / "timing"
+        subprocess.run([*compiler(), "-std=c99", "-O2", "-DPREFIX=ctl", "-include",
+                        str(folder / "ctl.h"), "-I", str(folder),
+                        str(REPO / "bench" / "export_timing.c"), str(folder / "ctl.c"),
+                        "-o", str(exe), "-lm"], check=True)
+        episode = 20 * loop.N  # 20 periods of the closed loop, from its start
+        ys, _ = closed_loop_io(loop, episode, work / "fmus")
+        feed = f"{episode}\n" + "".join(" ".join(repr(float(v)) for v in y) + "\n"
+                                         for y in ys)
+        out = subprocess.run([str(exe), str(ticks)], input=feed, capture_output=True,
+                             text=True, check=True).stdout.split()
+        median, p999, worst, s_median, s_worst = (float(v) * 1e-9 for v in out)
+        rows.append({"case": label, "N": loop.N, "median": median, "p999": p999,
+                     "max": worst, "sample_median": s_median, "sample_max": s_worst,
+                     "bound": _work_bound(loop), "ticks": ticks})
+        print(f"  {label}: median {median * 1e9:.0f} ns, max {worst * 1e6:.1f} us",
+              flush=True)
+    return rows
+
+
+def report_export(rows) -> list[str]:
+    """Section 11 of the report."""
+    ticks = rows[0]["ticks"] if rows else 0
+    L = ["", "## 11. Exported controllers: the time of one step", "",
+         f"`delaycomp export-c` of each loop, compiled at -O2 and driven by "
+         f"`bench/export_timing.c` for {ticks:,} base steps: episodes of 20 periods from "
+         "the controller's start, along the measurements of a closed-loop run of the loop's "
+         "native FMUs (`delaycomp.exportc.closed_loop_io`); each step (`NAME_sample` and `NAME_output` at a sample "
+         "instant, `NAME_output` between) timed with the monotonic clock. The maximum is "
+         "reported, not gated on: this machine is shared, and a step that the scheduler "
+         "interrupts shows here. The last column is the bound on a step's work (issue 33, "
+         "item 1): what a target's worst case is made of.", "",
+         "| controller | N | median [us] | p99.9 [us] | max [us] | at a sample: median [us] "
+         "| at a sample: max [us] | work bound |",
+         "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        L.append(f"| {r['case']} | {r['N']} | {r['median'] * 1e6:.3f} | "
+                 f"{r['p999'] * 1e6:.2f} | {r['max'] * 1e6:.1f} | "
+                 f"{r['sample_median'] * 1e6:.2f} | {r['sample_max'] * 1e6:.1f} | "
+                 f"{r['bound']} |")
     return L
 
 
@@ -997,6 +1102,8 @@ def write_report(path, results, args) -> None:
         L += report_exact_grid(results["exact_grid"])
     if spd is not None:
         L += report_speed(spd)
+    if results.get("export") is not None:
+        L += report_export(results["export"])
     L += ["", "![](docs/figures/benchmarks.png)", ""]
     notes = REPO / "bench" / "NOTES.md"
     if notes.exists():
@@ -1051,8 +1158,8 @@ def _sections(text: str) -> set[int]:
         picked = {int(x) for x in text.split(",") if x.strip()}
     except ValueError:
         picked = set()
-    if not picked or not picked <= set(range(1, 11)):
-        raise argparse.ArgumentTypeError(f"{text!r}: section numbers 1-10, comma-separated")
+    if not picked or not picked <= set(range(1, 12)):
+        raise argparse.ArgumentTypeError(f"{text!r}: section numbers 1-11, comma-separated")
     return picked
 
 
@@ -1063,14 +1170,14 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
     ap.add_argument("--plot", type=Path, default=REPO / "docs" / "figures" / "benchmarks.png")
     ap.add_argument("--sections", type=_sections, default=None, metavar="N[,N...]",
-                    help="run only these sections (numbers 1-10, as in the report) and put "
+                    help="run only these sections (numbers 1-11, as in the report) and put "
                          "their rows and tables into the report already at --out, the other "
                          "numbers kept (the plot is redrawn only with sections 1 and 4)")
     args = ap.parse_args(argv)
     args.repeats = 1 if args.quick else 7
     names = ["example-3.6"] if args.quick else list(scenarios.SCENARIOS)
     Ns = (10,) if args.quick else (10, 100, 1000)
-    run = set(args.sections or range(1, 11))
+    run = set(args.sections or range(1, 12))
     results = {}
     compile_package()
     with tempfile.TemporaryDirectory(prefix="delaycomp-bench-") as tmp, single_threaded_blas():
@@ -1114,6 +1221,9 @@ def main(argv=None) -> int:
             results["speed"] = bench_speed(SPEED_CASES[:1] if args.quick else SPEED_CASES,
                                            args.repeats, fmu_dir, Path(tmp),
                                            2 if args.quick else 20)
+        if 11 in run:
+            print("11. exported controllers", flush=True)
+            results["export"] = bench_export(20_000 if args.quick else 1_000_000, Path(tmp))
         if 4 in run:
             print("4. accuracy against cost", flush=True)
             cases = (["example-2.4/default"] if args.quick else

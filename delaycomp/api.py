@@ -69,8 +69,8 @@ from .system import model_loop as _model_loop
 from .system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
-           "Result", "SignError", "SimulationFailed", "build", "critical_delay", "load",
-           "lti", "model", "plot", "run", "sweep", "to_ssp"]
+           "Result", "SignError", "SimulationFailed", "build", "critical_delay", "export_c",
+           "load", "lti", "model", "plot", "run", "sweep", "to_ssp"]
 
 
 def load(path: str | Path, **overrides) -> Loop:
@@ -273,6 +273,41 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     from .loopbuild import build_loop
 
     return build_loop(loop, out, only=only, fmus=fmus)
+
+
+def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
+    """Write the controller of ``loop`` as plain C for an embedded target: ``out/prefix.h``
+    and ``out/prefix.c`` (C99, no heap, no I/O, no global state), with ``prefix_init``,
+    ``prefix_sample`` and ``prefix_output`` (the header documents them and their return
+    codes). ``delaycomp export-c LOOP.toml --prefix NAME --out DIR`` on the command line;
+    ``docs/howto/microcontroller.md`` shows a firmware loop.
+
+    Parameters
+    ----------
+    loop : Loop
+        A loop whose controller is delaycomp's (LTI, or a model file's).
+    out : path
+        The folder (created).
+    prefix : str
+        A C identifier: the files' names and every exported name start with it.
+
+    Returns
+    -------
+    list of Path
+        ``[out/prefix.h, out/prefix.c]``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from delaycomp import api
+    >>> loop = api.lti([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[-1.0, -1.6]], T=0.2,
+    ...                r=0.36, tau=0.4, N=20, x0=[1.0, 0.0], name="dbl")
+    >>> [p.name for p in api.export_c(loop, tempfile.mkdtemp(), "dbl")]
+    ['dbl.h', 'dbl.c']
+    """
+    from .exportc import export_c as _export_c
+
+    return _export_c(loop, out, prefix)
 
 
 def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,

@@ -32,6 +32,10 @@ The whole loop of Example 3.6 as one container FMU::
 
     delaycomp export-loop example-3.6 --set r=0.3 --out loop.fmu
 
+A loop's controller as plain C for a microcontroller (ctl.h, ctl.c)::
+
+    delaycomp export-c my_loop.toml --prefix ctl --out firmware/
+
 List the scenarios and their parameters::
 
     delaycomp list
@@ -264,6 +268,25 @@ def _parser() -> argparse.ArgumentParser:
                    help="the container FMU to write")
     _fmu_kind(e, "the container holds the native C FMUs, an error where the loop has "
                  "none (the default holds them where it can)")
+
+    c = sub.add_parser("export-c",
+                       help="write a loop's controller as plain C for an embedded target "
+                            "(NAME.h, NAME.c: C99, no heap, no I/O, no global state)",
+                       description="The controller of a scenario's or a loop file's loop "
+                                   "as DIR/NAME.h and DIR/NAME.c: NAME_init, NAME_sample "
+                                   "(the measurement of each sample instant), NAME_output "
+                                   "(the control at each base time); the loop's values are "
+                                   "constants. See docs/howto/microcontroller.md.")
+    c.add_argument("scenario", help=SCENARIO_HELP + " or LOOP.toml")
+    c.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
+                   help="set a scenario parameter or a loop file's key (repeatable)")
+    c.add_argument("--allow-unstable", action="store_true",
+                   help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
+                        "loop is unstable (the sign guard; see README: loop files)")
+    c.add_argument("--prefix", required=True, metavar="NAME",
+                   help="the C prefix of the files and of every exported name")
+    c.add_argument("--out", required=True, type=Path, metavar="DIR",
+                   help="the folder to write NAME.h and NAME.c into (created)")
 
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
@@ -834,6 +857,19 @@ def _cmd_export_loop(args) -> int:
     return 0
 
 
+def _cmd_export_c(args) -> int:
+    from .exportc import check_prefix, export_c
+
+    check_prefix(args.prefix)  # before the loop: the cheaper refusal first
+    if str(args.scenario).endswith(".ssp"):
+        raise UsageError(f"{args.scenario}: export-c takes a loop file or a scenario name, "
+                         "not an SSP archive")
+    _, _, loop = _loop(args)
+    for path in export_c(loop, args.out, args.prefix):
+        print(path)
+    return 0
+
+
 def _native_fmus(spec, fmu_dir):
     """The native FMUs of ``spec`` (``--native``); a loop without native twins is a usage
     error."""
@@ -939,6 +975,7 @@ def main(argv: list[str] | None = None) -> int:
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
+                   "export-c": _cmd_export_c,
                    "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
         rc = handler(args)
         _platform_notes(args)

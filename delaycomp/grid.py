@@ -31,6 +31,8 @@ GRID_RTOL = 1e-9
 #: (a huge delay, a tiny step) must be refused, not allocate until the host is killed.
 #: 10^6 steps of a scalar signal take about 80 MB once filled.
 MAX_STEPS = 1_000_000
+#: the unit round-off of a double (2^-52): :func:`same_step`'s allowance for the host's times
+_EPS = 2.0 ** -52
 
 
 def nearest_multiple(value: float, step: float) -> int | None:
@@ -64,22 +66,25 @@ def on_grid_array(values, step):
                                      <= GRID_RTOL * np.maximum(1.0, np.abs(ratio)))
 
 
-def same_step(step: float, h: float) -> bool:
+def same_step(step: float, h: float, t: float = 0.0) -> bool:
     """Is ``step`` the step ``h`` of an FMU's own grid, up to round-off of the host's times?
 
     The one rule by which an FMU that keeps something per step size (the plant's
     discretization ``Ad(h), Bd(h)``, the delay's line of ``delay / h`` steps) decides that
-    a communication step is the one it already knows: ``|step - h| <= GRID_RTOL h``. The
-    native FMUs use the same arithmetic (``same_step`` of ``fmus/native/fmi2.c``).
+    a communication step ``(t, step)`` is the one it already knows: ``|step - h| <=
+    GRID_RTOL h + 8 eps max(|t|, |t + step|)``, the grid's tolerance and the round-off of
+    the host's times near ``t``. The native FMUs use the same arithmetic (``same_step`` of
+    ``fmus/native/fmi2.c``).
 
     A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes
     steps ``t_{k+1} - t_k = h (1 + d)``: each time is rounded (``k h``, then ``t0 + k h``,
     each off by ``eps / 2`` of itself, ``eps = 2^-52``) and so is their difference, so
-    ``|d| <= (2 k + 3 + |t0| / h) eps``, and ``|d| <= (k + 1) eps`` from ``t0 = 0``: far
-    inside :data:`GRID_RTOL` for runs shorter than ``GRID_RTOL / eps``, about 4.5 million
-    steps (longer, the plant discretizes every step, exactly; the delay refuses them).
-    Reusing the plant's ``Ad(h)`` for a step ``h (1 + d)`` errs by ``~ |d| h |x'|`` against
-    that step, and not at all against the grid ``t0 + k h`` the host means.
+    ``|d| <= (2 k + 3 + |t0| / h) eps``, and ``|d| <= (k + 1) eps`` from ``t0 = 0``; in
+    absolute terms ``|d| h`` is a few ulps of ``t``, which the second term covers however
+    long the run or far from 0 its start (from ``t = 1e5`` with ``h = 0.005``, ``d`` is
+    ``3e-9``, beyond :data:`GRID_RTOL` alone). Reusing the plant's ``Ad(h)`` for a step
+    ``h (1 + d)`` errs by ``~ |d| h |x'|`` against that step, and not at all against the
+    grid ``t0 + k h`` the host means.
 
     Parameters
     ----------
@@ -87,11 +92,14 @@ def same_step(step: float, h: float) -> bool:
         The communication step the host passed (finite, > 0).
     h : float
         The step the FMU keys its data on (> 0).
+    t : float
+        Where the step starts (the round-off of the host's times grows with ``|t|``).
 
     Returns
     -------
     bool
-        True when ``step`` is ``h`` up to :data:`GRID_RTOL` relative to ``h``.
+        True when ``step`` is ``h`` up to :data:`GRID_RTOL` relative to ``h`` and the
+        round-off of the times near ``t``.
 
     Examples
     --------
@@ -100,8 +108,12 @@ def same_step(step: float, h: float) -> bool:
     [True, True, True]
     >>> same_step(h * (1 + 1e-12), h), same_step(h * (1 + 1e-6), h), same_step(h / 2, h)
     (True, False, False)
+    >>> h = 0.005
+    >>> step = (1e5 + 2 * h) - (1e5 + h)   # 3e-9 h off: the round-off of times near 1e5
+    >>> same_step(step, h), same_step(step, h, 1e5 + h)
+    (False, True)
     """
-    return abs(step - h) <= GRID_RTOL * h
+    return abs(step - h) <= GRID_RTOL * h + 8 * _EPS * max(abs(t), abs(t + step))
 
 
 def check_steps(name: str, value: float, steps: float, unit: str) -> None:

@@ -60,7 +60,7 @@ MODEL_KINDS: dict[str, str] = {"model_plant": "model_plant.c",
 MODEL_SOURCES = ("ode.c", "model_common.c")
 MODEL_HEADERS = ("ode.h", "model_common.h")
 COMMON_SOURCES = ("fmi2.c", "linalg.c")
-COMMON_HEADERS = ("native.h",)
+COMMON_HEADERS = ("native.h", "linalg.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
           "-Werror")
@@ -634,7 +634,7 @@ def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
 
 def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
               timing: bool = False, exact_grid: bool = False,
-              platform: str | None = None) -> list[str]:
+              platform: str | None = None, start: float = 0.0) -> list[str]:
     """The C host's command line for the LTI loop ``loop`` (a
     :class:`~delaycomp.system.loop.Loop`, scalar or with vectors) with the FMUs unpacked
     in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
@@ -650,12 +650,15 @@ def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
         The host was built for this platform (:func:`compile_host`): the command starts
         with its emulator (:func:`emulator`; its environment is the caller's to pass) and
         names the folders as the emulated program sees them.
+    start : float
+        The start time ``t0`` (``--start=T0``); the run ends at ``stop``, an absolute time.
     """
     sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
             for inst in loop.instances for k, v in inst.parameters.items()]
     prefix = emulator(platform)[0] if platform is not None else []
     return [*prefix, str(exe), *(["--timing"] if timing else []),
-            *(["--exact-grid"] if exact_grid else []), repr(stop), repr(loop.T / loop.N),
+            *(["--exact-grid"] if exact_grid else []),
+            *([f"--start={start!r}"] if start else []), repr(stop), repr(loop.T / loop.N),
             *(f"{n}={_host_path(dirs[n], platform)}"
               for n in ("plant", "meas_delay", "controller", "input_delay")),
             *sets]

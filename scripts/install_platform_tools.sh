@@ -2,11 +2,13 @@
 # The tools that build and run the native FMUs' other platforms (Debian/Ubuntu, as root):
 # the mingw-w64 and aarch64 cross-compilers (win64 and aarch64-linux binaries in every
 # native FMU), wine and qemu-user (the tests run the C host built for those platforms),
-# clang (the FMUs' sources are compiled alone with gcc and clang) and valgrind.
+# clang (the FMUs' sources are compiled alone with gcc and clang), valgrind, and the
+# bare-metal Arm compiler with its C library (gcc-arm-none-eabi, libnewlib-arm-none-eabi:
+# `delaycomp export-c` controllers are built for a Cortex-M4).
 # .ci/run calls it; the tests that need a tool say in pytest's summary when it is missing.
 # Best effort: a package that cannot be installed is reported, and the script goes on.
 set -u
-PACKAGES="gcc-mingw-w64-x86-64 gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user wine wine64 clang valgrind"
+PACKAGES="gcc-mingw-w64-x86-64 gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user wine wine64 clang valgrind gcc-arm-none-eabi libnewlib-arm-none-eabi"
 missing=""
 for p in $PACKAGES; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"

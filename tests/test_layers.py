@@ -24,7 +24,7 @@ LAYERS = {
     # 2: FMU adapters, builds, masters, formats
     "delaycomp.fmuslave": 2, "delaycomp.fmus": 2, "delaycomp.build": 2,
     "delaycomp.orchestrator": 2, "delaycomp.simulate": 2, "delaycomp.ssp": 2,
-    "delaycomp.native": 2, "delaycomp.loopbuild": 2,
+    "delaycomp.native": 2, "delaycomp.loopbuild": 2, "delaycomp.exportc": 2,
     "delaycomp.plotting": 2, "delaycomp.outputs": 2, "delaycomp.progress": 2,
     # 3: studies
     "delaycomp.sweep": 3, "delaycomp.critical": 3, "delaycomp.sweep_batch": 3,

@@ -112,14 +112,16 @@ def test_exact_grid_steps_differ_from_h_but_are_on_the_grid():
     ``h`` for :func:`same_step`: ``t_i`` is ``i h`` and ``t0 + i h`` rounded (each off by
     ``eps / 2`` of itself at most), and the difference rounded once more, so
     ``|t_{i+1} - t_i - h| <= (2 i + 3 + t0 / h) eps h``."""
-    for t0 in (0.0, 0.3, 1000.0):
+    for t0 in (0.0, 0.3, 1000.0, 1e6):
         steps = _exact_grid_steps(t0, H, K)
         assert len(set(steps)) > 1
-        assert all(same_step(s, H) for s in steps)
+        # the round-off of the times near t: from t0 = 1e6 beyond GRID_RTOL H alone
+        assert all(same_step(s, H, t0 + i * H) for i, s in enumerate(steps))
+        assert all(same_step(s, H) for s in steps) == (t0 < 1e6)
         assert all(abs(s - H) <= (2 * i + 3 + t0 / H) * EPS * H for i, s in enumerate(steps))
 
 
-@pytest.mark.parametrize("t0", [0.0, 0.3, 1000.0])
+@pytest.mark.parametrize("t0", [0.0, 0.3, 1000.0, 1e6])
 def test_an_exact_grid_gives_the_trajectory_of_constant_steps(plant_fmu, t0):
     steps = _exact_grid_steps(t0, H, K)
     h1 = steps[0]

@@ -95,7 +95,7 @@ class DelaycompDelay(TableSlave):
             self._h = step_size
         elif is_roundoff_step(step_size, self._h):
             return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
-        elif not same_step(step_size, self._h):
+        elif not same_step(step_size, self._h, t):
             # round-off is not another step size: libcosim keeps time in integer
             # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "

@@ -87,22 +87,24 @@ int model_setup(Instance *c) {
     if (alloc_buf(c, nE + nQ + (size_t)L * NU) != 0) return -1;
     double *E = c->buf, *QB = c->buf + nE, *hist = QB + nQ;
     const double *A = &d->real[VR_A], *B = &d->real[VR_B];
-    double *work = calloc(2 * nE + 2 * (size_t)NX * NU + nE, sizeof(double));
+    /* initialization's own work memory, freed below (nothing is allocated while stepping) */
+    size_t nwork = flow_work_size(NX, NU);
+    double *work = calloc(3 * nE + 2 * (size_t)NX * NU + nwork, sizeof(double));
     if (work == NULL) {
         log_error(c, "out of memory computing the predictor");
         return -1;
     }
     double *ET = work, *power = work + nE, *GT = work + 2 * nE, *G = GT + (size_t)NX * NU,
-           *tmp = G + (size_t)NX * NU;
+           *tmp = G + (size_t)NX * NU, *scratch = tmp + nE;
     double *As = tmp;  /* A (r + tau), then scratch */
     for (size_t k = 0; k < nE; k++) As[k] = A[k] * (r + tau);
-    int fail = expm(As, NX, E);
-    fail |= flow(A, B, NX, NU, T, ET, GT);
+    expm(As, NX, E, scratch);  /* expm_work_size(n) <= flow_work_size(n, m) */
+    flow(A, B, NX, NU, T, ET, GT, scratch);
     for (size_t i = 0; i < NX; i++)
         for (size_t j = 0; j < NX; j++) power[i * NX + j] = i == j ? 1.0 : 0.0;
     size_t stride = (size_t)NU * (size_t)L;  /* QB is NX x (NU L), [Q_1 B, Q_2 B, ...] */
-    for (long p = 0; p < L && !fail; p++) {
-        if (p == L - 1) fail |= flow(A, B, NX, NU, rt, tmp, G);  /* tmp: e^{A r~}, unused */
+    for (long p = 0; p < L; p++) {
+        if (p == L - 1) flow(A, B, NX, NU, rt, tmp, G, scratch);  /* tmp: e^{A r~}, unused */
         const double *Gp = p == L - 1 ? G : GT;
         for (size_t i = 0; i < NX; i++) {
             for (size_t j = 0; j < NU; j++) {
@@ -117,10 +119,6 @@ int model_setup(Instance *c) {
         }
     }
     free(work);
-    if (fail) {
-        log_error(c, "out of memory computing the predictor");
-        return -1;
-    }
     if (compensated(c)) {
         int finite = 1;
         for (size_t k = 0; k < nE + nQ; k++) finite &= isfinite(c->buf[k]) != 0;

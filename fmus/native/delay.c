@@ -70,7 +70,7 @@ int model_step(Instance *c, double t, double h) {
         m->has_line = 1;
     } else if (h <= ROUNDOFF_STEP_FRACTION * m->h) {
         return 0;  /* the master's round-off (delaycomp.fmuslave.is_roundoff_step): nothing moves */
-    } else if (!same_step(h, m->h)) {
+    } else if (!same_step(h, m->h, t)) {
         log_error(c, "step size %s is not allowed: this delay runs on a fixed communication "
                   "step, %s", num(h).s, num(m->h).s);
         return -1;

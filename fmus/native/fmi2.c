@@ -11,6 +11,7 @@
  * continues bit-identically; it serializes to a self-checking byte string.
  * Memory: the C library's calloc/free (canNotUseMemoryManagementFunctions = true).
  */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdint.h>
@@ -43,28 +44,15 @@ static const char *state_name(FsmState s) {
 }
 
 /* ---- logging ------------------------------------------------------------------------ */
+/* The message is formatted on the stack (nothing allocated; a message longer than the
+ * buffer is cut and ends in "..."). */
 static void vlog(Instance *c, fmi2Status status, const char *category, const char *fmt,
                  va_list ap) {
-    char stack[1024];
-    va_list copy;
-    va_copy(copy, ap);
-    int len = vsnprintf(stack, sizeof stack, fmt, copy);
-    va_end(copy);
+    char text[TEXT_MAX + 2048];
+    int len = vsnprintf(text, sizeof text, fmt, ap);
     if (len < 0 || c->cb.logger == NULL) return;
-    if ((size_t)len < sizeof stack) {
-        c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s",
-                     stack);
-        return;
-    }
-    char *heap = malloc((size_t)len + 1);
-    if (heap == NULL) {  /* the message, cut: better than none */
-        c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s",
-                     stack);
-        return;
-    }
-    vsnprintf(heap, (size_t)len + 1, fmt, ap);
-    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", heap);
-    free(heap);
+    if ((size_t)len >= sizeof text) memcpy(text + sizeof text - 4, "...", 4);
+    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", text);
 }
 
 void log_error(Instance *c, const char *fmt, ...) {
@@ -155,17 +143,29 @@ char *matrix_text(const double *a, size_t rows, size_t cols) {
     return buf;
 }
 
-char *vector_text(const double *v, size_t n) {
-    char *buf = NULL;
-    size_t len = 0, cap = 0;
-    int bad = append(&buf, &len, &cap, "[");
-    for (size_t j = 0; j < n && !bad; j++) {
-        if (j) bad |= append(&buf, &len, &cap, ", ");
-        bad |= append(&buf, &len, &cap, num(v[j]).s);
+/* text += add, within TEXT_MAX (then cut, ending in "..."); -1 once cut */
+static int append_fixed(Text *text, size_t *len, const char *add) {
+    size_t n = strlen(add);
+    if (*len + n + 1 > TEXT_MAX - 4) {
+        memcpy(text->s + *len, "...", 4);
+        *len += 3;
+        return -1;
     }
-    bad |= append(&buf, &len, &cap, "]");
-    if (bad) { free(buf); return NULL; }
-    return buf;
+    memcpy(text->s + *len, add, n + 1);
+    *len += n;
+    return 0;
+}
+
+Text vector_text(const double *v, size_t n) {
+    Text text;
+    size_t len = 0;
+    int cut = append_fixed(&text, &len, "[");
+    for (size_t j = 0; j < n && !cut; j++) {
+        if (j) cut = append_fixed(&text, &len, ", ");
+        if (!cut) cut = append_fixed(&text, &len, num(v[j]).s);
+    }
+    if (!cut) append_fixed(&text, &len, "]");
+    return text;
 }
 
 int check_real_parameters_finite(Instance *c) {
@@ -218,10 +218,8 @@ int check_control_finite(Instance *c, const double *u, const double *y, double t
     for (size_t j = 0; j < NU; j++) finite &= isfinite(u[j]) != 0;
     for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
     if (finite || !y_finite) return 0;
-    char *text = vector_text(u, NU);
     log_error(c, "control %s = %s at t = %s is not allowed: must be finite (%s)",
-              OUTPUT_NAMES, text ? text : "[...]", num(t).s, why);
-    free(text);
+              OUTPUT_NAMES, vector_text(u, NU).s, num(t).s, why);
     return -1;
 }
 
@@ -232,7 +230,6 @@ int check_step(Instance *c, double t, double h) {
     return -1;
 }
 
-int same_step(double step, double h) { return fabs(step - h) <= GRID_RTOL * h; }
 
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
     for (size_t k = 0; k < count; k++) {
@@ -244,6 +241,10 @@ int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, dou
         }
     }
     return 0;
+}
+
+int same_step(double step, double h, double t) {
+    return fabs(step - h) <= GRID_RTOL * h + 8 * DBL_EPSILON * fmax(fabs(t), fabs(t + step));
 }
 
 int alloc_buf(Instance *c, size_t n) {
@@ -797,7 +798,7 @@ static int model_state_ok(const Data *d, size_t nbuf) {
     return d->m.D >= 0 && (size_t)d->m.D * NX == nbuf &&
            (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
 #elif defined(KIND_PLANT)
-    return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU;
+    return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU);
 #elif defined(KIND_MODEL_PLANT)
     return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
                          d->m.branch < MODEL_NBRANCH);

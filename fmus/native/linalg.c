@@ -8,15 +8,14 @@
  * 1 x 1 case is exp(), and the 2 x 2 upper triangular case with a zero in the corner
  * (Van Loan's augmented matrix of a scalar plant) is its closed form, as scipy's expm
  * also computes it exactly. Checked against scipy.linalg.expm in tests/test_native.py.
+ * Nothing is allocated: the caller hands the work memory (linalg.h).
  */
 #include <math.h>
-#include <stdlib.h>
 #include <string.h>
 
-#include "native.h"
+#include "linalg.h"
 
 void matmul(const double *a, const double *b, size_t n, size_t k, size_t m, double *out) {
-    /* out (n x m) = a (n x k) b (k x m); out must not alias a or b */
     for (size_t i = 0; i < n; i++) {
         for (size_t j = 0; j < m; j++) {
             double s = 0.0;
@@ -81,11 +80,13 @@ static const double THETA[] = {1.495585217958292e-2, 2.539398330063230e-1,
                                9.504178996162932e-1, 2.097847961257068e0,
                                5.371920351148152e0};
 
-int expm(const double *a, size_t n, double *out) {
-    if (n == 0) return 0;
+size_t expm_work_size(size_t n) { return 7 * n * n; }
+
+void expm(const double *a, size_t n, double *out, double *work) {
+    if (n == 0) return;
     if (n == 1) {
         out[0] = exp(a[0]);
-        return 0;
+        return;
     }
     if (n == 2 && a[2] == 0.0 && a[3] == 0.0) {  /* [[x, y], [0, 0]]: closed form */
         double x = a[0], y = a[1];
@@ -93,11 +94,10 @@ int expm(const double *a, size_t n, double *out) {
         out[1] = x == 0.0 ? y : y * (expm1(x) / x);
         out[2] = 0.0;
         out[3] = 1.0;
-        return 0;
+        return;
     }
     size_t nn = n * n;
-    double *w = calloc(7 * nn, sizeof(double));
-    if (w == NULL) return -1;
+    double *w = work;
     double *A = w, *A2 = w + nn, *A4 = w + 2 * nn, *A6 = w + 3 * nn, *U = w + 4 * nn,
            *V = w + 5 * nn, *T = w + 6 * nn;
     memcpy(A, a, nn * sizeof(double));
@@ -161,25 +161,22 @@ int expm(const double *a, size_t n, double *out) {
         matmul(out, out, n, n, n, T);
         memcpy(out, T, nn * sizeof(double));
     }
-    free(w);
-    return 0;
 }
 
-int flow(const double *A, const double *B, size_t n, size_t m, double s, double *E,
-         double *G) {
+size_t flow_work_size(size_t n, size_t m) { return 9 * (n + m) * (n + m); }
+
+void flow(const double *A, const double *B, size_t n, size_t m, double s, double *E,
+          double *G, double *work) {
     size_t N = n + m;
-    double *M = calloc(2 * N * N, sizeof(double));
-    if (M == NULL) return -1;
-    double *F = M + N * N;
+    double *M = work, *F = M + N * N;
+    memset(M, 0, N * N * sizeof(double));
     for (size_t i = 0; i < n; i++) {
         for (size_t j = 0; j < n; j++) M[i * N + j] = A[i * n + j] * s;
         for (size_t j = 0; j < m; j++) M[i * N + n + j] = B[i * m + j] * s;
     }
-    if (expm(M, N, F) != 0) { free(M); return -1; }
+    expm(M, N, F, F + N * N);
     for (size_t i = 0; i < n; i++) {
         for (size_t j = 0; j < n; j++) E[i * n + j] = F[i * N + j];
         for (size_t j = 0; j < m; j++) G[i * m + j] = F[i * N + n + j];
     }
-    free(M);
-    return 0;
 }

@@ -7,7 +7,12 @@
 
 #include "native.h"
 
-#define MAX_ODE_STEPS 100000L  /* delaycomp.predictors._MAX_STEPS */
+/* The work bound of the numerical flows: a plant step, a prediction (all the segments of
+ * its window together) and the controller's own copy of the plant over one base step may
+ * each try at most MAX_ODE_STEPS + 1 DOP853 steps (12 evaluations of f each, and 2 more
+ * per segment); one that would need more is refused ("larger nsteps is needed"). The
+ * Python FMUs give each segment this budget (delaycomp.predictors._MAX_STEPS). */
+#define MAX_ODE_STEPS 100000L
 
 /* The model's numeric parameters in the order of gen_*'s p, T last (NaN where the FMU has
  * no such parameter: the plant has no T). */

@@ -242,21 +242,14 @@ typedef struct {
     const char *reason;
 } SolveFailure;
 
-static char *failure_text(const SolveFailure *f) {
-    char *input = vector_text(f->u, NU);
-    size_t size = strlen(f->reason) + (input ? strlen(input) : 8) + 96;
-    char *text = malloc(size);
-    if (text != NULL)
-        snprintf(text, size, "ODE solve failed %.6g s into a window (input %s): %s",
-                 f->elapsed, input ? input : "[...]", f->reason);
-    free(input);
-    return text;
-}
+/* the message is logged with log_error's format: nothing allocated */
+#define FAILURE_FORMAT "ODE solve failed %.6g s into a window (input %s): %s"
+#define FAILURE_ARGS(f) (f)->elapsed, vector_text((f)->u, NU).s, (f)->reason
 
 /* x <- the flow of x' = f(x, u) over `duration` (u held): the exact step, else DOP853.
  * 0, or -1 with *why filled. */
 static int model_flow(Instance *c, double *x, const double *u, double duration, const double *p,
-                int exact, const char **why) {
+                int exact, long *budget, const char **why) {
     if (exact) {
 #if MODEL_HAS_STEP
         double *next = scratch(c) + NX;
@@ -273,9 +266,15 @@ static int model_flow(Instance *c, double *x, const double *u, double duration, 
     double u_size = 0.0;
     for (size_t j = 0; j < NU; j++) u_size = fmax(u_size, fabs(u[j]));
     double tol = c->d.real[VR_TOL];
+    if (*budget < 1) {  /* the budget of the whole window is spent (model_common.h) */
+        *why = ode_reason(ODE_MAX_STEPS);
+        return -1;
+    }
     OdeReport rep;
-    if (ode_solve(model_rhs, &ctx, NX, x, duration, tol, tol, MAX_ODE_STEPS, u_size,
-                  ode_work(c), &rep) != ODE_OK) {
+    int code = ode_solve(model_rhs, &ctx, NX, x, duration, tol, tol, *budget, u_size,
+                         ode_work(c), &rep);
+    *budget -= rep.steps;
+    if (code != ODE_OK) {
         *why = rep.reason;
         return -1;
     }
@@ -291,6 +290,7 @@ static int predict(Instance *c, const double *y, const double *p, double *x,
     if (m->predictor == PREDICT_NONE) return 0;
     const double *hist = history(c);
     double elapsed = 0.0;
+    long budget = MAX_ODE_STEPS;  /* DOP853 steps of the whole window (model_common.h) */
     for (long j = 0; j < m->W;) {
         const double *u = hist + (size_t)((m->hist_head + j) % m->W) * NU;
         long count = 1;
@@ -299,7 +299,8 @@ static int predict(Instance *c, const double *y, const double *p, double *x,
             count++;
         double duration = (double)count * m->h;
         const char *why = "";
-        if (model_flow(c, x, u, duration, p, m->predictor == PREDICT_CLOSED, &why) != 0) {
+        if (model_flow(c, x, u, duration, p, m->predictor == PREDICT_CLOSED, &budget,
+                       &why) != 0) {
             fail->elapsed = elapsed;
             fail->u = u;
             fail->reason = why;
@@ -375,10 +376,8 @@ static int output(Instance *c, const double **u) {
     }
     SolveFailure fail;
     if (evaluate(c, &fail) != 0) {
-        char *why = failure_text(&fail);
-        log_error(c, "computing the control at t = %s failed: IntegrationError: %s",
-                  num(sample_time(c)).s, why ? why : "ODE solve failed");
-        free(why);
+        log_error(c, "computing the control at t = %s failed: IntegrationError: "
+                  FAILURE_FORMAT, num(sample_time(c)).s, FAILURE_ARGS(&fail));
         *u = NULL;
         return -1;
     }
@@ -412,16 +411,15 @@ static int advance(Instance *c, double t) {
         model_parameters(c, p);
         memcpy(m->z, m->cache_z, NX * sizeof(double));
         const char *why = "";
-        if (model_flow(c, m->z, m->cache_u, m->h, p, MODEL_HAS_STEP, &why) != 0) {
+        long budget = MAX_ODE_STEPS;
+        if (model_flow(c, m->z, m->cache_u, m->h, p, MODEL_HAS_STEP, &budget, &why) != 0) {
             fail = (SolveFailure){0.0, m->cache_u, why};
             failed = 1;
         }
     }
     if (failed) {
-        char *why = failure_text(&fail);
-        log_error(c, "predictor ODE solve at t = %s failed: %s", num(t).s,
-                  why ? why : "ODE solve failed");
-        free(why);
+        log_error(c, "predictor ODE solve at t = %s failed: " FAILURE_FORMAT, num(t).s,
+                  FAILURE_ARGS(&fail));
         return -1;
     }
     const double *u = m->cache_u;
@@ -449,7 +447,8 @@ int model_step(Instance *c, double t, double hs) {
     double slack = 1e-9 * fmax(T, fabs(t));
     /* the master's round-off (delaycomp.fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves */
     if (hs <= ROUNDOFF_STEP_FRACTION * m->h && fabs(t + hs - expected) <= slack) return 0;
-    if (fabs(hs - m->h) > 1e-9 * m->h || fabs(t - expected) > slack) {
+    /* the step is h up to the round-off of the host's times (grid_step) */
+    if (!same_step(hs, m->h, t) || fabs(t - expected) > slack) {
         log_error(c, "step (%s, %s) is not allowed: this controller steps from %s by exactly "
                   "T/N = %s", num(t).s, num(hs).s, num(expected).s, num(m->h).s);
         return -1;

@@ -69,20 +69,16 @@ int model_step(Instance *c, double t, double h) {
     const char *reason = rep.reason;
 #endif
     if (failed) {
-        char *text = vector_text(u, NU);
         log_error(c, "plant step at t = %s failed: ODE solve failed 0 s into a window "
-                  "(input %s): %s", num(t).s, text ? text : "[...]", reason);
-        free(text);
+                  "(input %s): %s", num(t).s, vector_text(u, NU).s, reason);
         return -1;
     }
     int bad = 0;
     for (size_t i = 0; i < NX; i++) bad |= !isfinite(x[i]);
     if (bad) {
-        char *text = vector_text(u, NU);
         log_error(c, "state %s at t = %s is not allowed: must be finite (the plant "
                   "diverged: the state is not finite after the step (input %s))",
-                  OUTPUT_NAMES, num(t + h).s, text ? text : "[...]");
-        free(text);
+                  OUTPUT_NAMES, num(t + h).s, vector_text(u, NU).s);
         return -1;
     }
     memcpy(&d->real[VR_X], x, NX * sizeof(double));

@@ -13,6 +13,7 @@
 
 #include "fmi2Functions.h"
 #include "config.h"
+#include "linalg.h"
 
 #define STRING_MAX 256       /* longest String parameter value, terminator included */
 #define GRID_RTOL 1e-9       /* delaycomp.grid.GRID_RTOL */
@@ -121,8 +122,12 @@ void log_info(Instance *c, const char *fmt, ...)
 /* A number written as Python's repr writes it (for the messages of the Python FMUs). */
 typedef struct { char s[40]; } Num;
 Num num(double v);
-/* "[1.0, 2.0]" / "[[1.0], [2.0]]" in a malloc'd string (NULL when out of memory). */
-char *vector_text(const double *v, size_t n);
+/* "[1.0, 2.0]" in a fixed buffer (nothing allocated: the messages of a step; a text
+ * longer than TEXT_MAX - 1 ends in "..."). */
+#define TEXT_MAX 4096
+typedef struct { char s[TEXT_MAX]; } Text;
+Text vector_text(const double *v, size_t n);
+/* "[[1.0], [2.0]]" in a malloc'd string (NULL when out of memory): initialization only. */
 char *matrix_text(const double *a, size_t rows, size_t cols);
 /* Check finite the Real parameters, in value-reference order; log and return -1 if not. */
 int check_real_parameters_finite(Instance *c);
@@ -146,17 +151,16 @@ int check_control_finite(Instance *c, const double *u, const double *y, double t
                          const char *why);
 /* A step must be finite and > 0 from a finite time (the Python FMUs' message). */
 int check_step(Instance *c, double t, double h);
-/* Is `step` the step h an FMU keys its data on, up to round-off of the host's times:
- * |step - h| <= GRID_RTOL h (delaycomp.grid.same_step, the same arithmetic)? */
-int same_step(double step, double h);
+/* Is the step (t, step) the step h an FMU keys its data on (its own grid), up to the
+ * round-off of the host's times: |step - h| <= GRID_RTOL h + 8 eps max(|t|, |t + step|)
+ * (delaycomp.grid.same_step, the same arithmetic)? A host that keeps time as t0 + k h
+ * passes steps t_{k+1} - t_k that differ from h by a few ulps of t: far from 0 more than
+ * GRID_RTOL h (from t = 1e5 with h = 0.005, 3e-9 h), never more than this. */
+int same_step(double step, double h, double t);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
 
-/* The maths (linalg.c). Row-major n x n matrices. */
-int expm(const double *a, size_t n, double *out);   /* -1: out of memory */
-/* x(s) = E x(0) + G u for x' = A x + B u, u constant: E = e^{As}, G = int_0^s e^{Aw} dw B */
-int flow(const double *A, const double *B, size_t n, size_t m, double s, double *E, double *G);
-void matmul(const double *a, const double *b, size_t n, size_t k, size_t m, double *out);
+/* The maths (linalg.c, linalg.h): expm, flow, matmul, with the caller's work memory. */
 
 /* The model (delay.c, plant.c or controller.c). Each returns 0, or -1 with a logged error. */
 int model_setup(Instance *c);                      /* at fmi2ExitInitializationMode */

@@ -108,9 +108,9 @@ static const double ER[STAGES] = {
     0.3341791187130174790297318841, 0.8192320648511571246570742613e-1,
     -0.2235530786388629525884427845e-1};
 
-size_t ode_work_size(size_t n) { return (STAGES + 5) * n; }
+ODE_API size_t ode_work_size(size_t n) { return (STAGES + 5) * n; }
 
-const char *ode_reason(int code) {
+ODE_API const char *ode_reason(int code) {
     switch (code) {
     case ODE_OK: return "";
     case ODE_BAD_INPUT: return "input is not consistent";
@@ -271,7 +271,7 @@ static int dop853(Rhs *r, double *y, double xend, double rtol, double atol, long
     }
 }
 
-int ode_solve(ode_rhs f, void *ctx, size_t n, double *x, double duration, double rtol,
+ODE_API int ode_solve(ode_rhs f, void *ctx, size_t n, double *x, double duration, double rtol,
               double atol, long max_steps, double u_size, double *work, OdeReport *report) {
     OdeReport local;
     if (report == NULL) report = &local;

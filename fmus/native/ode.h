@@ -8,6 +8,13 @@
 
 #include <stddef.h>
 
+/* The linkage of the three functions: empty (external) for the FMUs; `delaycomp export-c`
+ * defines it `static` and puts this file and ode.c into the controller's own C file, so
+ * two exported controllers link into one program. */
+#ifndef ODE_API
+#define ODE_API
+#endif
+
 /* The right-hand side: dx = f(x). Returns 0 on success, non-zero if f failed. x and dx
  * are n doubles each and never alias. */
 typedef int (*ode_rhs)(void *ctx, const double *x, double *dx);
@@ -40,10 +47,10 @@ typedef struct {
 } OdeReport;
 
 /* Doubles of work memory that ode_solve needs for n states. */
-size_t ode_work_size(size_t n);
+ODE_API size_t ode_work_size(size_t n);
 
 /* The message of a return code ("" for ODE_OK). */
-const char *ode_reason(int code);
+ODE_API const char *ode_reason(int code);
 
 /* Solve x' = f(x) from x over [0, duration] with DOP853 (rtol, atol: the scaled error
  * sk_i = atol + rtol max(|x_i|, |x_new_i|) of each step is held to 1 in the RMS norm),
@@ -52,7 +59,7 @@ const char *ode_reason(int code);
  * tiny states. On success (ODE_OK) x holds the state at the end; on failure x is left
  * unchanged. duration <= 0 is a no-op (ODE_OK, f not called). work: ode_work_size(n)
  * doubles, not aliasing x. report may be NULL. */
-int ode_solve(ode_rhs f, void *ctx, size_t n, double *x, double duration, double rtol,
+ODE_API int ode_solve(ode_rhs f, void *ctx, size_t n, double *x, double duration, double rtol,
               double atol, long max_steps, double u_size, double *work, OdeReport *report);
 
 #endif

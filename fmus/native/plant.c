@@ -1,6 +1,7 @@
 /* DelaycompPlantLTI, native: x' = A x + B u, u held over each step, exactly discretized:
  * x_{k+1} = Ad x_k + Bd u_k, [Ad Bd; 0 I] = expm([A B; 0 0] h), recomputed only for a
- * step that is not the cached one up to GRID_RTOL (same_step). The twin of
+ * step that is not the cached one up to GRID_RTOL and the round-off of the host's times
+ * (same_step). Nothing is allocated after initialization. The twin of
  * fmus/plant/delaycomp_plant_lti.py: same variables, checks and messages. */
 #include <math.h>
 #include <stdlib.h>
@@ -13,8 +14,10 @@ int model_setup(Instance *c) {
     memcpy(&c->d.real[VR_X], &c->d.real[VR_X0], NX * sizeof(double));
     c->d.m.has_h = 0;
     c->d.m.h = 0.0;
-    return alloc_buf(c, (size_t)NX * NX + (size_t)NX * NU);
+    /* Ad, Bd and the work memory of flow(): allocated here, once (nothing while stepping) */
+    return alloc_buf(c, (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU));
 }
+
 
 int model_output(Instance *c, fmi2ValueReference vr, double *value) {
     *value = c->d.real[vr];
@@ -28,14 +31,13 @@ int model_step(Instance *c, double t, double h) {
     if (check_step(c, t, h) != 0) return -1;
     if (check_inputs_finite(c, VR_U, NU, t) != 0) return -1;
     double *Ad = c->buf, *Bd = c->buf + NX * NX;
-    /* a step within GRID_RTOL of the cached one is that step (same_step, the rule of
-     * delaycomp.grid.same_step): a host's exact grid t0 + k h passes steps that differ in
-     * the last bits, and each would otherwise cost a matrix exponential */
-    if (!m->has_h || !same_step(h, m->h)) {
-        if (flow(&c->d.real[VR_A], &c->d.real[VR_B], NX, NU, h, Ad, Bd) != 0) {
-            log_error(c, "out of memory computing the discretization");
-            return -1;
-        }
+    /* a step within GRID_RTOL and the round-off of the times of the cached one is that
+     * step (same_step, the rule of delaycomp.grid.same_step): a host's exact grid t0 + k h
+     * passes steps that differ in the last bits, and each would otherwise cost a matrix
+     * exponential */
+    if (!m->has_h || !same_step(h, m->h, t)) {
+        /* another step: discretized (bounded work, no allocation), the new key */
+        flow(&c->d.real[VR_A], &c->d.real[VR_B], NX, NU, h, Ad, Bd, Bd + (size_t)NX * NU);
         m->h = h;
         m->has_h = 1;
     }
@@ -50,10 +52,8 @@ int model_step(Instance *c, double t, double h) {
         bad |= !isfinite(x[i]);
     }
     if (bad) {
-        char *text = vector_text(x, NX);
         log_error(c, "state %s = %s at t = %s is not allowed: must be finite (the plant "
-                  "diverged: overflow)", OUTPUT_NAMES, text ? text : "[...]", num(t + h).s);
-        free(text);
+                  "diverged: overflow)", OUTPUT_NAMES, vector_text(x, NX).s, num(t + h).s);
         return -1;
     }
     memcpy(&c->d.real[VR_X], x, NX * sizeof(double));

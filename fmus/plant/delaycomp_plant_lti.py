@@ -79,7 +79,7 @@ class DelaycompPlantLTI(TableSlave):
             self.fail(f"step size {step_size!r} at t = {t!r} is not allowed: must be a "
                       "finite number > 0")
         check_inputs(self.input_names, self.u, t)
-        if self._h is None or not same_step(step_size, self._h):
+        if self._h is None or not same_step(step_size, self._h, t):
             # a step within GRID_RTOL of the cached one is that step (a host's exact grid
             # t0 + k h passes steps that differ in the last bits): Ad(h), Bd(h) serve it,
             # off by ~ |step - h| |x'| (README.md beside this file); another step is

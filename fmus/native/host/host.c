@@ -13,9 +13,12 @@
  * t_k to t_{k+1}. One CSV row per tick, written to stdout after the run: time, the plant's
  * outputs, the controller's outputs (%.17g, exact), headed plant.NAME, controller.NAME.
  *
- * usage: host [--timing] [--exact-grid] STOP_TIME H plant=DIR meas_delay=DIR controller=DIR
+ * usage: host [--timing] [--exact-grid] [--start=T0] STOP_TIME H plant=DIR meas_delay=DIR
+ *             controller=DIR
  *             input_delay=DIR [INSTANCE.VARIABLE=VALUE ...]
  * --timing: print the wall time of the stepping loop (initialization excluded) to stderr.
+ * --start=T0: the experiment starts at T0 (fmi2SetupExperiment's startTime; default 0) and
+ *   ends at STOP_TIME, after round((STOP_TIME - T0) / H) steps.
  * --exact-grid: step as the FMI guides ask an importer to keep time: t_k = t0 + k h computed
  *   from k, each step t_{k+1} - t_k (steps that differ from H and from one another in the
  *   last bits). Default: every step is H, from t_k = t0 + k h.
@@ -265,18 +268,23 @@ static double now(void) {
 
 int main(int argc, char **argv) {
     int timing = 0, exact_grid = 0;
+    double t0 = 0.0;
     while (argc > 1 && strncmp(argv[1], "--", 2) == 0) {
+        char *end;
         if (strcmp(argv[1], "--timing") == 0) timing = 1;
         else if (strcmp(argv[1], "--exact-grid") == 0) exact_grid = 1;
-        else die("unknown option %s (allowed: --timing, --exact-grid)", argv[1]);
+        else if (strncmp(argv[1], "--start=", 8) == 0 &&
+                 (t0 = strtod(argv[1] + 8, &end), *end == '\0' && end != argv[1] + 8 &&
+                  isfinite(t0))) {}
+        else die("unknown option %s (allowed: --timing, --exact-grid, --start=T0)", argv[1]);
         argv++;
         argc--;
     }
-    if (argc < 7) die("usage: host [--timing] [--exact-grid] STOP_TIME H plant=DIR "
+    if (argc < 7) die("usage: host [--timing] [--exact-grid] [--start=T0] STOP_TIME H plant=DIR "
                       "meas_delay=DIR controller=DIR input_delay=DIR "
                       "[INSTANCE.VARIABLE=VALUE ...]");
     double stop = strtod(argv[1], NULL), h = strtod(argv[2], NULL);
-    if (!(h > 0) || !(stop > 0)) die("STOP_TIME and H must be > 0");
+    if (!(h > 0) || !(stop > t0)) die("H must be > 0 and STOP_TIME > T0");
     static Fmu fmu[NI];
     fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
     for (int i = 0; i < NI; i++) {
@@ -285,7 +293,7 @@ int main(int argc, char **argv) {
         if (strncmp(arg, NAMES[i], len) != 0 || arg[len] != '=') die("expected %s=DIR", NAMES[i]);
         snprintf(fmu[i].dir, sizeof fmu[i].dir, "%s", arg + len + 1);
         load(&fmu[i], NAMES[i], &cb);
-        CHECK(fmu[i].setup(fmu[i].c, fmi2False, 0.0, 0.0, fmi2True, stop), "fmi2SetupExperiment");
+        CHECK(fmu[i].setup(fmu[i].c, fmi2False, 0.0, t0, fmi2True, stop), "fmi2SetupExperiment");
         CHECK(fmu[i].enter(fmu[i].c), "fmi2EnterInitializationMode");
     }
     for (int a = 7; a < argc; a++) {  /* INSTANCE.VARIABLE=VALUE */
@@ -329,13 +337,13 @@ int main(int argc, char **argv) {
                 "at least one)", NAMES[i], src->nout, NAMES[(i + 1) % NI], dst->nin);
     }
     size_t nx = io[0].nout, nu = io[2].nout, width = 1 + nx + nu;
-    long ticks = lround(stop / h);
+    long ticks = lround((stop - t0) / h);
     double *rows = malloc(width * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
     double *v = malloc(MAXPORTS * sizeof(double));
     if (rows == NULL || v == NULL) die("out of memory");
     double started = now();
     for (long k = 0;; k++) {
-        double t = (double)k * h;  /* t_k = t0 + k h, t0 = 0 */
+        double t = t0 + (double)k * h;  /* t_k = t0 + k h */
         double *row = rows + width * (size_t)k;
         row[0] = t;
         for (int i = 0; i < NI; i++) {  /* plant, meas_delay, controller, input_delay */
@@ -348,7 +356,7 @@ int main(int argc, char **argv) {
         }
         if (k == ticks) break;
         /* the exact grid: t_{k+1} - t_k with both times computed from their index */
-        double step = exact_grid ? (double)(k + 1) * h - t : h;
+        double step = exact_grid ? (t0 + (double)(k + 1) * h) - t : h;
         for (int i = 0; i < NI; i++)
             CHECK(fmu[i].do_step(fmu[i].c, t, step, fmi2True), "fmi2DoStep");
     }

@@ -1,0 +1,287 @@
+"""Issue 33, items 2 to 4: ``delaycomp export-c``, the controller as plain C.
+
+- **Strict and cross builds**: each export compiles with ``-std=c99 -Wall -Wextra
+  -pedantic -Werror`` for this machine (gcc and clang), for aarch64 and for a Cortex-M4
+  (``arm-none-eabi-gcc -mcpu=cortex-m4 -mthumb -mfloat-abi=hard -mfpu=fpv4-sp-d16``); the
+  objects reference no ``malloc``, ``calloc``, ``realloc``, ``free`` and nothing of stdio,
+  and hold no writable data (``.data`` and ``.bss`` empty: no global state).
+- **Equal to the FMU**: a closed loop of the native FMUs (stepped here in the order of our
+  master) records the controller FMU's measurements and outputs at every base step; a C
+  driver (``tests/native_export/driver.c``) feeds the same measurements to the exported
+  controller, whose outputs must equal the FMU's: 1e-12 of the peak for LTI (the matrices
+  are scipy's, the FMU's its own C expm: both backward stable, their differences are
+  round-off), ``10 tol (1 + |u|)`` for the models (the same C: measured equal to the
+  last bit). The same driver built for aarch64 and run under qemu-aarch64 prints the same
+  numbers.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from delaycomp import scenarios
+from delaycomp.exportc import EXPORT_CODES, closed_loop_io, export_c
+from delaycomp.native import compiler
+from tests.test_native_alloc import stable_mimo_loop
+
+DRIVER = Path(__file__).parent / "native_export" / "driver.c"
+#: a loop file whose plant is a model file (the tutorial's cart)
+CART = Path(__file__).resolve().parents[1] / "docs" / "examples" / "cart.toml"
+CLI = [sys.executable, "-m", "delaycomp"]
+STRICT = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2"]
+CORTEX_M4 = ["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
+             "-mfpu=fpv4-sp-d16"]
+#: the ODE tolerance of the model controllers (rtol = atol, delaycomp.predictors)
+TOL = 1e-10
+
+
+def _scenario(name, sets):
+    sc = scenarios.get(name)
+    return sc.make(sc.resolve(sets))
+
+
+#: every shipped scenario's controller (and the families, predictors and padding of the
+#: models), and an LTI loop with n = 3, m = 2
+LOOPS = {
+    "example-3.6": lambda: _scenario("example-3.6", []),
+    "example-3.6-uncompensated": lambda: _scenario("example-3.6", ["mode=uncompensated"]),
+    "corollary-3.7-n3": lambda: _scenario("corollary-3.7", ["n=3"]),
+    "mimo-n3-m2": stable_mimo_loop,
+    "example-2.4": lambda: _scenario("example-2.4", []),
+    "example-2.4-numerical": lambda: _scenario("example-2.4", ["predictor=numerical"]),
+    "example-3.8": lambda: _scenario("example-3.8", []),
+    "example-3.8-padded": lambda: _scenario("example-3.8", ["tau=0.5", "pad=true"]),
+    "example-3.8-sin-numerical": lambda: _scenario("example-3.8", ["p=sin",
+                                                                   "predictor=numerical"]),
+    "corollary-4.1": lambda: _scenario("corollary-4.1", []),
+    "proposition-4.2": lambda: _scenario("proposition-4.2", []),
+    "cart-loop-file": lambda: scenarios.open_source(str(CART)).loop([]),
+}
+LTI = {"example-3.6", "example-3.6-uncompensated", "corollary-3.7-n3", "mimo-n3-m2"}
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        pytest.fail(f"{name} is not installed (scripts/install_platform_tools.sh installs "
+                    "it): the export was not built for its target")
+    return path
+
+
+def _record(loop, fmu_dir: Path, ticks: int):
+    return closed_loop_io(loop, ticks, fmu_dir)
+
+
+def _driver(out: Path, prefix: str, cc: list[str], exe: Path) -> Path:
+    subprocess.run([*cc, *STRICT, f"-DPREFIX={prefix}", "-include",
+                    str(out / f"{prefix}.h"), "-I", str(out), str(DRIVER),
+                    str(out / f"{prefix}.c"), "-o", str(exe), "-lm"], check=True)
+    return exe
+
+
+def _run_driver(argv: list[str], loop, ys: np.ndarray) -> np.ndarray:
+    lines = "".join(f"{k * loop.h!r} " + " ".join(repr(float(v)) for v in y) + "\n"
+                    for k, y in enumerate(ys))
+    proc = subprocess.run(argv, input=lines, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-500:] + proc.stderr[-2000:]
+    return np.array([line.split() for line in proc.stdout.splitlines()], dtype=float)
+
+
+@pytest.mark.parametrize("name", sorted(LOOPS))
+def test_the_export_equals_the_controller_fmu(name, tmp_path):
+    loop = LOOPS[name]()
+    ticks = 6 * loop.N + 7  # six periods and a part
+    ys, want = _record(loop, tmp_path / "fmus", ticks)
+    export_c(loop, tmp_path / "c", "ctl")
+    exe = _driver(tmp_path / "c", "ctl", compiler(), tmp_path / "drive")
+    got = _run_driver([str(exe)], loop, ys)
+    assert got.shape == want.shape
+    peak = np.max(np.abs(want))
+    assert peak > 0 and len(np.unique(want)) > 3  # the control moves
+    if name in LTI:
+        assert np.max(np.abs(got - want)) <= 1e-12 * peak
+    else:
+        assert np.all(np.abs(got - want) <= 10 * TOL * (1 + np.abs(want)))
+
+
+@pytest.mark.parametrize("name", ["mimo-n3-m2", "example-3.8-sin-numerical",
+                                  "corollary-4.1"])
+def test_the_aarch64_build_prints_the_same_numbers(name, tmp_path):
+    """Under qemu-aarch64 (ISO C: no contraction into fused multiply-adds; the same libm
+    algorithms): the very numbers of this machine's build."""
+    from delaycomp.native import emulator
+
+    _tool("aarch64-linux-gnu-gcc")
+    loop = LOOPS[name]()
+    ticks = 3 * loop.N + 5
+    ys, _ = _record(loop, tmp_path / "fmus", ticks)
+    export_c(loop, tmp_path / "c", "ctl")
+    here = _run_driver([str(_driver(tmp_path / "c", "ctl", compiler(), tmp_path / "d"))],
+                       loop, ys)
+    exe = _driver(tmp_path / "c", "ctl", ["aarch64-linux-gnu-gcc"], tmp_path / "d64")
+    prefix, _env = emulator("aarch64-linux")
+    there = _run_driver([*prefix, str(exe)], loop, ys)
+    assert np.array_equal(here, there)
+
+
+#: the symbols an object of the export must not reference
+FORBIDDEN = {"malloc", "calloc", "realloc", "free", "printf", "fprintf", "sprintf",
+             "snprintf", "puts", "fputs", "fwrite", "fopen", "stdout", "stderr", "getenv",
+             "exit", "abort"}
+
+
+@pytest.mark.parametrize("target", ["gcc", "clang", "aarch64", "cortex-m4"])
+@pytest.mark.parametrize("name", sorted(LOOPS))
+def test_strict_builds_without_heap_io_or_global_state(name, target, tmp_path):
+    cc = {"gcc": ["gcc"], "clang": ["clang"], "aarch64": ["aarch64-linux-gnu-gcc"],
+          "cortex-m4": CORTEX_M4}[target]
+    _tool(cc[0])
+    nm = _tool("arm-none-eabi-nm" if target == "cortex-m4" else "nm")
+    loop = LOOPS[name]()
+    paths = export_c(loop, tmp_path, "ctl")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ctl.c", "ctl.h"]
+    obj = tmp_path / "ctl.o"
+    proc = subprocess.run([*cc, *STRICT, "-c", str(paths[1]), "-o", str(obj)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    symbols = subprocess.run([nm, str(obj)], capture_output=True, text=True,
+                             check=True).stdout.split("\n")
+    undefined = {line.split()[-1] for line in symbols if " U " in line}
+    assert not undefined & FORBIDDEN, undefined
+    defined = {line.split()[-1]: line.split()[-2] for line in symbols
+               if len(line.split()) == 3}
+    # the three functions, nothing else global; no writable data (D/d, B/b: .data, .bss)
+    assert {s for s, kind in defined.items() if kind.isupper()} == {
+        "ctl_init", "ctl_sample", "ctl_output"}
+    assert not {s for s, kind in defined.items() if kind in "DdBbCc"}, defined
+
+
+def test_two_controllers_link_into_one_program(tmp_path):
+    """Two exports (an LTI and a numerical model controller, which carries DOP853) in one
+    program: their names do not clash."""
+    export_c(LOOPS["mimo-n3-m2"](), tmp_path, "lti")
+    export_c(LOOPS["example-2.4-numerical"](), tmp_path, "nl")
+    main = tmp_path / "main.c"
+    main.write_text('#include "lti.h"\n#include "nl.h"\n'
+                    "int main(void) {\n"
+                    "    lti_state a; nl_state b; double y3[3] = {1, 2, 3}, u[2];\n"
+                    "    lti_init(&a); nl_init(&b);\n"
+                    "    if (lti_sample(&a, 0.0, y3) || lti_output(&a, 0.0, u)) return 1;\n"
+                    "    if (nl_sample(&b, 0.0, y3) || nl_output(&b, 0.0, u)) return 2;\n"
+                    "    return nl_output(&b, 0.0, u) == nl_E_ORDER ? 0 : 3;\n}\n")
+    exe = tmp_path / "both"
+    subprocess.run([*compiler(), *STRICT, "-I", str(tmp_path), str(main),
+                    str(tmp_path / "lti.c"), str(tmp_path / "nl.c"), "-o", str(exe), "-lm"],
+                   check=True)
+    assert subprocess.run([str(exe)]).returncode == 0
+
+
+def test_refused_calls_return_the_codes_of_the_header(tmp_path):
+    """Each code of the header, for the call it names; a refused call changes nothing
+    (the loop goes on as if it had not been made)."""
+    export_c(LOOPS["example-3.6"](), tmp_path, "ctl")
+    header = (tmp_path / "ctl.h").read_text()
+    for name, (code, _) in EXPORT_CODES.items():
+        assert f"#define ctl_{name} {code}" in header
+    main = tmp_path / "main.c"
+    main.write_text(r'''
+#include <math.h>
+#include <stdio.h>
+#include "ctl.h"
+int main(void) {
+    ctl_state s;
+    double y[1] = {0.5}, bad[1] = {NAN}, u[1];
+    int k;
+    ctl_init(&s);
+    printf("%d\n", ctl_output(&s, 0.0, u));             /* before any sample */
+    printf("%d\n", ctl_sample(&s, 0.0, bad));           /* NaN in y */
+    printf("%d\n", ctl_sample(&s, INFINITY, y));        /* t not finite */
+    printf("%d\n", ctl_sample(&s, 1.0, y));             /* the first sample: t0 = 1 */
+    printf("%d\n", ctl_output(&s, 1.0 + 0.5 * ctl_H, u)); /* off the grid */
+    printf("%d\n", ctl_output(&s, 1.0 + ctl_H, u));     /* a tick ahead */
+    printf("%d\n", ctl_output(&s, 1.0, u));             /* tick 0 */
+    printf("%d\n", ctl_output(&s, 1.0, u));             /* tick 0 again */
+    printf("%d\n", ctl_sample(&s, 1.0 + ctl_H, y));     /* not a sample instant */
+    printf("%d\n", ctl_sample(&s, 1.0 + 2 * ctl_T, y)); /* a period too far */
+    for (k = 1; k < ctl_N; k++)
+        if (ctl_output(&s, 1.0 + k * ctl_H, u)) return 9;
+    printf("%d\n", ctl_output(&s, 1.0 + ctl_T, u));     /* its sample not given */
+    printf("%d\n", ctl_sample(&s, 1.0 + ctl_T, y));
+    printf("%d\n", ctl_output(&s, 1.0 + ctl_T, u));
+    return 0;
+}
+''')
+    exe = tmp_path / "refusals"
+    subprocess.run([*compiler(), *STRICT, "-I", str(tmp_path), str(main),
+                    str(tmp_path / "ctl.c"), "-o", str(exe), "-lm"], check=True)
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout
+    c = {name: code for name, (code, _) in EXPORT_CODES.items()}
+    assert [int(v) for v in out.split()] == [
+        c["E_ORDER"], c["E_NOT_FINITE"], c["E_NOT_FINITE"], c["OK"], c["E_OFF_GRID"],
+        c["E_ORDER"], c["OK"], c["E_ORDER"], c["E_OFF_GRID"], c["E_ORDER"],
+        c["E_NO_SAMPLE"], c["OK"], c["OK"]]
+
+
+def test_the_command_writes_the_two_files_and_refuses_bad_input_in_one_line(tmp_path):
+    """``delaycomp export-c LOOP.toml --prefix NAME --out DIR`` (and a scenario): the two
+    files, their paths printed; bad input: exit 2, one line naming the parameter, nothing
+    written."""
+    out = tmp_path / "fw"
+    done = subprocess.run([*CLI, "export-c", str(CART), "--prefix", "cart", "--out",
+                           str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == [str(out / "cart.h"), str(out / "cart.c")]
+    assert sorted(p.name for p in out.iterdir()) == ["cart.c", "cart.h"]
+    done = subprocess.run([*CLI, "export-c", "example-3.8", "--set", "p=sin", "--prefix",
+                           "ex38", "--out", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "model example_3_8" in (out / "ex38.c").read_text()
+    (tmp_path / "file").write_text("")
+    for argv, words in [
+            (["example-3.6", "--prefix", "1ctl"], "--prefix '1ctl' is not allowed"),
+            (["example-3.6", "--prefix", "int"], "--prefix 'int' is not allowed"),
+            (["example-3.6", "--prefix", "a-b"], "--prefix 'a-b' is not allowed"),
+            (["example-3.6", "--prefix", "c", "--set", "T=0"], "T = "),
+            (["example-3.8", "--prefix", "c", "--set", "tau=0.3"], "tau = 0.3 is not allowed"),
+            (["loop.ssp", "--prefix", "c"], "not an SSP archive")]:
+        bad = subprocess.run([*CLI, "export-c", *argv, "--out", str(tmp_path / "none")],
+                             capture_output=True, text=True)
+        assert bad.returncode == 2, (argv, bad.stderr)
+        assert len(bad.stderr.splitlines()) == 1 and words in bad.stderr, bad.stderr
+        assert "Traceback" not in bad.stderr
+    assert not (tmp_path / "none").exists()
+    bad = subprocess.run([*CLI, "export-c", "example-3.6", "--prefix", "c", "--out",
+                          str(tmp_path / "file")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "it is a file" in bad.stderr
+
+
+def test_the_firmware_example_runs_the_loop_of_delaycomp_run(tmp_path):
+    """``docs/examples/firmware.c`` (the page's firmware loop, with the cart and the
+    network's delays simulated on the base grid) against ``delaycomp run`` of the same
+    loop file: the cart's state and the force at every base step. The example's cart
+    moves by its exact flow, the run's plant FMU by DOP853 at 1e-10, so 1e-8 of the peak;
+    a delay off by one step, or a sample read at the wrong tick, is O(1) (measured:
+    4e-15)."""
+    from delaycomp import api
+
+    export_c(api.load(CART), tmp_path, "cart")
+    exe = tmp_path / "firmware"
+    subprocess.run([*compiler(), *STRICT, "-I", str(tmp_path),
+                    str(CART.parent / "firmware.c"), str(tmp_path / "cart.c"), "-o",
+                    str(exe), "-lm"], check=True)
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout
+    lines = out.splitlines()
+    assert lines[0] == "time,position,velocity,force"
+    got = np.array([line.split(",") for line in lines[1:]], dtype=float)
+    res = api.run(api.load(CART))
+    assert res.names == ["plant.position", "plant.velocity", "controller.force"]
+    assert got.shape == (len(res.times), 4)
+    assert np.allclose(got[:, 0], res.times, rtol=0, atol=1e-12)
+    peak = np.max(np.abs(res.data), axis=0)
+    assert np.all(np.abs(got[:, 1:] - res.data) <= 1e-8 * peak)
+    assert np.max(np.abs(got[-1, 1:3])) < 1e-9  # dead-beat: at rest well before 10 s
