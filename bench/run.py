@@ -427,7 +427,7 @@ def bench_export(ticks: int, work: Path) -> list[dict]:
                         str(REPO / "bench" / "export_timing.c"), str(folder / "ctl.c"),
                         "-o", str(exe), "-lm"], check=True)
         episode = 20 * loop.N  # 20 periods of the closed loop, from its start
-        ys, _ = closed_loop_io(loop, episode, work / "fmus")
+        ys, _ = closed_loop_io(loop, episode, work / "export-fmus")
         feed = f"{episode}\n" + "".join(" ".join(repr(float(v)) for v in y) + "\n"
                                          for y in ys)
         out = subprocess.run([str(exe), str(ticks)], input=feed, capture_output=True,

@@ -28,7 +28,8 @@ def test_bench_quick_writes_report_and_plot(tmp_path):
                     "## 4. Accuracy against cost", "## 5. Native C FMUs", "## 6. Start",
                     "## 7. Python FMUs: what instantiating one imports",
                     "## 8. A packed loop against OMSimulator", "## 9. Exact-grid steps",
-                    "## 10. Native model controllers and loops"):
+                    "## 10. Native model controllers and loops",
+                    "## 11. Exported controllers: the time of one step"):
         assert heading in text
     # the continuous-input loop's observed order is printed and is first order
     order = [line for line in text.splitlines() if line.startswith("| example-2.4/default")
@@ -66,5 +67,5 @@ def test_bench_sections_puts_one_section_into_the_report(tmp_path):
     assert "| example-2.4 | 100 | 2 |" in body and "| stepping loop |" in body
     assert text.index("## 9. Exact-grid steps") < text.index("## 10.") \
         < text.index("![](docs/figures/benchmarks.png)")
-    proc = subprocess.run([*argv[:3], "--sections", "11"], capture_output=True, text=True)
-    assert proc.returncode == 2 and "section numbers 1-10" in proc.stderr
+    proc = subprocess.run([*argv[:3], "--sections", "12"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "section numbers 1-11" in proc.stderr
