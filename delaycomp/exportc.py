@@ -20,6 +20,7 @@ refused with the FMU's message. The C templates are ``fmus/native/export/``.
 """
 from __future__ import annotations
 
+import importlib.util
 import re
 import textwrap
 from pathlib import Path
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ParameterError
+from .model import ModelError
 
 __all__ = ["EXPORT_CODES", "check_prefix", "closed_loop_io", "export_c"]
 
@@ -250,6 +252,9 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
 
     ctrl = slave.ctrl
     model = slave.model
+    if importlib.util.find_spec("casadi") is None:
+        raise ModelError(f"exporting the controller of model {model.name} translates its f, "
+                         "k and step to C with CasADi: pip install 'delaycomp[native]'")
     translation = translate(model)
     _check_closed_form("model_controller", translation)
     branch = next(i for i, choice in enumerate(translation.choices)
