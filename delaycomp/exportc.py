@@ -262,10 +262,12 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
     zoh = isinstance(ctrl, ZOHModelController)
     has_step = ("step", branch) in translation.functions
     predictor = PREDICTORS[slave.predictor]
-    needs_ode = predictor == PREDICTORS["numerical"] or (not zoh and not has_step)
-    uses_step = has_step and (predictor == PREDICTORS["closed"] or not zoh)
-    n, m = model.n, model.m
     W = ctrl.history.W
+    # what the C uses (an unused static function is a warning, and -Werror an error): the
+    # prediction flows only over a window (W > 0); z flows at every step (continuous)
+    needs_ode = (predictor == PREDICTORS["numerical"] and W > 0) or (not zoh and not has_step)
+    uses_step = has_step and ((predictor == PREDICTORS["closed"] and W > 0) or not zoh)
+    n, m = model.n, model.m
     D = ctrl.pad_line.D if zoh else 0
     p = [float(loop.T) if name == "T" else float(ctrl.p[name])
          for name in translation.numeric]

@@ -61,8 +61,15 @@ LOOPS = {
     "corollary-4.1": lambda: _scenario("corollary-4.1", []),
     "proposition-4.2": lambda: _scenario("proposition-4.2", []),
     "cart-loop-file": lambda: scenarios.open_source(str(CART)).loop([]),
+    # no delay at all: an empty window (the prediction is the sample)
+    "example-3.8-no-delay": lambda: _scenario("example-3.8", ["r=0", "tau=0",
+                                                              "predictor=numerical"]),
+    "example-2.4-no-delay": lambda: _scenario("example-2.4", ["r=0", "tau=0",
+                                                              "predictor=numerical"]),
+    "example-3.6-no-delay": lambda: _scenario("example-3.6", ["r=0"]),
 }
-LTI = {"example-3.6", "example-3.6-uncompensated", "corollary-3.7-n3", "mimo-n3-m2"}
+LTI = {"example-3.6", "example-3.6-uncompensated", "example-3.6-no-delay", "corollary-3.7-n3",
+       "mimo-n3-m2"}
 
 
 #: the Debian package of each tool these tests run
