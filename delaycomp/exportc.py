@@ -70,7 +70,7 @@ def _c(v: float) -> str:
         raise ParameterError(f"value {v!r} is not allowed in the exported controller: must "
                              "be finite")
     text = repr(v)
-    return text if ("." in text or "e" in text or "inf" in text) else text + ".0"
+    return text if ("." in text or "e" in text) else text + ".0"
 
 
 def _array(values) -> str:
@@ -121,7 +121,8 @@ def _controller(loop):
     return inst, kind, comp.slave
 
 
-def _common(prefix: str) -> str:
+def _common() -> str:
+    """The grid and order checks every exported controller shares (its NAME unfilled)."""
     return (_templates() / "export" / "common.c.in").read_text(encoding="utf-8")
 
 
@@ -134,8 +135,9 @@ def _fill(template: str, prefix: str, values: dict[str, str]) -> str:
     return re.sub(r"\bNAME(?=_|\.h\b)", prefix, template)
 
 
-def _header(prefix: str, loop, kind: str, dims: dict[str, int], state: str,
-            notes: list[str]) -> str:
+def _header(prefix: str, loop, dims: dict[str, int], state: str, notes: list[str]) -> str:
+    """``NAME.h``: the notes on the loop, the use, the dimensions, the return codes, the
+    state's struct and the three functions."""
     from . import __version__
 
     P = prefix
@@ -216,7 +218,7 @@ def _export_lti(prefix, loop, slave) -> tuple[str, str]:
              f"T = {loop.T!r}, r = {float(slave.r)!r}, tau = {float(slave.tau)!r}, "
              f"mode {ctrl.mode};",
              f"the predictor stores the last L = {L} controls."]
-    header = _header(prefix, loop, "controller", {"NY": n, "NU": m, "L": L}, state, notes)
+    header = _header(prefix, loop, {"NY": n, "NU": m, "L": L}, state, notes)
     template = (_templates() / "export" / "lti.c.in").read_text(encoding="utf-8")
     source = _fill(template, prefix, {
         "LOOP": loop.name, "VERSION": __version__,
@@ -224,7 +226,7 @@ def _export_lti(prefix, loop, slave) -> tuple[str, str]:
         "COMPENSATED": "1" if compensated else "0",
         "E": _array(pred.E), "QB": _array(QB), "K": _array(ctrl.K),
         "U0": _array(slave.u0),
-        "COMMON": _fill(_common(prefix), prefix, {})})
+        "COMMON": _common()})
     return header, source
 
 
@@ -302,7 +304,7 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
              f"the window holds W = {W} base steps of controls"
              + (f"; each numerical flow tries at most {P}_MAX_ODE_STEPS + 1 DOP853 steps "
                 "(a prediction: all its segments together)" if needs_ode else "") + "."]
-    header = _header(prefix, loop, "model_controller", dims, "\n".join(state), notes)
+    header = _header(prefix, loop, dims, "\n".join(state), notes)
     ode = ""
     if needs_ode:
         native = _templates()
@@ -323,7 +325,7 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
         "CALL_F": _call(translation, "f", branch, args, "dx") if needs_ode else "-1",
         "CALL_K": _call(translation, "k", branch, args),
         "CALL_STEP": _call(translation, "step", branch, args) if uses_step else "-1",
-        "COMMON": _fill(_common(prefix), prefix, {})})
+        "COMMON": _common()})
     return header, source
 
 
