@@ -300,10 +300,10 @@ def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
     --------
     >>> import tempfile
     >>> from delaycomp import api
-    >>> loop = api.lti([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[-1.0, -1.6]], T=0.2,
-    ...                r=0.36, tau=0.4, N=20, x0=[1.0, 0.0], name="dbl")
-    >>> [p.name for p in api.export_c(loop, tempfile.mkdtemp(), "dbl")]
-    ['dbl.h', 'dbl.c']
+    >>> from delaycomp.scenarios import loop_file
+    >>> loop = api.load(loop_file("example-3.6"), r=0.4)
+    >>> [p.name for p in api.export_c(loop, tempfile.mkdtemp(), "ctl")]
+    ['ctl.h', 'ctl.c']
     """
     from .exportc import export_c as _export_c
 
