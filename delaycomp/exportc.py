@@ -132,7 +132,7 @@ def _fill(template: str, prefix: str, values: dict[str, str]) -> str:
     left = re.findall(r"@[A-Z_]+@", template)
     if left:
         raise AssertionError(f"template placeholders left: {left}")
-    return re.sub(r"\bNAME(?=_|\.h\b)", prefix, template)
+    return re.sub(r"\bNAME(?=_|\.[ch]\b)", prefix, template)
 
 
 def _header(prefix: str, loop, dims: dict[str, int], state: str, notes: list[str]) -> str:

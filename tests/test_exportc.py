@@ -163,6 +163,8 @@ def test_strict_builds_without_heap_io_or_global_state(name, target, tmp_path):
     loop = LOOPS[name]()
     paths = export_c(loop, tmp_path, "ctl")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ctl.c", "ctl.h"]
+    for path in paths:  # every name of the templates took the prefix
+        assert "NAME" not in path.read_text(), path
     obj = tmp_path / "ctl.o"
     proc = subprocess.run([*cc, *STRICT, "-c", str(paths[1]), "-o", str(obj)],
                           capture_output=True, text=True)
