@@ -323,3 +323,62 @@ def test_valgrind_finds_no_invalid_access_in_the_export(name, tmp_path):
                           input=lines, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "ERROR SUMMARY: 0 errors" in proc.stderr
+
+
+def _random_lti_loop(seed: int):
+    """A random LTI loop: n in 1..5, m in 1..3, T, N, r (a whole number of base steps, up
+    to 3 periods, with a fractional part of T) and tau = l T drawn; a stable plant with a
+    small gain (the delay-free sampled loop stable)."""
+    from scipy.linalg import solve_continuous_are
+
+    from delaycomp.scenarios import lti_loop
+
+    rng = np.random.default_rng(1000 + seed)
+    n, m = int(rng.integers(1, 6)), int(rng.integers(1, 4))
+    T = float(rng.choice([0.2, 0.5, 1.0]))
+    N = int(rng.choice([1, 3, 10]))
+    h = T / N
+    r = float(rng.integers(0, 3 * N + 1)) * h
+    tau = float(rng.integers(0, 3)) * T
+    A = rng.standard_normal((n, n)) * 0.4
+    B = rng.standard_normal((n, m))
+    K = -0.3 * B.T @ solve_continuous_are(A, B, np.eye(n), np.eye(m))
+    return lti_loop(A, B, K, T=T, r=r, tau=tau, N=N, mode="compensated",
+                    x0=tuple(rng.uniform(-1, 1, n)), u0=tuple(rng.uniform(-0.5, 0.5, m)))
+
+
+def _random_model_loop(seed: int):
+    """A shipped model with T, N, r, tau (padded where zero-order hold needs it) and the
+    predictor drawn."""
+    rng = np.random.default_rng(2000 + seed)
+    name = ["example-2.4", "example-3.8", "corollary-4.1", "proposition-4.2"][seed % 4]
+    T = float(rng.choice([0.5, 1.0]))
+    N = int(rng.choice([2, 5, 10]))
+    h = T / N
+    r = float(rng.integers(0, 2 * N + 1)) * h
+    tau = float(rng.integers(0, 2 * N + 1)) * h
+    sets = [f"T={T!r}", f"N={N}", f"r={r!r}", f"tau={tau!r}",
+            f"predictor={rng.choice(['closed', 'numerical'])}"]
+    if name in ("example-3.8", "proposition-4.2"):
+        sets.append("pad=true")
+    return _scenario(name, sets)
+
+
+@pytest.mark.parametrize("kind,seed", [("lti", s) for s in range(6)] +
+                         [("model", s) for s in range(8)], ids=str)
+def test_random_loops_export_equal_to_the_fmu(kind, seed, tmp_path):
+    """Loops the shipped cases do not cover (random dimensions, periods, base steps,
+    delays with fractional parts, padding, both predictors): the export equals the
+    controller FMU as in :func:`test_the_export_equals_the_controller_fmu`."""
+    loop = (_random_lti_loop if kind == "lti" else _random_model_loop)(seed)
+    ticks = 5 * loop.N + 3
+    ys, want = _record(loop, tmp_path / "fmus", ticks)
+    export_c(loop, tmp_path / "c", "ctl")
+    got = _run_driver([str(_driver(tmp_path / "c", "ctl", compiler(), tmp_path / "d"))],
+                      loop, ys)
+    assert len(np.unique(want)) > 2  # the control moves: the comparison means something
+    peak = np.max(np.abs(want))
+    if kind == "lti":
+        assert np.max(np.abs(got - want)) <= 1e-12 * peak
+    else:
+        assert np.all(np.abs(got - want) <= 10 * TOL * (1 + np.abs(want)))
