@@ -382,7 +382,7 @@ def _lti_timing_loop(n: int):
 
 def _work_bound(loop) -> str:
     """The bound of item 1 on the work of one step of the loop's exported controller."""
-    from delaycomp.exportc import _controller
+    from delaycomp.exportc import MAX_ODE_STEPS, _controller
     from delaycomp.nlcontrol import ZOHModelController
 
     _, kind, slave = _controller(loop)
@@ -396,10 +396,11 @@ def _work_bound(loop) -> str:
     if slave.predictor == "closed":
         where = "" if zoh else " + 1 per step (z)"
         return f"<= {W} exact steps per sample{where}"
-    bound = f"<= 12 (M + 1) + 2 W = {12 * 100_001 + 2 * W:,} f-evaluations per sample"
+    M = MAX_ODE_STEPS
+    bound = f"<= 12 (M + 1) + 2 W = {12 * (M + 1) + 2 * W:,} f-evaluations per sample"
     if not zoh:
-        bound += f", + {12 * 100_001 + 2:,} per step (z's flow)"
-    return bound + f" (M = 100 000, W = {W})"
+        bound += f", + {12 * (M + 1) + 2:,} per step (z's flow)"
+    return bound + f" (M = {M:,}, W = {W})"
 
 
 def bench_export(ticks: int, work: Path) -> list[dict]:

@@ -28,7 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ParameterError
+from .grid import GRID_RTOL
 from .model import ModelError
+from .nlcontrol import PREDICTORS as _PREDICTOR_NAMES
+from .predictors import _MAX_STEPS
 
 __all__ = ["EXPORT_CODES", "check_prefix", "closed_loop_io", "export_c"]
 
@@ -54,7 +57,11 @@ _C_KEYWORDS = frozenset(
     "typedef union unsigned void volatile while".split())
 #: DOP853's work memory, doubles per state (ode_work_size of fmus/native/ode.c)
 _ODE_WORK_PER_STATE = 17
-PREDICTORS = {"closed": 0, "numerical": 1, "none": 2}
+#: the predictor's number in the C (model.c.in's PREDICT), in the order of
+#: delaycomp.nlcontrol.PREDICTORS
+PREDICTORS = {name: i for i, name in enumerate(_PREDICTOR_NAMES)}
+#: the DOP853 budget of a numerical flow (the native FMUs' MAX_ODE_STEPS, model_common.h)
+MAX_ODE_STEPS = _MAX_STEPS
 
 
 def _templates() -> Path:
@@ -223,6 +230,7 @@ def _export_lti(prefix, loop, slave) -> tuple[str, str]:
     source = _fill(template, prefix, {
         "LOOP": loop.name, "VERSION": __version__,
         "MATRIX_NOTE": f"n = {n}, m = {m}, L = l + q + 1 = {L} (tau = l T, r = q T + r~).",
+        "GRID_RTOL": repr(GRID_RTOL),
         "COMPENSATED": "1" if compensated else "0",
         "E": _array(pred.E), "QB": _array(QB), "K": _array(ctrl.K),
         "U0": _array(slave.u0),
@@ -271,8 +279,7 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
     uses_step = has_step and ((predictor == PREDICTORS["closed"] and W > 0) or not zoh)
     n, m = model.n, model.m
     D = ctrl.pad_line.D if zoh else 0
-    p = [float(loop.T) if name == "T" else float(ctrl.p[name])
-         for name in translation.numeric]
+    p = [float(ctrl.p[name]) for name in translation.numeric]  # T included, last
     funcs = (*(("f",) if needs_ode else ()), "k", *(("step",) if uses_step else ()))
     P = prefix
     state = [_COMMON_STATE,
@@ -319,7 +326,8 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
         "ZOH": str(int(zoh)), "PREDICT": str(predictor), "HAS_STEP": str(int(uses_step)),
         "NEEDS_ODE": str(int(needs_ode)), "TOL": _c(slave.tolerance),
         "TAU": _c(slave.tau), "NP": str(max(len(p), 1)),
-        "P": _array(p) if p else "0.0", "U0": _array(slave.u0),
+        "P": _array(p), "U0": _array(slave.u0),
+        "GRID_RTOL": repr(GRID_RTOL), "MAX_ODE_STEPS": str(MAX_ODE_STEPS),
         "Z0": _array(slave.z0),
         "ODE": ode, "FUNCTIONS": _model_functions(translation, branch, funcs),
         "CALL_F": _call(translation, "f", branch, args, "dx") if needs_ode else "-1",

@@ -90,10 +90,6 @@ def _tool(name: str) -> str:
     return path
 
 
-def _record(loop, fmu_dir: Path, ticks: int):
-    return closed_loop_io(loop, ticks, fmu_dir)
-
-
 def _driver(out: Path, prefix: str, cc: list[str], exe: Path) -> Path:
     subprocess.run([*cc, *STRICT, f"-DPREFIX={prefix}", "-include",
                     str(out / f"{prefix}.h"), "-I", str(out), str(DRIVER),
@@ -113,7 +109,7 @@ def _run_driver(argv: list[str], loop, ys: np.ndarray) -> np.ndarray:
 def test_the_export_equals_the_controller_fmu(name, tmp_path):
     loop = LOOPS[name]()
     ticks = 6 * loop.N + 7  # six periods and a part
-    ys, want = _record(loop, tmp_path / "fmus", ticks)
+    ys, want = closed_loop_io(loop, ticks, tmp_path / "fmus")
     export_c(loop, tmp_path / "c", "ctl")
     exe = _driver(tmp_path / "c", "ctl", compiler(), tmp_path / "drive")
     got = _run_driver([str(exe)], loop, ys)
@@ -137,7 +133,7 @@ def test_the_aarch64_build_prints_the_same_numbers(name, tmp_path):
     _tool("qemu-aarch64")
     loop = LOOPS[name]()
     ticks = 3 * loop.N + 5
-    ys, _ = _record(loop, tmp_path / "fmus", ticks)
+    ys, _ = closed_loop_io(loop, ticks, tmp_path / "fmus")
     export_c(loop, tmp_path / "c", "ctl")
     here = _run_driver([str(_driver(tmp_path / "c", "ctl", compiler(), tmp_path / "d"))],
                        loop, ys)
@@ -314,7 +310,7 @@ def test_valgrind_finds_no_invalid_access_in_the_export(name, tmp_path):
     memcheck sees every field that ``NAME_init`` left unset)."""
     valgrind = _tool("valgrind")
     loop = LOOPS[name]()
-    ys, _ = _record(loop, tmp_path / "fmus", 2 * loop.N + 3)
+    ys, _ = closed_loop_io(loop, 2 * loop.N + 3, tmp_path / "fmus")
     export_c(loop, tmp_path / "c", "ctl")
     exe = _driver(tmp_path / "c", "ctl", compiler(), tmp_path / "d")
     lines = "".join(f"{k * loop.h!r} " + " ".join(repr(float(v)) for v in y) + "\n"
@@ -372,7 +368,7 @@ def test_random_loops_export_equal_to_the_fmu(kind, seed, tmp_path):
     controller FMU as in :func:`test_the_export_equals_the_controller_fmu`."""
     loop = (_random_lti_loop if kind == "lti" else _random_model_loop)(seed)
     ticks = 5 * loop.N + 3
-    ys, want = _record(loop, tmp_path / "fmus", ticks)
+    ys, want = closed_loop_io(loop, ticks, tmp_path / "fmus")
     export_c(loop, tmp_path / "c", "ctl")
     got = _run_driver([str(_driver(tmp_path / "c", "ctl", compiler(), tmp_path / "d"))],
                       loop, ys)

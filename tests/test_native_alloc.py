@@ -31,7 +31,7 @@ COUNTER = Path(__file__).parent / "native_alloc" / "count_alloc.c"
 #: numerical predictors, continuous input and zero-order hold, padding)
 LOOPS = {
     "example-3.6": lambda: _scenario("example-3.6", []),
-    "mimo-n3-m2": lambda: stable_mimo_loop(),
+    "mimo-n3-m2": lambda: stable_mimo_loop(),  # defined below
     "example-2.4": lambda: _scenario("example-2.4", []),
     "example-2.4-numerical": lambda: _scenario("example-2.4", ["predictor=numerical"]),
     "example-3.8-padded": lambda: _scenario("example-3.8", ["tau=0.5", "pad=true"]),

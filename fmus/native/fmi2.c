@@ -230,7 +230,6 @@ int check_step(Instance *c, double t, double h) {
     return -1;
 }
 
-
 int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
     for (size_t k = 0; k < count; k++) {
         double v = c->d.real[first + k];

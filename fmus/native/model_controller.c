@@ -447,7 +447,7 @@ int model_step(Instance *c, double t, double hs) {
     double slack = 1e-9 * fmax(T, fabs(t));
     /* the master's round-off (delaycomp.fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves */
     if (hs <= ROUNDOFF_STEP_FRACTION * m->h && fabs(t + hs - expected) <= slack) return 0;
-    /* the step is h up to the round-off of the host's times (grid_step) */
+    /* the step is h up to the round-off of the host's times (same_step) */
     if (!same_step(hs, m->h, t) || fabs(t - expected) > slack) {
         log_error(c, "step (%s, %s) is not allowed: this controller steps from %s by exactly "
                   "T/N = %s", num(t).s, num(hs).s, num(expected).s, num(m->h).s);

@@ -13,7 +13,7 @@
 
 #include "fmi2Functions.h"
 #include "config.h"
-#include "linalg.h"
+#include "linalg.h"  /* the maths (linalg.c): expm, flow, matmul, with the caller's work memory */
 
 #define STRING_MAX 256       /* longest String parameter value, terminator included */
 #define GRID_RTOL 1e-9       /* delaycomp.grid.GRID_RTOL */
@@ -159,8 +159,6 @@ int check_step(Instance *c, double t, double h);
 int same_step(double step, double h, double t);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
-
-/* The maths (linalg.c, linalg.h): expm, flow, matmul, with the caller's work memory. */
 
 /* The model (delay.c, plant.c or controller.c). Each returns 0, or -1 with a logged error. */
 int model_setup(Instance *c);                      /* at fmi2ExitInitializationMode */

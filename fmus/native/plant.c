@@ -18,7 +18,6 @@ int model_setup(Instance *c) {
     return alloc_buf(c, (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU));
 }
 
-
 int model_output(Instance *c, fmi2ValueReference vr, double *value) {
     *value = c->d.real[vr];
     return 0;
