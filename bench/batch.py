@@ -38,10 +38,13 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from delaycomp import __version__, batch, scenarios, sweep  # noqa: E402
-from delaycomp.model import load_model  # noqa: E402
-from delaycomp.models import path as model_path  # noqa: E402
-from delaycomp.simulate import run_loop, single_threaded_blas  # noqa: E402
+from delaycomp import __version__  # noqa: E402
+from delaycomp.maths.model import load_model  # noqa: E402
+from delaycomp.orchestrator.simulate import run_loop, single_threaded_blas  # noqa: E402
+from delaycomp.paper import scenarios  # noqa: E402
+from delaycomp.paper.models import path as model_path  # noqa: E402
+from delaycomp.studies import batch, pool, sweep  # noqa: E402
+from delaycomp.studies.axes import format_value, parse_grid, points  # noqa: E402
 
 TARGET_3_6 = 1000.0
 TARGET_2_4 = 50.0
@@ -97,12 +100,12 @@ def gpu_backend() -> str | None:
 # -- the sweep grids ---------------------------------------------------------------------
 
 def bench_sweep(label, name, sets, grids, stop, repeats, k_sample, cores, gpu):
-    axes = [sweep.parse_grid(g) for g in grids]
-    pts = sweep.points(axes)
+    axes = [parse_grid(g) for g in grids]
+    pts = points(axes)
     P = len(pts)
     names = [a.name for a in axes]
     idx = sample(P, P, k_sample)
-    point_sets = [[*sets, *(f"{n}={sweep._fmt(v)}" for n, v in zip(names, pts[i]))]
+    point_sets = [[*sets, *(f"{n}={format_value(v)}" for n, v in zip(names, pts[i]))]
                   for i in idx]
     runs = {
         "batch_1": lambda: sweep.run_sweep(name, axes, sets, stop, engine="batch",
@@ -114,10 +117,9 @@ def bench_sweep(label, name, sets, grids, stop, repeats, k_sample, cores, gpu):
     if gpu:
         runs["batch_gpu"] = lambda: sweep.run_sweep(name, axes, sets, stop, engine="batch",
                                                     array_backend=gpu)
-    from delaycomp import sweep_batch
-
+    from delaycomp.studies import sweep_batch
     sc = scenarios.get(name)
-    loops = [sc.loop([*sets, *(f"{n}={sweep._fmt(v)}" for n, v in zip(names, pt))])
+    loops = [sc.loop([*sets, *(f"{n}={format_value(v)}" for n, v in zip(names, pt))])
              for pt in pts]
     chunks, fallback, _ = sweep_batch.prepare(loops, stop, "numpy", 1, None)
     assert not fallback
@@ -128,7 +130,7 @@ def bench_sweep(label, name, sets, grids, stop, repeats, k_sample, cores, gpu):
         for key, fn in runs.items():
             dt, results[key] = timed(fn)
             samples[key].append(dt)
-        dt, _ = timed(lambda: sweep_batch.run_chunks(chunks, 1, None, sweep._Progress(P)))
+        dt, _ = timed(lambda: sweep_batch.run_chunks(chunks, 1, None, pool.Progress(P)))
         samples["engine_1"].append(dt)
         per, pp_rows = per_point_rows(name, point_sets, stop)
         samples["per_point"].append(per * P)
@@ -148,8 +150,7 @@ def bench_proposition_4_2(repeats, k_sample, cores, side):
     base = sc.resolve([])
 
     def run(workers):
-        from delaycomp import sweep_batch
-
+        from delaycomp.studies import sweep_batch
         arrays = dict(T=np.full(P, base["T"]), N=np.full(P, base["N"]),
                       r=np.full(P, base["r"]), tau=np.full(P, base["tau"]),
                       r_true=np.full(P, base["r"]), tau_true=np.full(P, base["tau"]),
@@ -160,7 +161,7 @@ def bench_proposition_4_2(repeats, k_sample, cores, side):
                                      stop, "numpy", str(model.source),
                                      (("law", "corrected"),), False))
                   for s in range(0, P, size)]
-        out = sweep_batch.run_chunks(chunks, workers, None, sweep._Progress(P))
+        out = sweep_batch.run_chunks(chunks, workers, None, pool.Progress(P))
         return [row for rows in out for row in rows]
 
     idx = sample(P, P, k_sample)
@@ -202,8 +203,7 @@ def bench_million(side, gpu, cores):
             stable += int(res.stable.sum())
         out["cpu"] = time.perf_counter() - t
     if cores > 1:
-        from delaycomp import sweep_batch
-
+        from delaycomp.studies import sweep_batch
         chunks = []
         for s in range(0, P, size):
             n_s = len(R[s:s + size])
@@ -215,7 +215,7 @@ def bench_million(side, gpu, cores):
             chunks.append((list(range(s, s + n_s)),
                            sweep_batch.Chunk("lti", arrays, 20.0, "numpy")))
         t = time.perf_counter()
-        rows = sweep_batch.run_chunks(chunks, cores, None, sweep._Progress(P))
+        rows = sweep_batch.run_chunks(chunks, cores, None, pool.Progress(P))
         out["all"] = time.perf_counter() - t
         out["all_stable_equal"] = sum(r["stable"] for rr in rows for r in rr) == stable
     # end to end, as `delaycomp sweep` runs it (every point resolved and validated, rows)

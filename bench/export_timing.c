@@ -3,7 +3,7 @@
  *
  * usage: export_timing TICKS < EPISODE
  * EPISODE (stdin): "E", then E lines of the controller's measurement y at each base step
- * of a closed-loop run (delaycomp.exportc.closed_loop_io). The controller runs TICKS base
+ * of a closed-loop run (delaycomp.formats.exportc.closed_loop_io). The controller runs TICKS base
  * steps as episodes of E steps, each from PREFIX_init (not timed) along the recorded
  * measurements (at a sample tick: PREFIX_sample and PREFIX_output; else PREFIX_output);
  * each step is timed with the monotonic clock. Prints "median p999 max sample_median

@@ -10,7 +10,7 @@ Run from the repository root (it writes ``BENCHMARKS.md`` and
 Everything is measured side by side in one run and reported as medians of repeated runs
 and as ratios, because absolute times on a shared machine drift from minute to minute:
 the two engines of a comparison are timed alternately, repeat after repeat. BLAS runs on
-one thread throughout, as in ``delaycomp run`` (see ``delaycomp.simulate``).
+one thread throughout, as in ``delaycomp run`` (see ``delaycomp.orchestrator.simulate``).
 
 Sections (the targets are those of the performance issue):
 
@@ -30,7 +30,7 @@ Sections (the targets are those of the performance issue):
 6. start: whole processes of ``delaycomp --help`` and ``delaycomp list`` against a bare
    ``python -c pass`` (target: within 6x), alternately;
 7. Python FMUs: what instantiating each one imports in a fresh interpreter, as pythonfmu's
-   binary does in a host (``delaycomp.build.probe_instantiation``), and how long it takes;
+   binary does in a host (``delaycomp.fmu.build.probe_instantiation``), and how long it takes;
 8. a packed loop: ``delaycomp run`` of Example 3.6 packed with ``ssp --native`` (40 s, a
    CSV of the results) against OMSimulator's command line on the same archive (where it
    is installed; target: within 2x, aim 1.5x), whole processes, alternately;
@@ -72,13 +72,15 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from delaycomp import __version__, check, scenarios  # noqa: E402
-from delaycomp.simulate import (  # noqa: E402
-    fmu_path,
+from delaycomp import __version__  # noqa: E402
+from delaycomp.fmu.cache import fmu_path  # noqa: E402
+from delaycomp.orchestrator.simulate import (  # noqa: E402
     make_master,
     run_loop,
     single_threaded_blas,
 )
+from delaycomp.paper import scenarios  # noqa: E402
+from delaycomp.verify import check  # noqa: E402
 
 TARGET_REALTIME = 100.0
 TARGET_INPROCESS = 20.0
@@ -148,8 +150,8 @@ def bench_engines(names, Ns, repeats, fmu_dir):
 
 _COLD = """
 import sys, time
-from delaycomp import scenarios
-from delaycomp.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.orchestrator.simulate import run_loop
 sc = scenarios.get("example-3.6")
 spec = sc.make(sc.resolve([]))
 t = time.perf_counter()
@@ -186,7 +188,7 @@ def bench_native(repeats, fmu_dir, work: Path):
     host, and the whole process: loading, initialization and exit included)."""
     import subprocess
 
-    from delaycomp.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
 
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve([]))
@@ -238,7 +240,7 @@ def bench_packed(repeats, work: Path):
     whole processes, alternately. None where OMSimulator is not installed."""
     import subprocess
 
-    from delaycomp.omsimulator import NotInstalled, cli_command
+    from delaycomp.verify.omsimulator import NotInstalled, cli_command
 
     ssp = work / "ex36-native.ssp"
     subprocess.run([sys.executable, "-m", "delaycomp", "ssp", "example-3.6", "--native",
@@ -268,8 +270,8 @@ def bench_packed(repeats, work: Path):
 def bench_fmu_imports(repeats, fmu_dir):
     """Each Python FMU instantiated in a fresh interpreter (pythonfmu's way), ``repeats``
     times round-robin: the median time and what the first probe imported."""
-    from delaycomp.build import probe_instantiation
-    from delaycomp.models import path as builtin_model
+    from delaycomp.fmu.build import probe_instantiation
+    from delaycomp.paper.models import path as builtin_model
 
     model = {"model": str(builtin_model("example_2_4"))}
     fmus = {"delay (n = 1)": fmu_path("delay", {"n": 1}, fmu_dir),
@@ -306,8 +308,8 @@ def bench_exact_grid(repeats, work: Path, steps: int = 50_000):
     stepping loop, timed inside it, and the whole process under ``env -i``)."""
     import subprocess
 
-    from delaycomp.native import compile_host, host_argv, native_fmus, unpack
-    from delaycomp.scenarios import lti_loop
+    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.paper.scenarios import lti_loop
 
     exe = compile_host(work / "host-exact-grid")
     rows = []
@@ -348,7 +350,7 @@ def report_exact_grid(rows) -> list[str]:
          "`t_{k+1} - t_k`, as the FMI guides ask of an importer) against constant steps `h`, "
          "native FMUs, whole runs timed alternately: the host's stepping loop and the whole "
          "process (writing the CSV included). The plant keys its discretization on its own "
-         "grid (`delaycomp.grid.same_step`): steps within `GRID_RTOL` of `h` reuse it "
+         "grid (`delaycomp.maths.grid.same_step`): steps within `GRID_RTOL` of `h` reuse it "
          "(target: exact grid about 1x constant steps; before, keyed on the step's bits, a "
          "matrix exponential per step: at n = 40, 57.6x in the stepping loop and 9.0x the "
          "whole process, measured on the machine of the change).", "",
@@ -371,7 +373,6 @@ def _lti_timing_loop(n: int):
     import numpy as np
 
     from delaycomp import api
-
     rng = np.random.default_rng(n)
     A = -np.eye(n) + 0.1 * rng.standard_normal((n, n))
     B = rng.standard_normal((n, 1))
@@ -382,8 +383,8 @@ def _lti_timing_loop(n: int):
 
 def _work_bound(loop) -> str:
     """The bound of item 1 on the work of one step of the loop's exported controller."""
-    from delaycomp.exportc import MAX_ODE_STEPS, _controller
-    from delaycomp.nlcontrol import ZOHModelController
+    from delaycomp.formats.exportc import MAX_ODE_STEPS, _controller
+    from delaycomp.maths.nlcontrol import ZOHModelController
 
     _, kind, slave = _controller(loop)
     ctrl = slave.ctrl
@@ -409,8 +410,8 @@ def bench_export(ticks: int, work: Path) -> list[dict]:
     of one step, and of the sample steps."""
     import subprocess
 
-    from delaycomp.exportc import closed_loop_io, export_c
-    from delaycomp.native import compiler
+    from delaycomp.fmu.native import compiler
+    from delaycomp.formats.exportc import closed_loop_io, export_c
 
     cases = [(f"LTI n = {n}, m = 1", _lti_timing_loop(n)) for n in (2, 20)]
     for name, sets in SPEED_CASES:
@@ -449,8 +450,8 @@ def report_export(rows) -> list[str]:
          f"`delaycomp export-c` of each loop, compiled at -O2 and driven by "
          f"`bench/export_timing.c` for {ticks:,} base steps: episodes of 20 periods from "
          "the controller's start, along the measurements of a closed-loop run of the loop's "
-         "native FMUs (`delaycomp.exportc.closed_loop_io`); each step (`NAME_sample` and `NAME_output` at a sample "
-         "instant, `NAME_output` between) timed with the monotonic clock. The maximum is "
+         "native FMUs (`delaycomp.formats.exportc.closed_loop_io`); each step (`NAME_sample` "
+         "and `NAME_output` at a sample instant, `NAME_output` between) timed with the monotonic clock. The maximum is "
          "reported, not gated on: this machine is shared, and a step that the scheduler "
          "interrupts shows here. The last column is the bound on a step's work (issue 33, "
          "item 1): what a target's worst case is made of.", "",
@@ -537,8 +538,8 @@ def bench_speed(cases, repeats, fmu_dir, work: Path, max_periods: int = 20):
     its stepping loop and the whole process against real time."""
     import subprocess
 
-    from delaycomp.native import compile_host, host_argv, native_fmus, unpack
-    from delaycomp.omsimulator import cli_env
+    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.verify.omsimulator import cli_env
 
     samples, loops = [], []
     for name, sets in cases:
@@ -697,11 +698,11 @@ def bench_master(names, repeats, fmu_dir):
 # -- 3. predictor cost -------------------------------------------------------------------------
 
 def bench_predictors(repeats):
-    from delaycomp.controller import ZOHController
-    from delaycomp.lti import LTIPredictor
-    from delaycomp.model import load_model
-    from delaycomp.models import path
-    from delaycomp.predictors import deadbeat_gain, numerical_predictor
+    from delaycomp.maths.lti import LTIPredictor
+    from delaycomp.maths.model import load_model
+    from delaycomp.maths.predictors import deadbeat_gain, numerical_predictor
+    from delaycomp.maths.zoh import ZOHController
+    from delaycomp.paper.models import path
 
     rows = []
     rng = np.random.default_rng(0)

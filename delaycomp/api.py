@@ -4,8 +4,8 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 ``StateSpace`` (:func:`lti`), or from a model file (:func:`model`); each returns a
 :class:`~delaycomp.system.Loop`, the typed description every command runs. Then
 
-- :func:`run` co-simulates it and returns a :class:`~delaycomp.simulate.Result` (one numpy
-  array per signal: ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
+- :func:`run` co-simulates it and returns a
+  :class:`~delaycomp.orchestrator.simulate.Result` (one numpy array per signal: ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
 - :func:`plot` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
 - :func:`build` writes the loop's FMUs, named after it, with its values as their start
   values (ready to instantiate with no parameter set), and a wiring sheet: your
@@ -17,7 +17,7 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 
 Failures raise named exceptions, all :class:`~delaycomp.errors.DelaycompError`:
 :class:`~delaycomp.errors.ParameterError` (a value out of range, the sign guard),
-:class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.model.ModelError`,
+:class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.maths.model.ModelError`,
 :class:`~delaycomp.errors.SimulationFailed` (a run stopped early; its rows are in
 ``exc.result``).
 
@@ -54,19 +54,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import (
+from delaycomp.errors import (
     BadFileError,
     DelaycompError,
     ParameterError,
     SimulationFailed,
 )
-from .model import ModelError
-from .names import FMU_KINDS
-from .simulate import Result
-from .system import Loop
-from .system import lti_loop as _lti_loop
-from .system import model_loop as _model_loop
-from .system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
+from delaycomp.maths.model import ModelError
+from delaycomp.names import FMU_KINDS
+from delaycomp.orchestrator.simulate import Result
+from delaycomp.system import Loop
+from delaycomp.system import lti_loop as _lti_loop
+from delaycomp.system import model_loop as _model_loop
+from delaycomp.system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
            "Result", "SignError", "SimulationFailed", "build", "critical_delay", "export_c",
@@ -160,12 +160,12 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
           predictor: str | None = None, pad: bool = False,
           stop_time: float | None = None, **parameters) -> Loop:
     """A loop around a model file (the plant ``f`` and its delay-free feedback ``k``; see
-    :mod:`delaycomp.model`); ``parameters`` are the model's own.
+    :mod:`delaycomp.maths.model`); ``parameters`` are the model's own.
 
     ``mode="uncompensated"`` applies the feedback to the sample itself instead of the
     prediction (the baseline the predictor is compared with).
     """
-    from .model import load_model
+    from delaycomp.maths.model import load_model
 
     if mode not in ("compensated", "uncompensated"):
         raise ParameterError(f"mode = {mode!r} is not allowed: must be compensated or "
@@ -198,7 +198,7 @@ def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
     a C compiler; a note in ``result.notes`` says when the Python FMUs ran instead), only
     native ones, or the Python ones. Native FMUs are built into ``fmu_dir/native``. Raises
     :class:`SimulationFailed` if the run stops early."""
-    from .simulate import run_loop
+    from delaycomp.orchestrator.simulate import run_loop
 
     _fmu_kind(fmus)
     stop = loop.stop_time if stop_time is None else stop_time
@@ -207,7 +207,7 @@ def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
     fmu_dir = Path(fmu_dir) if fmu_dir else None
     chosen, why = None, None
     if engine == "fmu" and fmus != "python":
-        from .native import native_fmus, native_or_why
+        from delaycomp.fmu.native import native_fmus, native_or_why
 
         native_dir = fmu_dir / "native" if fmu_dir else None
         if fmus == "native":
@@ -229,7 +229,7 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
     """A matplotlib ``Figure`` of one result or several (one line each, ``labels`` in the
     legend); one panel per signal. The backend is not touched: save it with
     ``fig.savefig(...)`` or show it in a notebook."""
-    from .plotting import figure
+    from delaycomp.plotting import figure
 
     return figure(results, title, labels)
 
@@ -257,7 +257,7 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
 
     Returns
     -------
-    delaycomp.loopbuild.LoopBuild
+    delaycomp.formats.loopbuild.LoopBuild
         ``.fmus`` (role -> path), ``.wiring``, ``.native``, ``.notes``.
 
     Examples
@@ -270,7 +270,7 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     >>> sorted(p.name for p in out.paths)
     ['dbl_controller.fmu', 'dbl_wiring.txt']
     """
-    from .loopbuild import build_loop
+    from delaycomp.formats.loopbuild import build_loop
 
     return build_loop(loop, out, only=only, fmus=fmus)
 
@@ -300,12 +300,12 @@ def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
     --------
     >>> import tempfile
     >>> from delaycomp import api
-    >>> from delaycomp.scenarios import loop_file
+    >>> from delaycomp.paper.scenarios import loop_file
     >>> loop = api.load(loop_file("example-3.6"), r=0.4)
     >>> [p.name for p in api.export_c(loop, tempfile.mkdtemp(), "ctl")]
     ['ctl.h', 'ctl.c']
     """
-    from .exportc import export_c as _export_c
+    from delaycomp.formats.exportc import export_c as _export_c
 
     return _export_c(loop, out, prefix)
 
@@ -316,18 +316,17 @@ def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
     variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`).
     ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``), only
     native ones, or the Python ones."""
-    from . import ssp
-
+    from delaycomp.formats import ssp
     _fmu_kind(fmus)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
     if jacobi:
-        from .thirdparty import pack_jacobi
+        from delaycomp.verify.thirdparty import pack_jacobi
 
         path = pack_jacobi(loop, out, fmu_dir)
     else:
         path = ssp.pack(*ssp.loop_system(loop), out, fmu_dir)
     if fmus != "python":
-        from .native import NativeBuildError, native_archive
+        from delaycomp.fmu.native import NativeBuildError, native_archive
 
         try:
             native_archive(path, path)
@@ -353,7 +352,7 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     ``inprocess`` or ``fmu`` (point by point); the results agree (tested). ``workers``
     processes or a Dask ``scheduler`` address share the work; ``array_backend`` (numpy,
     cupy, jax, auto) and ``chunk`` (points per batch) tune the batch engine; what it did is
-    appended to ``notes``. See :func:`delaycomp.sweep.run_sweep`.
+    appended to ``notes``. See :func:`delaycomp.studies.sweep.run_sweep`.
 
     Examples
     --------
@@ -370,7 +369,8 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     >>> notes
     ['batch engine (numpy, cpu): 4 of 4 points in 1 chunk']
     """
-    from .sweep import Axis, run_sweep
+    from delaycomp.studies.axes import Axis
+    from delaycomp.studies.sweep import run_sweep
 
     axes = [Axis(name, tuple(float(v) for v in values)) for name, values in grid.items()]
     return run_sweep(str(source), axes, list(sets), stop_time, engine, workers, scheduler,
@@ -381,8 +381,8 @@ def critical_delay(loop: Loop) -> float:
     """The largest measurement delay ``r_c`` for which the *uncompensated* LTI loop is
     stable, from the spectral radius of the exact lifted model (the loop's own ``r`` is not
     used)."""
-    from .lti import critical_delay as search
-    from .lti import lifted_loop
+    from delaycomp.maths.lti import critical_delay as search
+    from delaycomp.maths.lti import lifted_loop
 
     d = loop.lti
     if d is None:

@@ -50,11 +50,12 @@ import sys
 import time
 from pathlib import Path
 
-from . import __version__, scenarios
-from .errors import BadFileError, SspError
-from .model import ModelError
-from .names import LOOP_GROUPS
-from .scenarios import ParameterError
+from delaycomp import __version__
+from delaycomp.errors import BadFileError, SspError
+from delaycomp.maths.model import ModelError
+from delaycomp.names import LOOP_GROUPS
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import ParameterError
 
 
 class UsageError(Exception):
@@ -331,8 +332,8 @@ def _chosen_fmus(args, loop) -> dict | None:
         return None
     if args.native:
         return _native_fmus(loop, args.fmu_dir)
-    from .native import native_or_why
-    from .progress import info
+    from delaycomp.fmu.native import native_or_why
+    from delaycomp.progress import info
 
     fmus, why = native_or_why(loop, args.fmu_dir / "native" if args.fmu_dir else None)
     if fmus is None:
@@ -368,9 +369,9 @@ def _loop(args):
 
 def _cmd_build_loop(args) -> int:
     """``build LOOP.toml``: the loop's FMUs with its values as start values, and its
-    wiring sheet (:func:`delaycomp.loopbuild.build_loop`)."""
-    from .loopbuild import build_loop
-    from .progress import info
+    wiring sheet (:func:`delaycomp.formats.loopbuild.build_loop`)."""
+    from delaycomp.formats.loopbuild import build_loop
+    from delaycomp.progress import info
 
     if args.model is not None:
         raise UsageError("--model is not allowed with LOOP.toml (a loop file names its "
@@ -390,9 +391,9 @@ def _cmd_build_loop(args) -> int:
 
 
 def _cmd_build(args) -> int:
-    from .build import build_all, build_model
-    from .native import NativeBuildError, build_native, build_native_model
-    from .progress import info
+    from delaycomp.fmu.build import build_all, build_model
+    from delaycomp.fmu.native import NativeBuildError, build_native, build_native_model
+    from delaycomp.progress import info
 
     if args.loop is not None:
         return _cmd_build_loop(args)
@@ -416,7 +417,7 @@ def _cmd_build(args) -> int:
         paths = build_native_model(args.model, args.out) if args.model else \
             build_native(args.out)
     elif args.model:
-        from .model import load_model
+        from delaycomp.maths.model import load_model
 
         load_model(args.model)  # a bad model file is an error, not a reason to fall back
         paths = None
@@ -428,7 +429,7 @@ def _cmd_build(args) -> int:
         if paths is None:
             paths = build_model(args.model, args.out)
     else:
-        from .ssp import pack_scenarios
+        from delaycomp.formats.ssp import pack_scenarios
 
         paths = None
         if not args.python:
@@ -450,8 +451,8 @@ def _cmd_build(args) -> int:
 def _native_archives(archives, verbosity: int) -> None:
     """Each archive of ``delaycomp build`` with its FMUs' native twins, where they exist
     here (a note names an archive that keeps Python FMUs, and why)."""
-    from .native import NativeBuildError, native_archive
-    from .progress import info
+    from delaycomp.fmu.native import NativeBuildError, native_archive
+    from delaycomp.progress import info
 
     for path in archives:
         try:
@@ -467,18 +468,17 @@ def _cmd_ssp(args) -> int:
         if args.set or args.jacobi or args.native or args.python:
             raise UsageError("--set, --jacobi, --native and --python need a scenario to "
                              "pack")
-        from . import ssp
-
+        from delaycomp.formats import ssp
         for path in ssp.write_all(args.out):
             print(path.parent)
         return 0
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
     _, _, loop = _loop(args)
-    from . import ssp  # the arguments are checked: now the SSP writer (lxml)
+    from delaycomp.formats import ssp  # the arguments are checked: now the SSP writer (lxml)
 
     if args.jacobi:
-        from .thirdparty import CompensationError, pack_jacobi
+        from delaycomp.verify.thirdparty import CompensationError, pack_jacobi
 
         try:
             path = pack_jacobi(loop, args.out, args.fmu_dir)
@@ -487,8 +487,8 @@ def _cmd_ssp(args) -> int:
     else:
         path = ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir)
     if not args.python:  # the same archive with the native twins of its FMUs
-        from .native import NativeBuildError, native_archive
-        from .progress import info
+        from delaycomp.fmu.native import NativeBuildError, native_archive
+        from delaycomp.progress import info
 
         try:
             native_archive(path, path)
@@ -506,14 +506,14 @@ def _cmd_ssp(args) -> int:
 
 def _outputs(args) -> None:
     """Check ``--out`` and ``--plot`` before anything runs (a bad path: exit 2)."""
-    from .outputs import check_output
+    from delaycomp.formats.outputs import check_output
 
     check_output(getattr(args, "out", None), "--out")
     check_output(getattr(args, "plot", None), "--plot", "plot")
 
 
 def _cmd_run(args) -> int:
-    from .plotting import Timing, title_of_loop
+    from delaycomp.plotting import Timing, title_of_loop
 
     _outputs(args)
     if args.compare and not args.plot:
@@ -545,7 +545,7 @@ def _cmd_run(args) -> int:
             raise UsageError(f"--compare needs a loop whose controller has a mode "
                              f"(compensated or uncompensated); {source.name} has none"
                              ) from None
-    from .plotting import UNITS_BY_LOOP
+    from delaycomp.plotting import UNITS_BY_LOOP
 
     if args.engine != "fmu":  # the Python FMUs' slaves, called in this process
         if args.native:
@@ -576,9 +576,9 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
 
     ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
     and are decimated afterwards)."""
-    from .outputs import CsvStream, check_budget, clear_previous, output_every
-    from .progress import bar, info
-    from .simulate import run_loop
+    from delaycomp.formats.outputs import CsvStream, check_budget, clear_previous, output_every
+    from delaycomp.orchestrator.simulate import run_loop
+    from delaycomp.progress import bar, info
 
     ticks = loop.timing.ticks(stop)
     every = output_every(args.output_interval, loop.T, loop.N)
@@ -622,9 +622,9 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
 
 
 def _foreign(args):
-    """The :class:`delaycomp.ssp.Foreign` settings of ``--period``, ``--steps``, ``--role``
+    """The :class:`delaycomp.formats.ssp.Foreign` settings of ``--period``, ``--steps``, ``--role``
     (None when none is given)."""
-    from .ssp import Foreign
+    from delaycomp.formats.ssp import Foreign
 
     if args.period is None and args.steps is None and not args.role:
         return None
@@ -650,8 +650,8 @@ def _foreign(args):
 
 
 def _run_ssp(args) -> int:
-    from .plotting import Timing, title_of_loop
-    from .ssp import Archive, apply_sets
+    from delaycomp.formats.ssp import Archive, apply_sets
+    from delaycomp.plotting import Timing, title_of_loop
 
     if args.engine != "fmu":
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
@@ -671,7 +671,7 @@ def _run_ssp(args) -> int:
                 raise UsageError("--set applies to our master only (libcosim, Ecos and "
                                  "OMSimulator take "
                                  "the parameters packed in the SSP)")
-            from .check import PROVIDERS
+            from delaycomp.verify.check import PROVIDERS
 
             absent = PROVIDERS.masters[args.master].unavailable()
             if absent is not None:
@@ -679,11 +679,11 @@ def _run_ssp(args) -> int:
 
             def runner(stop, master=args.master, path=args.scenario):
                 if master == "omsimulator":
-                    from .omsimulator import run_ssp as run_oms
+                    from delaycomp.verify.omsimulator import run_ssp as run_oms
 
                     result = run_oms(path, stop)
                 else:
-                    from .thirdparty import run_ssp
+                    from delaycomp.verify.thirdparty import run_ssp
 
                     result = run_ssp(master, path, stop)
                 if not result.success:
@@ -700,7 +700,7 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
                 timing=None, units=None, runs=None) -> int:
     """Plot a successful run and print its summary; on failure nothing that looks like a
     result (no FILE.csv, no plot): the rows recorded before it are in FILE.csv.partial."""
-    from .progress import QUIET, info
+    from delaycomp.progress import QUIET, info
 
     if args.verbosity > QUIET:
         for note in result.notes:
@@ -713,7 +713,7 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
         print(f"delaycomp: error: {result.message}{kept}", file=sys.stderr)
         return 1
     if args.plot:
-        from .plotting import plot_result
+        from delaycomp.plotting import plot_result
 
         plot_result(result, args.plot, title, timing, units, runs)
     last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
@@ -729,19 +729,20 @@ def _describe(params: dict) -> str:
 
 
 def _cmd_sweep(args) -> int:
-    from . import sweep
-    from .outputs import clear_previous
-    from .plotting import loop_title
-    from .progress import info
+    from delaycomp.formats.outputs import clear_previous
+    from delaycomp.plotting import loop_title
+    from delaycomp.progress import info
+    from delaycomp.studies import sweep
+    from delaycomp.studies.axes import format_value, parse_grid, snap_axes
 
     _outputs(args)
     source, sets = _source(args)
-    axes = [sweep.parse_grid(g) for g in args.grid]
+    axes = [parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
     sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
                            1 if args.scheduler else args.workers, args.exact)
-    axes, notes = sweep.snap_axes(args.scenario, axes, sets)
+    axes, notes = snap_axes(args.scenario, axes, sets)
     for note in notes:
         info(f"note: {note}", args.verbosity)
     clear_previous(args.out, args.plot)
@@ -755,9 +756,9 @@ def _cmd_sweep(args) -> int:
         print(note)
     sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
-        from .critical import critical_curve
+        from delaycomp.studies.critical import critical_curve
 
-        first = source.loop([*sets, *(f"{a.name}={sweep._fmt(a.values[0])}" for a in axes)])
+        first = source.loop([*sets, *(f"{a.name}={format_value(a.values[0])}" for a in axes)])
         ctrl = first.by_role("controller")
         fixed = {**(ctrl.parameters if ctrl is not None else {}), "T": first.T}
         for a in axes:  # the title gives what the grid holds fixed
@@ -778,10 +779,10 @@ def _cmd_critical_delay(args) -> int:
     if (args.out or args.plot) and not args.grid:
         raise UsageError("--out and --plot write the table of --grid: give --grid")
     # the arguments are checked: now the maths (scipy) the answer needs
-    from .critical import critical_delay_report, critical_delay_table
+    from delaycomp.studies.critical import critical_delay_report, critical_delay_table
 
     if args.grid:
-        from .outputs import clear_previous
+        from delaycomp.formats.outputs import clear_previous
 
         clear_previous(args.out, args.plot)
         rows = critical_delay_table(scenario, sets, args.grid, args.out, args.plot)
@@ -798,8 +799,7 @@ def _cmd_critical_delay(args) -> int:
 
 
 def _cmd_check(args) -> int:
-    from . import cases as refs
-
+    from delaycomp.verify import cases as refs
     try:  # the cases first: a bad one is refused before the masters (fmpy, ...) load
         if args.loop is not None:
             if args.case:
@@ -809,8 +809,7 @@ def _cmd_check(args) -> int:
             raise KeyError("--set applies to a LOOP.toml")
         else:
             cases = [refs.case(c) for c in args.case] if args.case else list(refs.CASES)
-        from . import check
-
+        from delaycomp.verify import check
         if args.master:
             for name in args.master:
                 if name not in check.PROVIDERS.masters:
@@ -832,8 +831,7 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_crosscheck(args) -> int:
-    from . import check, crosscheck
-
+    from delaycomp.verify import check, crosscheck
     try:
         cases = [check.case(c) for c in args.case] if args.case else list(check.CASES)
     except KeyError as exc:
@@ -846,7 +844,7 @@ def _cmd_crosscheck(args) -> int:
 
 
 def _cmd_export_loop(args) -> int:
-    from .container import export_loop
+    from delaycomp.verify.container import export_loop
 
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
@@ -858,7 +856,7 @@ def _cmd_export_loop(args) -> int:
 
 
 def _cmd_export_c(args) -> int:
-    from .exportc import check_prefix, export_c
+    from delaycomp.formats.exportc import check_prefix, export_c
 
     check_prefix(args.prefix)  # before the loop: the cheaper refusal first
     if str(args.scenario).endswith(".ssp"):
@@ -873,7 +871,7 @@ def _cmd_export_c(args) -> int:
 def _native_fmus(spec, fmu_dir):
     """The native FMUs of ``spec`` (``--native``); a loop without native twins is a usage
     error."""
-    from .native import native_fmus
+    from delaycomp.fmu.native import native_fmus
 
     try:
         return native_fmus(spec, fmu_dir / "native" if fmu_dir else None)
@@ -954,9 +952,9 @@ def _platform_notes(args) -> None:
     """The native builds' notes of this command (a platform left out for want of its
     cross compiler), each once, where the command writes FMUs for elsewhere (``build``,
     ``ssp``, ``export-loop``); a run builds them for this machine only."""
-    native = sys.modules.get("delaycomp.native")
+    native = sys.modules.get("delaycomp.fmu.native")
     if native is not None:
-        from .progress import info
+        from delaycomp.progress import info
 
         for text in native.pop_notes():
             if args.command in ("build", "ssp", "export-loop"):

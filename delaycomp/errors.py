@@ -40,4 +40,5 @@ class SimulationFailed(DelaycompError, RuntimeError):
 
 
 class SspError(DelaycompError, ValueError):
-    """An SSD, SSV or SSP archive that :mod:`delaycomp.ssp` cannot read (one-line message)."""
+    """An SSD, SSV or SSP archive that :mod:`delaycomp.formats.ssp` cannot read (one-line
+    message)."""

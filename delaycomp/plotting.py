@@ -113,7 +113,7 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
     Parameters
     ----------
     results : Result or list of Result
-        the runs (:class:`delaycomp.simulate.Result`); the first one's signals make the
+        the runs (:class:`delaycomp.orchestrator.simulate.Result`); the first one's signals make the
         panels.
     title : str
         the figure's title (:func:`loop_title`).

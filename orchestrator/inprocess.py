@@ -6,70 +6,23 @@ its ``do_step`` directly: no fmpy, no ctypes, no embedded interpreter. The maste
 step order are the same as with FMUs, so a run gives the same numbers (tested to 1e-12 on
 every scenario) at a fraction of the cost: this is the engine for sweeps and tuning.
 
-Failures follow the FMU semantics of :mod:`delaycomp.fmuslave`: a slave that refuses its
+Failures follow the FMU semantics of :mod:`delaycomp.fmu.slave`: a slave that refuses its
 parameters logs an error at initialization (``initialize`` raises with that message), and a
 step it cannot take returns ``False`` (``do_step`` raises with the logged reason).
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-import sys
 from collections.abc import Sequence
-from pathlib import Path
 
 from pythonfmu.enums import Fmi2Causality
 
-import delaycomp
-from delaycomp.build import FMUS, model_id, model_identifier
-
-from .master import ComponentBase
-
-_CLASSES: dict[tuple, type] = {}
+from delaycomp.fmu.slaves import slave_class
+from delaycomp.orchestrator.master import ComponentBase
 
 
 class SlaveRefused(RuntimeError):
     """The slave logged an error (bad parameter, or a step it cannot take)."""
-
-
-def _load_model_module(model_path: str) -> str:
-    """Import a model file under the unique name its FMUs bundle it as; return that name."""
-    name = f"delaycomp_model_{model_id(model_path)}"  # = delaycomp.model.module_name
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, model_path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        try:
-            spec.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[name]
-            raise
-    return name
-
-
-def slave_class(kind: str, config: dict) -> tuple[type, dict]:
-    """The slave class of FMU ``kind`` for ``config``, and the configuration it reads.
-
-    For a model template this is a subclass naming the model module, as ``delaycomp build``
-    generates it inside the FMU.
-    """
-    spec = FMUS[kind]
-    cfg = {**config, "version": delaycomp.__version__}
-    key = (kind, tuple(sorted((k, str(v)) for k, v in cfg.items())))
-    module = importlib.import_module(f"delaycomp.fmus.{spec.kind}.{spec.script_path.stem}")
-    if not spec.template:
-        return getattr(module, spec.model_identifier), cfg
-    model_path = str(Path(cfg.pop("model")).resolve())
-    cfg["model_name"] = Path(model_path).stem
-    cfg["model_id"] = model_id(model_path)
-    cls = _CLASSES.get(key)
-    if cls is None:
-        base = getattr(module, spec.template)
-        cls = type(model_identifier(kind, {"model": model_path}), (base,),
-                   {"model_module": _load_model_module(model_path)})
-        _CLASSES[key] = cls
-    return cls, cfg
 
 
 class SlaveComponent(ComponentBase):
@@ -77,7 +30,7 @@ class SlaveComponent(ComponentBase):
 
     def __init__(self, name: str, kind: str, config: dict, fp_guarded: bool = False):
         """``fp_guarded``: the caller runs every step under ``np.errstate(all="ignore")``
-        (as :func:`delaycomp.simulate.run_loop` does), so the slave need not."""
+        (as :func:`delaycomp.orchestrator.simulate.run_loop` does), so the slave need not."""
         self.name = name
         self._cls, self._config = slave_class(kind, config)
         self.messages: list[str] = []

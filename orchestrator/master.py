@@ -84,8 +84,8 @@ class Component(Protocol):
     # master wraps ``get_outputs`` / ``set_inputs``. A wrapper that must see every value
     # (a recorder of inputs) sets both to None.
     # Optional: ``runs_python`` (bool), whether stepping it runs Python code in this
-    # interpreter; :func:`delaycomp.simulate.run_loop` keeps BLAS on one thread only then.
-    # Without it a component is taken to run Python.
+    # interpreter; :func:`delaycomp.orchestrator.simulate.run_loop` keeps BLAS on one
+    # thread only then. Without it a component is taken to run Python.
 
 
 #: FMI status names, by value

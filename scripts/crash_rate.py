@@ -36,8 +36,8 @@ def k(x, p):
 
 CHILD = '''
 import sys
-from delaycomp.scenarios import model_loop
-from delaycomp.simulate import run_loop
+from delaycomp.paper.scenarios import model_loop
+from delaycomp.orchestrator.simulate import run_loop
 spec = model_loop(sys.argv[1], T=0.1, r=0.0, tau=0.0, N=1, x0=[1.0], u0=[0.0])
 result = run_loop(spec, 2.0, sys.argv[2])
 print(result.message)

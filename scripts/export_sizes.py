@@ -18,8 +18,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from delaycomp import scenarios
-from delaycomp.exportc import export_c
+from delaycomp.formats.exportc import export_c
+from delaycomp.paper import scenarios
 
 CC = ["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
       "-mfpu=fpv4-sp-d16", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror"]

@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from delaycomp import scenarios
-from delaycomp.simulate import make_master, parameters_of
+from delaycomp.orchestrator.simulate import make_master, parameters_of
+from delaycomp.paper import scenarios
 
 
 def rss_kib() -> int:

@@ -19,7 +19,7 @@ For every scenario at its defaults (the LTI ones and the model files'):
    with ``os._exit``), with the native FMUs and with the Python FMUs, alternately; counts
    the exit statuses (0 with the run's result printed is a clean run).
 
-Prints one markdown table per part. OMSimulator is found as ``delaycomp.omsimulator``
+Prints one markdown table per part. OMSimulator is found as ``delaycomp.verify.omsimulator``
 finds it (``DELAYCOMP_OMSIMULATOR``). Usage::
 
     python scripts/toolchain_proofs.py --runs 20
@@ -39,12 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-from delaycomp import scenarios
-from delaycomp.native import compile_host, host_argv, native_archive, native_fmus, unpack
-from delaycomp.omsimulator import locate
-from delaycomp.simulate import run_loop, stop_ticks
-from delaycomp.ssp import Archive, loop_system, pack
-from delaycomp.thirdparty import pack_jacobi
+from delaycomp.fmu.native import compile_host, host_argv, native_archive, native_fmus, unpack
+from delaycomp.formats.ssp import Archive, loop_system, pack
+from delaycomp.orchestrator.simulate import run_loop, stop_ticks
+from delaycomp.paper import scenarios
+from delaycomp.verify.omsimulator import locate
+from delaycomp.verify.thirdparty import pack_jacobi
 
 REPO = Path(__file__).resolve().parent.parent
 FMUCHECK = REPO.parent / "shared" / "tools" / "fmucc" / "fmuCheck.linux64"
@@ -150,9 +150,9 @@ def valgrind(work: Path) -> list[str]:
 FMPY_CHILD = """
 import sys
 from pathlib import Path
-from delaycomp import scenarios
-from delaycomp.native import native_fmus
-from delaycomp.simulate import run_loop, stop_ticks
+from delaycomp.paper import scenarios
+from delaycomp.fmu.native import native_fmus
+from delaycomp.orchestrator.simulate import run_loop, stop_ticks
 name, kind, folder = sys.argv[1:4]
 sc = scenarios.get(name)
 loop = sc.make(sc.resolve([]))

@@ -29,7 +29,7 @@ def machine_blas_settings(environ=None) -> list[str]:
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory) -> Path:
     """Folder with the default FMUs, built by the same code as ``delaycomp build``."""
-    from delaycomp.build import build_all
+    from delaycomp.fmu.build import build_all
 
     out = tmp_path_factory.mktemp("fmus")
     build_all(out)

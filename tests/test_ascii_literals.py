@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.scenarios import ParameterError
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import ParameterError
 
 
 @pytest.mark.parametrize("text", ["١", "２", "1_000", "1.5_0", "𝟏", "1e1_0", "0x10", ""])

@@ -30,10 +30,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from delaycomp import batch, scenarios, sweep, sweep_batch
-from delaycomp.model import load_model
-from delaycomp.models import path
-from delaycomp.simulate import run_loop
+from delaycomp.maths.model import load_model
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.paper.models import path
+from delaycomp.studies import batch, sweep, sweep_batch
+from delaycomp.studies.axes import parse_grid
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_same_values
 
@@ -162,7 +164,7 @@ def test_model_batch_equals_per_point(name):
 def test_padding_and_both_laws_of_proposition_4_2():
     """Remark 3.3(b) padding (tau not a multiple of T) and the printed law, as sweeps."""
     for sets in (["pad=1"], ["law=printed"]):
-        axes = [sweep.parse_grid("tau=0.3:0.9:3" if sets == ["pad=1"] else "r=0.2:0.6:3")]
+        axes = [parse_grid("tau=0.3:0.9:3" if sets == ["pad=1"] else "r=0.2:0.6:3")]
         b = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="batch")
         s = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="inprocess")
         for x, y in zip(b, s):
@@ -174,7 +176,7 @@ def test_padding_and_both_laws_of_proposition_4_2():
 def test_failures_end_the_record_as_the_per_point_engine_does():
     """A control that overflows (refused: tick not recorded) and a plant state that does
     (the run ends after the last finite tick): rho = inf and the same recorded norms."""
-    axes = [sweep.parse_grid("k=1e150:1e300:2")]
+    axes = [parse_grid("k=1e150:1e300:2")]
     b = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
                         engine="batch")
     with np.errstate(over="ignore"):  # the per-point metric squares states of 1e200
@@ -187,7 +189,7 @@ def test_failures_end_the_record_as_the_per_point_engine_does():
 
 def test_finite_time_escape_of_the_printed_law():
     """Example 2.4 with the printed (2.18) escapes in finite time (errata item 1)."""
-    axes = [sweep.parse_grid("r=0:0.2:2")]
+    axes = [parse_grid("r=0:0.2:2")]
     sets = ["law=printed", "x0=-1.295,2.307,-4.261", "tau=0"]
     b = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="batch")
     s = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="inprocess")
@@ -211,7 +213,7 @@ SWEEPS = {
 @pytest.mark.parametrize("name", list(SWEEPS))
 def test_sweep_batch_equals_inprocess(name):
     sets, grids, stop = SWEEPS[name]
-    axes = [sweep.parse_grid(g) for g in grids]
+    axes = [parse_grid(g) for g in grids]
     notes: list[str] = []
     b = sweep.run_sweep(name, axes, sets, stop=stop, engine="batch", notes=notes)
     s = sweep.run_sweep(name, axes, sets, stop=stop, engine="inprocess")
@@ -226,7 +228,7 @@ def test_sweep_batch_equals_inprocess(name):
 def test_chunks_processes_and_dask_give_the_same_rows():
     from distributed import LocalCluster
 
-    axes = [sweep.parse_grid("k=0.5:3:3"), sweep.parse_grid("r=0:0.9:4")]
+    axes = [parse_grid("k=0.5:3:3"), parse_grid("r=0:0.9:4")]
     args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=6.0,
                 engine="batch")
     whole = sweep.run_sweep(**args)
@@ -241,7 +243,7 @@ def test_chunks_processes_and_dask_give_the_same_rows():
 
 
 def test_numerical_predictor_falls_back_and_says_so():
-    axes = [sweep.parse_grid("r=0.1:0.3:2")]
+    axes = [parse_grid("r=0.1:0.3:2")]
     notes: list[str] = []
     rows = sweep.run_sweep("example-3.8", axes, ["predictor=numerical"], stop=4.0,
                            engine="batch", notes=notes)
@@ -320,7 +322,7 @@ def test_critical_curve_is_the_lifted_models_critical_delay():
     """k = 2, T = 1: r_c = 0.203267055 (README, critical-delay --grid; (3.20)); k = 2.5 is
     unstable at r = 0 (2.5 > 1 + 2/(e - 1)) and a band of delays stabilizes it: two
     crossings around the band the simulated map shows."""
-    from delaycomp.critical import critical_curve
+    from delaycomp.studies.critical import critical_curve
 
     sc = scenarios.get("example-3.6")
     r_axis = np.linspace(0, 0.98, 50)
@@ -329,7 +331,7 @@ def test_critical_curve_is_the_lifted_models_critical_delay():
     assert at2.tolist() == pytest.approx([0.203267055], abs=1e-8)
     at25 = rows[rows[:, 0] == 2.5][:, 1]
     assert len(at25) == 2 and 0 < at25[0] < at25[1] < 0.2
-    b = sweep.run_sweep("example-3.6", [sweep.parse_grid("r=0:0.2:21")],
+    b = sweep.run_sweep("example-3.6", [parse_grid("r=0:0.2:21")],
                         ["k=2.5", "mode=uncompensated"], engine="batch")
     inside = [row["stable"] for row in b if at25[0] + 0.01 < row["r"] < at25[1] - 0.01]
     outside = [row["stable"] for row in b if row["r"] < at25[0] - 0.01
@@ -350,9 +352,9 @@ def test_map_plot_carries_the_critical_delays(tmp_path):
 
 def test_loop_file_sweeps_on_the_batch_engine():
     """A loop file (the shipped example-3.6.toml) runs batched, as its scenario does."""
-    from delaycomp.scenarios import loop_file
+    from delaycomp.paper.scenarios import loop_file
 
-    axes = [sweep.parse_grid("r=0:0.9:4")]
+    axes = [parse_grid("r=0:0.9:4")]
     notes: list[str] = []
     b = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0, engine="batch",
                         notes=notes)
@@ -383,7 +385,7 @@ u0 = [0.25]
 
 
 def _lti_sources(tmp_path):
-    from delaycomp.scenarios import loop_file
+    from delaycomp.paper.scenarios import loop_file
 
     mimo = tmp_path / "mimo.toml"
     mimo.write_text(MIMO_LOOP, encoding="utf-8")
@@ -423,7 +425,7 @@ def test_a_grid_points_design_is_its_loops_design(tmp_path):
 ])
 def test_a_loop_files_design_refuses_what_its_loop_refuses(sets):
     from delaycomp.errors import ParameterError
-    from delaycomp.scenarios import loop_file
+    from delaycomp.paper.scenarios import loop_file
 
     lf = scenarios.open_source(loop_file("example-3.6"))
     try:
@@ -466,7 +468,7 @@ def test_a_batch_sweep_of_a_loop_file_names_a_bad_point(tmp_path):
     mimo = tmp_path / "mimo.toml"
     mimo.write_text(MIMO_LOOP, encoding="utf-8")
     with pytest.raises(ParameterError, match=r"grid point T=0\.3: .*tau = 0\.5"):
-        sweep.run_sweep(str(mimo), [sweep.parse_grid("T=0.5:0.3:2")], [], stop=3.0,
+        sweep.run_sweep(str(mimo), [parse_grid("T=0.5:0.3:2")], [], stop=3.0,
                         engine="batch")
 
 
@@ -521,7 +523,7 @@ def test_designs_of_many_points_accept_no_point_that_one_by_one_refuses(changes)
 def test_a_batch_sweep_over_the_dimension_runs_each_shape_as_its_own_group():
     """Corollary 3.7 swept over ``n``: the points do not stack (one by one, one group per
     shape) and equal the per-point engine."""
-    axes = [sweep.parse_grid("n=2:4:3"), sweep.parse_grid("r=0:0.5:2")]
+    axes = [parse_grid("n=2:4:3"), parse_grid("r=0:0.5:2")]
     notes: list[str] = []
     b = sweep.run_sweep("corollary-3.7", axes, [], stop=4.0,
                         engine="batch", notes=notes)
@@ -535,14 +537,14 @@ def test_a_bulk_batch_sweep_names_a_bad_grid_point():
     from delaycomp.errors import ParameterError
 
     with pytest.raises(ParameterError, match=r"grid point k=1, r=0\.105: .*multiple of the"):
-        sweep.run_sweep("example-3.6", [sweep.parse_grid("k=1:2:2"),
-                                        sweep.parse_grid("r=0.1:0.11:3")], [],
+        sweep.run_sweep("example-3.6", [parse_grid("k=1:2:2"),
+                                        parse_grid("r=0.1:0.11:3")], [],
                         stop=2.0, engine="batch")
 
 
 def test_api_sweep_defaults_to_the_batch_engine_and_equals_per_point():
     from delaycomp import api
-    from delaycomp.scenarios import loop_file
+    from delaycomp.paper.scenarios import loop_file
 
     notes: list[str] = []
     grid = {"r": [0.0, 0.3, 0.6], "r_true": [0.3, 0.7]}
@@ -561,7 +563,7 @@ def test_a_stop_time_off_some_points_grid_names_the_point(engine):
     anything runs (no FMU is built), naming the point, whatever the engine."""
     from delaycomp.errors import ParameterError
 
-    axes = [sweep.parse_grid("T=0.5:1.5:3"), sweep.parse_grid("N=50:100:2")]
+    axes = [parse_grid("T=0.5:1.5:3"), parse_grid("N=50:100:2")]
     with pytest.raises(ParameterError, match=r"^grid point T=1\.5, N=50: --stop-time 20\.0 "
                                              r"is not allowed: .* h = T/N = 0\.03$"):
         sweep.run_sweep("example-3.6", axes, ["r=0.3"], stop=20.0, engine=engine)

@@ -1,5 +1,5 @@
 """The batch engine on another array library: JAX on the CPU (the ``jax`` extra, part of
-``test``). Proves that the non-numpy path of :mod:`delaycomp.batch` computes what numpy
+``test``). Proves that the non-numpy path of :mod:`delaycomp.studies.batch` computes what numpy
 computes; on a GPU the same code runs on CuPy or JAX (``bench/batch.py`` measures it).
 
 JAX runs here eagerly in float64: every ufunc is the same IEEE operation as numpy's, so the
@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from delaycomp import batch, sweep
+from delaycomp.studies import batch, sweep
+from delaycomp.studies.axes import parse_grid
 
 from .test_batch import LTI_REL, assert_close, assert_same
 
@@ -39,7 +40,7 @@ def test_jax_trajectories_and_metrics_equal_numpy():
 
 
 def test_sweep_on_jax_says_so_and_equals_numpy():
-    axes = [sweep.parse_grid("k=1:3:2"), sweep.parse_grid("r=0:0.5:2")]
+    axes = [parse_grid("k=1:3:2"), parse_grid("r=0:0.5:2")]
     notes: list[str] = []
     rows = sweep.run_sweep("example-3.6", axes, ["N=10"], stop=4.0, engine="batch",
                            array_backend="jax", notes=notes)
@@ -52,7 +53,7 @@ def test_sweep_on_jax_says_so_and_equals_numpy():
 def test_jax_equals_numpy_for_a_chain_of_integrators():
     """n = 3 (the general path, where the block ring is written once a block), per-point
     measurement and input delays (whole and not whole periods), both modes."""
-    from delaycomp.predictors import deadbeat_gain
+    from delaycomp.maths.predictors import deadbeat_gain
 
     T, N = 0.5, 10
     args = dict(A=np.eye(3, k=1), B=np.eye(3)[:, -1:], K=deadbeat_gain(3, T), T=T, N=N,

@@ -82,7 +82,7 @@ def test_critical_delay_prints_r_c_and_confirms(fmu_dir):
 
 
 def test_build_writes_three_valid_fmus_and_an_ssp_per_scenario(tmp_path):
-    from delaycomp.scenarios import SCENARIOS
+    from delaycomp.paper.scenarios import SCENARIOS
 
     proc = cli("build", "--out", str(tmp_path / "fmus"))
     assert proc.returncode == 0, proc.stderr
@@ -104,7 +104,7 @@ def test_list_says_which_delays_lie_on_the_base_grid():
     """``list`` states the grid rule the checks enforce: ``r`` (and the true delays) a
     whole number of base steps everywhere; ``tau`` a multiple of ``T`` under zero-order
     hold (base steps with ``pad=1``), base steps under continuous input."""
-    from delaycomp.scenarios import ON_BASE_GRID, SCENARIOS, ZOH_TAU, ZOH_TAU_PAD
+    from delaycomp.paper.scenarios import ON_BASE_GRID, SCENARIOS, ZOH_TAU, ZOH_TAU_PAD
 
     proc = cli("list")
     assert proc.returncode == 0
@@ -128,8 +128,8 @@ def test_list_says_which_delays_lie_on_the_base_grid():
 def test_what_list_allows_for_r_and_tau_is_what_is_accepted(name):
     """The allowed-range text of ``r`` and ``tau`` is true: an off-grid value is refused
     exactly where the text says so, and the refusal names the rule."""
-    from delaycomp import scenarios
     from delaycomp.errors import ParameterError
+    from delaycomp.paper import scenarios
 
     sc = scenarios.get(name)
     T, N = sc.param("T").default, sc.param("N").default

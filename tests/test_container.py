@@ -11,8 +11,9 @@ import sys
 import numpy as np
 import pytest
 
-from delaycomp import check, container, scenarios
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.verify import check, container
 
 from .conftest import REPO
 
@@ -36,7 +37,7 @@ def cli(*args):
 @pytest.mark.parametrize("case_id", CASES)
 def test_container_matches_the_reference_at_the_sampling_instants(case_id, tmp_path):
     """fmpy.simulate_fmu(container, output_interval=T) against the reference trace at
-    t0 + iT with the tolerances of delaycomp.check (zero-order hold: 1e-9 (1 + |ref|),
+    t0 + iT with the tolerances of delaycomp.verify.check (zero-order hold: 1e-9 (1 + |ref|),
     round-off; continuous input: 2 % of the range, the O(h) of holding u over h). And,
     stronger, against our master's loop at the same instants to 1e-9 (1 + |value|): every
     FMU gets what it gets in our master, so only round-off separates them."""
@@ -75,7 +76,7 @@ def test_without_the_timing_fixes_the_container_is_off(tmp_path):
     from fmpy import simulate_fmu
     from fmu_manipulation_toolbox.assembly import Assembly
 
-    from delaycomp.simulate import fmu_path
+    from delaycomp.fmu.cache import fmu_path
 
     c = check.case("example-3.6/fig3")
     spec = _spec(c)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loop import FmuFile
 from delaycomp.system.loopfile import read_loop
 from tests.cfmu.build import build_oscillator
@@ -76,8 +76,8 @@ def test_the_assembled_loop_runs_in_our_master_as_the_whole_loop(users_loop):
 
 
 def test_omsimulators_command_line_runs_the_users_ssp(users_loop, tmp_path):
-    from delaycomp.omsimulator import locate
-    from delaycomp.ssp import loop_system, pack
+    from delaycomp.formats.ssp import loop_system, pack
+    from delaycomp.verify.omsimulator import locate
 
     folder, loop, whole = users_loop
     archive = pack(*loop_system(_assembled(folder, loop)), tmp_path / "users.ssp")
@@ -104,7 +104,7 @@ def test_omsimulators_command_line_runs_the_users_ssp(users_loop, tmp_path):
 def test_jacobi_masters_run_the_users_ssp_jacobi_variant(master, users_loop, tmp_path):
     """libcosim and Ecos step every FMU, then exchange: the Jacobi variant (the
     controller's ``held_sample``, the measurement delay shorter by h) gives the loop."""
-    from delaycomp.thirdparty import pack_jacobi, run_ssp
+    from delaycomp.verify.thirdparty import pack_jacobi, run_ssp
 
     folder, loop, whole = users_loop
     archive = pack_jacobi(_assembled(folder, loop), tmp_path / "users-jacobi.ssp")
@@ -122,7 +122,7 @@ def test_the_fmpy_example_wires_the_controller_in_a_host_of_your_own(tmp_path):
     import shutil
     import sys
 
-    from delaycomp.native import native_fmus
+    from delaycomp.fmu.native import native_fmus
 
     examples = Path(__file__).resolve().parent.parent / "docs" / "examples"
     for name in ("cart.toml", "cart.py", "controller_alone.py"):

@@ -11,8 +11,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from delaycomp import check, crosscheck
-from delaycomp.crosscheck import Trace
+from delaycomp.verify import check, crosscheck
+from delaycomp.verify.crosscheck import Trace
 
 from .conftest import REPO
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
@@ -102,8 +102,8 @@ def test_a_wrong_parameter_is_caught(tree, tmp_path):
 def test_the_tap_does_not_change_the_loop():
     """The taps read every output right after each step; the plant's outputs (no direct
     feedthrough) must equal a run without taps (the same arithmetic: to the last bits)."""
-    from delaycomp import scenarios
-    from delaycomp.simulate import run_loop
+    from delaycomp.orchestrator.simulate import run_loop
+    from delaycomp.paper import scenarios
 
     c = check.case("example-3.6/fig3")
     traces = crosscheck.record_case(c)
@@ -125,8 +125,8 @@ def test_repackaged_fmu_equals_a_pythonfmu_build_with_those_start_values(case_id
     """The per-case FMU is the cached FMU with another modelDescription and configuration;
     pythonfmu must build the same from that configuration (matrices, strings, Integer N,
     Boolean pad, GUID)."""
-    from delaycomp.build import build_fmu
-    from delaycomp.simulate import fmu_path
+    from delaycomp.fmu.build import build_fmu
+    from delaycomp.fmu.cache import fmu_path
 
     c = check.case(case_id)
     inst = c.loop().instance(instance)

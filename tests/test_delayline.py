@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from delaycomp.delayline import DelayLine, steps_of
+from delaycomp.maths.delayline import DelayLine, steps_of
 
 
 def run(line: DelayLine, inputs):

@@ -57,9 +57,8 @@ README = REPO / "README.md"
 
 def test_readme_states_the_grid_rule_of_r_and_tau_as_list_does():
     """The README's Example 3.6 table and its ``list`` bullet give the allowed ranges of
-    ``r`` and ``tau`` in the words ``delaycomp list`` prints (:mod:`delaycomp.scenarios`)."""
-    from delaycomp import scenarios
-
+    ``r`` and ``tau`` in the words ``delaycomp list`` prints (:mod:`delaycomp.paper.scenarios`)."""
+    from delaycomp.paper import scenarios
     text = README.read_text(encoding="utf-8")
     plain = " ".join(text.replace("`", "").split())
     sc = scenarios.get("example-3.6")

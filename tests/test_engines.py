@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from delaycomp import scenarios, sweep
-from delaycomp.scenarios import lti_loop
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import lti_loop
+from delaycomp.studies import sweep
+from delaycomp.studies.axes import parse_grid
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_same_values
 
@@ -78,7 +80,7 @@ def test_inprocess_engine_reports_a_diverging_plant_with_time_and_keeps_the_rows
 
 
 def test_sweep_inprocess_equals_fmu(fmu_dir):
-    axes = [sweep.parse_grid("r=0.1:0.3:3")]
+    axes = [parse_grid("r=0.1:0.3:3")]
     args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=5.0,
                 fmu_dir=str(fmu_dir))
     assert_same_values(sweep.run_sweep(**args, engine="inprocess"), sweep.run_sweep(**args),

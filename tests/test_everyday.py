@@ -15,11 +15,14 @@ import math
 import numpy as np
 import pytest
 
-from delaycomp import cli, scenarios, sweep
-from delaycomp.lti import lifted_loop
-from delaycomp.outputs import CsvStream, OutputError, check_output
+from delaycomp import cli
+from delaycomp.formats.outputs import CsvStream, OutputError, check_output
+from delaycomp.maths.lti import lifted_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
 from delaycomp.plotting import Timing, loop_title, result_figure
-from delaycomp.simulate import run_loop
+from delaycomp.studies import pool, sweep
+from delaycomp.studies.axes import parse_grid, snap_axes
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
 
@@ -240,7 +243,7 @@ def test_progress_ticks_once_per_point_as_points_finish_on_dask():
     # dashboard on a free port: 8787 may be taken by another cluster on this machine
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=":0") as cluster:
-        results = sweep._run_dask(jobs, cluster.scheduler_address, Counting())
+        results = pool.on_dask(sweep.evaluate, jobs, cluster.scheduler_address, Counting())
     assert seen == [1, 1, 1]  # one tick per finished point, not one jump at the end
     assert results == [sweep.evaluate(j) for j in jobs]  # in grid order
 
@@ -351,12 +354,12 @@ def test_grid_values_are_snapped_and_written_as_typed(capsys, tmp_path):
 
 
 def test_grid_values_off_linspace_roundoff():
-    assert sweep.parse_grid("k=0:0.3:7").values == (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
+    assert parse_grid("k=0:0.3:7").values == (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
 
 
 def test_no_snapping_when_the_base_step_itself_is_swept():
-    axes = [sweep.parse_grid("T=0.5:1:3"), sweep.parse_grid("r=0:0.98:20")]
-    assert sweep.snap_axes("example-3.6", axes, []) == (axes, [])
+    axes = [parse_grid("T=0.5:1:3"), parse_grid("r=0:0.98:20")]
+    assert snap_axes("example-3.6", axes, []) == (axes, [])
 
 
 # -- 6. help and listing --------------------------------------------------------------------

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.check import CASES
-from delaycomp.critical import fitted_spectral_radius
-from delaycomp.lti import lifted_loop
-from delaycomp.scenarios import lti_loop
-from delaycomp.simulate import run_loop
+from delaycomp.maths.lti import lifted_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import lti_loop
+from delaycomp.studies.critical import fitted_spectral_radius
+from delaycomp.verify.check import CASES
 
 from .conftest import REPO
 from .roundoff import EXACT_ULPS, assert_columns_close

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.exportc import EXPORT_CODES, closed_loop_io, export_c
-from delaycomp.native import compiler
+from delaycomp.fmu.native import compiler
+from delaycomp.formats.exportc import EXPORT_CODES, closed_loop_io, export_c
+from delaycomp.paper import scenarios
 from tests.test_native_alloc import stable_mimo_loop
 
 DRIVER = Path(__file__).parent / "native_export" / "driver.c"
@@ -36,7 +36,7 @@ CLI = [sys.executable, "-m", "delaycomp"]
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2"]
 CORTEX_M4 = ["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
              "-mfpu=fpv4-sp-d16"]
-#: the ODE tolerance of the model controllers (rtol = atol, delaycomp.predictors)
+#: the ODE tolerance of the model controllers (rtol = atol, delaycomp.maths.predictors)
 TOL = 1e-10
 
 
@@ -127,7 +127,7 @@ def test_the_export_equals_the_controller_fmu(name, tmp_path):
 def test_the_aarch64_build_prints_the_same_numbers(name, tmp_path):
     """Under qemu-aarch64 (ISO C: no contraction into fused multiply-adds; the same libm
     algorithms): the very numbers of this machine's build."""
-    from delaycomp.native import emulator
+    from delaycomp.fmu.native import emulator
 
     _tool("aarch64-linux-gnu-gcc")
     _tool("qemu-aarch64")
@@ -284,7 +284,6 @@ def test_the_firmware_example_runs_the_loop_of_delaycomp_run(tmp_path):
     a delay off by one step, or a sample read at the wrong tick, is O(1) (measured:
     4e-15)."""
     from delaycomp import api
-
     export_c(api.load(CART), tmp_path, "cart")
     exe = tmp_path / "firmware"
     subprocess.run([*compiler(), *STRICT, "-I", str(tmp_path),
@@ -327,7 +326,7 @@ def _random_lti_loop(seed: int):
     small gain (the delay-free sampled loop stable)."""
     from scipy.linalg import solve_continuous_are
 
-    from delaycomp.scenarios import lti_loop
+    from delaycomp.paper.scenarios import lti_loop
 
     rng = np.random.default_rng(1000 + seed)
     n, m = int(rng.integers(1, 6)), int(rng.integers(1, 4))

@@ -17,9 +17,9 @@ import zipfile
 
 import pytest
 
-from delaycomp.build import DEFAULT_CONFIG, build_fmu
 from delaycomp.errors import BadFileError
-from delaycomp.simulate import fmu_file_name, fmu_path
+from delaycomp.fmu.build import DEFAULT_CONFIG, build_fmu
+from delaycomp.fmu.cache import fmu_file_name, fmu_path
 from delaycomp.tmpfiles import sweep
 
 pytestmark = pytest.mark.fmu
@@ -27,8 +27,8 @@ pytestmark = pytest.mark.fmu
 FIRST_RUN = textwrap.dedent('''
     import sys, zipfile
     from pathlib import Path
-    from delaycomp.build import DEFAULT_CONFIG
-    from delaycomp.simulate import fmu_path
+    from delaycomp.fmu.build import DEFAULT_CONFIG
+    from delaycomp.fmu.cache import fmu_path
     for kind in ("plant", "delay", "controller"):
         path = fmu_path(kind, dict(DEFAULT_CONFIG[kind]), Path(sys.argv[1]))
         with zipfile.ZipFile(path) as zf:
@@ -129,8 +129,8 @@ def test_a_killed_build_leaves_nothing_after_the_next_build(tmp_path, monkeypatc
 def test_ecos_runs_leave_no_unpacked_archive(tmp_path, monkeypatch, fmu_dir):
     """Each Ecos run left a 2.2 MB ``ecos_ssp_*`` folder in the temporary folder (its
     process leaves with ``os._exit``): it now unpacks inside the run's own folder."""
-    from delaycomp import scenarios, thirdparty
-
+    from delaycomp.paper import scenarios
+    from delaycomp.verify import thirdparty
     packed = thirdparty.pack_jacobi(scenarios.get("example-3.6").loop(), tmp_path / "j.ssp",
                                     fmu_dir)
     temp = tmp_path / "temp"

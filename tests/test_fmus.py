@@ -15,7 +15,7 @@ from fmpy import read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
-from delaycomp.build import FMUS, build_fmu
+from delaycomp.fmu.build import FMUS, build_fmu
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
 pytestmark = pytest.mark.fmu
@@ -84,8 +84,8 @@ def test_readme_table_matches_model_description(fmu_dir, kind):
 
 @pytest.mark.parametrize("kind", ["model_plant", "model_controller"])
 def test_readme_table_of_the_model_templates(fmu_dir, kind):
-    from delaycomp.models import path
-    from delaycomp.simulate import fmu_path
+    from delaycomp.fmu.cache import fmu_path
+    from delaycomp.paper.models import path
 
     fmu = fmu_path(kind, {"model": str(path("example_3_8"))}, fmu_dir)
     md = read_model_description(str(fmu))
@@ -119,7 +119,7 @@ def test_bundles_its_config_and_version(fmu_dir):
         names = z.namelist()
     import delaycomp
     assert config["version"] == delaycomp.__version__
-    assert "resources/delaycomp/lti.py" in names
+    assert "resources/delaycomp/maths/lti.py" in names
 
 
 def test_delay_fmu_boundary_through_fmpy(fmu_dir):
@@ -158,7 +158,7 @@ BAD = [
 def test_bad_parameter_is_logged_and_the_fmu_refuses_to_step(fmu_dir, kind, params, message):
     """Logged as an error when initialization ends; every doStep then returns fmi2Discard.
 
-    (pythonfmu 0.7 cannot return fmi2Error: see delaycomp/fmuslave.py.)
+    (pythonfmu 0.7 cannot return fmi2Error: see delaycomp/fmu/slave.py.)
     """
     comp = FmuComponent(kind, fmu_file(fmu_dir, kind))
     try:

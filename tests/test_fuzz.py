@@ -28,18 +28,18 @@ from pythonfmu.enums import Fmi2Status
 from pythonfmu.variables import Boolean, Integer, Real, String
 
 import delaycomp
-from delaycomp import scenarios
-from delaycomp.delayline import DelayLine
+from delaycomp.fmu.slave import CONFIG_NAME
 from delaycomp.fmus.controller.delaycomp_controller_lti import DelaycompControllerLTI
 from delaycomp.fmus.controller.delaycomp_model_controller import ModelControllerSlave
 from delaycomp.fmus.delay.delaycomp_delay import DelaycompDelay
 from delaycomp.fmus.plant.delaycomp_model_plant import ModelPlantSlave
 from delaycomp.fmus.plant.delaycomp_plant_lti import DelaycompPlantLTI
-from delaycomp.fmuslave import CONFIG_NAME
-from delaycomp.history import InputHistory
+from delaycomp.maths.delayline import DelayLine
+from delaycomp.maths.history import InputHistory
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
-from delaycomp.scenarios import ParameterError
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import ParameterError
 
 #: the forms of every message a slave logs with status error (README, "Reliability")
 NAMED = re.compile(
@@ -64,7 +64,7 @@ reals = st.one_of(st.floats(-10, 10), st.sampled_from(WEIRD),
 finite_inputs = st.floats(-100, 100)
 inputs = st.one_of(finite_inputs, finite_inputs, finite_inputs, st.sampled_from(WEIRD))
 
-MODELS = "delaycomp.models"
+MODELS = "delaycomp.paper.models"
 
 
 def _model_slave(base, module):

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 import delaycomp
-from delaycomp import check
 from delaycomp.child import module_argv
+from delaycomp.verify import check
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -66,8 +66,8 @@ def test_wheel_holds_every_package_and_the_data_commands_read(wheel):
             assert f"delaycomp/reference/{rel}" in names
     for readme in (REPO / "fmus").glob("*/README.md"):
         assert f"delaycomp/fmus/{readme.parent.name}/README.md" in names
-    for loop in (REPO / "delaycomp" / "loops").glob("*.toml"):  # the scenarios as data
-        assert f"delaycomp/loops/{loop.name}" in names
+    for loop in (REPO / "delaycomp" / "paper" / "loops").glob("*.toml"):  # the scenarios as data
+        assert f"delaycomp/paper/loops/{loop.name}" in names
     # the C sources that `build --native` compiles, and the C host
     for source in (REPO / "fmus" / "native").rglob("*.[ch]"):
         rel = source.relative_to(REPO / "fmus").as_posix()

@@ -1,48 +1,65 @@
-"""Layers, imports only downward (DESIGN.md): maths < system model < FMU adapters and
-masters < studies < verification < CLI and API. Each module's imports, module-level or
-inside functions, are read from its source (ast) and must not point to a higher layer."""
+"""Layers as folders, imports only downward (DESIGN.md, issue 26).
+
+Each module of the installed namespace belongs to one unit (a folder of ``delaycomp/``, the
+base files, the face, ``orchestrator/``, ``fmus/``, ``reference/``) and each unit stands on
+a floor. A module may import its own unit's modules and anything on a lower floor, never a
+unit on its floor or above; the modules import each other in no ring; the units stand on
+at most eight floors, measured from the imports (the longest chain of units); and no module
+takes a private name (``_name``) of another. The imports, module-level or inside functions,
+are read from the sources (ast); ``importlib.import_module`` of a string is not an arrow
+(the in-process engine loads the FMUs' slave modules that way, as a host does).
+
+``python -m pytest tests/test_layers.py -q -rA`` prints the floors and the units on each
+(``test_floors_of_the_units``).
+"""
 
 from __future__ import annotations
 
 import ast
+import importlib
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
+from delaycomp.layout import MOVED
+
 REPO = Path(__file__).resolve().parent.parent
 
-#: the layer of each module (by installed name); a package's modules take its entry
-LAYERS = {
-    # 0: maths (numpy/scipy, no FMI), the grid and the model interface
-    "delaycomp": 0, "delaycomp.errors": 0, "delaycomp.grid": 0, "delaycomp.names": 0,
-    "delaycomp.lti": 0, "delaycomp.delayline": 0, "delaycomp.history": 0,
-    "delaycomp.predictors": 0, "delaycomp.controller": 0, "delaycomp.nlcontrol": 0,
-    "delaycomp.model": 0, "delaycomp.models": 0, "delaycomp.child": 0,
-    "delaycomp.reference": 0, "delaycomp.batch": 0,
-    # 1: the system model and the scenarios (data that build it)
-    "delaycomp.system": 1, "delaycomp.scenarios": 1,
-    # 2: FMU adapters, builds, masters, formats
-    "delaycomp.fmuslave": 2, "delaycomp.fmus": 2, "delaycomp.build": 2,
-    "delaycomp.orchestrator": 2, "delaycomp.simulate": 2, "delaycomp.ssp": 2,
-    "delaycomp.native": 2, "delaycomp.loopbuild": 2, "delaycomp.exportc": 2,
-    "delaycomp.plotting": 2, "delaycomp.outputs": 2, "delaycomp.progress": 2,
-    # 3: studies
-    "delaycomp.sweep": 3, "delaycomp.critical": 3, "delaycomp.sweep_batch": 3,
-    # 4: verification
-    "delaycomp.cases": 4, "delaycomp.check": 4, "delaycomp.crosscheck": 4,
-    "delaycomp.container": 4, "delaycomp.thirdparty": 4, "delaycomp.omsimulator": 4,
-    # 5: the faces
-    "delaycomp.cli": 5, "delaycomp.api": 5, "delaycomp.__main__": 5,
+#: the units, their floors (1 = the ground) and what they hold; a module takes the unit of
+#: its longest prefix
+UNITS = {
+    # 1: the light base: errors, names, files, child processes, progress bars, figures;
+    #    the reference computations share no code with delaycomp
+    "delaycomp": ("base", 1), "delaycomp.reference": ("reference", 1),
+    # 2: the maths, free of FMI (what the Python FMUs bundle)
+    "delaycomp.maths": ("maths", 2),
+    # 3: the system model: the typed loop, loop files, rewrites on roles
+    "delaycomp.system": ("system", 3),
+    # 4: the paper as data; the FMUs' build side (base slave, registry, cache, native build)
+    "delaycomp.paper": ("paper", 4), "delaycomp.fmu": ("fmu", 4),
+    # 5: the master and the wiring of a loop; the FMUs' slave modules
+    "delaycomp.orchestrator": ("orchestrator", 5), "delaycomp.fmus": ("fmus", 5),
+    # 6: what delaycomp writes and reads (SSP, outputs, your loop's FMUs, C)
+    "delaycomp.formats": ("formats", 6),
+    # 7: studies over many loops; verification against references and other masters
+    "delaycomp.studies": ("studies", 7), "delaycomp.verify": ("verify", 7),
+    # 8: the face
+    "delaycomp.api": ("face", 8), "delaycomp.cli": ("face", 8),
+    "delaycomp.__main__": ("face", 8),
 }
+MAX_FLOORS = 8
 ROOTS = {"delaycomp": REPO / "delaycomp", "delaycomp.orchestrator": REPO / "orchestrator",
-         "delaycomp.fmus": REPO / "fmus"}
+         "delaycomp.fmus": REPO / "fmus", "delaycomp.reference": REPO / "reference"}
 
 
-def layer(module: str) -> int | None:
+def unit(module: str) -> tuple[str, int] | None:
     parts = module.split(".")
     for i in range(len(parts), 0, -1):
-        if ".".join(parts[:i]) in LAYERS:
-            return LAYERS[".".join(parts[:i])]
+        if ".".join(parts[:i]) in UNITS:
+            return UNITS[".".join(parts[:i])]
     return None
 
 
@@ -51,16 +68,28 @@ def modules():
         for path in sorted(root.rglob("*.py")):
             rel = path.relative_to(root).with_suffix("")
             parts = [p for p in rel.parts if p != "__init__"]
-            if prefix == "delaycomp" and parts and parts[0] in ("loops",):
-                continue
             yield ".".join([prefix, *parts]), path, path.name == "__init__.py"
 
 
+CASES = list(modules())
+NAMES = {m for m, _, _ in CASES}
+
+
+def _module_of(target: str) -> str | None:
+    """The module of ours that an import target names (``a.b.name`` -> ``a.b``)."""
+    while target and target not in NAMES:
+        target = target.rpartition(".")[0]
+    return target or None
+
+
 def imports(module: str, path: Path, is_package: bool):
+    """(target, imported names, line) of every import in ``path``; a relative import is
+    made absolute."""
     package = module if is_package else module.rpartition(".")[0]
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
-            yield from (a.name for a in node.names)
+            for a in node.names:
+                yield a.name, (), node.lineno
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")
@@ -68,18 +97,213 @@ def imports(module: str, path: Path, is_package: bool):
                 target = ".".join([*base, node.module] if node.module else base)
             else:
                 target = node.module or ""
-            yield target
-            for a in node.names:  # from . import x: x may be a module
-                yield f"{target}.{a.name}"
+            names = tuple(a.name for a in node.names)
+            yield target, names, node.lineno
+            for a in names:  # from . import x: x may be a module
+                if f"{target}.{a}" in NAMES:
+                    yield f"{target}.{a}", (), node.lineno
 
 
-CASES = list(modules())
+def edges() -> dict[str, set[str]]:
+    """module -> the modules of ours it imports."""
+    out: dict[str, set[str]] = {}
+    for module, path, is_package in CASES:
+        out[module] = {t for target, _, _ in imports(module, path, is_package)
+                       if target.startswith("delaycomp")
+                       and (t := _module_of(target)) and t != module}
+    return out
+
+
+EDGES = edges()
 
 
 @pytest.mark.parametrize("module,path,is_package", CASES, ids=[m for m, _, _ in CASES])
 def test_imports_point_down(module, path, is_package):
-    own = layer(module)
-    assert own is not None, f"{module} has no layer in LAYERS"
-    up = sorted({t for t in imports(module, path, is_package)
-                 if t.startswith("delaycomp") and (layer(t) or 0) > own})
-    assert not up, f"{module} (layer {own}) imports from above: {up}"
+    own = unit(module)
+    assert own is not None, f"{module} has no unit in UNITS"
+    bad = sorted(f"{t} ({unit(t)[0]}, floor {unit(t)[1]})" for t in EDGES[module]
+                 if unit(t)[0] != own[0] and unit(t)[1] >= own[1])
+    assert not bad, f"{module} ({own[0]}, floor {own[1]}) imports sideways or up: {bad}"
+
+
+def _rings(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one node (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_ring_of_modules():
+    assert _rings(EDGES) == []
+
+
+def test_a_ring_is_found():
+    """The ring finder finds rings (a check that could not fail would prove nothing)."""
+    assert _rings({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _rings({"a": {"b"}, "b": set()}) == []
+
+
+def floors() -> dict[str, int]:
+    """Each unit's floor measured from the imports: 1 + the highest unit it imports."""
+    graph: dict[str, set[str]] = {}
+    for module, targets in EDGES.items():
+        u = unit(module)[0]
+        graph.setdefault(u, set()).update(unit(t)[0] for t in targets if unit(t)[0] != u)
+    memo: dict[str, int] = {}
+
+    def floor(u: str, seen: tuple[str, ...] = ()) -> int:
+        assert u not in seen, f"units in a ring: {[*seen, u]}"
+        if u not in memo:
+            memo[u] = 1 + max((floor(v, (*seen, u)) for v in graph[u]), default=0)
+        return memo[u]
+
+    return {u: floor(u) for u in sorted(graph)}
+
+
+def test_floors_of_the_units():
+    measured = floors()
+    by_floor: dict[int, list[str]] = {}
+    for u, f in measured.items():
+        by_floor.setdefault(f, []).append(u)
+    for f in sorted(by_floor, reverse=True):
+        print(f"floor {f}: {', '.join(by_floor[f])}")
+    assert max(measured.values()) <= MAX_FLOORS
+    declared = dict(UNITS.values())
+    assert all(measured[u] <= declared[u] for u in measured), (measured, declared)
+
+
+def _private_uses(module: str, path: Path, is_package: bool):
+    """Private names of other modules of ours that ``module`` takes: imported by name, or
+    read as an attribute of a module of ours it imported."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    aliases: dict[str, str] = {}
+    for target, names, line in imports(module, path, is_package):
+        if not target.startswith("delaycomp"):
+            continue
+        for name in names:
+            if name.startswith("_") and not name.startswith("__") and target != module:
+                yield f"{target}.{name} (line {line})"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            for a in node.names:
+                full = f"{node.module}.{a.name}" if node.module and not node.level else None
+                if full in NAMES and full != module:
+                    aliases[a.asname or a.name] = full
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.asname and a.name in NAMES:
+                    aliases[a.asname] = a.name
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases and node.attr.startswith("_")
+                and not node.attr.startswith("__")):
+            yield f"{aliases[node.value.id]}.{node.attr} (line {node.lineno})"
+
+
+@pytest.mark.parametrize("module,path,is_package", CASES, ids=[m for m, _, _ in CASES])
+def test_no_private_name_across_modules(module, path, is_package):
+    taken = sorted(set(_private_uses(module, path, is_package)))
+    assert not taken, f"{module} takes private names of other modules: {taken}"
+
+
+def test_reference_shares_no_code_with_delaycomp():
+    """The reference computations stay independent of what they check."""
+    ref = [m for m in EDGES if unit(m)[0] == "reference"]
+    assert ref
+    assert {t for m in ref for t in EDGES[m]} <= set(ref)
+
+
+# -- the earlier names, and a checkout as it installs (delaycomp.layout) -------------------
+
+@pytest.mark.parametrize("old,new", sorted(MOVED.items()), ids=sorted(MOVED))
+def test_an_earlier_name_is_the_module_at_its_new_place(old, new):
+    module = importlib.import_module(old)
+    assert module is importlib.import_module(new)
+    assert module.__name__ == module.__spec__.name == new  # the earlier name took nothing
+
+
+def test_a_submodule_of_a_moved_package_is_the_same_module():
+    import delaycomp.models.unicycle as before
+    import delaycomp.paper.models.unicycle as now
+
+    assert before is now
+
+
+def test_a_name_that_never_existed_is_still_refused():
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("delaycomp.no_such_module")
+
+
+def test_the_checkout_imports_as_it_installs(tmp_path):
+    """From a checkout that is not installed (no site initialization, so no editable
+    install's finder; only the checkout and the dependencies on the path), the folders
+    beside ``delaycomp/`` are its subpackages, as in the wheel."""
+    import numpy
+
+    deps = str(Path(numpy.__file__).resolve().parent.parent)
+    code = ("import sys, delaycomp.orchestrator.master as m, delaycomp.fmus, "
+            "delaycomp.reference; from delaycomp.fmu.build import FMU_ROOT; "
+            "assert not any('editable' in type(f).__module__ for f in sys.meta_path); "
+            "print(m.__file__); print(FMU_ROOT)")
+    env = {"PYTHONPATH": os.pathsep.join([str(REPO), deps]), "PATH": os.environ["PATH"]}
+    out = subprocess.run([sys.executable, "-S", "-c", code], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(REPO / "orchestrator" / "master.py"), str(REPO / "fmus")]
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("rootdir_on_path", [True, False], ids=["checkout-on-path",
+                                                                 "editable-finder-only"])
+def test_a_process_that_starts_from_an_fmus_path_finds_the_whole_package(
+        fmu_dir, tmp_path, rootdir_on_path):
+    """A Python FMU's binary puts its resources folder (with the part of delaycomp it
+    bundles) first on ``sys.path``; a process started from there (a sweep's worker, a Dask
+    worker) copies that path. It takes the FMU's own modules from the bundle and finds the
+    rest of the package (``paper.scenarios``, ``studies``) where it is installed: on the
+    path, or through an editable install's finder (``delaycomp.layout.whole``)."""
+    import zipfile
+
+    with zipfile.ZipFile(fmu_dir / "DelaycompDelay.fmu") as zf:
+        zf.extractall(tmp_path / "fmu")
+    resources = tmp_path / "fmu" / "resources"
+    path = [str(resources), *([str(REPO)] if rootdir_on_path else [])]
+    code = (f"import sys; sys.path[:0] = {path!r}\n"
+            "import delaycomp.maths.grid as g, delaycomp.paper.scenarios as s, "
+            "delaycomp.studies.sweep as w, delaycomp.fmu.build as b\n"
+            "print(g.__file__); print(s.__file__); print(w.__file__); print(b.__file__)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    grid, scenarios, sweep, build = map(Path, out.stdout.split())
+    assert grid.is_relative_to(resources)  # the FMU's own maths first
+    for module in (scenarios, sweep, build):
+        assert module.is_relative_to(REPO / "delaycomp"), module

@@ -12,8 +12,8 @@ import tracemalloc
 
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.simulate import make_master, parameters_of
+from delaycomp.orchestrator.simulate import make_master, parameters_of
+from delaycomp.paper import scenarios
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
 

@@ -24,8 +24,9 @@ import numpy as np
 import pytest
 
 from delaycomp import api
-from delaycomp.native import native_fmus
-from delaycomp.simulate import fmu_path, run_loop
+from delaycomp.fmu.cache import fmu_path
+from delaycomp.fmu.native import native_fmus
+from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loopfile import read_loop
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
@@ -148,7 +149,7 @@ def test_a_model_loop_builds_natively_and_runs_with_no_parameter_set(tmp_path):
     """A loop file naming a model (Example 3.8 with p = sin, padded input delay,
     numerical predictor: String, Boolean and model parameters among the starts): the
     native model FMUs carry the loop's values and run it as ``delaycomp run`` does."""
-    model = REPO / "delaycomp" / "models" / "example_3_8.py"
+    model = REPO / "delaycomp" / "paper" / "models" / "example_3_8.py"
     (tmp_path / model.name).write_bytes(model.read_bytes())
     loop_file = write_loop(tmp_path, """
         T = 1.0

@@ -19,6 +19,7 @@ Tolerances:
 from __future__ import annotations
 
 import csv
+import importlib
 import json
 import os
 import subprocess
@@ -243,7 +244,7 @@ def _delay_free(K):
 
 def simulate_container(fmu, stop: float, interval: float) -> dict:
     """fmpy.simulate_fmu on a container FMU at the sampling period, in a child process (a
-    pythonfmu FMU is not unloaded in this one, see delaycomp/crosscheck.py)."""
+    pythonfmu FMU is not unloaded in this one, see delaycomp/verify/crosscheck.py)."""
     code = ("import sys, json, os; from fmpy import simulate_fmu; "
             "r = simulate_fmu(sys.argv[1], stop_time=float(sys.argv[2]), "
             "output_interval=float(sys.argv[3])); "
@@ -419,9 +420,10 @@ def test_api_model_loop_compensated_beats_uncompensated(tmp_path):
 
 # -- the scenarios as data --------------------------------------------------------------
 
-@pytest.mark.parametrize("name", list(__import__("delaycomp.scenarios").scenarios.SCENARIOS))
+@pytest.mark.parametrize("name", list(importlib.import_module("delaycomp.paper.scenarios")
+                                      .SCENARIOS))
 def test_each_scenario_ships_as_a_loop_file_that_builds_the_same_loop(name):
-    from delaycomp import scenarios
+    from delaycomp.paper import scenarios
     from delaycomp.system.loopfile import LoopFile
 
     sc = scenarios.get(name)

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from delaycomp.controller import ZOHController
-from delaycomp.lti import (
+from delaycomp.maths.lti import (
     LTIPredictor,
     critical_delay,
     discretize,
@@ -18,6 +17,7 @@ from delaycomp.lti import (
     predict_by_integration,
     split_delay,
 )
+from delaycomp.maths.zoh import ZOHController
 
 from .roundoff import EPS
 

@@ -15,10 +15,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from delaycomp.model import ModelError, load_model
-from delaycomp.predictors import IntegrationError, integrate
-from delaycomp.scenarios import model_loop
-from delaycomp.simulate import run_loop
+from delaycomp.maths.model import ModelError, load_model
+from delaycomp.maths.predictors import IntegrationError, integrate
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper.scenarios import model_loop
 
 pytestmark = pytest.mark.fmu
 

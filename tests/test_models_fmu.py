@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from delaycomp.scenarios import model_loop
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper.scenarios import model_loop
 
 pytestmark = pytest.mark.fmu
 
@@ -107,7 +107,7 @@ def test_model_fmus_run_in_a_fresh_process_elsewhere(tmp_path):
 
 def test_repeated_instantiation_keeps_the_slave_module_intact(tmp_path):
     """pythonfmu 0.7 drops a reference to the slave module's dict per instantiation; the
-    pins in delaycomp.fmuslave must keep every slave module whole (see its docstring)."""
+    pins in delaycomp.fmu.slave must keep every slave module whole (see its docstring)."""
     import sys
 
     from delaycomp.orchestrator.fmu import FmuComponent

@@ -1,4 +1,4 @@
-"""Native C FMUs (``delaycomp build --native``, :mod:`delaycomp.native`).
+"""Native C FMUs (``delaycomp build --native``, :mod:`delaycomp.fmu.native`).
 
 What is checked, and why each tolerance:
 
@@ -8,7 +8,7 @@ What is checked, and why each tolerance:
 - every LTI reference case run with native FMUs in our master equals the run with the
   Python FMUs to 1e-12 relative to each signal's peak (the maths is the same, only the
   rounding of the exponentials and of the sums differs: measured <= 4e-14), and the
-  reference within the cross-check's own tolerance (``delaycomp.check.compare``);
+  reference within the cross-check's own tolerance (``delaycomp.verify.check.compare``);
 - the C host run under ``env -i`` (no Python in the process) gives the very numbers of our
   master with the same FMUs (same binary, same sequence of calls): equal bit for bit;
 - FMI 2.0 semantics: calls in the wrong state, bad parameters and inputs return fmi2Error
@@ -29,10 +29,8 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from scipy.linalg import expm
 
-from delaycomp import scenarios
-from delaycomp.build import DEFAULT_CONFIG, FMUS
-from delaycomp.check import CASES, compare
-from delaycomp.native import (
+from delaycomp.fmu.build import DEFAULT_CONFIG, FMUS
+from delaycomp.fmu.native import (
     CFLAGS,
     NATIVE_KINDS,
     SOURCE_DIR,
@@ -48,8 +46,10 @@ from delaycomp.native import (
 )
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
-from delaycomp.scenarios import lti_loop
-from delaycomp.simulate import make_master, parameters_of, run_loop, stop_ticks
+from delaycomp.orchestrator.simulate import make_master, parameters_of, run_loop, stop_ticks
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import lti_loop
+from delaycomp.verify.check import CASES, compare
 
 from .conftest import machine_blas_settings
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
@@ -251,7 +251,7 @@ def test_c_host_runs_a_vector_loop_and_an_exact_grid(native_dir, chost, tmp_path
     same calls); with ``--exact-grid`` (steps ``t_{k+1} - t_k`` of ``t_k = k h``, off from
     ``h`` in the last bits) the very same numbers, bit for bit: from ``t0 = 0`` the first
     step is ``h`` exactly, every later one is ``h`` for the FMUs' grid rule
-    (``delaycomp.grid.same_step``), so the plant reuses ``Ad(h), Bd(h)`` and the delays and
+    (``delaycomp.maths.grid.same_step``), so the plant reuses ``Ad(h), Bd(h)`` and the delays and
     the controller do what they do on constant steps."""
     spec = random_mimo_loop()
     fmus = native_fmus(spec, native_dir / "mimo")
@@ -584,7 +584,7 @@ def test_fmu_state_with_buffers_continues_bit_identically(native_dir, held):
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve(["r=0.5", "tau=1", "u0=4", "N=4"]))
     if held:
-        from delaycomp.thirdparty import jacobi_variant
+        from delaycomp.verify.thirdparty import jacobi_variant
 
         spec = jacobi_variant(spec)
     fmus = native_fmus(spec, native_dir / "state")
@@ -630,7 +630,7 @@ def test_python_fmus_in_the_c_host_with_the_three_settings(chost, fmu_dir, tmp_p
 
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve(["r=0.3", "u0=4", "mode=compensated"]))
-    from delaycomp.simulate import fmu_path
+    from delaycomp.fmu.cache import fmu_path
 
     fmus = {i.name: fmu_path(*i.source.build_key(), fmu_dir / "cache") for i in spec.instances}
     libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
@@ -656,10 +656,10 @@ def test_jacobi_archive_with_native_fmus_in_every_master(tmp_path, master):
     """``delaycomp ssp --jacobi --native``: libcosim and Ecos load the native FMUs from the
     archive (held_sample, shortened measurement delay) and reproduce the reference within
     the cross-check's tolerance, and the Python FMUs' run to 1e-12 of the peak."""
-    from delaycomp.check import case
-    from delaycomp.native import native_archive
-    from delaycomp.ssp import Archive
-    from delaycomp.thirdparty import pack_jacobi, run_ssp
+    from delaycomp.fmu.native import native_archive
+    from delaycomp.formats.ssp import Archive
+    from delaycomp.verify.check import case
+    from delaycomp.verify.thirdparty import pack_jacobi, run_ssp
 
     c = case("example-3.6/fig3")
     python = pack_jacobi(c.loop(), tmp_path / "case.ssp", parameter_set=c.case)
@@ -689,8 +689,8 @@ def test_native_archive_refuses_an_fmu_without_a_native_twin(tmp_path):
     the file. (A model file's FMUs have one: tests/test_native_model_controller.py.)"""
     import shutil
 
-    from delaycomp.native import native_archive
-    from delaycomp.ssp import pack, scenario_system
+    from delaycomp.fmu.native import native_archive
+    from delaycomp.formats.ssp import pack, scenario_system
 
     spec, info = scenario_system("example-3.8", [])
     path = pack(spec, info, tmp_path / "m.ssp")
@@ -836,7 +836,7 @@ def test_concurrent_builds_of_one_native_fmu_give_one_whole_file(tmp_path):
     build succeeds and the file is a whole FMU (four builds at once, twice)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from delaycomp.native import build_native_fmu
+    from delaycomp.fmu.native import build_native_fmu
 
     for _ in range(2):
         with ThreadPoolExecutor(max_workers=4) as pool:

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from delaycomp import scenarios
-from delaycomp.native import compile_host, compiler, host_argv, native_fmus, unpack
-from delaycomp.scenarios import lti_loop
+from delaycomp.fmu.native import compile_host, compiler, host_argv, native_fmus, unpack
+from delaycomp.paper import scenarios
+from delaycomp.paper.scenarios import lti_loop
 
 COUNTER = Path(__file__).parent / "native_alloc" / "count_alloc.c"
 
@@ -135,7 +135,7 @@ def test_a_prediction_has_a_bounded_budget_and_is_refused_past_it(tmp_path):
     instead of integrating on. The outputs read NaN from then on (the error state)."""
     from fmpy.fmi1 import FMICallException
 
-    from delaycomp.native import build_native_fmu
+    from delaycomp.fmu.native import build_native_fmu
     from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
     model = tmp_path / "fast.py"

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from delaycomp import api, scenarios
+from delaycomp import api
+from delaycomp.paper import scenarios
 
 
 def cli(*args, env=None, cwd=None):
@@ -118,7 +119,7 @@ def test_build_writes_native_fmus_and_archives_by_default(tmp_path):
 
 
 def test_build_model_python_on_request(tmp_path):
-    from delaycomp.models import path
+    from delaycomp.paper.models import path
 
     proc = cli("build", "--model", str(path("example_3_8")), "--python", "--out",
                str(tmp_path))

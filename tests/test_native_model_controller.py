@@ -1,5 +1,5 @@
 """The native predictor-controller of a user model (issue 23, items 1 and 2 for the
-controller): ``k`` and the exact ``step`` in C from :mod:`delaycomp.translate`, the
+controller): ``k`` and the exact ``step`` in C from :mod:`delaycomp.fmu.translate`, the
 numerical predictor by ``fmus/native/ode.c``, both families (continuous input, Theorem
 2.1; zero-order hold, Theorem 3.2, padding included); the twin of the Python model
 controller FMU.
@@ -21,15 +21,15 @@ import zipfile
 import numpy as np
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.build import build_fmu
-from delaycomp.check import PROVIDERS
-from delaycomp.models import path
-from delaycomp.native import build_native_fmu, compile_host, host_argv, native_fmus, unpack
+from delaycomp.fmu.build import build_fmu
+from delaycomp.fmu.native import build_native_fmu, compile_host, host_argv, native_fmus, unpack
+from delaycomp.fmu.translate import TranslationError
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent
-from delaycomp.simulate import run_loop, stop_ticks
-from delaycomp.translate import TranslationError
+from delaycomp.orchestrator.simulate import run_loop, stop_ticks
+from delaycomp.paper import scenarios
+from delaycomp.paper.models import path
+from delaycomp.verify.check import PROVIDERS
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
 from .test_native import (
@@ -40,7 +40,7 @@ from .test_native import (
 )
 from .test_scenarios import DEADBEAT
 
-#: The ODE tolerance of the FMUs (rtol = atol, delaycomp.predictors.DEFAULT_TOL).
+#: The ODE tolerance of the FMUs (rtol = atol, delaycomp.maths.predictors.DEFAULT_TOL).
 TOL = 1e-10
 
 #: (scenario, --set): both families, both predictors, both shapes of Example 3.8, a delay
@@ -88,7 +88,7 @@ def test_native_rows_of_check_pass_for_every_nonlinear_case():
     """``delaycomp check --master native``: every reference case whose model translates
     runs natively and meets the reference's tolerance (independent computations,
     ``reference/README.md``) and the Python FMUs' within ``NATIVE_RTOL``."""
-    from delaycomp.check import CASES
+    from delaycomp.verify.check import CASES
 
     cases = [c for c in CASES if c.id.split("/")[0] in (
         "example-2.4", "example-3.8", "corollary-4.1", "proposition-4.2")]
@@ -127,7 +127,7 @@ def test_native_continuous_loops_converge_to_the_reference_at_order_one(case_id,
     error halves when N doubles (1.8 to 2.2: the Python FMUs' test in ``test_scenarios``)
     and is within 2 % of the peak at N = 100. A wrong formula or a step of timing would
     not halve."""
-    from delaycomp.check import case
+    from delaycomp.verify.check import case
 
     c = case(case_id)
     header, ref = c.reference()
@@ -179,7 +179,7 @@ def test_the_controller_alone_answers_as_the_python_one(model_name, params, nati
     each output, at every base step, agrees. Bound: the closed forms to round-off; the
     numerical predictor is DOP853 at tol in both, a prediction within ``tol (1 + |x|)``
     per segment, and ``k`` is smooth: ``10 tol (1 + |u|)`` (measured: 1e-15)."""
-    from delaycomp.model import load_model
+    from delaycomp.maths.model import load_model
 
     model = load_model(path(model_name))
     names = [f"y_{s}" for s in model.states]
@@ -383,7 +383,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     model controller; ``sources/`` compile on their own with strict warnings."""
     from fmpy import read_model_description
 
-    from delaycomp.native import CFLAGS, compiler
+    from delaycomp.fmu.native import CFLAGS, compiler
 
     config = {"model": str(path(model_name))}
     nat_path = build_native_fmu("model_controller", native_dir / "tables", config)
@@ -467,8 +467,8 @@ def test_container_with_the_native_model_fmus(case_id, tmp_path):
     reference of the LTI loop of Example 3.6 and of each nonlinear scenario at t0 + iT
     (the reference's own tolerance: round-off for the exact cases, the O(h) hold for the
     continuous ones)."""
-    from delaycomp.check import case, compare
-    from delaycomp.container import export_loop, simulate_loop
+    from delaycomp.verify.check import case, compare
+    from delaycomp.verify.container import export_loop, simulate_loop
 
     c = case(case_id)
     loop = c.loop()
@@ -491,10 +491,10 @@ def test_native_model_archives_in_every_master(case_id, master, tmp_path):
     reference and the Python archive's run to 1e-12 of the peak (measured: 0)."""
     from fmpy import read_model_description
 
-    from delaycomp.check import case, compare
-    from delaycomp.native import native_archive
-    from delaycomp.ssp import Archive, loop_system, pack
-    from delaycomp.thirdparty import pack_jacobi, run_ssp
+    from delaycomp.fmu.native import native_archive
+    from delaycomp.formats.ssp import Archive, loop_system, pack
+    from delaycomp.verify.check import case, compare
+    from delaycomp.verify.thirdparty import pack_jacobi, run_ssp
 
     c = case(case_id)
     if master in ("libcosim", "ecos"):
@@ -520,7 +520,7 @@ def test_native_model_archives_in_every_master(case_id, master, tmp_path):
                                      fmus=archive.fmus()))
         a, b = runs
     elif master == "omsimulator":
-        from delaycomp.omsimulator import run_ssp as run_oms
+        from delaycomp.verify.omsimulator import run_ssp as run_oms
 
         a, b = run_oms(native, c.stop_time()), run_oms(python, c.stop_time())
     else:
@@ -577,9 +577,9 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path):
     (local errors ``tol (1 + |x|)``), the reference at 1e-12; the dead-beat loop contracts,
     so the error stays within a few hundred steps of ``tol``: ``1e-7`` of the state's scale
     (measured 3.3e-11 in all three hosts). OMSimulator's CSV has 12 significant digits."""
-    from delaycomp.model import load_model
-    from delaycomp.omsimulator import locate
+    from delaycomp.maths.model import load_model
     from delaycomp.system.loopfile import read_loop
+    from delaycomp.verify.omsimulator import locate
 
     model_file, loop_file = _pendulum_loop(tmp_path, 3.0, "[0.8, -0.3]", '''
         g = 9.0

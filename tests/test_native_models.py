@@ -1,5 +1,5 @@
 """The native plant of a user model (issue 23, items 1 and 2 for the plant): ``f`` (and an
-exact ``step`` that translates) in C from :mod:`delaycomp.translate`, the flow by
+exact ``step`` that translates) in C from :mod:`delaycomp.fmu.translate`, the flow by
 ``fmus/native/ode.c``; the twin of the Python model plant FMU.
 
 Against the Python FMUs in our master (the Python plant uses the model's exact step where
@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from delaycomp import scenarios
-from delaycomp.model import load_model
-from delaycomp.native import build_native_fmu
+from delaycomp.fmu.native import build_native_fmu
+from delaycomp.fmu.translate import TranslationError
+from delaycomp.maths.model import load_model
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent
-from delaycomp.simulate import run_loop, stop_ticks
-from delaycomp.translate import TranslationError
+from delaycomp.orchestrator.simulate import run_loop, stop_ticks
+from delaycomp.paper import scenarios
 
 from .test_native import (
     _restore_run,
@@ -87,7 +87,7 @@ def test_native_plant_equals_an_independent_solve(model_name, native_dir):
     another family, rtol = atol = 1e-12) of the model's Python ``f``: shares no code with
     the translation or ode.c. DOP853 at tol = 1e-10 and the reference at 1e-12: within
     1e-8 of the state's scale over 50 steps (measured: 1e-12)."""
-    from delaycomp.models import path
+    from delaycomp.paper.models import path
 
     model = load_model(path(model_name))
     fmu = build_native_fmu("model_plant", native_dir / "alone", {"model": str(path(model_name))})
@@ -109,7 +109,7 @@ def test_native_plant_equals_an_independent_solve(model_name, native_dir):
 
 def _both(kind_model, params, native_dir):
     """The Python model plant (in-process slave) and the native one, set up with params."""
-    from delaycomp.models import path
+    from delaycomp.paper.models import path
 
     model_path = str(path(kind_model))
     slave = SlaveComponent("x", "model_plant", {"model": model_path})
@@ -254,9 +254,9 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
 
     from fmpy import read_model_description
 
-    from delaycomp.build import build_fmu
-    from delaycomp.models import path
-    from delaycomp.native import CFLAGS, compiler
+    from delaycomp.fmu.build import build_fmu
+    from delaycomp.fmu.native import CFLAGS, compiler
+    from delaycomp.paper.models import path
 
     config = {"model": str(path(model_name))}
     nat_path = build_native_fmu("model_plant", native_dir / "tables", config)

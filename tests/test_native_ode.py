@@ -14,7 +14,7 @@ and why each tolerance:
   ``tol`` on Van der Pol (4.7 ``tol`` with scipy's rejection rule, as scipy itself); the
   bounds below are 10 and 50 ``tol``;
 - against scipy's ``ode(...).set_integrator("dop853")`` (the solver of
-  ``delaycomp.predictors.integrate``) at the same tolerances: the same method, initial step
+  ``delaycomp.maths.predictors.integrate``) at the same tolerances: the same method, initial step
   and step control, so on a problem whose steps are all accepted the same steps are taken
   and the states differ by rounding only (measured <= 3e-15 relative, bound 1e-13);
   scipy 1.17's C translation retries a rejected step with ``0.3 h`` where Hairer's rule is
@@ -39,8 +39,8 @@ import pytest
 from scipy.integrate import ode, solve_ivp
 from scipy.linalg import expm
 
-from delaycomp.native import SOURCE_DIR, compiler
-from delaycomp.predictors import integrate
+from delaycomp.fmu.native import SOURCE_DIR, compiler
+from delaycomp.maths.predictors import integrate
 
 HERE = Path(__file__).resolve().parent / "native_ode"
 FLAGS = ["-std=c11", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror"]
@@ -133,7 +133,7 @@ def native(lib, which: int, x0, p, duration: float, tol: float, max_steps: int =
 
 
 def scipy_dop853(fun, x0, duration: float, tol: float, nsteps: int = 100_000):
-    """scipy's DOP853 as ``delaycomp.predictors`` runs it: ``(code, x, accepted steps)``."""
+    """scipy's DOP853 as ``delaycomp.maths.predictors`` runs it: ``(code, x, accepted steps)``."""
     times = []
     solver = ode(lambda _t, y: fun(y)).set_integrator("dop853", rtol=tol, atol=tol,
                                                      nsteps=nsteps)

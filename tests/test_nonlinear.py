@@ -10,19 +10,19 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from delaycomp.history import InputHistory
-from delaycomp.lti import flow
-from delaycomp.model import ModelError, load_model
-from delaycomp.models import example_2_4, example_3_8, proposition_4_2, unicycle
-from delaycomp.models import path as model_path
-from delaycomp.nlcontrol import ContinuousController, ModelPlant, ZOHModelController
-from delaycomp.predictors import (
+from delaycomp.maths.history import InputHistory
+from delaycomp.maths.lti import flow
+from delaycomp.maths.model import ModelError, load_model
+from delaycomp.maths.nlcontrol import ContinuousController, ModelPlant, ZOHModelController
+from delaycomp.maths.predictors import (
     _unit_deadbeat_gain,
     bilinear_predictor,
     deadbeat_gain,
     integrate,
     numerical_predictor,
 )
+from delaycomp.paper.models import example_2_4, example_3_8, proposition_4_2, unicycle
+from delaycomp.paper.models import path as model_path
 
 # Direct solves at rtol = atol = 1e-12 are accurate to ~1e-10 on these O(1) problems over
 # a few seconds; closed forms must agree with them to 1e-8.
@@ -207,7 +207,7 @@ def test_history_segments_merge_and_bound():
 
 def loop(model, ctrl, plant, r, tau, h, x0, u0, ticks):
     """In-process loop: plant -> delay r -> controller -> delay tau -> plant (exact grid)."""
-    from delaycomp.delayline import DelayLine
+    from delaycomp.maths.delayline import DelayLine
 
     meas = DelayLine(model.n, round(r / h), x0)
     act = DelayLine(model.m, round(tau / h), u0)

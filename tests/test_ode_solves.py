@@ -14,9 +14,9 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.predictors import integrate
-from delaycomp.simulate import run_loop
+from delaycomp.maths.predictors import integrate
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
 
 
 def _decay(x, u, p):

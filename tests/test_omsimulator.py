@@ -30,11 +30,13 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from delaycomp import omsimulator, scenarios, ssp
 from delaycomp.cli import main
+from delaycomp.formats import ssp
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
 from delaycomp.system.jacobi import CompensationError, jacobi_variant
+from delaycomp.verify import omsimulator
 from tests.conftest import REPO
 
 from .roundoff import EPS, SAME_ARITHMETIC_ULPS, assert_columns_close
@@ -204,7 +206,7 @@ def oms():
 @pytest.fixture(scope="module")
 def shipped(tmp_path_factory):
     """Every archive `delaycomp build` ships (plain and Jacobi), with its FMUs."""
-    from delaycomp.ssp import pack_scenarios
+    from delaycomp.formats.ssp import pack_scenarios
 
     return {p.stem: p for p in pack_scenarios(tmp_path_factory.mktemp("ssp"))}
 
@@ -291,8 +293,7 @@ def test_not_installed_is_a_clear_error(monkeypatch, tmp_path):
     monkeypatch.setenv(omsimulator.ENV, str(tmp_path))
     with pytest.raises(omsimulator.NotInstalled, match="holds no lib/x86_64-linux-gnu/"):
         omsimulator.locate()
-    from delaycomp import check
-
+    from delaycomp.verify import check
     row = check.run_checks(check.CASES[:1], ["omsimulator"])[0]
     assert row.passed is False and "not installed" in row.note
 

@@ -31,7 +31,7 @@ import pytest
 import scipy.linalg as sl
 
 from delaycomp.errors import BadFileError, ParameterError
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system import lti_loop
 from delaycomp.system.loopfile import read_loop
 from delaycomp.system.plantfmu import read_interface
@@ -209,8 +209,7 @@ def test_cli_runs_it_and_refuses_bad_input_with_exit_2(folder, tmp_path, capsys)
 @pytest.mark.parametrize("master", ["libcosim", "ecos"])
 def test_jacobi_archive_carries_the_users_fmu_and_runs_in(folder, ours, master, tmp_path):
     """Same tolerance as tests/test_thirdparty.py against our master (1e-12 (1 + |x|))."""
-    from delaycomp import thirdparty
-
+    from delaycomp.verify import thirdparty
     loop = read_loop(folder / "osc.toml")
     path = thirdparty.pack_jacobi(loop, tmp_path / "osc-jacobi.ssp")
     assert "resources/Oscillator.fmu" in zipfile.ZipFile(path).namelist()
@@ -221,8 +220,7 @@ def test_jacobi_archive_carries_the_users_fmu_and_runs_in(folder, ours, master, 
 
 
 def test_ssp_is_valid_and_round_trips(folder, ours, tmp_path):
-    from delaycomp import ssp
-
+    from delaycomp.formats import ssp
     loop = read_loop(folder / "osc.toml")
     path = ssp.pack(loop, ssp.SystemInfo("osc", "C plant", STOP), tmp_path / "osc.ssp")
     with zipfile.ZipFile(path) as zf:
@@ -238,8 +236,7 @@ def test_ssp_is_valid_and_round_trips(folder, ours, tmp_path):
 def test_container_reproduces_our_master(folder, ours, tmp_path):
     """At the sampling instants the container is our master's loop (module container's
     ordering): the same floating-point operations, compared to 1e-12 (1 + |x|)."""
-    from delaycomp import container
-
+    from delaycomp.verify import container
     loop = read_loop(folder / "osc.toml")
     path = container.export_loop(loop, tmp_path / "osc-loop.fmu")
     names, times, data = container.simulate_loop(path, loop, 3.0)
@@ -249,7 +246,8 @@ def test_container_reproduces_our_master(folder, ours, tmp_path):
 
 
 def test_sweep_over_the_measurement_delay(folder):
-    from delaycomp.sweep import parse_grid, run_sweep
+    from delaycomp.studies.axes import parse_grid
+    from delaycomp.studies.sweep import run_sweep
 
     rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0)
     assert [row["r"] for row in rows] == [0.0, 0.2, 0.4]
@@ -271,9 +269,9 @@ def test_delay_built_without_feedthrough_declares_none_and_refuses_a_zero_delay(
     initialization with a logged error naming the parameter."""
     from fmpy import read_model_description
 
+    from delaycomp.fmu.cache import fmu_path
     from delaycomp.orchestrator.fmu import FmuComponent
     from delaycomp.orchestrator.master import SimulationError
-    from delaycomp.simulate import fmu_path
 
     path = fmu_path("delay", {"feedthrough": False, "n": 1}, tmp_path)
     md = read_model_description(str(path))
@@ -302,8 +300,7 @@ def foreign_ssp(folder, tmp_path_factory):
     components renamed, as another tool would write it (valid SSP 1.0)."""
     from lxml import etree
 
-    from delaycomp import ssp
-
+    from delaycomp.formats import ssp
     out = tmp_path_factory.mktemp("foreign")
     path = ssp.pack(read_loop(folder / "osc.toml"), ssp.SystemInfo("osc", "", STOP),
                     out / "ours.ssp")

@@ -2,7 +2,7 @@
 
 A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes steps
 ``t_{k+1} - t_k`` that differ from ``h`` in the last bits. Both plant FMUs key their
-discretization ``Ad(h), Bd(h)`` on their own grid (:func:`delaycomp.grid.same_step`): a
+discretization ``Ad(h), Bd(h)`` on their own grid (:func:`delaycomp.maths.grid.same_step`): a
 step within ``GRID_RTOL`` of the cached step is that step, another one is discretized and
 becomes the key. What is checked, and why each tolerance:
 
@@ -32,10 +32,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from delaycomp.build import DEFAULT_CONFIG
-from delaycomp.grid import same_step
-from delaycomp.native import native_fmu_path
-from delaycomp.simulate import fmu_path
+from delaycomp.fmu.build import DEFAULT_CONFIG
+from delaycomp.fmu.cache import fmu_path
+from delaycomp.fmu.native import native_fmu_path
+from delaycomp.maths.grid import same_step
 from orchestrator.fmu import FmuComponent
 
 from .roundoff import EPS

@@ -28,9 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from delaycomp import native
-from delaycomp.loopbuild import file_stem
-from delaycomp.native import (
+from delaycomp.fmu import native
+from delaycomp.fmu.native import (
     CROSS_TARGETS,
     NativeBuildError,
     build_native_fmu,
@@ -40,6 +39,7 @@ from delaycomp.native import (
     pop_notes,
     unpack,
 )
+from delaycomp.formats.loopbuild import file_stem
 
 from .test_loopbuild import write_loop
 
@@ -82,7 +82,7 @@ def binaries(fmu: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def model_file():
-    return REPO / "delaycomp" / "models" / "example_3_8.py"
+    return REPO / "delaycomp" / "paper" / "models" / "example_3_8.py"
 
 
 @pytest.mark.parametrize("kind", ["delay", "plant", "controller", "model_plant",
@@ -204,8 +204,8 @@ def test_the_c_host_runs_the_platform_binaries_as_linux64(platform, case, wine_p
     """``delaycomp build`` the loop's FMUs (every platform inside); the C host built for
     ``platform`` runs that platform's binaries in its emulator (wine, qemu-user) and
     gives the linux64 host's trajectory to 1e-12 of each column's peak."""
-    from delaycomp import api, scenarios
-
+    from delaycomp import api
+    from delaycomp.paper import scenarios
     need_cross(platform)
     prefix, package = native.EMULATORS[platform]
     need(prefix[0], package, f"the {platform} binaries were not run;")

@@ -18,15 +18,16 @@ import pytest
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 
-from delaycomp.build import DEFAULT_CONFIG, PACKAGE_DIR
+from delaycomp.fmu.build import DEFAULT_CONFIG, PACKAGE_DIR
+from delaycomp.fmu.cache import fmu_path
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
-from delaycomp.scenarios import model_loop
-from delaycomp.simulate import fmu_path, run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper.scenarios import model_loop
 
 pytestmark = pytest.mark.fmu
 
-MODELS = PACKAGE_DIR / "models"
+MODELS = PACKAGE_DIR / "paper" / "models"
 #: every FMU of the registry; the templates once per control mode
 VARIANTS = {
     "plant": ("plant", None),
@@ -255,7 +256,7 @@ def test_connection_to_a_missing_variable_is_named(fmu_dir):
 @pytest.mark.parametrize("config", [{"n": 0}, {"n": -1}, {"n": 1.5}, {"n": True}],
                          ids=["zero", "negative", "float", "bool"])
 def test_bad_dimension_is_refused_before_building(tmp_path, config):
-    from delaycomp.build import build_fmu
+    from delaycomp.fmu.build import build_fmu
 
     with pytest.raises(ValueError, match=r"^n = .+ is not allowed: must be an integer from 1"):
         build_fmu("delay", tmp_path, config)

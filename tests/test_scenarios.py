@@ -7,11 +7,11 @@ import csv
 import numpy as np
 import pytest
 
-from delaycomp import scenarios
-from delaycomp.check import CASES
 from delaycomp.errors import ParameterError
-from delaycomp.models import corollary_4_1, unicycle
-from delaycomp.simulate import run_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.paper.models import corollary_4_1, unicycle
+from delaycomp.verify.check import CASES
 
 from .conftest import REPO
 

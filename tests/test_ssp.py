@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from delaycomp import ssp
-from delaycomp.scenarios import SCENARIOS
+from delaycomp.formats import ssp
+from delaycomp.paper.scenarios import SCENARIOS
 
 from .conftest import REPO
 from .roundoff import (

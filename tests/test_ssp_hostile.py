@@ -13,7 +13,7 @@ import zipfile
 
 import pytest
 
-from delaycomp import ssp
+from delaycomp.formats import ssp
 
 from .test_cli import cli
 

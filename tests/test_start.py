@@ -80,19 +80,23 @@ def test_the_probe_sees_an_import_when_there_is_one():
 #: The LTI plant and controller need a matrix exponential (scipy.linalg); the delay copies
 #: values; the model FMUs of Example 2.4 use the model's own exact step and Phi (scipy's
 #: ODE solver is loaded at a model's first numerical solve, never at instantiation).
+#: every Python FMU imports these: the package's finder of earlier names (``layout``) and
+#: the two packages (their ``__init__`` imports nothing)
+FMU_BASE = {"layout", "maths", "fmu", "fmu.slave", "names"}
 FMU_NEEDS = {
     "delay": (("numpy", "pythonfmu"),
-              {"delayline", "fmuslave", "grid", "names"}),
+              FMU_BASE | {"maths.delayline", "maths.grid"}),
     "plant": (("numpy", "pythonfmu", "scipy.linalg"),
-              {"fmuslave", "grid", "lti", "names"}),
+              FMU_BASE | {"maths.grid", "maths.lti"}),
     "controller": (("numpy", "pythonfmu", "scipy.linalg"),
-                   {"controller", "fmuslave", "grid", "lti", "names"}),
+                   FMU_BASE | {"maths.zoh", "maths.grid", "maths.lti"}),
     "model_plant": (("numpy", "pythonfmu"),
-                    {"delayline", "errors", "fmuslave", "grid", "history", "model", "names",
-                     "nlcontrol", "predictors"}),
+                    FMU_BASE | {"maths.delayline", "errors", "maths.grid", "maths.history",
+                                "maths.model", "maths.nlcontrol", "maths.predictors"}),
     "model_controller": (("numpy", "pythonfmu"),
-                         {"delayline", "errors", "fmuslave", "grid", "history", "model",
-                          "names", "nlcontrol", "predictors"}),
+                         FMU_BASE | {"maths.delayline", "errors", "maths.grid",
+                                     "maths.history", "maths.model", "maths.nlcontrol",
+                                     "maths.predictors"}),
 }
 
 IMPORTS_OF = """
@@ -112,8 +116,8 @@ def installed_modules(modules) -> set[str]:
 
 @pytest.fixture(scope="module")
 def python_fmus(fmu_dir, tmp_path_factory):
-    from delaycomp.build import build_fmu
-    from delaycomp.models import path as builtin_model
+    from delaycomp.fmu.build import build_fmu
+    from delaycomp.paper.models import path as builtin_model
 
     out = tmp_path_factory.mktemp("probe-fmus")
     model = {"model": str(builtin_model("example_2_4"))}
@@ -126,11 +130,11 @@ def python_fmus(fmu_dir, tmp_path_factory):
 
 @pytest.mark.parametrize("kind", FMU_NEEDS)
 def test_a_python_fmu_imports_only_what_its_maths_needs(kind, python_fmus):
-    """Instantiated as pythonfmu's binary does it (:func:`delaycomp.build.probe_instantiation`),
+    """Instantiated as pythonfmu's binary does it (:func:`delaycomp.fmu.build.probe_instantiation`),
     the FMU imports no installed module that importing its short list alone would not
     (no matplotlib, fmpy, lxml; no scipy.optimize for a matrix exponential), and of the
     bundled delaycomp only its maths (no CLI, SSP, masters or plotting)."""
-    from delaycomp.build import probe_instantiation
+    from delaycomp.fmu.build import probe_instantiation
 
     needs, own = FMU_NEEDS[kind]
     probe = probe_instantiation(python_fmus[kind])
@@ -147,7 +151,7 @@ def test_a_python_fmu_imports_only_what_its_maths_needs(kind, python_fmus):
 def test_the_fmu_probe_sees_what_an_fmu_imports(python_fmus):
     """Not vacuous: the LTI plant's matrix exponential does load scipy.linalg, which the
     delay's allowed list would refuse."""
-    from delaycomp.build import probe_instantiation
+    from delaycomp.fmu.build import probe_instantiation
 
     probe = probe_instantiation(python_fmus["plant"])
     assert "scipy.linalg" in probe.subpackages
@@ -186,8 +190,9 @@ def test_a_packed_native_run_loads_neither_a_progress_bar_nor_a_blas_limiter(nat
 def test_blas_runs_on_one_thread_where_python_maths_runs(native_ssp, fmu_dir, monkeypatch):
     """The limit is entered for a loop of Python FMUs (their slaves use this numpy), not for
     one of native FMUs; the run is the same either way."""
-    from delaycomp import scenarios, simulate
-    from delaycomp.ssp import Archive
+    from delaycomp.formats.ssp import Archive
+    from delaycomp.orchestrator import simulate
+    from delaycomp.paper import scenarios
 
     entered = []
     real = simulate.single_threaded_blas

@@ -19,14 +19,15 @@ import json
 import pytest
 from fmpy import read_model_description
 
-from delaycomp import scenarios
-from delaycomp.build import DEFAULT_CONFIG, FMUS, PACKAGE_DIR
+from delaycomp.fmu.build import DEFAULT_CONFIG, FMUS, PACKAGE_DIR
+from delaycomp.fmu.cache import fmu_path
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
-from delaycomp.simulate import fmu_path, make_master, parameters_of, stop_ticks
+from delaycomp.orchestrator.simulate import make_master, parameters_of, stop_ticks
+from delaycomp.paper import scenarios
 
 pytestmark = pytest.mark.fmu
 
-MODELS = PACKAGE_DIR / "models"
+MODELS = PACKAGE_DIR / "paper" / "models"
 
 #: (scenario, settings, stop time): every FMU kind of the registry appears at least once,
 #: the model controller in both modes and with a numerical predictor.
@@ -37,7 +38,7 @@ CASES = {
     "zoh-numerical": ("example-3.8", ["N=10", "tau=1", "predictor=numerical"], 4.0),
 }
 #: the same with the controllers sampling the held input (``held_sample``, the loop of
-#: :func:`delaycomp.thirdparty.jacobi_variant`): the held input is hidden state too
+#: :func:`delaycomp.verify.thirdparty.jacobi_variant`): the held input is hidden state too
 HELD = {
     "lti-held-sample": ("example-3.6", ["r=0.5", "tau=1", "u0=4", "N=4"], 6.0),
     "zoh-held-sample": ("example-3.8", ["N=10", "tau=1"], 4.0),
@@ -48,7 +49,7 @@ def _run_with_restore(fmu_dir, name, settings, stop, held=False):
     sc = scenarios.get(name)
     spec = sc.make(sc.resolve(settings))
     if held:
-        from delaycomp.thirdparty import jacobi_variant
+        from delaycomp.verify.thirdparty import jacobi_variant
 
         spec = jacobi_variant(spec)
     ticks = stop_ticks(stop, spec.T, spec.N)

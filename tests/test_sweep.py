@@ -10,26 +10,27 @@ import sys
 import numpy as np
 import pytest
 
-from delaycomp import sweep
-from delaycomp.critical import fitted_spectral_radius
-from delaycomp.lti import lifted_loop
-from delaycomp.scenarios import ParameterError, lti_loop
-from delaycomp.simulate import run_loop
+from delaycomp.maths.lti import lifted_loop
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper.scenarios import ParameterError, lti_loop
+from delaycomp.studies import sweep
+from delaycomp.studies.axes import parse_grid
+from delaycomp.studies.critical import fitted_spectral_radius
 
 from .conftest import REPO
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_same_values
 
 
 def test_parse_grid():
-    axis = sweep.parse_grid("r=0:0.4:5")
+    axis = parse_grid("r=0:0.4:5")
     assert axis.name == "r" and axis.values == pytest.approx((0.0, 0.1, 0.2, 0.3, 0.4))
-    assert sweep.parse_grid("T=1:2:1").values == (1.0,)
+    assert parse_grid("T=1:2:1").values == (1.0,)
 
 
 @pytest.mark.parametrize("text", ["r", "r=0:1", "r=a:1:3", "r=0:1:0", "r=0:inf:3", "=0:1:2"])
 def test_parse_grid_rejects(text):
     with pytest.raises(ParameterError, match="--grid"):
-        sweep.parse_grid(text)
+        parse_grid(text)
 
 
 def synthetic(rho, periods=20, N=10, phase=True):
@@ -63,7 +64,7 @@ def test_metrics_deadbeat_and_failure():
 def test_exact_map_agrees_with_simulation(fmu_dir):
     """--exact (lifted model) against the rate estimated from 20 simulated periods: the
     estimator's error on this loop is below 0.02 (measured <= 0.017)."""
-    axes = [sweep.parse_grid("r=0.05:0.35:4")]
+    axes = [parse_grid("r=0.05:0.35:4")]
     sets = ["mode=uncompensated"]
     sim = sweep.run_sweep("example-3.6", axes, sets, fmu_dir=str(fmu_dir))
     exact = sweep.run_sweep("example-3.6", axes, sets, exact=True)
@@ -77,7 +78,7 @@ def test_exact_map_agrees_with_simulation(fmu_dir):
 def test_results_do_not_depend_on_workers_or_dask(fmu_dir):
     from distributed import LocalCluster
 
-    axes = [sweep.parse_grid("r=0.1:0.3:3")]
+    axes = [parse_grid("r=0.1:0.3:3")]
     args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=5.0,
                 fmu_dir=str(fmu_dir))
     serial = sweep.run_sweep(**args)
@@ -92,7 +93,7 @@ def test_results_do_not_depend_on_workers_or_dask(fmu_dir):
 
 def test_invalid_grid_point_is_named_before_anything_runs():
     with pytest.raises(ParameterError, match=r"grid point r=0\.105: .*multiple of the base"):
-        sweep.run_sweep("example-3.6", [sweep.parse_grid("r=0.1:0.11:3")], [])
+        sweep.run_sweep("example-3.6", [parse_grid("r=0.1:0.11:3")], [])
 
 
 @pytest.mark.fmu

@@ -6,7 +6,7 @@ Tolerances:
 - against our master: ``1e-12 (1 + |ours|)``. Ecos reproduces it bit for bit (measured 0);
   libcosim keeps time in integer nanoseconds, so the step size and communication points the
   FMUs see differ from ours in the last bits (measured at most 3e-14 on these prefixes);
-- against the reference: the tolerances of :mod:`delaycomp.check` (zero-order hold
+- against the reference: the tolerances of :mod:`delaycomp.verify.check` (zero-order hold
   ``1e-9 (1 + |ref|)``, continuous input 2 % of the signal's range), on a prefix of the
   reference trace that covers the first samples and the transient.
 
@@ -18,8 +18,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from delaycomp import check, scenarios, ssp, thirdparty
-from delaycomp.simulate import run_loop
+from delaycomp.formats import ssp
+from delaycomp.orchestrator.simulate import run_loop
+from delaycomp.paper import scenarios
+from delaycomp.verify import check, thirdparty
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_csv_close
 
@@ -89,7 +91,7 @@ def test_master_reproduces_our_trajectory_and_the_reference(packed, master, name
 def test_jacobi_variant_runs_identically_in_our_master(packed):
     """The variant is the same loop: our master gives the same numbers on it (the same
     arithmetic: to the last bits)."""
-    from delaycomp.ssp import Archive
+    from delaycomp.formats.ssp import Archive
 
     _, stop, path, ours = packed["corollary-3.7"]
     with Archive(path) as archive:

@@ -1,4 +1,4 @@
-"""Model files as C (issue 23, item 1, first piece): :mod:`delaycomp.translate`.
+"""Model files as C (issue 23, item 1, first piece): :mod:`delaycomp.fmu.translate`.
 
 The generated C is compiled with the project's compiler and flags and called through
 ctypes at random points, against the model's own Python functions, for every branch of the
@@ -16,10 +16,10 @@ import casadi  # the native extra, part of the test extra: never skipped
 import numpy as np
 import pytest
 
-from delaycomp.model import load_model
-from delaycomp.models import path as builtin_model
-from delaycomp.native import compiler
-from delaycomp.translate import TranslationError, translate
+from delaycomp.fmu.native import compiler
+from delaycomp.fmu.translate import TranslationError, translate
+from delaycomp.maths.model import load_model
+from delaycomp.paper.models import path as builtin_model
 
 from .roundoff import EPS
 

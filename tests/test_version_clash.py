@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from delaycomp.build import FMU_ROOT, PACKAGE_DIR
+from delaycomp.fmu.build import FMU_ROOT, PACKAGE_DIR
 from delaycomp.orchestrator import __file__ as orchestrator_init
 
 pytestmark = pytest.mark.fmu
@@ -37,7 +37,7 @@ def build_with_version(tmp_path, version: str):
     init.write_text(text.replace('__version__ = "', f'__version__ = "{version}" #'),
                     encoding="utf-8")
     out = tmp_path / "other"
-    code = ("import delaycomp, delaycomp.build as b\n"
+    code = ("import delaycomp, delaycomp.fmu.build as b\n"
             f"assert delaycomp.__version__ == {version!r}, delaycomp.__file__\n"
             f"print(b.build_fmu('delay', {str(out)!r}))\n")
     env = dict(os.environ, PYTHONPATH=str(src))

@@ -1,10 +1,10 @@
 """The system model: the typed description of a closed loop (:mod:`.loop`), the loop file
 that describes one in TOML (:mod:`.loopfile`) and the rewrites that work on roles
-(:mod:`.jacobi`). It stands on the maths and :mod:`delaycomp.grid`, and imports nothing
+(:mod:`.jacobi`). It stands on the maths and :mod:`delaycomp.maths.grid`, and imports nothing
 above it (no FMI, no master).
 """
 
-from .loop import (
+from delaycomp.system.loop import (
     ROLES,
     BuiltinFmu,
     Connection,

@@ -1,6 +1,6 @@
 """The Jacobi variant of a loop: the same trajectory in a master that steps every
 component and only then exchanges the outputs (libcosim, Ecos; see
-:mod:`delaycomp.thirdparty` for the measurement of that latency).
+:mod:`delaycomp.verify.thirdparty` for the measurement of that latency).
 
 A rewrite of the typed loop by roles, never by instance names:
 
@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import math
 
-from .. import grid
-from ..names import indexed
-from .loop import Connection, Loop
+from delaycomp.maths import grid
+from delaycomp.names import indexed
+from delaycomp.system.loop import Connection, Loop
 
 #: base steps of latency a Jacobi master adds on a connection out of a direct-feedthrough
-#: output (measured, see :mod:`delaycomp.thirdparty`)
+#: output (measured, see :mod:`delaycomp.verify.thirdparty`)
 JACOBI_LATENCY_STEPS = 1
 DELAY_ROLES = ("meas_delay", "input_delay")
 

@@ -9,7 +9,7 @@ A :class:`Loop` holds
   :class:`FmuFile`, an FMU file given as it is) and its parameter values;
 - typed :class:`Connection` objects between :class:`Port` objects;
 - the :class:`Timing` (``T``, ``N``, integer ticks of ``h = T/N``, decided by
-  :mod:`delaycomp.grid`);
+  :mod:`delaycomp.maths.grid`);
 - the recorded ports, and for LTI loops the design (:class:`LtiDesign`: ``A``, ``B``,
   ``K``, delays, histories) that exact analyses (lifted model, critical delay, the sign
   guard) read.
@@ -43,9 +43,9 @@ from typing import Any, Literal, Union
 
 import numpy as np
 
-from .. import grid
-from ..errors import ParameterError
-from ..names import MODES, indexed
+from delaycomp.errors import ParameterError
+from delaycomp.maths import grid
+from delaycomp.names import MODES, indexed
 
 Role = Literal["plant", "meas_delay", "controller", "input_delay"]
 #: the roles of a closed loop, in signal order: plant -> meas_delay -> controller ->
@@ -57,21 +57,21 @@ ROLES: tuple[Role, ...] = ("plant", "meas_delay", "controller", "input_delay")
 
 @dataclass(frozen=True)
 class BuiltinFmu:
-    """One of delaycomp's FMUs: a kind of :data:`delaycomp.build.FMUS` (``plant``,
+    """One of delaycomp's FMUs: a kind of :data:`delaycomp.fmu.build.FMUS` (``plant``,
     ``delay``, ``controller``) and its build configuration (dimensions, names)."""
 
     kind: str
     config: Mapping[str, Any] = field(default_factory=dict)
 
     def build_key(self) -> tuple[str, dict]:
-        """``(kind, config)`` as :func:`delaycomp.build.build_fmu` takes them."""
+        """``(kind, config)`` as :func:`delaycomp.fmu.build.build_fmu` takes them."""
         return self.kind, dict(self.config)
 
 
 @dataclass(frozen=True)
 class ModelFmu:
     """The plant (``kind = "model_plant"``) or controller (``"model_controller"``) FMU of
-    a user's model file (:mod:`delaycomp.model`)."""
+    a user's model file (:mod:`delaycomp.maths.model`)."""
 
     kind: str
     model: Path
@@ -299,16 +299,20 @@ def _chain(plant_out: list[str], ctrl_in: list[str], ctrl_out: list[str],
         + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, plant_in)])
 
 
-def _vec(label: str, v) -> dict:
+def vector_params(label: str, v) -> dict:
+    """The FMU parameters of vector ``v``: ``{"label[1]": v[0], ...}``."""
     return {f"{label}[{i + 1}]": float(x) for i, x in enumerate(v)}
 
 
-def _mat(label: str, M) -> dict:
+def matrix_params(label: str, M) -> dict:
+    """The FMU parameters of matrix ``M``: ``{"label[1,1]": M[0, 0], ...}`` (row by row)."""
     return {f"{label}[{i + 1},{j + 1}]": float(M[i, j])
             for i in range(M.shape[0]) for j in range(M.shape[1])}
 
 
-def _delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[float, float]:
+def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[float, float]:
+    """The true delays ``(r_true, tau_true)`` (each the assumed one where ``None``), after
+    refusing any delay that is not a finite number >= 0 on the base grid."""
     for name, value in (("r", r), ("tau", tau), ("r_true", r_true), ("tau_true", tau_true)):
         if value is None and name in ("r_true", "tau_true"):  # default: the assumed one
             continue
@@ -322,7 +326,7 @@ def _delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[flo
 @dataclass(frozen=True)
 class LtiPoint:
     """An LTI loop's design and timing without its instances: what a batch sweep needs of
-    a grid point (:meth:`delaycomp.scenarios.Scenario.design`). It carries the same
+    a grid point (:meth:`delaycomp.paper.scenarios.Scenario.design`). It carries the same
     ``lti`` and ``timing`` fields as the :class:`Loop` that :func:`design_loop` builds from
     it, validated by the same code (:func:`lti_design`)."""
 
@@ -373,7 +377,7 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
         raise ParameterError(f"parameter mode = {mode!r} is not allowed: must be "
                              f"{' or '.join(MODES)}")
     timing = Timing(T, N)
-    _delays(timing, r, tau, r_true, tau_true)
+    check_delays(timing, r, tau, r_true, tau_true)
     return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true), timing)
 
 
@@ -486,14 +490,14 @@ def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "
     instances = (
         Instance("plant", "plant",
                  BuiltinFmu("plant", {"n": n, "m": m, "state": state, "input": inp}),
-                 {**_mat("A", A), **_mat("B", B), **_vec("x0", x0)}),
+                 {**matrix_params("A", A), **matrix_params("B", B), **vector_params("x0", x0)}),
         Instance("meas_delay", "meas_delay", BuiltinFmu("delay", {"n": n}),
-                 {"delay": r_loop, **_vec("u0", x0)}),
+                 {"delay": r_loop, **vector_params("u0", x0)}),
         Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
-                 {"T": timing.T, "r": d.r, "tau": d.tau, "mode": d.mode, **_mat("A", A),
-                  **_mat("B", B), **_mat("K", K), **_vec("u0", u0)}),
+                 {"T": timing.T, "r": d.r, "tau": d.tau, "mode": d.mode, **matrix_params("A", A),
+                  **matrix_params("B", B), **matrix_params("K", K), **vector_params("u0", u0)}),
         Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
-                 {"delay": tau_loop, **_vec("u0", u0)}),
+                 {"delay": tau_loop, **vector_params("u0", u0)}),
     )
     recorded = tuple([Port("plant", x) for x in xs] + [Port("controller", u) for u in us])
     return Loop(instances, _chain(xs, indexed("y", n), us, us), timing, recorded, name,
@@ -523,12 +527,12 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
                pad: bool = False, r_true: float | None = None,
                tau_true: float | None = None, name: str = "loop", title: str = "",
                stop_time: float | None = None) -> Loop:
-    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.model`).
+    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.maths.model`).
 
     Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
     ``params`` are the model's parameters (an unknown name is refused).
     """
-    from ..model import load_model
+    from delaycomp.maths.model import load_model
 
     model = load_model(model_path)
     n, m = model.n, model.m
@@ -547,24 +551,24 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
         raise ParameterError(f"model {model.name} has no parameter {unknown[0]!r}: allowed "
                              f"are {allowed}")
     timing = Timing(T, N)
-    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
     path = Path(model_path)
-    ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad), **_vec("u0", u0),
-            **_vec("z0", x0 if z0 is None else z0), **params}
+    ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad), **vector_params("u0", u0),
+            **vector_params("z0", x0 if z0 is None else z0), **params}
     if mode is not None:
         ctrl["mode"] = mode
     if predictor is not None:
         ctrl["predictor"] = predictor
-    plant = {**_vec("x0", x0), **params}
+    plant = {**vector_params("x0", x0), **params}
     if tolerance is not None:
         plant["tolerance"] = ctrl["tolerance"] = tolerance
     instances = (
         Instance("plant", "plant", ModelFmu("model_plant", path), plant),
         Instance("meas_delay", "meas_delay", BuiltinFmu("delay", {"n": n}),
-                 {"delay": r_loop, **_vec("u0", x0)}),
+                 {"delay": r_loop, **vector_params("u0", x0)}),
         Instance("controller", "controller", ModelFmu("model_controller", path), ctrl),
         Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
-                 {"delay": tau_loop, **_vec("u0", u0)}),
+                 {"delay": tau_loop, **vector_params("u0", u0)}),
     )
     recorded = tuple([Port("plant", s) for s in model.states]
                      + [Port("controller", u) for u in model.inputs])

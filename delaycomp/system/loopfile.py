@@ -13,7 +13,7 @@ renamed)::
     [plant]
     A = [[0, 1, 0], [0, 0, 1], [-1, -2, -3]]     # LTI: x' = A x + B u (any n, m) ...
     B = [[0, 0], [1, 0], [0, 1]]
-    # model = "pend.py"                         # ... or a model file (delaycomp.model)
+    # model = "pend.py"                         # ... or a model file (delaycomp.maths.model)
     x0 = [1, 0, 0]          # the constant history of x on [-r, 0]
 
     [controller]
@@ -53,9 +53,17 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli package
     import tomli as tomllib
 
-from ..errors import BadFileError, ParameterError
-from ..names import MODES
-from .loop import Loop, LtiBatch, LtiPoint, design_loop, lti_design, lti_designs, model_loop
+from delaycomp.errors import BadFileError, ParameterError
+from delaycomp.names import MODES
+from delaycomp.system.loop import (
+    Loop,
+    LtiBatch,
+    LtiPoint,
+    design_loop,
+    lti_design,
+    lti_designs,
+    model_loop,
+)
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
 PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu", "states",
@@ -195,9 +203,9 @@ def check_sign(A, B, K, T: float) -> float:
 
 @functools.lru_cache(maxsize=256)
 def _radius(sa, a, sb, b, sk, k, T: float) -> float:
-    """:func:`~delaycomp.lti.sampled_radius` by value, remembered: a sweep's grid points
+    """:func:`~delaycomp.maths.lti.sampled_radius` by value, remembered: a sweep's grid points
     share their matrices and repeat the guard."""
-    from ..lti import sampled_radius
+    from delaycomp.maths.lti import sampled_radius
 
     def mat(shape, data):
         return np.frombuffer(data, dtype=float).reshape(shape)
@@ -379,7 +387,7 @@ def _lti_last(args: dict, guard: bool) -> None:
     """The checks of an LTI loop file after its design's: zero-order hold, the sign guard."""
     T, tau = args["T"], args["tau"]
     if tau > 0:
-        from ..grid import split
+        from delaycomp.maths.grid import split
 
         if split(tau, T)[1] != 0.0:
             raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
@@ -460,7 +468,7 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     model_path = Path(str(plant["model"]))
     if not model_path.is_absolute():
         model_path = (base / model_path).resolve()
-    from ..model import load_model
+    from delaycomp.maths.model import load_model
 
     model = load_model(model_path)
     known = {"mode", "u0", "predictor", "pad", "tolerance", "allow_unstable"}
@@ -492,7 +500,7 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     tol = None if tol is None else _real("tolerance", tol, positive=True)
     pad = _flag("controller.pad", ctrl.get("pad", False))
     if model.control == "zoh" and tau > 0 and not pad:
-        from ..grid import split
+        from delaycomp.maths.grid import split
 
         if split(tau, T)[1] != 0.0:
             raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order hold "
@@ -505,7 +513,7 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
 def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mode,
                common: dict) -> Loop:
     """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (:mod:`.plantfmu`)."""
-    from .plantfmu import fmu_plant_loop
+    from delaycomp.system.plantfmu import fmu_plant_loop
 
     _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "x0"))
     for key in ("states", "inputs", "x0"):
@@ -535,7 +543,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         K = _array("controller.K", ctrl["K"], 2)
         u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
         if tau > 0:
-            from ..grid import split
+            from delaycomp.maths.grid import split
 
             if split(tau, T)[1] != 0.0:
                 raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
@@ -549,7 +557,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     model_path = Path(str(ctrl["model"]))
     if not model_path.is_absolute():
         model_path = (base / model_path).resolve()
-    from ..model import load_model
+    from delaycomp.maths.model import load_model
 
     model = load_model(model_path)
     settings = {"mode", "predictor", "pad", "tolerance"}
@@ -574,8 +582,8 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
                          x0, common: dict) -> Loop:
     """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
     predictor's model (:mod:`.fmumodel`), with ``u = K x``."""
-    from .fmumodel import write_model
-    from .plantfmu import check_mapping, fmu_plant_loop, read_interface
+    from delaycomp.system.fmumodel import write_model
+    from delaycomp.system.plantfmu import check_mapping, fmu_plant_loop, read_interface
 
     _check_keys(f"{where} [controller]", ctrl, ("predictor", "K", "u0", "mode", "tolerance"))
     if "K" not in ctrl:
@@ -596,7 +604,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
         params["tolerance"] = _real("controller.tolerance", ctrl["tolerance"], positive=True)
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     if tau > 0:
-        from ..grid import split
+        from delaycomp.maths.grid import split
 
         if split(tau, T)[1] != 0.0:
             raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "

@@ -25,9 +25,9 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from ..errors import BadFileError, ParameterError
-from ..names import indexed
-from .loop import (
+from delaycomp.errors import BadFileError, ParameterError
+from delaycomp.names import indexed
+from delaycomp.system.loop import (
     BuiltinFmu,
     Connection,
     FmuFile,
@@ -36,9 +36,9 @@ from .loop import (
     ModelFmu,
     Port,
     Timing,
-    _delays,
-    _mat,
-    _vec,
+    check_delays,
+    matrix_params,
+    vector_params,
 )
 
 
@@ -240,7 +240,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
         raise ParameterError(f"parameter u0 has {u0.size} values: must have one per input "
                              f"({', '.join(inputs)})")
     timing = Timing(T, N)
-    r_loop, tau_loop = _delays(timing, r, tau, r_true, tau_true)
+    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
     if model is None:
         A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
         if A.shape != (n, n):
@@ -253,13 +253,14 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
             raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
                                  "(u = K x)")
         ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
-                        {"T": T, "r": r, "tau": tau, "mode": mode, **_mat("A", A),
-                         **_mat("B", B), **_mat("K", K), **_vec("u0", u0)})
+                        {"T": T, "r": r, "tau": tau, "mode": mode, **matrix_params("A", A),
+                         **matrix_params("B", B), **matrix_params("K", K),
+                         **vector_params("u0", u0)})
         ctrl_in, ctrl_out = indexed("y", n), indexed("u", m)
         # no LtiDesign: the exact analyses (lifted loop, critical delay) would take A, B
         # for the plant, and the plant here is the FMU
     else:
-        from ..model import load_model
+        from delaycomp.maths.model import load_model
 
         mdl = load_model(model)
         if (mdl.n, mdl.m) != (n, m):
@@ -269,16 +270,16 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
         params = dict(controller_parameters or {})
         ctrl = Instance("controller", "controller",
                         ModelFmu("model_controller", Path(model)),
-                        {"T": T, "r": r, "tau": tau, "N": N, **_vec("u0", u0),
-                         **_vec("z0", x0), **params})
+                        {"T": T, "r": r, "tau": tau, "N": N, **vector_params("u0", u0),
+                         **vector_params("z0", x0), **params})
         ctrl_in, ctrl_out = [f"y_{s}" for s in mdl.states], list(mdl.inputs)
     instances = (
         Instance("plant", "plant", FmuFile(Path(fmu_path)), values),
         Instance("meas_delay", "meas_delay", _delay_source(n, r_loop, timing.h),
-                 {"delay": r_loop, **_vec("u0", x0)}),
+                 {"delay": r_loop, **vector_params("u0", x0)}),
         ctrl,
         Instance("input_delay", "input_delay", _delay_source(m, tau_loop, timing.h),
-                 {"delay": tau_loop, **_vec("u0", u0)}),
+                 {"delay": tau_loop, **vector_params("u0", u0)}),
     )
     ys_in, ys_out = indexed("u", n), indexed("y", n)
     dl_in, dl_out = indexed("u", m), indexed("y", m)

@@ -2,7 +2,6 @@ import control
 import numpy as np
 
 from delaycomp import api
-
 # the user's plant: 3 states, 2 inputs
 A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.5, -1.0, 0.2]])
 B = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])

@@ -1,6 +1,6 @@
 """FMU slave: zero-order-hold predictor-controller for an LTI plant (Theorem 3.2).
 
-The maths is :class:`delaycomp.controller.ZOHController`. See README.md beside this file.
+The maths is :class:`delaycomp.maths.zoh.ZOHController`. See README.md beside this file.
 """
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu import Fmi2Variability
 
-from delaycomp.controller import ZOHController
-from delaycomp.fmuslave import HeldSampleMixin, TableSlave, check_finite, check_inputs
-from delaycomp.lti import MODES, check_steps, split_delay
+from delaycomp.fmu.slave import HeldSampleMixin, TableSlave, check_finite, check_inputs
+from delaycomp.maths.lti import MODES, check_steps, split_delay
+from delaycomp.maths.zoh import ZOHController
 from delaycomp.names import indexed
 
 _EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times

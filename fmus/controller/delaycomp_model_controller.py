@@ -1,7 +1,7 @@
 """FMU slave template: predictor-based controller of a user model (Theorems 2.1 and 3.2).
 
 ``delaycomp build --model FILE.py`` generates a subclass naming the model module. The maths
-is :mod:`delaycomp.nlcontrol`. See README.md beside this file.
+is :mod:`delaycomp.maths.nlcontrol`. See README.md beside this file.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import importlib
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer
 
-from delaycomp.fmuslave import (
+from delaycomp.fmu.slave import (
     HeldSampleMixin,
     TableSlave,
     check_finite,
@@ -19,9 +19,9 @@ from delaycomp.fmuslave import (
     check_model_parameters,
     is_roundoff_step,
 )
-from delaycomp.model import CONTROLS, from_module
-from delaycomp.nlcontrol import PREDICTORS, make_controller
-from delaycomp.predictors import DEFAULT_TOL, IntegrationError
+from delaycomp.maths.model import CONTROLS, from_module
+from delaycomp.maths.nlcontrol import PREDICTORS, make_controller
+from delaycomp.maths.predictors import DEFAULT_TOL, IntegrationError
 
 
 class ModelControllerSlave(HeldSampleMixin, TableSlave):

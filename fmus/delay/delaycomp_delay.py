@@ -1,15 +1,15 @@
 """FMU slave: transport delay ``y(t) = u(t - delay)`` on n channels.
 
-The maths is :class:`delaycomp.delayline.DelayLine`. See README.md beside this file.
+The maths is :class:`delaycomp.maths.delayline.DelayLine`. See README.md beside this file.
 """
 
 from __future__ import annotations
 
 import math
 
-from delaycomp.delayline import DelayLine, steps_of
-from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, is_roundoff_step
-from delaycomp.grid import same_step
+from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, is_roundoff_step
+from delaycomp.maths.delayline import DelayLine, steps_of
+from delaycomp.maths.grid import same_step
 from delaycomp.names import indexed
 
 

@@ -6,8 +6,8 @@
  *   Q_{l+q+1} B = e^{A(l+q)T} G(r~)
  *
  * (compensated), or u_i = K y_i (uncompensated), held over [t_i, t_{i+1}). The twin of
- * fmus/controller/delaycomp_controller_lti.py (delaycomp.controller.ZOHController and
- * delaycomp.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
+ * fmus/controller/delaycomp_controller_lti.py (delaycomp.maths.zoh.ZOHController and
+ * delaycomp.maths.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
  * included. Matrices are computed once, at fmi2ExitInitializationMode. */
 #include <float.h>
 #include <math.h>
@@ -23,7 +23,7 @@ static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[V
 
 static int compensated(const Instance *c) { return strcmp(mode_of(c), "compensated") == 0; }
 
-/* delaycomp.lti.split_delay: q = [r/T] and r~ = r - qT, integer up to round-off */
+/* delaycomp.maths.lti.split_delay: q = [r/T] and r~ = r - qT, integer up to round-off */
 static void split_delay(double r, double T, long *q, double *rest) {
     double ratio = r / T;
     double nearest = nearbyint(ratio);
@@ -37,7 +37,7 @@ static void split_delay(double r, double T, long *q, double *rest) {
     *rest = fmax(r - fl * T, 0.0);
 }
 
-/* The Integer twin of mode (delaycomp.fmuslave, item 9): k = 1, 2 selects compensated,
+/* The Integer twin of mode (delaycomp.fmu.slave, item 9): k = 1, 2 selects compensated,
  * uncompensated (resolve_choice_index). */
 static int resolve_mode_index(Instance *c) {
     static const char *const choices[] = {"compensated", "uncompensated"};

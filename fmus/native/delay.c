@@ -1,5 +1,5 @@
 /* DelaycompDelay, native: y_k = u_{k-D} on n channels, u_j = u0 for j < 0.
- * The twin of fmus/delay/delaycomp_delay.py (delaycomp.delayline.DelayLine): same
+ * The twin of fmus/delay/delaycomp_delay.py (delaycomp.maths.delayline.DelayLine): same
  * variables, checks and messages. The buffer is a ring of D values per channel. */
 #include <math.h>
 #include <string.h>
@@ -36,7 +36,7 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
-/* delaycomp.delayline.steps_of (delaycomp.grid.steps_of): D with delay = D h, or -1
+/* delaycomp.maths.delayline.steps_of (delaycomp.maths.grid.steps_of): D with delay = D h, or -1
  * with a logged error */
 static long steps_of(Instance *c, double delay, double h) {
     double ratio = delay / h;
@@ -69,7 +69,7 @@ int model_step(Instance *c, double t, double h) {
         m->h = h;
         m->has_line = 1;
     } else if (h <= ROUNDOFF_STEP_FRACTION * m->h) {
-        return 0;  /* the master's round-off (delaycomp.fmuslave.is_roundoff_step): nothing moves */
+        return 0;  /* the master's round-off (delaycomp.fmu.slave.is_roundoff_step): nothing moves */
     } else if (!same_step(h, m->h, t)) {
         log_error(c, "step size %s is not allowed: this delay runs on a fixed communication "
                   "step, %s", num(h).s, num(m->h).s);

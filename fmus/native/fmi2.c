@@ -735,7 +735,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!allowed(c, "fmi2DoStep", StateStepComplete)) return fmi2Error;
     double t = currentCommunicationPoint, h = communicationStepSize, last = c->d.time;
-    /* the Python FMUs' rule (delaycomp.fmuslave.TableSlave._step_refusal): libcosim keeps
+    /* the Python FMUs' rule (delaycomp.fmu.slave.TableSlave._step_refusal): libcosim keeps
      * time in integer nanoseconds, about 1e-12 relative off the sum of the steps; a jump
      * or a step back is many orders larger */
     if (isfinite(t) && isfinite(h) && h > 0 &&

@@ -34,7 +34,7 @@ int model_resolve_choices(Instance *c) {
     return 0;
 }
 
-/* The order of delaycomp.translate: itertools.product over the names in sorted order,
+/* The order of delaycomp.fmu.translate: itertools.product over the names in sorted order,
  * the first name most significant. */
 int model_branch(Instance *c, int *branch) {
     int b = 0;

@@ -1,5 +1,5 @@
 /* DelaycompController_<model>, native: the predictor-based controller of a user model on
- * the base grid h = T/N, both families of delaycomp.nlcontrol:
+ * the base grid h = T/N, both families of delaycomp.maths.nlcontrol:
  *
  * - continuous input (Theorem 2.1): the controller's own copy z' = f(z, u) of the plant,
  *   u = k(t + tau, z) at each base tick, held for h; at each sampling instant t_i, i >= 1,
@@ -9,7 +9,7 @@
  *   goes through a delay line of the difference, and Phi predicts over the padded delay.
  *
  * Phi is the flow of the plant over the stored inputs of the window (the segments of equal
- * neighbours merged, oldest first, as delaycomp.history.InputHistory hands them out):
+ * neighbours merged, oldest first, as delaycomp.maths.history.InputHistory hands them out):
  * predictor = closed composes the model's exact step (model.c's gen_step) segment by
  * segment, numerical solves each segment with ode.c (DOP853, rtol = atol = tolerance), none
  * is the sample itself. The twin of fmus/controller/delaycomp_model_controller.py: same
@@ -46,7 +46,7 @@ static const char *string_of(const Instance *c, fmi2ValueReference vr) {
     return c->d.string[STRING_SLOT[vr]];
 }
 
-/* delaycomp.grid.nearest_multiple: k with value = k step up to GRID_RTOL, else -1 */
+/* delaycomp.maths.grid.nearest_multiple: k with value = k step up to GRID_RTOL, else -1 */
 static long nearest_multiple(double value, double step) {
     double ratio = value / step;
     if (!isfinite(ratio)) return -1;
@@ -55,7 +55,7 @@ static long nearest_multiple(double value, double step) {
     return -1;
 }
 
-/* delaycomp.grid.steps_of(value, h, name): base steps in value, 0 .. MAX_STEPS */
+/* delaycomp.maths.grid.steps_of(value, h, name): base steps in value, 0 .. MAX_STEPS */
 static int steps_of(Instance *c, double value, double h, const char *name, long *steps) {
     if (!(isfinite(h) && h > 0)) {
         log_error(c, "step size must be a finite number > 0, got %s", num(h).s);
@@ -82,7 +82,7 @@ static int steps_of(Instance *c, double value, double h, const char *name, long 
     return 0;
 }
 
-/* delaycomp.nlcontrol.padded_delay: ceil(tau / T) T, a multiple up to round-off kept */
+/* delaycomp.maths.nlcontrol.padded_delay: ceil(tau / T) T, a multiple up to round-off kept */
 static double padded_delay(double tau, double T) {
     if (nearest_multiple(tau, T) >= 0) return tau;
     double q = floor(tau / T);
@@ -235,7 +235,7 @@ int model_setup(Instance *c) {
     return 0;
 }
 
-/* A failed ODE solve: where and why, as delaycomp.predictors.IntegrationError says it. */
+/* A failed ODE solve: where and why, as delaycomp.maths.predictors.IntegrationError says it. */
 typedef struct {
     double elapsed;
     const double *u;
@@ -445,7 +445,7 @@ int model_step(Instance *c, double t, double hs) {
     double T = c->d.real[VR_T];
     double expected = sample_time(c);
     double slack = 1e-9 * fmax(T, fabs(t));
-    /* the master's round-off (delaycomp.fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves */
+    /* the master's round-off (delaycomp.fmu.slave.ROUNDOFF_STEP_FRACTION): nothing moves */
     if (hs <= ROUNDOFF_STEP_FRACTION * m->h && fabs(t + hs - expected) <= slack) return 0;
     /* the step is h up to the round-off of the host's times (same_step) */
     if (!same_step(hs, m->h, t) || fabs(t - expected) > slack) {

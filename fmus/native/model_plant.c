@@ -1,8 +1,8 @@
 /* DelaycompPlant_<model>, native: x' = f(x, u) of a user model, u held over each step. The
  * twin of fmus/plant/delaycomp_model_plant.py: same variables, checks and messages. f (and
  * the model's exact step, when it translates) come from model.c, generated from the model
- * file by delaycomp.translate; without an exact step the flow is solved by ode.c (DOP853,
- * rtol = atol = tolerance, at most 100 000 steps, as delaycomp.predictors.integrate). */
+ * file by delaycomp.fmu.translate; without an exact step the flow is solved by ode.c (DOP853,
+ * rtol = atol = tolerance, at most 100 000 steps, as delaycomp.maths.predictors.integrate). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>

@@ -16,9 +16,9 @@
 #include "linalg.h"  /* the maths (linalg.c): expm, flow, matmul, with the caller's work memory */
 
 #define STRING_MAX 256       /* longest String parameter value, terminator included */
-#define GRID_RTOL 1e-9       /* delaycomp.grid.GRID_RTOL */
-#define MAX_STEPS 1000000.0  /* delaycomp.grid.MAX_STEPS */
-#define ROUNDOFF_STEP_FRACTION 1e-6  /* delaycomp.fmuslave.ROUNDOFF_STEP_FRACTION */
+#define GRID_RTOL 1e-9       /* delaycomp.maths.grid.GRID_RTOL */
+#define MAX_STEPS 1000000.0  /* delaycomp.maths.grid.MAX_STEPS */
+#define ROUNDOFF_STEP_FRACTION 1e-6  /* delaycomp.fmu.slave.ROUNDOFF_STEP_FRACTION */
 
 /* The FMI 2.0 co-simulation states (FMI 2.0.4, 4.2.4), as bits for the call masks. */
 typedef enum {
@@ -136,7 +136,7 @@ int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, dou
 #if NSTRING > 0
 /* "a, b, c": the choices of a String parameter, into buf (truncated to size). */
 void join_choices(const char *const *choices, int count, char *buf, size_t size);
-/* The Integer twin <name>_index of a String parameter with choices (delaycomp.fmuslave,
+/* The Integer twin <name>_index of a String parameter with choices (delaycomp.fmu.slave,
  * item 7): 0 leaves the String in charge, k = 1 .. count selects choices[k - 1]; an index
  * out of range, or a String changed from its start value to another choice, is refused
  * with the Python FMUs' message (-1, logged). */
@@ -153,7 +153,7 @@ int check_control_finite(Instance *c, const double *u, const double *y, double t
 int check_step(Instance *c, double t, double h);
 /* Is the step (t, step) the step h an FMU keys its data on (its own grid), up to the
  * round-off of the host's times: |step - h| <= GRID_RTOL h + 8 eps max(|t|, |t + step|)
- * (delaycomp.grid.same_step, the same arithmetic)? A host that keeps time as t0 + k h
+ * (delaycomp.maths.grid.same_step, the same arithmetic)? A host that keeps time as t0 + k h
  * passes steps t_{k+1} - t_k that differ from h by a few ulps of t: far from 0 more than
  * GRID_RTOL h (from t = 1e5 with h = 0.005, 3e-9 h), never more than this. */
 int same_step(double step, double h, double t);

@@ -26,7 +26,7 @@
  *
  * A rejected step is retried with h / min(1/0.3, err^(1/8) / 0.9), Hairer's rule. scipy
  * 1.17's C translation of DOP853 (ode(...).set_integrator("dop853"), which
- * delaycomp.predictors uses) writes min(facc1, facc1 / safe) there, so it always retries
+ * delaycomp.maths.predictors uses) writes min(facc1, facc1 / safe) there, so it always retries
  * with 0.3 h: same accepted results within the tolerance, but other steps after the first
  * rejection. Compiled with -DODE_REJECT_LIKE_SCIPY_1_17 this file does the same (the
  * tests use it to check step-for-step agreement with scipy); the default is Hairer's.
@@ -36,7 +36,7 @@
  * nearest their largest magnitude: y' = f(s y) / s is the same ODE (a power of two
  * multiplies and divides exactly above the subnormals), and the tolerances applied to y
  * are tighter than on x. Without it the squared scaled errors of a state near 1e-150
- * underflow to 0 and the step control breaks down. This is delaycomp.predictors'
+ * underflow to 0 and the step control breaks down. This is delaycomp.maths.predictors'
  * _scaled_segment.
  *
  * The coefficients are the published ones (Hairer's DOP853), as decimal literals.

@@ -31,7 +31,7 @@ int model_step(Instance *c, double t, double h) {
     if (check_inputs_finite(c, VR_U, NU, t) != 0) return -1;
     double *Ad = c->buf, *Bd = c->buf + NX * NX;
     /* a step within GRID_RTOL and the round-off of the times of the cached one is that
-     * step (same_step, the rule of delaycomp.grid.same_step): a host's exact grid t0 + k h
+     * step (same_step, the rule of delaycomp.maths.grid.same_step): a host's exact grid t0 + k h
      * passes steps that differ in the last bits, and each would otherwise cost a matrix
      * exponential */
     if (!m->has_h || !same_step(h, m->h, t)) {

@@ -1,4 +1,4 @@
-"""FMU slave template: the plant ``x' = f(x, u)`` of a user model (delaycomp.model).
+"""FMU slave template: the plant ``x' = f(x, u)`` of a user model (delaycomp.maths.model).
 
 ``delaycomp build --model FILE.py`` generates a subclass naming the model module (bundled
 under a name unique to the model's content). See README.md beside this file.
@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 
-from delaycomp.fmuslave import TableSlave, check_finite, check_inputs, check_model_parameters
-from delaycomp.model import from_module
-from delaycomp.nlcontrol import ModelPlant
-from delaycomp.predictors import DEFAULT_TOL, IntegrationError
+from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, check_model_parameters
+from delaycomp.maths.model import from_module
+from delaycomp.maths.nlcontrol import ModelPlant
+from delaycomp.maths.predictors import DEFAULT_TOL, IntegrationError
 
 
 class ModelPlantSlave(TableSlave):

@@ -1,6 +1,6 @@
 """FMU slave: LTI plant ``x' = A x + B u``, exactly discretized over each step.
 
-The adapter only copies values in and out; the maths is :func:`delaycomp.lti.discretize`.
+The adapter only copies values in and out; the maths is :func:`delaycomp.maths.lti.discretize`.
 See README.md beside this file for the equations and the variable table.
 """
 
@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from delaycomp.fmuslave import TableSlave, check_finite, check_inputs
-from delaycomp.grid import same_step
-from delaycomp.lti import discretize
+from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs
+from delaycomp.maths.grid import same_step
+from delaycomp.maths.lti import discretize
 from delaycomp.names import indexed
 
 

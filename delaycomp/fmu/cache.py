@@ -1,0 +1,167 @@
+"""The build cache of the Python FMUs: where an FMU of a kind and configuration lives
+(:func:`fmu_path`, :func:`source_fmu`), built there on first use, and the checks that refuse
+a file that is not the FMU it should be (:func:`check_fmu`).
+
+The cache is ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, one folder per digest of
+everything that goes into an FMU.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+import zipfile
+from pathlib import Path
+
+import delaycomp
+from delaycomp.errors import BadFileError
+from delaycomp.fmu.build import (
+    BUNDLED_MODULES,
+    CONFIG_NAME,
+    DEFAULT_CONFIG,
+    FMUS,
+    PACKAGE_DIR,
+    build_fmu,
+    model_identifier,
+)
+from delaycomp.system import FmuFile
+from delaycomp.tmpfiles import build_lock
+
+__all__ = ["check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_fmu"]
+
+
+def _source_digest() -> str:
+    """Digest of everything that goes into an FMU, naming the build cache."""
+    h = hashlib.sha256(delaycomp.__version__.encode())
+    files = [PACKAGE_DIR / m for m in BUNDLED_MODULES]
+    for spec in FMUS.values():
+        files += [spec.script_path, spec.folder / "README.md"]
+    for f in files:
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def default_fmu_dir() -> Path:
+    """Build cache: ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, per source digest."""
+    root = os.environ.get("DELAYCOMP_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "delaycomp")
+    return Path(root) / f"fmus-{delaycomp.__version__}-{_source_digest()}"
+
+
+def fmu_file_name(kind: str, config: dict) -> str:
+    """``<ModelIdentifier>.fmu`` for the default dimensions, else with the config in it."""
+    ident = model_identifier(kind, config)
+    if FMUS[kind].template or config == DEFAULT_CONFIG[kind]:
+        return f"{ident}.fmu"
+    tag = "_".join(f"{k}{config[k]}" for k in sorted(config))
+    return f"{ident}_{tag}.fmu"
+
+
+def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
+    """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing.
+
+    An FMU already there is checked first (:func:`check_fmu`): a corrupt or foreign file
+    raises :class:`~delaycomp.errors.BadFileError` before anything runs.
+    """
+    fmu_dir = Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
+    if fmu_dir.exists() and not fmu_dir.is_dir():
+        raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
+    path = fmu_dir / fmu_file_name(kind, config)
+    _regular_or_missing(path)
+    if not path.exists():
+        fmu_dir.mkdir(parents=True, exist_ok=True)
+        with build_lock(path):  # parallel first runs: one builds, the others wait
+            if not path.exists():
+                build_fmu(kind, fmu_dir, config, path.name)
+    check_fmu(path, kind, config)
+    return path
+
+
+def _regular_or_missing(path: Path) -> None:
+    """Refuse a link, a FIFO, a device or a folder where an FMU file belongs: reading one
+    could hang (a FIFO) or never end (``/dev/zero``), and building through a link would
+    write outside the folder."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise BadFileError(path, f"cannot be read: {exc.strerror}") from None
+    if stat.S_ISLNK(mode):
+        raise BadFileError(path, "is a symbolic link: FMUs in --fmu-dir must be regular "
+                                 "files (copy the file there)")
+    if not stat.S_ISREG(mode):
+        raise BadFileError(path, "is not a regular file: FMUs in --fmu-dir must be regular "
+                                 "files")
+
+
+#: FMU files already checked in this process, with their modification time and size
+_CHECKED: set[tuple] = set()
+
+
+def check_fmu(path: Path, kind: str, config: dict) -> None:
+    """Refuse an FMU that is not a zip, has no readable modelDescription, is of another
+    model, or was built for other dimensions or another delaycomp version. A file checked
+    before and unchanged since is not read again (runs of a sweep look up the same FMUs)."""
+    try:
+        st = Path(path).stat()
+        key = (str(path), st.st_mtime_ns, st.st_size, kind,
+               json.dumps(config, sort_keys=True, default=str))
+    except OSError:
+        key = None
+    if key is not None and key in _CHECKED:
+        return
+    _regular_or_missing(Path(path))
+    _check_fmu(path, kind, config)
+    if key is not None:
+        _CHECKED.add(key)
+
+
+def _check_fmu(path: Path, kind: str, config: dict) -> None:
+    from fmpy import read_model_description
+
+    ident = model_identifier(kind, config)
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            if "modelDescription.xml" not in names:
+                raise BadFileError(path, "is not an FMU: it has no modelDescription.xml")
+            built = zf.read(f"resources/{CONFIG_NAME}") if (
+                f"resources/{CONFIG_NAME}" in names) else None
+        md = read_model_description(str(path), validate=False)
+    except BadFileError:
+        raise
+    except zipfile.BadZipFile:
+        raise BadFileError(path, "is not an FMU: not a zip archive") from None
+    except Exception as exc:  # noqa: BLE001 - any parse failure is a bad file
+        raise BadFileError(path, f"is not a readable FMU: {type(exc).__name__}: {exc}"
+                           ) from None
+    found = md.coSimulation.modelIdentifier if md.coSimulation else None
+    if found != ident:
+        what = f"model {found!r}" if found else "a model without co-simulation"
+        raise BadFileError(path, f"is an FMU of {what}, expected {ident!r} (delete it or use "
+                                 "another --fmu-dir to rebuild)")
+    if built is None:
+        raise BadFileError(path, f"is not a delaycomp FMU: no resources/{CONFIG_NAME}")
+    try:
+        cfg = json.loads(built)
+    except ValueError:
+        raise BadFileError(path, f"has a corrupt resources/{CONFIG_NAME}") from None
+    if cfg.get("version") != delaycomp.__version__:
+        raise BadFileError(path, f"was built by delaycomp {cfg.get('version')!r}, this is "
+                                 f"{delaycomp.__version__!r} (delete it to rebuild)")
+    wanted = {k: v for k, v in config.items() if k != "model"}
+    differs = {k: cfg.get(k) for k, v in wanted.items() if cfg.get(k) != v}
+    if differs:
+        raise BadFileError(path, f"was built for {differs}, this loop needs "
+                                 f"{ {k: wanted[k] for k in differs} }")
+
+
+def source_fmu(source, fmu_dir: Path | None = None) -> Path:
+    """The FMU file of an instance's source: a given file as it is, else the built FMU of
+    its kind and configuration (:func:`fmu_path`)."""
+    if isinstance(source, FmuFile):
+        return Path(source.path)
+    return fmu_path(*source.build_key(), fmu_dir)

@@ -1,0 +1,785 @@
+"""Native C FMUs: the delay, the LTI plant and the LTI predictor-controller without Python.
+
+``delaycomp build --native --out DIR`` (:func:`build_native`) writes FMI 2.0 co-simulation
+FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs of
+:data:`delaycomp.fmu.build.FMUS`:
+
+1. **Same table.** The modelDescription is the Python FMU's own (the slave class, with the
+   same build configuration, writes its variables, value references, start values and
+   dependencies), with the co-simulation attributes of a C FMU, a pinned GUID of its own
+   and ``<SourceFiles>``. A generated ``config.h`` carries that table into C (value
+   references, names, types, causalities, start values written as hexadecimal floats).
+2. **Same maths and messages.** ``fmus/native/`` holds one FMI layer (``fmi2.c``: the
+   FMI 2.0 state machine, getters and setters, FMU state with buffers, serialization),
+   the linear algebra (``linalg.c``: the matrix exponential by scaling and squaring with
+   Pade approximants, and the exact flow of ``x' = A x + B u``), and one file per model.
+   A fault returns ``fmi2Error`` with the Python FMU's message logged.
+3. **Sources inside.** Each FMU carries its C sources and the FMI headers under
+   ``sources/`` (listed in modelDescription), so an importer can compile it for another
+   platform, and a binary for this one built with the system C compiler
+   (``$CC``, else ``cc``, ``gcc`` or ``clang``), ``-Wall -Wextra -Werror``.
+
+The FMI 2.0 headers are fmpy's copy (``fmpy/c-code``; fmpy is a dependency, so a wheel
+install has them) and go into each FMU's ``sources/``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from pathlib import Path
+from xml.etree.ElementTree import Element, SubElement, tostring
+
+import delaycomp
+from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS
+from delaycomp.tmpfiles import zip_folder
+
+__all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "build_native",
+           "build_native_fmu", "build_native_model", "compile_host", "compiler",
+           "host_argv", "native_archive", "native_fmu_dir", "native_fmu_path",
+           "native_fmus", "native_or_why", "unpack"]
+
+#: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
+SOURCE_DIR = FMU_ROOT / "native"
+#: FMU kind -> the model's C file; the FMI layer and the linear algebra are common
+NATIVE_KINDS: dict[str, str] = {"delay": "delay.c", "plant": "plant.c",
+                                "controller": "controller.c"}
+#: FMU kind of a user model -> its C file; with it ode.c (DOP853), model_common.c (the
+#: model's parameters and flow) and model.c, generated from the model file by
+#: :mod:`delaycomp.fmu.translate`
+MODEL_KINDS: dict[str, str] = {"model_plant": "model_plant.c",
+                               "model_controller": "model_controller.c"}
+MODEL_SOURCES = ("ode.c", "model_common.c")
+MODEL_HEADERS = ("ode.h", "model_common.h")
+COMMON_SOURCES = ("fmi2.c", "linalg.c")
+COMMON_HEADERS = ("native.h", "linalg.h")
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+          "-Werror")
+
+
+#: The other platforms a native FMU carries binaries for, cross-compiled where their
+#: compiler is here: FMI 2.0 folder -> (the variable that names the compiler, the
+#: compiler's default name, the Debian package, the library's suffix, flags beside CFLAGS).
+#: ``win64`` is FMI 2.0's name; Linux on aarch64 has none in FMI 2.0, whose 2.0.4+
+#: clarification names the FMI 3.0 platform tuple for such platforms: ``aarch64-linux``.
+CROSS_TARGETS = {
+    "win64": ("CC_WIN64", "x86_64-w64-mingw32-gcc", "gcc-mingw-w64-x86-64", ".dll",
+              ("-static-libgcc", "-D__USE_MINGW_ANSI_STDIO=1")),
+    "aarch64-linux": ("CC_AARCH64", "aarch64-linux-gnu-gcc", "gcc-aarch64-linux-gnu", ".so",
+                      ()),
+}
+
+#: notes of this process about platforms left out (each once; see :func:`pop_notes`)
+_NOTES: list[str] = []
+_NOTED: set[str] = set()
+
+
+class NativeBuildError(RuntimeError):
+    """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
+
+
+def _note(text: str) -> None:
+    if text not in _NOTED:
+        _NOTED.add(text)
+        _NOTES.append(text)
+
+
+def pop_notes() -> list[str]:
+    """The notes about platforms left out since the last call (each note once per
+    process): the commands print them, :func:`delaycomp.api.build` returns them."""
+    out = list(_NOTES)
+    _NOTES.clear()
+    return out
+
+
+def requested_platforms() -> tuple[str, ...]:
+    """The cross platforms to build: ``$DELAYCOMP_PLATFORMS`` (comma-separated names of
+    :data:`CROSS_TARGETS`; empty: none), by default all of them."""
+    text = os.environ.get("DELAYCOMP_PLATFORMS")
+    if text is None:
+        return tuple(CROSS_TARGETS)
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in CROSS_TARGETS]
+    if bad:
+        raise NativeBuildError(f"DELAYCOMP_PLATFORMS names {bad[0]!r}: allowed are "
+                               f"{', '.join(CROSS_TARGETS)} (comma-separated; empty: this "
+                               "platform only)")
+    return names
+
+
+def cross_compilers() -> dict[str, list[str]]:
+    """The cross platforms that will be built (:func:`requested_platforms`) with their
+    compiler commands (``$CC_WIN64``, ``$CC_AARCH64``, else the default name on PATH).
+    A platform whose compiler is absent is left out with a note (:func:`pop_notes`);
+    a variable naming no program is an error."""
+    found = {}
+    for platform in requested_platforms():
+        argv = _cross_compiler(platform)
+        if argv is not None:
+            found[platform] = argv
+        else:
+            var, default, package, _, _ = CROSS_TARGETS[platform]
+            _note(f"note: native FMUs without {platform} binaries: no {default} here "
+                  f"(`apt-get install {package}`, or set {var}; DELAYCOMP_PLATFORMS chooses "
+                  "the platforms)")
+    return found
+
+
+def _cross_compiler(platform: str) -> list[str] | None:
+    """The compiler command for ``platform`` (its variable, else the default name on
+    PATH), ``None`` where the default is absent; a variable naming no program is an
+    error."""
+    var, default, _, _, _ = CROSS_TARGETS[platform]
+    given = os.environ.get(var)
+    argv = shlex.split(given) if given else [default]
+    if argv and shutil.which(argv[0]):
+        return argv
+    if given:
+        raise NativeBuildError(f"{var} = {given!r} is not allowed: no such program on PATH "
+                               f"(set {var} to a C compiler for {platform}, or unset it)")
+    return None
+
+
+def platforms_tag() -> str:
+    """The platforms native FMUs get here, as a name part of the build cache: this
+    machine's (fmpy's name) and the cross platforms with a compiler."""
+    import fmpy
+
+    return "+".join([fmpy.platform, *cross_compilers()])
+
+
+def compiler() -> list[str]:
+    """The C compiler command: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang``.
+
+    Raises
+    ------
+    NativeBuildError
+        No compiler found; the message names what to install.
+    """
+    cc = os.environ.get("CC")
+    if cc:
+        argv = shlex.split(cc)
+        if argv and shutil.which(argv[0]):
+            return argv
+        raise NativeBuildError(f"CC = {cc!r} is not allowed: no such program on PATH "
+                               "(set CC to a C compiler, or unset it)")
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return [path]
+    raise NativeBuildError("no C compiler found (looked for $CC, cc, gcc, clang): install "
+                           "one, e.g. `apt-get install gcc` (Debian/Ubuntu) or "
+                           "`xcode-select --install` (macOS), or set CC")
+
+
+def fmi_header_dir() -> Path:
+    """fmpy's copy of the FMI 2.0 headers."""
+    import fmpy
+
+    return Path(fmpy.__file__).resolve().parent / "c-code"
+
+
+def sources_digest() -> str:
+    """Digest of the C sources and this version (names the native build cache)."""
+    h = hashlib.sha256(delaycomp.__version__.encode())
+    for name in (*COMMON_SOURCES, *COMMON_HEADERS, *NATIVE_KINDS.values(),
+                 *MODEL_KINDS.values(), *MODEL_SOURCES, *MODEL_HEADERS, "README.md"):
+        h.update((SOURCE_DIR / name).read_bytes())
+    h.update(Path(__file__).read_bytes())
+    h.update((Path(__file__).parent / "translate.py").read_bytes())  # generates model.c
+    return h.hexdigest()[:12]
+
+
+def _c_string(text: str) -> str:
+    return json.dumps(text)  # a JSON string literal of ASCII text is a C string literal
+
+
+def _python_table(kind: str, config: dict) -> Element:
+    """The Python FMU's modelDescription for ``kind`` and ``config`` (not written to disk)."""
+    from delaycomp.fmu.slaves import slave_class
+
+    cls, cfg = slave_class(kind, config)
+    slave = cls(instance_name="native-build", resources=None, config=cfg)
+    return slave.to_xml(dict(FMUS[kind].options))
+
+
+def _exact_starts(root: Element, start: dict) -> None:
+    """Each start value of a build's ``start`` table, in the table tree as it reads back
+    exactly (:func:`delaycomp.fmu.build.start_text`: pythonfmu writes 16 digits); config.h and
+    the modelDescription are made from the tree. A name that is no variable of the FMU
+    is refused."""
+    from delaycomp.fmu.build import start_text
+
+    by_name = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+    for name, value in start.items():
+        sv = by_name.get(name)
+        typed = next(iter(sv)) if sv is not None else None
+        if typed is None or typed.get("start") is None:
+            raise ValueError(f"no parameter {name!r} with a start value in the "
+                             "modelDescription")
+        typed.set("start", start_text(typed.tag, value))
+
+
+def _variables(root: Element) -> list[dict]:
+    out = []
+    for sv in root.find("ModelVariables"):
+        typ = next(iter(sv))
+        out.append({"name": sv.get("name"), "vr": int(sv.get("valueReference")),
+                    "causality": sv.get("causality"), "type": typ.tag,
+                    "start": typ.get("start")})
+    if [v["vr"] for v in out] != list(range(len(out))):
+        raise NativeBuildError("value references are not 0 .. N-1 in table order")
+    return out
+
+
+def _config_h(kind: str, config: dict, root: Element, guid: str) -> str:
+    variables = _variables(root)
+    ins = [v for v in variables if v["causality"] == "input"]
+    outs = [v for v in variables if v["causality"] == "output"]
+    if kind == "model_plant":
+        n, m = len(outs), len(ins)
+    elif kind == "model_controller":
+        n, m = len(ins), len(outs)
+    else:
+        n = int(config.get("n", 1))
+        m = int(config.get("m", n if kind == "delay" else 1))
+    code = {"Real": "r", "Integer": "i", "Boolean": "b", "String": "s"}
+    caus = {"parameter": "p", "input": "i", "output": "o"}
+    strings = [v for v in variables if v["type"] == "String"]
+    lines = [
+        "/* Generated by `delaycomp build --native` from the Python FMU's variable table:",
+        f" * {root.get('modelName')}, configuration {json.dumps(config, sort_keys=True)}. */",
+        "#ifndef DELAYCOMP_CONFIG_H", "#define DELAYCOMP_CONFIG_H", "",
+        f"#define KIND_{kind.upper()} 1",
+        f"#define INSTANTIATION_TOKEN {_c_string(guid)}",
+        f"#define NX {n if kind != 'delay' else len(ins)}",
+        f"#define NU {m if kind != 'delay' else len(ins)}",
+        f"#define NVR {len(variables)}",
+        f"#define NSTRING {len(strings)}",
+        f"#define OUTPUT_NAMES {_c_string(repr([v['name'] for v in outs]))}",
+    ]
+
+    def vr(name):
+        return next(v["vr"] for v in variables if v["name"] == name)
+
+    blocks = {"delay": {"VR_DELAY": "delay", "VR_U0": "u0[1]"},
+              "plant": {"VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_X0": "x0[1]"},
+              "controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_MODE": "mode",
+                             "VR_MODE_INDEX": "mode_index", "VR_A": "A[1,1]",
+                             "VR_B": "B[1,1]", "VR_K": "K[1,1]",
+                             "VR_U0": "u0[1]", "VR_HELD_SAMPLE": "held_sample"},
+              "model_plant": {"VR_X0": "x0[1]", "VR_TOL": "tolerance"},
+              "model_controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_N": "N",
+                                   "VR_MODE": "mode", "VR_MODE_INDEX": "mode_index",
+                                   "VR_PREDICTOR": "predictor",
+                                   "VR_PREDICTOR_INDEX": "predictor_index",
+                                   "VR_TOL": "tolerance", "VR_PAD": "pad", "VR_U0": "u0[1]",
+                                   "VR_Z0": "z0[1]", "VR_HELD_SAMPLE": "held_sample"}}[kind]
+    for macro, name in blocks.items():
+        lines.append(f"#define {macro} {vr(name)}")
+    io = {"delay": ("VR_U", "VR_Y"), "plant": ("VR_U", "VR_X"),
+          "controller": ("VR_Y", "VR_UOUT"), "model_plant": ("VR_U", "VR_X"),
+          "model_controller": ("VR_Y", "VR_UOUT")}[kind]
+    lines.append(f"#define {io[0]} {ins[0]['vr']}")
+    lines.append(f"#define {io[1]} {outs[0]['vr']}")
+    # the C code addresses matrices and vectors as contiguous blocks: check that they are
+    for group in (ins, outs):
+        if [v["vr"] for v in group] != list(range(group[0]["vr"], group[0]["vr"] + len(group))):
+            raise NativeBuildError("inputs and outputs must have consecutive value references")
+    lines += ["", "static const char *const VAR_NAME[NVR] = {"]
+    lines += [f"    {_c_string(v['name'])}," for v in variables]
+    lines += ["};", f"static const char VAR_TYPE[NVR + 1] = "
+              f"{_c_string(''.join(code[v['type']] for v in variables))};",
+              f"static const char VAR_CAUSALITY[NVR + 1] = "
+              f"{_c_string(''.join(caus[v['causality']] for v in variables))};",
+              "static const double REAL_START[NVR] = {"]
+    lines += [f"    {float(v['start']).hex() if v['type'] == 'Real' and v['start'] else '0.0'},"
+              for v in variables]
+    lines += ["};", "static const int BOOLEAN_START[NVR] = {"]
+    lines += [f"    {1 if v['type'] == 'Boolean' and v['start'] == 'true' else 0},"
+              for v in variables]
+    lines += ["};", "static const int INTEGER_START[NVR] = {"]
+    lines += [f"    {int(v['start']) if v['type'] == 'Integer' and v['start'] else 0},"
+              for v in variables]
+    lines += ["};"]
+    if strings:
+        slots = {v["vr"]: k for k, v in enumerate(strings)}
+        lines += ["static const char *const STRING_START[NSTRING] = {"]
+        lines += [f"    {_c_string(v['start'] or '')}," for v in strings]
+        lines += ["};", "static const int STRING_SLOT[NVR] = {"]
+        lines += [f"    {slots.get(v['vr'], -1)}," for v in variables]
+        lines += ["};"]
+    lines += ["", "#endif", ""]
+    return "\n".join(lines)
+
+
+def _model_config_h(translation, root: Element) -> str:
+    """``model_config.h`` of a model FMU: where its numeric parameters (in the order of
+    ``p`` of model.c) and its String parameters with choices (in the order of model.c's
+    branches) are, by value reference."""
+    variables = {v["name"]: v for v in _variables(root)}
+    numeric = [variables[name]["vr"] if name in variables else -1
+               for name in translation.numeric]
+    names = sorted(translation.model.choices)
+    widest = max((len(translation.model.choices[k]) for k in names), default=1)
+    lines = ["/* Generated by `delaycomp build --native` for model "
+             f"{translation.model.name}: its parameters by value reference. */",
+             "#ifndef DELAYCOMP_MODEL_CONFIG_H", "#define DELAYCOMP_MODEL_CONFIG_H", "",
+             f"#define MODEL_NAME {_c_string(translation.model.name)}",
+             f"#define MODEL_ZOH {int(translation.model.control == 'zoh')}",
+             f"#define MODEL_HAS_PREDICTOR {int(translation.model.predictor is not None)}",
+             f"#define NCHOICE {len(names)}",
+             "static const int PARAM_VR[MODEL_NP > 0 ? MODEL_NP : 1] = {"
+             + ", ".join(map(str, numeric or [-1])) + "};"]
+    rows = names or [None]
+    lines.append("static const char *const CHOICE_NAME[NCHOICE > 0 ? NCHOICE : 1] = {"
+                 + ", ".join(_c_string(k or "") for k in rows) + "};")
+    lines.append("static const int CHOICE_VR[NCHOICE > 0 ? NCHOICE : 1] = {"
+                 + ", ".join(str(variables[k]["vr"]) if k else "0" for k in rows) + "};")
+    lines.append("static const int CHOICE_INDEX_VR[NCHOICE > 0 ? NCHOICE : 1] = {"
+                 + ", ".join(str(variables[f"{k}_index"]["vr"]) if k else "0"
+                             for k in rows) + "};")
+    lines.append("static const int CHOICE_COUNT[NCHOICE > 0 ? NCHOICE : 1] = {"
+                 + ", ".join(str(len(translation.model.choices[k])) if k else "0"
+                             for k in rows) + "};")
+    lines.append(f"static const char *const CHOICE_VALUES[NCHOICE > 0 ? NCHOICE : 1][{widest}]"
+                 " = {")
+    for k in rows:
+        values = translation.model.choices[k] if k else ("",)
+        lines.append("    {" + ", ".join(_c_string(v) for v in values) + "},")
+    lines += ["};", "", "#endif", ""]
+    return "\n".join(lines)
+
+
+def check_closed_form(kind: str, translation) -> None:
+    """The native controller's closed-form predictor composes the model's exact step over
+    the segments of the window (the exact flow composes): a model that gives
+    ``predictor`` needs a ``step`` that translates."""
+    from delaycomp.fmu.translate import TranslationError
+
+    model = translation.model
+    if kind != "model_controller" or model.predictor is None or any(
+            name == "step" for name, _ in translation.functions):
+        return
+    suffix = "; the Python FMUs run it"
+    why = translation.untranslated.get("step", "").removesuffix(suffix) or (
+        f"model {model.name}: it gives predictor(x, segments, p) but no step(x, u, h, p)")
+    raise TranslationError(f"{why}: the native controller's closed-form predictor composes "
+                           f"the exact step over the window{suffix}")
+
+
+def _native_description(kind: str, root: Element, ident: str, guid: str,
+                        sources: list[str]) -> bytes:
+    root.set("guid", guid)
+    root.set("generationTool", f"delaycomp {delaycomp.__version__} (native C)")
+    root.attrib.pop("generationDateAndTime", None)  # a rebuild gives the same file
+    cs = root.find("CoSimulation")
+    cs.set("needsExecutionTool", "false")
+    cs.set("canBeInstantiatedOnlyOncePerProcess", "false")
+    cs.set("canNotUseMemoryManagementFunctions", "true")
+    cs.set("modelIdentifier", ident)
+    files = Element("SourceFiles")
+    for name in sources:
+        SubElement(files, "File", attrib={"name": name})
+    cs.insert(0, files)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
+
+
+def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
+                     file_name: str | None = None) -> Path:
+    """Build the native FMU ``kind`` (``delay``, ``plant`` or ``controller``) into
+    ``out_dir`` and return its path.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`NATIVE_KINDS`, or ``model_plant`` (:data:`MODEL_KINDS`) with
+        ``config = {"model": FILE.py}``: the model's ``f`` (and ``step``) translated to C
+        by :mod:`delaycomp.fmu.translate`, the flow solved by ``ode.c``.
+    out_dir : Path
+        Output folder (created).
+    config : dict, optional
+        The build configuration, as for :func:`delaycomp.fmu.build.build_fmu` (dimensions
+        ``n``, ``m``; names; an optional ``start`` table). Default: the scalar loop.
+    file_name : str, optional
+        Default ``<modelIdentifier>.fmu``.
+
+    Raises
+    ------
+    NativeBuildError
+        No C compiler, or it failed (its output is in the message).
+    ValueError
+        A kind without a native twin, or a bad dimension.
+    delaycomp.fmu.translate.TranslationError
+        The model's ``f`` does not translate (the function, the operation, the line).
+    """
+    from delaycomp.fmu.slave import pinned_guid
+
+    if kind not in NATIVE_KINDS and kind not in MODEL_KINDS:
+        raise ValueError(f"kind {kind!r} is not allowed for a native FMU: must be one of "
+                         f"{', '.join((*NATIVE_KINDS, *MODEL_KINDS))}")
+    cc = compiler()
+    crosses = cross_compilers()
+    if kind in MODEL_KINDS and not (config or {}).get("model"):
+        raise ValueError(f"a native {kind} FMU needs config = {{'model': FILE.py}}")
+    config = dict(DEFAULT_CONFIG[kind] if config is None else config)
+    for key in ("n", "m"):
+        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
+            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
+                             "from 1 to 1000 (a dimension of the FMU)")
+    translation = None
+    if kind in MODEL_KINDS:
+        from delaycomp.fmu.build import model_identifier
+        from delaycomp.fmu.translate import translate
+        from delaycomp.maths.model import load_model
+
+        config = {"model": str(Path(config["model"]).resolve()),
+                  **({"start": config["start"]} if config.get("start") else {})}
+        translation = translate(load_model(config["model"]))
+        check_closed_form(kind, translation)
+        ident = model_identifier(kind, config)
+    else:
+        ident = FMUS[kind].model_identifier
+    root = _python_table(kind, config)
+    _exact_starts(root, config.get("start") or {})
+    full = {**config, "version": delaycomp.__version__}
+    guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
+    model_c = NATIVE_KINDS.get(kind) or MODEL_KINDS[kind]
+    sources = [*COMMON_SOURCES, model_c]
+    headers = list(COMMON_HEADERS)
+    if translation is not None:
+        sources += [*MODEL_SOURCES, "model.c"]
+        headers += [*MODEL_HEADERS, "model.h", "model_config.h"]
+    description = _native_description(kind, root, ident, guid, sources)
+    import fmpy
+
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / (file_name or f"{ident}.fmu")
+    with tempfile.TemporaryDirectory(prefix="delaycomp-native-") as tmp:
+        stage = Path(tmp) / "fmu"
+        src = stage / "sources"
+        src.mkdir(parents=True)
+        generated = {}
+        if translation is not None:
+            generated = {**translation.c_files(),
+                         "model_config.h": _model_config_h(translation, root)}
+        for name in (*sources, *headers):
+            if name in generated:
+                (src / name).write_text(generated[name], encoding="utf-8")
+            else:
+                shutil.copy2(SOURCE_DIR / name, src / name)
+        for name in FMI_HEADERS:
+            shutil.copy2(fmi_header_dir() / name, src / name)
+        (src / "config.h").write_text(_config_h(kind, config, root, guid), encoding="utf-8")
+        targets = [(fmpy.platform, cc, ".so", ())] + [
+            (platform, argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
+            for platform, argv in crosses.items()]
+        builds = []
+        for platform, argv0, suffix, extra in targets:  # the compilers run at once
+            binary = stage / "binaries" / platform / f"{ident}{suffix}"
+            binary.parent.mkdir(parents=True)
+            argv = [*argv0, *CFLAGS, *extra, "-I", str(src), "-o", str(binary),
+                    *(str(src / s) for s in sources), "-lm"]
+            builds.append((platform, argv, subprocess.Popen(
+                argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
+        failed = []
+        for platform, argv, proc in builds:
+            _, err = proc.communicate()
+            if proc.returncode != 0:
+                failed.append(f"compiling the native {kind} FMU for {platform} failed "
+                              f"({argv[0]}):\n{err.strip()}")
+        if failed:
+            raise NativeBuildError(failed[0])
+        (stage / "modelDescription.xml").write_bytes(description)
+        res = stage / "resources"
+        res.mkdir()
+        (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True}, sort_keys=True),
+                                       encoding="utf-8")
+        doc = stage / "documentation"
+        doc.mkdir()
+        shutil.copy2(FMUS[kind].folder / "README.md", doc / "README.md")
+        shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
+        zip_folder(stage, target)
+    return target
+
+
+def build_native(out_dir: Path) -> list[Path]:
+    """Build the three native FMUs of the scalar LTI loop (default dimensions)."""
+    return [build_native_fmu(kind, out_dir) for kind in NATIVE_KINDS]
+
+
+def build_native_model(model_path: str | Path, out_dir: Path) -> list[Path]:
+    """The native twins of :func:`delaycomp.fmu.build.build_model`: the model's plant and
+    predictor-controller as C FMUs (``f``, ``k`` and ``step`` translated by
+    :mod:`delaycomp.fmu.translate`), and native delays of the model's widths (same file names
+    as the Python build).
+
+    Raises
+    ------
+    delaycomp.fmu.translate.TranslationError
+        The model does not translate (one line: the function, the operation, the line).
+    NativeBuildError
+        No C compiler, or it failed.
+    """
+    from delaycomp.fmu.build import DEFAULT_CONFIG
+    from delaycomp.maths.model import load_model
+
+    model = load_model(model_path)  # checks the interface before any build
+    paths = [build_native_fmu(kind, out_dir, {"model": str(model_path)})
+             for kind in MODEL_KINDS]
+    for width in sorted({model.n, model.m}):
+        cfg = {"n": width}
+        name = None if cfg == DEFAULT_CONFIG["delay"] else f"DelaycompDelay_n{width}.fmu"
+        paths.append(build_native_fmu("delay", out_dir, cfg, name))
+    return paths
+
+
+def native_fmu_dir() -> Path:
+    """Build cache of native FMUs, beside the Python FMUs' cache, per source digest."""
+    from delaycomp.fmu.cache import default_fmu_dir
+
+    return default_fmu_dir().parent / (f"native-{delaycomp.__version__}-{sources_digest()}-"
+                                       f"{platforms_tag()}")
+
+
+def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
+    """The native FMU for ``kind`` and ``config`` in ``fmu_dir`` (default: the cache),
+    built there if missing; an FMU already there is checked as
+    :func:`delaycomp.fmu.cache.check_fmu` does, and must be native."""
+    from delaycomp.errors import BadFileError
+    from delaycomp.fmu.cache import check_fmu, fmu_file_name
+
+    fmu_dir = Path(fmu_dir) if fmu_dir is not None else native_fmu_dir()
+    path = fmu_dir / fmu_file_name(kind, config)
+    if not path.exists():
+        build_native_fmu(kind, fmu_dir, config, path.name)
+        return path
+    check_fmu(path, kind, config)
+    with zipfile.ZipFile(path) as zf:
+        if not json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"):
+            raise BadFileError(path, "is a Python FMU, not a native one (use another "
+                                     "--fmu-dir, or delete it to rebuild)")
+    return path
+
+
+def compile_host(exe: Path, platform: str | None = None) -> Path:
+    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
+    machine, or cross-compiled for ``platform`` (a key of :data:`CROSS_TARGETS`: the host
+    then loads that platform's binaries of the FMUs; run it with :func:`host_command`)."""
+    if platform is None:
+        argv, extra, libs = compiler(), (), ["-ldl", "-lm"]
+    elif platform in CROSS_TARGETS:
+        var, default, package, _, extra = CROSS_TARGETS[platform]
+        argv = _cross_compiler(platform)
+        if argv is None:
+            raise NativeBuildError(f"no {default} here to build the C host for {platform} "
+                                   f"(`apt-get install {package}`, or set {var})")
+        libs = ["-lm"] if platform == "win64" else ["-ldl", "-lm"]
+    else:
+        raise ValueError(f"platform {platform!r} is not allowed: allowed are "
+                         f"{', '.join(CROSS_TARGETS)} (or None: this machine)")
+    proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *extra,
+                           "-I", str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"),
+                           "-o", str(exe), *libs], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
+    return Path(exe)
+
+
+#: how this machine runs a C host built for another platform: the emulator (a Debian
+#: package), its arguments before the program
+EMULATORS = {"win64": (("wine",), "wine"),
+             "aarch64-linux": (("qemu-aarch64", "-L", "/usr/aarch64-linux-gnu"), "qemu-user")}
+
+
+def emulator(platform: str) -> tuple[list[str], dict[str, str]]:
+    """The command prefix that runs a program built for ``platform`` here (wine for
+    ``win64``, qemu-user for ``aarch64-linux``) and the environment variables it needs
+    (wine: no debug output, no Mono or Gecko installers; ``WINEPREFIX`` is the caller's).
+    Raises :class:`NativeBuildError` naming the package to install where it is absent."""
+    prefix, package = EMULATORS[platform]
+    if shutil.which(prefix[0]) is None:
+        raise NativeBuildError(f"no {prefix[0]} here to run {platform} programs "
+                               f"(`apt-get install {package}`)")
+    env = {"WINEDEBUG": "-all", "WINEDLLOVERRIDES": "mscoree=d;mshtml=d"} \
+        if platform == "win64" else {}
+    return list(prefix), env
+
+
+def _host_path(path: Path, platform: str | None) -> str:
+    """A folder as the host built for ``platform`` names it (wine maps / to drive Z:)."""
+    text = str(Path(path).resolve())
+    return "Z:" + text.replace("/", "\\") if platform == "win64" else text
+
+
+def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
+    """Unpack each FMU of ``fmus`` (instance -> file) into ``into/<instance>``."""
+    dirs = {}
+    for name, path in fmus.items():
+        dirs[name] = Path(into) / name
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(dirs[name])
+    return dirs
+
+
+def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
+              timing: bool = False, exact_grid: bool = False,
+              platform: str | None = None, start: float = 0.0) -> list[str]:
+    """The C host's command line for the LTI loop ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`, scalar or with vectors) with the FMUs unpacked
+    in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
+
+    Parameters
+    ----------
+    timing : bool
+        The host prints the wall time of its stepping loop to stderr (``--timing``).
+    exact_grid : bool
+        The host keeps time as the FMI guides ask (``--exact-grid``): ``t_k = t0 + k h``
+        computed from ``k``, each step ``t_{k+1} - t_k``; else every step is ``h``.
+    platform : str, optional
+        The host was built for this platform (:func:`compile_host`): the command starts
+        with its emulator (:func:`emulator`; its environment is the caller's to pass) and
+        names the folders as the emulated program sees them.
+    start : float
+        The start time ``t0`` (``--start=T0``); the run ends at ``stop``, an absolute time.
+    """
+    sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
+            for inst in loop.instances for k, v in inst.parameters.items()]
+    prefix = emulator(platform)[0] if platform is not None else []
+    return [*prefix, str(exe), *(["--timing"] if timing else []),
+            *(["--exact-grid"] if exact_grid else []),
+            *([f"--start={start!r}"] if start else []), repr(stop), repr(loop.T / loop.N),
+            *(f"{n}={_host_path(dirs[n], platform)}"
+              for n in ("plant", "meas_delay", "controller", "input_delay")),
+            *sets]
+
+
+def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
+    """Copy the SSP archive ``src`` to ``dest`` with each delaycomp FMU of ``resources/``
+    replaced by its native twin (same file name, variables and value references, built
+    for the configuration the FMU carries). The SSD, the parameter sets and any other file
+    are copied unchanged, so libcosim, Ecos and our master run the archive as before.
+
+    A model file's plant and controller are rebuilt from the model file their Python FMU
+    carries (``resources/delaycomp_model_<id>.py``), under its own name, so the native
+    twin has the same modelIdentifier.
+
+    Raises
+    ------
+    ValueError
+        An FMU of the archive has no native twin (another tool's FMU).
+    delaycomp.fmu.translate.TranslationError
+        A model FMU's model does not translate to C.
+    """
+    src, dest = Path(src), Path(dest)
+    part = dest.with_name(dest.name + ".part")
+    with tempfile.TemporaryDirectory(prefix="delaycomp-native-ssp-") as tmp, \
+            zipfile.ZipFile(src) as zin, \
+            zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename.startswith("resources/") and item.filename.endswith(".fmu"):
+                inner = Path(tmp) / Path(item.filename).name
+                inner.write_bytes(data)
+                if _is_native(inner):  # a native FMU already (delaycomp build packs them)
+                    zout.writestr(item, data)
+                    continue
+                kind, config = _twin_of(inner, item.filename, Path(tmp) / "models")
+                built = build_native_fmu(kind, Path(tmp) / "native", config, inner.name)
+                data = built.read_bytes()
+            zout.writestr(item, data)
+    part.replace(dest)
+    return dest
+
+
+def _is_native(fmu: Path) -> bool:
+    """A delaycomp native FMU (its build configuration says so)?"""
+    with zipfile.ZipFile(fmu) as zf:
+        try:
+            return bool(json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"))
+        except (KeyError, ValueError):
+            return False
+
+
+def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
+    """``(kind, config)`` of the native twin of the delaycomp FMU ``fmu``."""
+    from fmpy import read_model_description
+
+    from delaycomp.fmu.build import model_identifier
+
+    kinds = {spec.model_identifier: kind for kind, spec in FMUS.items()
+             if kind in NATIVE_KINDS}
+    ident = read_model_description(str(fmu)).coSimulation.modelIdentifier
+    with zipfile.ZipFile(fmu) as zf:
+        names = set(zf.namelist())
+        config = json.loads(zf.read(f"resources/{CONFIG_NAME}")) if (
+            f"resources/{CONFIG_NAME}" in names) else {}
+        mid, name = config.get("model_id"), config.get("model_name")
+        module = f"resources/delaycomp_model_{mid}.py"
+        if ident in kinds:
+            return kinds[ident], {k: v for k, v in config.items()
+                                  if k not in ("version", "native")}
+        kind = next((k for k in MODEL_KINDS if mid and name and module in names
+                     and ident == f"{FMUS[k].model_identifier}_{mid}"), None)
+        if kind is None:
+            raise ValueError(f"{label} ({ident}) is not allowed in a native archive: native "
+                             "FMUs exist for delaycomp's delay, LTI plant and controller, "
+                             "and a model file's plant and controller")
+        folder = models / str(mid)
+        folder.mkdir(parents=True, exist_ok=True)
+        model_file = folder / f"{name}.py"
+        model_file.write_bytes(zf.read(module))
+    built_with = config.get("version")
+    config = {"model": str(model_file)}
+    if model_identifier(kind, config) != ident:
+        raise ValueError(f"{label} ({ident}) is not allowed in a native archive: it was "
+                         f"built by delaycomp {built_with!r}, this is "
+                         f"{delaycomp.__version__!r} (rebuild the archive)")
+    return kind, config
+
+
+def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | None,
+                                                                str | None]:
+    """The native FMUs of ``loop`` where they can be had here (:func:`native_fmus`), else
+    ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
+    or a model that does not translate (or CasADi missing). The commands' default: native
+    where it exists, the Python FMUs otherwise."""
+    from delaycomp.maths.model import ModelError
+
+    try:
+        return native_fmus(loop, fmu_dir), None
+    except (ValueError, NativeBuildError, ModelError) as exc:
+        return None, str(exc).splitlines()[0].removeprefix(
+            "--native is not allowed for this loop: ")
+
+
+def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:
+    """Native FMU files for every instance of ``loop`` (a
+    :class:`~delaycomp.system.loop.Loop`), to pass as ``fmus=`` to
+    :func:`delaycomp.orchestrator.simulate.run_loop`.
+
+    Raises
+    ------
+    ValueError
+        An instance has no native twin (a user model's plant or controller, a user's FMU).
+    """
+    from delaycomp.system.loop import BuiltinFmu, ModelFmu
+
+    for inst in loop.instances:
+        src = inst.source
+        if not ((isinstance(src, BuiltinFmu) and src.kind in NATIVE_KINDS)
+                or (isinstance(src, ModelFmu) and src.kind in MODEL_KINDS)):
+            what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
+            raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
+                             f"is {what}; native FMUs exist for the delay, the LTI plant and "
+                             "controller, and a model file's plant and controller")
+    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir)
+            for inst in loop.instances}

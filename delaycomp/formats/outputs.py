@@ -1,0 +1,269 @@
+"""Result files of a run: checked before it starts, written while it goes.
+
+- :func:`check_output` refuses an output path that cannot take a file (an existing folder,
+  a name ending in a path separator, a parent that is a file, a plot format matplotlib
+  cannot write) before anything runs, so a late failure cannot strand a half-made result.
+- :func:`clear_previous` removes an older result at the same path (and its ``.partial``)
+  before a run, so a failed rerun never leaves an old file that looks like the new one.
+- :func:`output_every` turns ``--output-interval S`` into a decimation of the base step.
+- :class:`CsvStream` writes the CSV row by row as the master records it, into
+  ``FILE.part``; it becomes ``FILE`` on success and ``FILE.partial`` (the rows up to the
+  failure, never read as a result) on failure. Memory stays flat however long the run.
+- :func:`check_budget` estimates a run's time and memory before it starts and refuses,
+  with the estimate in one line, what cannot finish.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+
+from delaycomp.errors import ParameterError
+from delaycomp.maths.grid import on_grid
+
+#: suffix of the CSV of a failed run (rows up to the failure): never read as a result
+PARTIAL_SUFFIX = ".partial"
+#: suffix of a file being written (renamed when complete)
+WORKING_SUFFIX = ".part"
+
+
+class OutputError(ParameterError):
+    """An output path or interval that cannot work (one line, exit status 2)."""
+
+
+def plot_formats() -> set[str]:
+    """File suffixes (without the dot) the Agg canvas of matplotlib writes."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    return set(FigureCanvasAgg(Figure()).get_supported_filetypes())
+
+
+def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Path | None:
+    """Check that ``path`` can receive the output file of ``option`` before a run.
+
+    Parameters
+    ----------
+    path : str or Path or None
+        the path as the user gave it (``None``: no such output, nothing checked).
+    option : str
+        the option's name for the message (``--out``).
+    kind : str
+        ``csv`` (any file name) or ``plot`` (a suffix matplotlib writes: png, pdf, svg...).
+
+    Returns
+    -------
+    Path or None
+        the path.
+
+    Raises
+    ------
+    OutputError
+        the path is a folder, names a folder (ends in ``/``), lies under a file, or (for
+        a plot) has a suffix matplotlib cannot write.
+
+    Examples
+    --------
+    >>> check_output("out/run.csv", "--out")
+    PosixPath('out/run.csv')
+    >>> check_output("out/", "--plot", "plot")
+    Traceback (most recent call last):
+    ...
+    delaycomp.formats.outputs.OutputError: --plot 'out/' is a folder: give a file name such as out/plot.png
+    """
+    if path is None:
+        return None
+    text = str(path)
+    p = Path(path)
+    example = "plot.png" if kind == "plot" else "run.csv"
+    if text.endswith(("/", os.sep)) or p.is_dir():
+        raise OutputError(f"{option} {text!r} is a folder: give a file name such as "
+                          f"{p / example}")
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise OutputError(f"{option} {text!r}: {parent} is a file, not a folder")
+    if parent.exists() and not os.access(parent, os.W_OK):
+        raise OutputError(f"{option} {text!r}: folder {parent} is not writable")
+    if kind == "plot":
+        suffix = p.suffix.lower().lstrip(".")
+        formats = plot_formats()
+        if suffix not in formats:
+            raise OutputError(f"{option} {text!r}: the suffix must name a plot format, one "
+                              f"of {', '.join(sorted(formats))}")
+    return p
+
+
+def partial_path(path: Path) -> Path:
+    """``FILE.partial``: the rows of a failed run."""
+    return path.with_name(path.name + PARTIAL_SUFFIX)
+
+
+def clear_previous(*paths: Path | None) -> None:
+    """Remove an older result at each path and its ``.partial`` (a failed rerun must not
+    leave the previous CSV or plot beside the new partial rows)."""
+    for path in paths:
+        if path is None:
+            continue
+        for old in (path, partial_path(path)):
+            if old.is_file() or old.is_symlink():
+                old.unlink()
+
+
+def output_every(interval: float | None, T: float, N: int) -> int:
+    """Base steps per output row for ``--output-interval interval`` (``None``: 1).
+
+    Examples
+    --------
+    >>> output_every(0.5, T=1.0, N=100)
+    50
+    >>> output_every(None, T=1.0, N=100)
+    1
+    """
+    if interval is None:
+        return 1
+    h = T / N
+    if not (math.isfinite(interval) and interval > 0):
+        raise OutputError(f"--output-interval {interval!r} is not allowed: must be a finite "
+                          "number > 0")
+    if not on_grid(interval, h):
+        raise OutputError(f"--output-interval {interval!r} is not allowed: must be a "
+                          f"multiple of the base step h = T/N = {h!r}")
+    return max(1, round(interval / h))
+
+
+class CsvStream:
+    """A CSV written row by row: ``time`` then one column per name.
+
+    Use as ``sink`` of :func:`delaycomp.orchestrator.simulate.run_loop`; call :meth:`finish` once.
+    Rows go to ``FILE.part``; :meth:`finish` renames it to ``FILE`` (success) or
+    ``FILE.partial`` (failure). Numbers are written with ``repr`` (17 significant digits,
+    read back bit for bit).
+    """
+
+    def __init__(self, path: str | Path, names: list[str]):
+        self.path = Path(path)
+        self.names = list(names)
+        self.tmp = self.path.with_name(self.path.name + WORKING_SUFFIX)
+        self._fh = None  # opened with the first row: a run that fails before has no file
+        self._writer = None
+        self.rows = 0
+
+    def _open(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")
+        self._writer = csv.writer(self._fh)
+        self._writer.writerow(["time", *self.names])
+
+    def __call__(self, t: float, row) -> None:
+        if self._writer is None:
+            self._open()
+        self._writer.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
+        self.rows += 1
+
+    def finish(self, success: bool) -> Path:
+        """Close the file; return where it is now (``FILE`` or ``FILE.partial``)."""
+        final = self.path if success else partial_path(self.path)
+        if self._fh is None:  # no row came: nothing was written
+            if success:
+                self._open()
+            else:
+                return final
+        self._fh.close()
+        self.tmp.replace(final)
+        return final
+
+
+# -- budget ----------------------------------------------------------------------------
+
+#: Lower bounds of the cost of one base step of a four-component loop, in seconds, from
+#: BENCHMARKS.md (section 1: 11.8 us per step in-process and 43 us with FMUs for the
+#: cheapest scenario). Estimates are lower bounds: a refused run would take longer still.
+SECONDS_PER_TICK = {"inprocess": 10e-6, "fmu": 40e-6}
+#: A run whose estimate exceeds this is refused (one day).
+MAX_RUN_SECONDS = 86400.0
+#: Bytes per held value of a delay line or input history (a Python tuple of ``n`` floats
+#: and its slot in a deque: 56 + 8 n bytes of tuple, 24 n of floats, 8 of pointer).
+BYTES_PER_HELD = 64
+BYTES_PER_HELD_VALUE = 32
+#: Bytes per kept value of a recorded row (a Python float in a tuple, plus the list
+#: slot and the time).
+BYTES_PER_KEPT_VALUE = 40
+
+
+def physical_memory() -> int | None:
+    """Bytes of physical memory, or ``None`` where the system does not say."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def format_duration(seconds: float) -> str:
+    """``seconds`` in the largest unit that gives at least 2 of it (``"3.5 hours"``)."""
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("hours", 3600),
+                       ("minutes", 60)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes in MB, GB or TB, three digits (``"1.2 GB"``)."""
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n:.3g} B"
+
+
+def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
+             keep: bool = True) -> tuple[float, float]:
+    """Lower bounds of a run's wall time (s) and memory (bytes) before it starts.
+
+    Memory counts the delay lines (``delay / h`` held values each), the controller's
+    input history (``(r + tau) / h`` values) and, with ``keep``, the recorded rows.
+    ``loop`` is a :class:`~delaycomp.system.Loop`.
+    """
+    h = loop.T / loop.N
+    held = 0.0
+    for inst in loop.instances:
+        config = getattr(inst.source, "config", None)
+        config = config() if callable(config) else (config or {})
+        params = inst.parameters
+        if inst.role in ("meas_delay", "input_delay"):
+            width, window = int(config.get("n", 1)), float(params.get("delay", 0.0))
+        elif inst.role == "controller":
+            width = int(config.get("m", 1))
+            window = float(params.get("r", 0.0)) + float(params.get("tau", 0.0))
+        else:
+            continue
+        held += (window / h) * (BYTES_PER_HELD + BYTES_PER_HELD_VALUE * width)
+    kept = 0.0
+    if keep:
+        kept = (ticks / every + 1) * (len(loop.recorded) + 1) * BYTES_PER_KEPT_VALUE
+    return ticks * SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK["inprocess"]), held + kept
+
+
+def check_budget(loop, ticks: int, engine: str = "fmu", every: int = 1,
+                 keep: bool = True) -> tuple[float, float]:
+    """Refuse a run that cannot finish (:data:`MAX_RUN_SECONDS`) or cannot fit in half
+    the physical memory; return the estimate ``(seconds, bytes)`` otherwise."""
+    seconds, memory = estimate(loop, ticks, engine, every, keep)
+    steps = f"{ticks:.4g} base steps (T = {loop.T!r}, N = {loop.N})"
+    if seconds > MAX_RUN_SECONDS:
+        raise OutputError(
+            f"this run needs {steps}: at least {format_duration(seconds)} at "
+            f"{SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK['inprocess']) * 1e6:g} us per "
+            f"step ({engine} engine), over the limit of {format_duration(MAX_RUN_SECONDS)}; lower "
+            "--stop-time or N")
+    ram = physical_memory()
+    if ram is not None and memory > ram / 2:
+        what = "delay buffers and kept rows" if keep else "delay buffers"
+        raise OutputError(
+            f"this run needs at least {format_bytes(memory)} of memory for its {what} "
+            f"(T = {loop.T!r}, N = {loop.N}), over half of this machine's {format_bytes(ram)}; "
+            "lower N" + (" or give --output-interval" if keep else ""))
+    return seconds, memory

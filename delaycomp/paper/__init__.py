@@ -1,0 +1,11 @@
+"""The paper as data: its cases as loop files (``loops/*.toml``), the model modules of
+its nonlinear examples (:mod:`.models`) and the scenarios built from them
+(:mod:`.scenarios`).
+
+This package imports only :mod:`delaycomp.layout` (:func:`~delaycomp.layout.whole`):
+the FMUs bundle it with the models.
+"""
+
+from delaycomp.layout import whole
+
+__path__ = whole(__name__, __path__)

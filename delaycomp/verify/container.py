@@ -1,0 +1,243 @@
+"""The whole loop as one FMU: a container FMU made with fmu-manipulation-toolbox.
+
+``delaycomp export-loop SCENARIO --out FILE.fmu`` puts the plant, the two delays and the
+controller of a :class:`~delaycomp.system.Loop` into one FMI 2.0 co-simulation FMU
+(fmu-manipulation-toolbox's FMU container). The container steps its FMUs at the base step
+``h = T/N`` inside each of its own communication steps, so an importer runs it with
+``output_interval = T`` and gets the loop at the sampling instants.
+
+Timing (measured, see README "Cross-check and the loop as one FMU"). The container does
+not set inputs and read outputs at the same instant as our master does: for each FMU in
+turn it sets the inputs from the latest outputs it holds, calls ``doStep`` and reads the
+outputs (sequential mode; the default parallel mode sets all, steps all, reads all, i.e.
+Jacobi). An output is thus read right after ``doStep``, before the next inputs are set. For
+the controller that read comes at each sampling instant with the measurement of the
+previous step (direct feedthrough), so no order and no delay shift makes the loop exact;
+measured on Example 3.6, Figure 3: errors 0.02 to 3.4 in ``x`` at the sampling instants.
+
+What is exact instead:
+
+1. the controller samples the input held over the step that ends at ``t_i``
+   (``held_sample = true``): its output has no direct feedthrough any more;
+2. the container steps in the order ``input_delay, plant, meas_delay, controller``
+   (sequential), so that over the step ``[t_k, t_{k+1})``
+
+   - ``input_delay`` gets the controller's output at ``t_k`` (read after its previous
+     step) and ``plant`` gets the delay's output just computed: one step of delay more
+     than in our master, so the input delay is ``tau + h``;
+   - ``meas_delay`` gets ``x(t_{k+1})`` (the plant has just stepped): one step early, so
+     the measurement delay is ``r + h`` and the controller, stepped after it, holds
+     ``x(t_{k+1} - r)`` over ``[t_k, t_{k+1})``: with (1) its sample at ``t_{k+1}`` is the
+     true ``x(t_{k+1} - r)``.
+
+   Both added steps are filled by the delays' initial histories, which are the loop's own
+   (``x0`` and ``u0``). Every FMU then gets exactly what it gets in our master; the
+   container is tested against the reference traces at the sampling instants with the
+   tolerances of :mod:`delaycomp.verify.check`.
+
+The measurement delay must be at least one base step (``r >= h``): with ``r = 0`` the
+controller needs ``x(t_i)`` before ``t_i`` is reached, which only direct feedthrough gives.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from delaycomp.child import module_argv
+from delaycomp.errors import ParameterError
+from delaycomp.system import Loop
+from delaycomp.verify.cases import CheckRow, RefCase, compare
+
+#: inner order of the container, by role (see the module docstring)
+ORDER = ("input_delay", "plant", "meas_delay", "controller")
+#: base steps added to each delay (by role) to absorb the container's order
+ADDED_STEPS = {"meas_delay": 1, "input_delay": 1}
+
+
+class ContainerError(RuntimeError):
+    """fmu-manipulation-toolbox is missing or refused the description."""
+
+
+def _toolbox():
+    try:
+        from fmu_manipulation_toolbox.assembly import Assembly
+    except ImportError:
+        raise ContainerError(
+            "export-loop needs fmu-manipulation-toolbox >= 2.0: pip install "
+            "'delaycomp[container]'") from None
+    return Assembly
+
+
+def output_names(spec: Loop) -> dict[str, str]:
+    """Container output name -> the loop's column (``plant.x``): the variable's own name,
+    or ``instance_variable`` where two recorded signals share a variable name."""
+    names = [p.variable for p in spec.recorded]
+    unique = len(set(names)) == len(names)
+    return {(p.variable if unique else f"{p.instance}_{p.variable}"): str(p)
+            for p in spec.recorded}
+
+
+def _ordered(spec: Loop) -> list:
+    """The loop's instances in the container's order (by role); all four roles needed."""
+    members = [spec.by_role(role) for role in ORDER]
+    if None in members or len(spec.instances) != len(ORDER):
+        raise ParameterError(f"a loop container needs exactly the roles {', '.join(ORDER)}")
+    return members
+
+
+def _text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (str, int)):
+        return str(value)
+    return repr(float(value))
+
+
+def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
+    """The container's JSON description (fmu-manipulation-toolbox's format)."""
+    members = _ordered(spec)
+    h = spec.h
+    meas = spec.by_role("meas_delay").parameters["delay"]
+    if meas < h * (1 - 1e-9):
+        raise ParameterError(
+            f"parameter r = {meas!r} is not allowed for export-loop: the measurement delay "
+            f"must be at least one base step h = T/N = {h!r} (the container reads outputs "
+            "before it sets inputs, so r = 0 would need direct feedthrough)")
+    start = []
+    for inst in members:
+        params = dict(inst.parameters)
+        if inst.role in ADDED_STEPS:
+            params["delay"] = params["delay"] + ADDED_STEPS[inst.role] * h
+        if inst.role == "controller":
+            params["held_sample"] = True
+        start += [[f"{inst.name}.fmu", key, _text(value)] for key, value in params.items()]
+    links = [[f"{c.src.instance}.fmu", c.src.variable, f"{c.dst.instance}.fmu",
+              c.dst.variable] for c in spec.connections]
+    outputs = [[f"{col.split('.', 1)[0]}.fmu", col.split(".", 1)[1], out]
+               for out, col in output_names(spec).items()]
+    return {
+        "name": name, "step_size": h, "sequential": True, "mt": False,
+        "auto_link": False, "auto_input": False, "auto_output": False,
+        "auto_parameter": False, "auto_local": False,
+        "fmu": [f"{inst.name}.fmu" for inst in members],
+        "path": {f"{inst.name}.fmu": fmu_files[inst.name] for inst in members},
+        "link": links, "output": outputs, "start": start,
+    }
+
+
+def _identifier(path: Path) -> str:
+    ident = re.sub(r"\W", "_", path.stem)
+    return ident if ident and not ident[0].isdigit() else f"loop_{ident}"
+
+
+def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
+                fmus: dict[str, Path] | None = None) -> Path:
+    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
+    gives the FMU file of some instances (e.g. the native ones of
+    :func:`delaycomp.fmu.native.native_fmus`); the others come from their sources."""
+    from delaycomp.fmu.cache import source_fmu
+
+    Assembly = _toolbox()
+    out = Path(out)
+    ident = _identifier(out)
+    with tempfile.TemporaryDirectory(prefix="delaycomp-loop-") as tmp:
+        work = Path(tmp)
+        files = {}
+        for inst in _ordered(spec):
+            src = Path((fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir))
+            if not (work / src.name).exists():
+                shutil.copy2(src, work / src.name)
+            files[inst.name] = src.name
+        desc = description(spec, files, f"{ident}.fmu")
+        (work / "loop.json").write_text(json.dumps(desc, indent=1), encoding="utf-8")
+        log = logging.getLogger("fmu_manipulation_toolbox")
+        level, propagate = log.level, log.propagate
+        log.setLevel(logging.ERROR)  # its notes ("loop of links ...") are expected here
+        log.propagate = False
+        try:
+            Assembly("loop.json", fmu_directory=work).make_fmu()
+        except Exception as exc:
+            raise ContainerError(f"fmu-manipulation-toolbox: {exc}") from exc
+        finally:
+            log.setLevel(level)
+            log.propagate = propagate
+        built = work / f"{ident}.fmu"
+        if not built.exists():
+            raise ContainerError("fmu-manipulation-toolbox wrote no container")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(built, out)
+    return out
+
+
+def simulate_loop(path: Path, spec: Loop, stop_time: float):
+    """``fmpy.simulate_fmu`` on the container at ``output_interval = T``: the times and
+    the columns ``plant.x ...`` at the sampling instants."""
+    import numpy as np
+
+    from delaycomp.verify.crosscheck import simulate_kept
+
+    names = output_names(spec)
+    res = simulate_kept(path, stop_time=stop_time, output_interval=spec.T,
+                        output=list(names))
+    data = np.column_stack([np.asarray(res[n], dtype=float) for n in names])
+    return list(names.values()), np.asarray(res["time"], dtype=float), data
+
+
+def run_container_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """The container of each case against its reference at the sampling instants."""
+    with tempfile.TemporaryDirectory(prefix="delaycomp-container-") as tmp:
+        for c in cases:
+            try:
+                spec = c.loop()
+                path = export_loop(spec, Path(tmp) / "loop.fmu")
+                names, times, data = _simulate_in_child(path, c)
+                cmp = compare(c, names, times, data, stride=1, ref_stride=spec.N)
+            except Exception as exc:  # noqa: BLE001 - one failed case is one failed row
+                yield CheckRow(c.id, "container", math.inf, "-", False,
+                               f"{type(exc).__name__}: {exc}")
+                continue
+            yield CheckRow(c.id, "container", cmp.max_error, cmp.tolerance, cmp.passed,
+                           "at t0 + iT")
+
+
+def _simulate_in_child(path: Path, c: RefCase):
+    """:func:`simulate_loop` in a fresh process (see
+    :func:`delaycomp.verify.crosscheck.run_alone_batch`)."""
+    import subprocess
+
+    import numpy as np
+
+    proc = subprocess.run(module_argv("delaycomp.verify.container", str(path),
+                                      json.dumps(dataclasses.asdict(c))),
+                          capture_output=True, text=True, timeout=1200)
+    if proc.returncode != 0:
+        reason = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise ContainerError(f"simulating the container failed: {reason}")
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    return got["names"], np.array(got["times"]), np.array(got["data"])
+
+
+def _main(argv: list[str]) -> int:
+    path = Path(argv[0])
+    fields = json.loads(argv[1])
+    c = RefCase(**{**fields, "sets": tuple(fields["sets"])})
+    spec = c.loop()
+    names, times, data = simulate_loop(path, spec, c.stop_time())
+    print(json.dumps({"names": names, "times": times.tolist(), "data": data.tolist()}),
+          flush=True)
+    os._exit(0)  # no interpreter teardown with a pythonfmu FMU loaded (simulate_kept)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_main(sys.argv[1:]))

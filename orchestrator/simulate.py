@@ -1,0 +1,242 @@
+"""Run a :class:`~delaycomp.system.Loop` with the project's FMUs and master.
+
+:func:`make_master` is the one function that wires a master from a loop; everything that
+runs a loop (``run``, sweeps, the cross-check, the benchmark) goes through it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from delaycomp.errors import ParameterError
+from delaycomp.fmu.cache import source_fmu
+from delaycomp.orchestrator.fmu import FmuComponent
+from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
+from delaycomp.system import FmuFile, Loop, Timing
+
+__all__ = ["ENGINES", "Result", "SimulationError", "make_components", "make_master",
+           "parameters_of", "run_loop"]
+
+
+@dataclass
+class Result:
+    """Recorded signals: ``data[k, j]`` is signal ``names[j]`` at ``times[k]``."""
+
+    names: list[str]
+    times: np.ndarray
+    data: np.ndarray
+    success: bool = True
+    message: str = ""
+    #: informational messages the components logged, as ``instance: text``
+    notes: list[str] = field(default_factory=list)
+    #: rows recorded (streamed to a sink, or kept here); ``None``: ``len(times)``
+    rows: int | None = None
+
+    @property
+    def row_count(self) -> int:
+        """Rows recorded in the run (more than :attr:`times` holds if the run streamed)."""
+        return len(self.times) if self.rows is None else self.rows
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:, self.names.index(name)]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """The signal ``name`` (``"plant.x1"``, ``"controller.u"``) as an array."""
+        if name not in self.names:
+            raise KeyError(f"no signal {name!r}: the run recorded {', '.join(self.names)}")
+        return self.column(name)
+
+    @property
+    def signals(self) -> dict[str, np.ndarray]:
+        """Every recorded signal by name, one array each (``times`` is the time axis)."""
+        return {name: self.data[:, j] for j, name in enumerate(self.names)}
+
+    def to_pandas(self):
+        """A ``pandas.DataFrame`` indexed by time, one column per signal (needs pandas)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("to_pandas() needs pandas: pip install pandas") from None
+        return pd.DataFrame(self.data, index=pd.Index(self.times, name="time"),
+                            columns=list(self.names))
+
+    def write_csv(self, path: str | Path) -> None:
+        path = Path(path)
+        tmp = path.with_name(path.name + ".part")
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["time", *self.names])
+            for t, row in zip(self.times, self.data):
+                w.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
+        tmp.replace(path)  # no half-written file that looks like a result
+
+
+def stop_ticks(stop_time: float, T: float, N: int) -> int:
+    """Base steps to ``stop_time`` (:meth:`delaycomp.system.Timing.ticks`)."""
+    return Timing(T, N).ticks(stop_time)
+
+
+#: ``fmu``: the built FMUs through fmpy; ``inprocess``: the same slave classes called
+#: directly (:mod:`orchestrator.inprocess`), same master, same numbers, much faster.
+ENGINES = ("fmu", "inprocess")
+
+
+def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None,
+                    fp_guarded: bool = False, fmus: dict[str, Path] | None = None) -> list:
+    """The master components of ``loop`` for ``engine``. ``fp_guarded`` (in-process only):
+    the caller steps them under ``np.errstate(all="ignore")``. ``fmus`` (FMU engine only)
+    gives the FMU file of some instances (e.g. from an SSP archive); the others come from
+    :func:`source_fmu`."""
+    if engine == "fmu":
+        fmus = fmus or {}
+        return [FmuComponent(i.name, fmus.get(i.name) or source_fmu(i.source, fmu_dir))
+                for i in loop.instances]
+    if fmus:
+        raise ParameterError("FMU files are not allowed with the in-process engine")
+    if engine == "inprocess":
+        from delaycomp.orchestrator.inprocess import SlaveComponent
+
+        files = [i.name for i in loop.instances if isinstance(i.source, FmuFile)]
+        if files:
+            raise ParameterError(f"instance {files[0]} is an FMU file: the in-process "
+                                 "engine runs delaycomp's own slaves only (use --engine fmu)")
+        return [SlaveComponent(i.name, *i.source.build_key(), fp_guarded)
+                for i in loop.instances]
+    raise ParameterError(f"engine {engine!r} is not allowed: must be one of "
+                         f"{', '.join(ENGINES)}")
+
+
+def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
+                every: int = 1, engine: str = "fmu", fp_guarded: bool = False,
+                fmus: dict[str, Path] | None = None,
+                components: list | None = None, sink=None, keep: bool = True,
+                final: int | None = None) -> tuple[Master, Recorder]:
+    """The master of ``loop``: its components (fresh ones for ``engine``, or the given
+    ``components``, e.g. wrapped to tap their signals), its connections, its timing, and a
+    recorder of its recorded ports at every ``every``-th tick and at tick ``final``
+    (``sink`` and ``keep`` as in :class:`~delaycomp.orchestrator.master.Recorder`). Not yet
+    set up: call ``master.setup(stop_time, loop.parameters())``."""
+    if components is None:
+        components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
+    connections = [Connection(c.src.instance, c.src.variable, c.dst.instance, c.dst.variable)
+                   for c in loop.connections]
+    try:
+        master = Master(components, connections, loop.T, loop.N, t0)
+    except ValueError as exc:  # an algebraic loop, named by its members: a loop to fix
+        for c in components:
+            if hasattr(c, "terminate") and getattr(c, "fmu", None) is not None:
+                c.terminate()
+        raise ParameterError(f"loop {loop.name}: {exc}") from None
+    recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every,
+                        sink, keep, final)
+    master.add_observer(recorder)
+    return master, recorder
+
+
+def parameters_of(loop: Loop) -> dict[str, dict]:
+    return loop.parameters()
+
+
+def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
+             t0: float = 0.0, engine: str = "fmu",
+             fmus: dict[str, Path] | None = None, every: int = 1, sink=None,
+             keep: bool = True, progress=None) -> Result:
+    """Co-simulate ``loop`` from ``t0`` to ``stop_time``.
+
+    Parameters
+    ----------
+    loop : Loop
+        the loop.
+    stop_time, t0 : float
+        the interval; ``stop_time - t0`` must be a multiple of the base step.
+    fmu_dir : Path, optional
+        folder of built FMUs (default: the per-version cache).
+    engine : str
+        ``fmu`` (the FMUs through fmpy) or ``inprocess`` (the same slaves without the FMI
+        layer).
+    fmus : dict, optional
+        the FMU file of some instances (e.g. from an SSP archive); the others come from
+        :func:`source_fmu`.
+    every : int
+        record every ``every``-th base step (and the stop time); 1: every base step.
+    sink : callable, optional
+        ``sink(t, row)`` receives every recorded row as the run goes (a streamed CSV).
+    keep : bool
+        keep the recorded rows in the result; ``False`` keeps only the last one (memory
+        stays flat however long the run).
+    progress : callable, optional
+        ``progress(ticks_done)`` called about every 1 % of the run.
+
+    Returns
+    -------
+    Result
+        On a component failure the result so far, with ``success=False`` and the failure
+        in ``message``.
+    """
+    ticks = loop.timing.ticks(stop_time - t0)
+    return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
+                progress)
+
+
+def single_threaded_blas():
+    """Context in which BLAS/LAPACK run on one thread.
+
+    The loop's matrices are tiny (n, m <= 12): a BLAS thread pool only adds hand-offs,
+    and on a loaded machine those cost more than the maths (measured: a sweep point of
+    Example 3.6 took 2.5 times longer with OpenBLAS's default threads on 2 busy cores).
+    The previous limits are restored on exit.
+    """
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
+         engine: str, fmus: dict[str, Path] | None, every: int = 1, sink=None,
+         keep: bool = True, progress=None) -> Result:
+    # In-process, the slaves' floating-point guard is set once for the run, not per step
+    # (the FMUs keep their own: their host's numpy settings are not ours to assume).
+    guard = engine == "inprocess"
+    master, recorder = make_master(spec, fmu_dir, t0, every, engine=engine,
+                                   fp_guarded=guard, fmus=fmus, sink=sink, keep=keep,
+                                   final=ticks)
+    components = list(master.components.values())
+    success, message = True, ""
+    with contextlib.ExitStack() as stack:
+        # BLAS on one thread where Python maths runs in this process (the in-process
+        # slaves, pythonfmu FMUs); a loop of native FMUs does not pay for threadpoolctl
+        if any(getattr(c, "runs_python", True) for c in components):
+            stack.enter_context(single_threaded_blas())
+        try:
+            master.setup(stop_time, spec.parameters())
+            master.initialize()
+            if guard:
+                with np.errstate(all="ignore"):
+                    _run_until(master, ticks, progress)
+            else:
+                _run_until(master, ticks, progress)
+        except SimulationError as exc:
+            success, message = False, str(exc)
+        finally:
+            master.terminate()
+    data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
+    notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
+             for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
+    return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
+                  recorder.count)
+
+
+def _run_until(master: Master, ticks: int, progress) -> None:
+    """``master.run_until(ticks)``, in about a hundred chunks when ``progress`` is given."""
+    if progress is None:
+        master.run_until(ticks)
+        return
+    chunk = max(1, ticks // 100)
+    while master.k < ticks:
+        master.run_until(min(ticks, master.k + chunk))
+        progress(master.k)
