@@ -5,7 +5,6 @@ from __future__ import annotations
 import atexit
 import itertools
 import shutil
-import sys
 import weakref
 from collections.abc import Sequence
 from ctypes import byref, c_double, c_int, c_size_t, c_void_p
@@ -98,17 +97,6 @@ class FmuRefused(RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmu.slave``)."""
 
 
-def _resources_last(before: list[str]) -> None:
-    """A Python FMU's binary puts its resources folder first on ``sys.path``, with the part
-    of ``delaycomp`` it bundles: move what it added behind the host's own entries, so that
-    processes this host spawns later (they copy ``sys.path``) import the host's whole
-    package, not the bundled part. The slave has imported its modules by then. A folder
-    already on the path (another instance of the same FMU) is not added twice."""
-    k = len(sys.path) - len(before)
-    if k > 0 and sys.path[k:] == before:  # inserted at the front, as pythonfmu does
-        sys.path[:] = before + [p for p in dict.fromkeys(sys.path[:k]) if p not in before]
-
-
 class FmuComponent(ComponentBase):
     """One instance of a co-simulation FMU.
 
@@ -178,15 +166,12 @@ class FmuComponent(ComponentBase):
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                         instanceName=self.name)
-        before = list(sys.path)
         try:
             fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
         except Exception:
             fmu.freeLibrary()
             self.worst_status = FATAL
             raise
-        finally:
-            _resources_last(before)
         self.fmu = fmu
         self._do_step_fn = None
         try:

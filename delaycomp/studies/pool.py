@@ -7,8 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from delaycomp.child import own_package_first
-
 __all__ = ["Progress", "on_dask", "on_processes", "worker_init"]
 
 
@@ -43,9 +41,7 @@ def on_processes(fn: Callable, jobs: Sequence, workers: int, progress,
     results = []
     with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
                              initializer=worker_init) as pool:
-        with own_package_first():  # the workers start here: the same delaycomp as ours
-            mapped = pool.map(fn, jobs, chunksize=chunksize)
-        for res, size in zip(mapped, sizes):
+        for res, size in zip(pool.map(fn, jobs, chunksize=chunksize), sizes):
             results.append(res)
             progress.tick(size)
     return results
