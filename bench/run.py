@@ -837,7 +837,7 @@ def report_speed(spd) -> list[str]:
     host = spd["host"]
     L = ["", "## 10. Native model controllers and loops", "",
          "Per sample: the model controller alone, its Python FMU (pythonfmu) and its native "
-         "FMU (`fmus/native/model_controller.c`), both driven through fmpy as our master "
+         "FMU (`fmus/controller/model_controller.c`), both driven through fmpy as our master "
          "drives them (per base step `doStep`, `setReal` of the measurements, `getReal` of "
          "the input), fed the same measurements (the plant's states of a loop run, delayed "
          "by r) for the same sampling periods with the loop's T, N, r, tau and parameters, "

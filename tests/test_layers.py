@@ -307,3 +307,83 @@ def test_a_process_that_starts_from_an_fmus_path_finds_the_whole_package(
     assert grid.is_relative_to(resources)  # the FMU's own maths first
     for module in (scenarios, sweep, build):
         assert module.is_relative_to(REPO / "delaycomp"), module
+
+
+# -- the C of the native FMUs (item 5): one FMU, one folder; the FMI layer knows no model --
+FMUS_DIR = REPO / "fmus"
+SHARED_C = FMUS_DIR / "native"
+
+
+def _c_code(path: Path) -> str:
+    """A C file without its comments and string literals (what the compiler reads as
+    names)."""
+    import re
+
+    text = path.read_text(encoding="utf-8")
+    return re.sub(r'/\*.*?\*/|//[^\n]*|"(?:\\.|[^"\\])*"', " ", text, flags=re.S)
+
+
+def _c_files() -> list[Path]:
+    return sorted(p for p in FMUS_DIR.rglob("*.[ch]") if "host" not in p.parts)
+
+
+def c_edges() -> dict[str, set[str]]:
+    """File -> the files whose external functions it calls (a function defined in
+    several files, each model's ``model_*``, points to each)."""
+    import re
+
+    sources = [p for p in _c_files() if p.suffix == ".c"]
+    defines = {str(p.relative_to(REPO)): set(re.findall(
+        r"^[A-Za-z_][\w \t\*]*?\b(\w+)\s*\([^;{]*\)\s*\{", _c_code(p), flags=re.M))
+        for p in sources}  # every function a file defines, static or not
+    external = {str(p.relative_to(REPO)): set(re.findall(
+        r"^(?!static\b)[A-Za-z_][\w \t\*]*?\b(\w+)\s*\([^;{]*\)\s*\{", _c_code(p),
+        flags=re.M)) for p in sources}
+    graph: dict[str, set[str]] = {}
+    for path in sources:
+        me = str(path.relative_to(REPO))
+        called = set(re.findall(r"\b(\w+)\s*\(", _c_code(path))) - defines[me]
+        graph[me] = {f for f, names in external.items() if f != me and called & names}
+    return graph
+
+
+def test_no_ring_of_c_files():
+    """The FMI layer calls the model; the model calls the shared helpers (native.c,
+    pyrepr.c, linalg.c, ode.c, model_common.c); none calls back up."""
+    graph = c_edges()
+    assert graph["fmus/native/fmi2.c"] >= {"fmus/delay/delay.c", "fmus/native/native.c"}
+    assert _rings(graph) == []
+
+
+def test_the_fmi_layer_knows_no_model():
+    """The shared C names no model: no per-kind switch, no model's file, data or value
+    reference; each model's ModelData comes from its own header (MODEL_HEADER)."""
+    import re
+
+    from delaycomp.fmu.build import FMUS
+
+    models = {spec.native for spec in FMUS.values() if spec.native}
+    for path in sorted(SHARED_C.glob("*.[ch]")):
+        code = _c_code(path)
+        assert "KIND_" not in code, path
+        assert not models & set(re.findall(r"\w+", code)), path
+        assert not re.search(r"\bVR_\w+", code), path  # value references: the model's
+
+
+def test_each_native_model_lives_beside_its_python_twin():
+    """``fmus/<kind>/<name>.c``, ``.h`` and ``.toml`` beside the Python FMU; nothing of a
+    model in ``fmus/native/``; the Python-repr formatting in its own file."""
+    from delaycomp.fmu.build import FMUS
+    from delaycomp.fmu.native import MODEL_KINDS, NATIVE_KINDS, native_twin
+
+    assert set(NATIVE_KINDS) | set(MODEL_KINDS) == {k for k, s in FMUS.items() if s.native}
+    for kind in (*NATIVE_KINDS, *MODEL_KINDS):
+        twin = native_twin(kind)
+        assert twin.folder == FMUS[kind].script_path.parent
+        assert all(f.is_file() for f in twin.files), twin.files
+        assert all((SHARED_C / u).is_file() for u in twin.uses)
+        assert "model_setup" in _c_code(twin.files[0])
+    assert not [p for p in SHARED_C.glob("*.c") if "model_setup(Instance" in _c_code(p)
+                and p.name != "fmi2.c"]
+    assert "Num num(double v)" in (SHARED_C / "pyrepr.c").read_text(encoding="utf-8")
+    assert '#include "native.h"' not in (SHARED_C / "pyrepr.c").read_text(encoding="utf-8")

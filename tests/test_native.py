@@ -32,6 +32,7 @@ from scipy.linalg import expm
 from delaycomp.fmu.build import DEFAULT_CONFIG, FMUS
 from delaycomp.fmu.native import (
     CFLAGS,
+    COMMON_SOURCES,
     NATIVE_KINDS,
     SOURCE_DIR,
     NativeBuildError,
@@ -73,7 +74,7 @@ def linalg(tmp_path_factory):
     through ctypes."""
     tmp = tmp_path_factory.mktemp("linalg")
     (tmp / "config.h").write_text(
-        "#define KIND_PLANT 1\n#define NX 1\n#define NU 1\n#define NVR 1\n"
+        "#define MODEL_HEADER \"stub.h\"\n#define NIN 1\n#define NOUT 1\n#define NVR 1\n"
         "#define NSTRING 0\n#define INSTANTIATION_TOKEN \"stub\"\n"
         "#define OUTPUT_NAMES \"['v']\"\n"
         "static const char *const VAR_NAME[NVR] = {\"v\"};\n"
@@ -82,6 +83,8 @@ def linalg(tmp_path_factory):
         "static const double REAL_START[NVR] = {0.0};\n"
         "static const int BOOLEAN_START[NVR] = {0};\n"
         "static const int INTEGER_START[NVR] = {0};\n")
+    (tmp / "stub.h").write_text("#define NX NOUT\n#define NU NIN\n"
+                                "typedef struct { int unused; } ModelData;\n")
     (tmp / "stub.c").write_text(
         '#include "native.h"\n'
         "int model_setup(Instance *c) { (void)c; return 0; }\n"
@@ -89,12 +92,14 @@ def linalg(tmp_path_factory):
         "return 0; }\n"
         "int model_output(Instance *c, fmi2ValueReference vr, double *v) { (void)c; "
         "(void)vr; *v = 0; return 0; }\n"
-        "void model_input_set(Instance *c) { (void)c; }\n")
+        "void model_input_set(Instance *c) { (void)c; }\n"
+        "int model_state_ok(const Data *d, size_t nbuf) { (void)d; return nbuf == 0; }\n")
     lib = tmp / "liblinalg.so"
     flags = [f for f in CFLAGS if f != "-fvisibility=hidden"]
     subprocess.run([*compiler(), *flags, "-I", str(tmp), "-I", str(SOURCE_DIR), "-I",
-                    str(fmi_header_dir()), "-o", str(lib), str(SOURCE_DIR / "linalg.c"),
-                    str(SOURCE_DIR / "fmi2.c"), str(tmp / "stub.c"), "-lm"], check=True)
+                    str(fmi_header_dir()), "-o", str(lib),
+                    *(str(SOURCE_DIR / f) for f in ("linalg.c", *COMMON_SOURCES)),
+                    str(tmp / "stub.c"), "-lm"], check=True)
     return ctypes.CDLL(str(lib))
 
 
@@ -316,7 +321,9 @@ def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind)
     assert_same_table(nat, py)
     cs = nat.coSimulation
     assert not cs.needsExecutionTool and cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
-    assert _source_files(nat) == ["fmi2.c", "linalg.c", NATIVE_KINDS[kind]]
+    # the FMI layer, the shared sources of the model's manifest, the model's own C
+    uses = [] if kind == "delay" else ["linalg.c"]
+    assert _source_files(nat) == ["fmi2.c", "native.c", "pyrepr.c", *uses, NATIVE_KINDS[kind]]
     assert nat.guid != py.guid
     assert "-fvisibility=hidden" in CFLAGS and "-Werror" in CFLAGS
 

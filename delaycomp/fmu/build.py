@@ -69,6 +69,9 @@ class FmuSpec:
     #: pythonfmu model options (canHandleVariableCommunicationStepSize, ...)
     options: tuple[tuple[str, bool], ...] = ()
     template: str = ""  # base class name in ``script`` for model templates
+    #: the native twin in the same folder (:mod:`delaycomp.fmu.native`): ``<native>.c``,
+    #: its data in ``<native>.h``, its manifest ``<native>.toml``; "" where there is none
+    native: str = ""
 
     @property
     def folder(self) -> Path:
@@ -86,15 +89,18 @@ _STATE = (("canGetAndSetFMUstate", True), ("canSerializeFMUstate", True))
 _FIXED_STEP = (("canHandleVariableCommunicationStepSize", False),)
 
 FMUS: dict[str, FmuSpec] = {
-    "plant": FmuSpec("plant", "delaycomp_plant_lti.py", "DelaycompPlantLTI", _STATE),
-    "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay", _FIXED_STEP + _STATE),
+    "plant": FmuSpec("plant", "delaycomp_plant_lti.py", "DelaycompPlantLTI", _STATE,
+                     native="plant_lti"),
+    "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay", _FIXED_STEP + _STATE,
+                     native="delay"),
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
-                          "DelaycompControllerLTI", _FIXED_STEP + _STATE),
+                          "DelaycompControllerLTI", _FIXED_STEP + _STATE,
+                          native="controller_lti"),
     "model_plant": FmuSpec("plant", "delaycomp_model_plant.py", "DelaycompPlant", _STATE,
-                           template="ModelPlantSlave"),
+                           template="ModelPlantSlave", native="model_plant"),
     "model_controller": FmuSpec("controller", "delaycomp_model_controller.py",
                                 "DelaycompController", _FIXED_STEP + _STATE,
-                                template="ModelControllerSlave"),
+                                template="ModelControllerSlave", native="model_controller"),
 }
 
 #: Dimensions of the default build: the scalar loop of Example 3.6.

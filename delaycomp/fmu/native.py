@@ -9,10 +9,14 @@ FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs
    dependencies), with the co-simulation attributes of a C FMU, a pinned GUID of its own
    and ``<SourceFiles>``. A generated ``config.h`` carries that table into C (value
    references, names, types, causalities, start values written as hexadecimal floats).
-2. **Same maths and messages.** ``fmus/native/`` holds one FMI layer (``fmi2.c``: the
-   FMI 2.0 state machine, getters and setters, FMU state with buffers, serialization),
-   the linear algebra (``linalg.c``: the matrix exponential by scaling and squaring with
-   Pade approximants, and the exact flow of ``x' = A x + B u``), and one file per model.
+2. **Same maths and messages.** ``fmus/native/`` holds one FMI layer that knows no model
+   (``fmi2.c``: the FMI 2.0 state machine, getters and setters, FMU state with buffers,
+   serialization; ``native.c``: logging and the checks the models share; ``pyrepr.c``:
+   numbers as Python's ``repr`` writes them), the linear algebra (``linalg.c``: the matrix
+   exponential by scaling and squaring with Pade approximants, and the exact flow of
+   ``x' = A x + B u``) and DOP853 (``ode.c``). Each model's C lives beside its Python twin
+   in ``fmus/<kind>/`` (:class:`NativeTwin`): ``<name>.c`` (its maths), ``<name>.h`` (its
+   data) and ``<name>.toml`` (the shared sources it uses and the variables it addresses).
    A fault returns ``fmi2Error`` with the Python FMU's message logged.
 3. **Sources inside.** Each FMU carries its C sources and the FMI headers under
    ``sources/`` (listed in modelDescription), so an importer can compile it for another
@@ -33,6 +37,7 @@ import shutil
 import subprocess
 import tempfile
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, tostring
 
@@ -40,25 +45,30 @@ import delaycomp
 from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS
 from delaycomp.tmpfiles import zip_folder
 
-__all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "build_native",
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli package
+    import tomli as tomllib
+
+__all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "NativeTwin", "build_native",
            "build_native_fmu", "build_native_model", "compile_host", "compiler",
            "host_argv", "native_archive", "native_fmu_dir", "native_fmu_path",
-           "native_fmus", "native_or_why", "unpack"]
+           "native_fmus", "native_or_why", "native_twin", "unpack"]
 
-#: the C sources (``fmus/native/`` in the repository, package data of delaycomp.fmus)
+#: the shared C sources (``fmus/native/`` in the repository, package data of
+#: delaycomp.fmus): the FMI layer, the linear algebra, DOP853, the host, export-c's templates
 SOURCE_DIR = FMU_ROOT / "native"
-#: FMU kind -> the model's C file; the FMI layer and the linear algebra are common
-NATIVE_KINDS: dict[str, str] = {"delay": "delay.c", "plant": "plant.c",
-                                "controller": "controller.c"}
-#: FMU kind of a user model -> its C file; with it ode.c (DOP853), model_common.c (the
-#: model's parameters and flow) and model.c, generated from the model file by
-#: :mod:`delaycomp.fmu.translate`
-MODEL_KINDS: dict[str, str] = {"model_plant": "model_plant.c",
-                               "model_controller": "model_controller.c"}
-MODEL_SOURCES = ("ode.c", "model_common.c")
-MODEL_HEADERS = ("ode.h", "model_common.h")
-COMMON_SOURCES = ("fmi2.c", "linalg.c")
-COMMON_HEADERS = ("native.h", "linalg.h")
+#: FMU kind -> the model's C file (in its folder, :func:`native_twin`)
+NATIVE_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.items()
+                                if spec.native and not spec.template}
+#: FMU kind of a user model -> its C file; with it model.c, generated from the model file
+#: by :mod:`delaycomp.fmu.translate`
+MODEL_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.items()
+                               if spec.native and spec.template}
+#: the FMI layer, in every native FMU (each ``.c`` with its ``.h``, but fmi2.c, whose
+#: header is native.h)
+COMMON_SOURCES = ("fmi2.c", "native.c", "pyrepr.c")
+COMMON_HEADERS = ("native.h", "pyrepr.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
           "-Werror")
@@ -83,6 +93,70 @@ _NOTED: set[str] = set()
 
 class NativeBuildError(RuntimeError):
     """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
+
+
+@dataclass(frozen=True)
+class NativeTwin:
+    """The native twin of one FMU kind, as its folder declares it.
+
+    ``fmus/<kind>/<name>.c`` (the model's maths: the ``model_*`` functions of
+    ``native.h``), ``<name>.h`` (its dimensions and ``ModelData``) and ``<name>.toml`` (its
+    manifest: ``uses``, the shared sources of ``fmus/native/`` it needs beside the FMI
+    layer, and ``value_references``, the ``VR_*`` macros its C addresses, each naming a
+    variable of the Python twin's table). The FMI layer knows no model: adding a model
+    is its folder and its row of :data:`delaycomp.fmu.build.FMUS`.
+    """
+
+    kind: str
+    folder: Path
+    name: str
+    uses: tuple[str, ...]
+    value_references: dict[str, str]
+
+    @property
+    def files(self) -> tuple[Path, ...]:
+        """The model's own files: its C, its header and its manifest."""
+        return tuple(self.folder / f"{self.name}{ext}" for ext in (".c", ".h", ".toml"))
+
+    def sources(self) -> list[str]:
+        """The ``.c`` files of an FMU of this kind (model.c, generated, last)."""
+        return [*COMMON_SOURCES, *self.uses, f"{self.name}.c",
+                *(["model.c"] if FMUS[self.kind].template else [])]
+
+    def headers(self) -> list[str]:
+        """The headers beside them (config.h and the FMI headers apart)."""
+        return [*COMMON_HEADERS, *(u.removesuffix(".c") + ".h" for u in self.uses),
+                f"{self.name}.h",
+                *(["model.h", "model_config.h"] if FMUS[self.kind].template else [])]
+
+    def path_of(self, file: str) -> Path:
+        """Where a source or header of :meth:`sources` / :meth:`headers` lives (the
+        generated model files apart)."""
+        return self.folder / file if file.startswith(self.name + ".") else SOURCE_DIR / file
+
+
+def native_twin(kind: str) -> NativeTwin:
+    """The native twin of ``kind`` (a key of :data:`NATIVE_KINDS` or :data:`MODEL_KINDS`),
+    read from its folder's manifest.
+
+    Raises
+    ------
+    ValueError
+        ``kind`` has no native twin, or its manifest is not as :class:`NativeTwin` says.
+    """
+    spec = FMUS.get(kind)
+    if spec is None or not spec.native:
+        raise ValueError(f"kind {kind!r} is not allowed for a native FMU: must be one of "
+                         f"{', '.join((*NATIVE_KINDS, *MODEL_KINDS))}")
+    manifest = spec.folder / f"{spec.native}.toml"
+    data = tomllib.loads(manifest.read_text(encoding="utf-8"))
+    uses, vrs = data.get("uses", []), data.get("value_references", {})
+    if (set(data) - {"uses", "value_references"}
+            or not all(isinstance(u, str) and u.endswith(".c") for u in uses)
+            or not all(isinstance(v, str) for v in vrs.values())):
+        raise ValueError(f"{manifest}: a native manifest has `uses` (a list of .c files of "
+                         "fmus/native/) and `value_references` (macro = variable name)")
+    return NativeTwin(kind, spec.folder, spec.native, tuple(uses), dict(vrs))
 
 
 def _note(text: str) -> None:
@@ -189,9 +263,12 @@ def fmi_header_dir() -> Path:
 def sources_digest() -> str:
     """Digest of the C sources and this version (names the native build cache)."""
     h = hashlib.sha256(delaycomp.__version__.encode())
-    for name in (*COMMON_SOURCES, *COMMON_HEADERS, *NATIVE_KINDS.values(),
-                 *MODEL_KINDS.values(), *MODEL_SOURCES, *MODEL_HEADERS, "README.md"):
-        h.update((SOURCE_DIR / name).read_bytes())
+    shared = sorted((*SOURCE_DIR.glob("*.c"), *SOURCE_DIR.glob("*.h")))
+    for path in (*shared, SOURCE_DIR / "README.md",
+                 *(f for kind in (*NATIVE_KINDS, *MODEL_KINDS)
+                   for f in native_twin(kind).files)):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
     h.update(Path(__file__).read_bytes())
     h.update((Path(__file__).parent / "translate.py").read_bytes())  # generates model.c
     return h.hexdigest()[:12]
@@ -239,17 +316,12 @@ def _variables(root: Element) -> list[dict]:
     return out
 
 
-def _config_h(kind: str, config: dict, root: Element, guid: str) -> str:
+def _config_h(twin: NativeTwin, config: dict, root: Element, guid: str) -> str:
+    """config.h of one build: the Python twin's variable table as C, the model's header
+    (``MODEL_HEADER``), and the value reference of each macro of its manifest."""
     variables = _variables(root)
     ins = [v for v in variables if v["causality"] == "input"]
     outs = [v for v in variables if v["causality"] == "output"]
-    if kind == "model_plant":
-        n, m = len(outs), len(ins)
-    elif kind == "model_controller":
-        n, m = len(ins), len(outs)
-    else:
-        n = int(config.get("n", 1))
-        m = int(config.get("m", n if kind == "delay" else 1))
     code = {"Real": "r", "Integer": "i", "Boolean": "b", "String": "s"}
     caus = {"parameter": "p", "input": "i", "output": "o"}
     strings = [v for v in variables if v["type"] == "String"]
@@ -257,38 +329,22 @@ def _config_h(kind: str, config: dict, root: Element, guid: str) -> str:
         "/* Generated by `delaycomp build --native` from the Python FMU's variable table:",
         f" * {root.get('modelName')}, configuration {json.dumps(config, sort_keys=True)}. */",
         "#ifndef DELAYCOMP_CONFIG_H", "#define DELAYCOMP_CONFIG_H", "",
-        f"#define KIND_{kind.upper()} 1",
+        f"#define MODEL_HEADER {_c_string(twin.name + '.h')}",
         f"#define INSTANTIATION_TOKEN {_c_string(guid)}",
-        f"#define NX {n if kind != 'delay' else len(ins)}",
-        f"#define NU {m if kind != 'delay' else len(ins)}",
+        f"#define NIN {len(ins)}",
+        f"#define NOUT {len(outs)}",
         f"#define NVR {len(variables)}",
         f"#define NSTRING {len(strings)}",
         f"#define OUTPUT_NAMES {_c_string(repr([v['name'] for v in outs]))}",
     ]
-
-    def vr(name):
-        return next(v["vr"] for v in variables if v["name"] == name)
-
-    blocks = {"delay": {"VR_DELAY": "delay", "VR_U0": "u0[1]"},
-              "plant": {"VR_A": "A[1,1]", "VR_B": "B[1,1]", "VR_X0": "x0[1]"},
-              "controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_MODE": "mode",
-                             "VR_MODE_INDEX": "mode_index", "VR_A": "A[1,1]",
-                             "VR_B": "B[1,1]", "VR_K": "K[1,1]",
-                             "VR_U0": "u0[1]", "VR_HELD_SAMPLE": "held_sample"},
-              "model_plant": {"VR_X0": "x0[1]", "VR_TOL": "tolerance"},
-              "model_controller": {"VR_T": "T", "VR_R": "r", "VR_TAU": "tau", "VR_N": "N",
-                                   "VR_MODE": "mode", "VR_MODE_INDEX": "mode_index",
-                                   "VR_PREDICTOR": "predictor",
-                                   "VR_PREDICTOR_INDEX": "predictor_index",
-                                   "VR_TOL": "tolerance", "VR_PAD": "pad", "VR_U0": "u0[1]",
-                                   "VR_Z0": "z0[1]", "VR_HELD_SAMPLE": "held_sample"}}[kind]
-    for macro, name in blocks.items():
-        lines.append(f"#define {macro} {vr(name)}")
-    io = {"delay": ("VR_U", "VR_Y"), "plant": ("VR_U", "VR_X"),
-          "controller": ("VR_Y", "VR_UOUT"), "model_plant": ("VR_U", "VR_X"),
-          "model_controller": ("VR_Y", "VR_UOUT")}[kind]
-    lines.append(f"#define {io[0]} {ins[0]['vr']}")
-    lines.append(f"#define {io[1]} {outs[0]['vr']}")
+    by_name = {v["name"]: v["vr"] for v in variables}
+    for macro, name in twin.value_references.items():
+        if name not in by_name:
+            raise NativeBuildError(f"{twin.name}.toml: {macro} names {name!r}, which is no "
+                                   f"variable of {root.get('modelName')}")
+        lines.append(f"#define {macro} {by_name[name]}")
+    lines.append(f"#define VR_INPUT {ins[0]['vr']}")
+    lines.append(f"#define VR_OUTPUT {outs[0]['vr']}")
     # the C code addresses matrices and vectors as contiguous blocks: check that they are
     for group in (ins, outs):
         if [v["vr"] for v in group] != list(range(group[0]["vr"], group[0]["vr"] + len(group))):
@@ -422,9 +478,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     """
     from delaycomp.fmu.slave import pinned_guid
 
-    if kind not in NATIVE_KINDS and kind not in MODEL_KINDS:
-        raise ValueError(f"kind {kind!r} is not allowed for a native FMU: must be one of "
-                         f"{', '.join((*NATIVE_KINDS, *MODEL_KINDS))}")
+    twin = native_twin(kind)
     cc = compiler()
     crosses = cross_compilers()
     if kind in MODEL_KINDS and not (config or {}).get("model"):
@@ -451,12 +505,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     _exact_starts(root, config.get("start") or {})
     full = {**config, "version": delaycomp.__version__}
     guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
-    model_c = NATIVE_KINDS.get(kind) or MODEL_KINDS[kind]
-    sources = [*COMMON_SOURCES, model_c]
-    headers = list(COMMON_HEADERS)
-    if translation is not None:
-        sources += [*MODEL_SOURCES, "model.c"]
-        headers += [*MODEL_HEADERS, "model.h", "model_config.h"]
+    sources, headers = twin.sources(), twin.headers()
     description = _native_description(kind, root, ident, guid, sources)
     import fmpy
 
@@ -475,10 +524,10 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
             if name in generated:
                 (src / name).write_text(generated[name], encoding="utf-8")
             else:
-                shutil.copy2(SOURCE_DIR / name, src / name)
+                shutil.copy2(twin.path_of(name), src / name)
         for name in FMI_HEADERS:
             shutil.copy2(fmi_header_dir() / name, src / name)
-        (src / "config.h").write_text(_config_h(kind, config, root, guid), encoding="utf-8")
+        (src / "config.h").write_text(_config_h(twin, config, root, guid), encoding="utf-8")
         targets = [(fmpy.platform, cc, ".so", ())] + [
             (platform, argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
             for platform, argv in crosses.items()]

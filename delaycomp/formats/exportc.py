@@ -9,7 +9,7 @@ interface of issue 33::
     int  NAME_sample(NAME_state *s, double t, const double *y);
     int  NAME_output(NAME_state *s, double t, double *u);
 
-The maths is the native controller FMU's (``fmus/native/controller.c``,
+The maths is the native controller FMU's (``fmus/controller/controller_lti.c``,
 ``model_controller.c``) without its FMI layer; the loop's parameters are constants of
 ``NAME.c``. An LTI controller's matrices ``e^{A (r + tau)}`` and ``Q_p B`` are computed
 here, once (:class:`delaycomp.maths.lti.LTIPredictor`); a model's ``f``, ``k`` and ``step`` are

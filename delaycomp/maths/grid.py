@@ -74,7 +74,7 @@ def same_step(step: float, h: float, t: float = 0.0) -> bool:
     a communication step ``(t, step)`` is the one it already knows: ``|step - h| <=
     GRID_RTOL h + 8 eps max(|t|, |t + step|)``, the grid's tolerance and the round-off of
     the host's times near ``t``. The native FMUs use the same arithmetic (``same_step`` of
-    ``fmus/native/fmi2.c``).
+    ``fmus/native/native.c``).
 
     A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes
     steps ``t_{k+1} - t_k = h (1 + d)``: each time is rounded (``k h``, then ``t0 + k h``,

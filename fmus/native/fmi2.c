@@ -10,20 +10,17 @@
  * The FMU state holds everything (Data and the model buffer), so a restored instance
  * continues bit-identically; it serializes to a self-checking byte string.
  * Memory: the C library's calloc/free (canNotUseMemoryManagementFunctions = true).
+ *
+ * It knows no model: each model (fmus/<kind>/<name>.c) supplies the model_* functions of
+ * native.h and its ModelData (<name>.h, named by config.h's MODEL_HEADER).
  */
-#include <float.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "native.h"
-#if defined(KIND_MODEL_PLANT) || defined(KIND_MODEL_CONTROLLER)
-#include "model.h"
-#include "ode.h"
-#endif
 
 #define ANY_STATE (StateInstantiated | StateInitializationMode | StateStepComplete | \
                    StateTerminated | StateError)
@@ -41,223 +38,6 @@ static const char *state_name(FsmState s) {
     case StateError: return "error";
     }
     return "unknown";
-}
-
-/* ---- logging ------------------------------------------------------------------------ */
-/* The message is formatted on the stack (nothing allocated; a message longer than the
- * buffer is cut and ends in "..."). */
-static void vlog(Instance *c, fmi2Status status, const char *category, const char *fmt,
-                 va_list ap) {
-    char text[TEXT_MAX + 2048];
-    int len = vsnprintf(text, sizeof text, fmt, ap);
-    if (len < 0 || c->cb.logger == NULL) return;
-    if ((size_t)len >= sizeof text) memcpy(text + sizeof text - 4, "...", 4);
-    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", text);
-}
-
-void log_error(Instance *c, const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    vlog(c, fmi2Error, "logStatusError", fmt, ap);
-    va_end(ap);
-}
-
-void log_info(Instance *c, const char *fmt, ...) {
-    if (!c->logging_on) return;
-    va_list ap;
-    va_start(ap, fmt);
-    vlog(c, fmi2OK, "logAll", fmt, ap);
-    va_end(ap);
-}
-
-/* ---- helpers shared by the models ----------------------------------------------------- */
-/* "d.ddde+XX" with its last mantissa digit one up or one down, if that reads back as v
- * (printf rounds an exact decimal tie to even; the shortest repr may be the other side) */
-static int nudge_last_digit(char *text, double v) {
-    char *e = strchr(text, 'e');
-    if (e == NULL || e == text) return 0;
-    for (int dir = 1; dir >= -1; dir -= 2) {
-        char trial[40];
-        snprintf(trial, sizeof trial, "%s", text);
-        char *d = trial + (e - text) - 1;
-        if (*d == '.') d--;
-        if (dir > 0 && *d == '9') continue;  /* would carry: not a tie neighbour here */
-        if (dir < 0 && *d == '0') continue;
-        *d = (char)(*d + dir);
-        if (strtod(trial, NULL) == v) {
-            memcpy(text, trial, strlen(trial) + 1);
-            return 1;
-        }
-    }
-    return 0;
-}
-
-Num num(double v) {
-    Num n;
-    if (isnan(v)) { snprintf(n.s, sizeof n.s, "nan"); return n; }
-    if (isinf(v)) { snprintf(n.s, sizeof n.s, v > 0 ? "inf" : "-inf"); return n; }
-    int p = 1;  /* the fewest significant digits that read back exactly */
-    for (; p < 17; p++) {
-        snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
-        if (strtod(n.s, NULL) == v) break;
-        if (nudge_last_digit(n.s, v)) break;  /* an exact tie rounded the other way */
-    }
-    if (p == 17) snprintf(n.s, sizeof n.s, "%.*e", p - 1, v);
-    int exp10 = atoi(strchr(n.s, 'e') + 1);
-    if (exp10 >= -4 && exp10 < 16) {  /* Python's repr: positional in this range */
-        int decimals = p - 1 - exp10;
-        snprintf(n.s, sizeof n.s, "%.*f", decimals > 0 ? decimals : 0, v);
-        if (strchr(n.s, '.') == NULL) strcat(n.s, ".0");  /* Python writes 1.0, not 1 */
-    }
-    return n;
-}
-
-static int append(char **buf, size_t *len, size_t *cap, const char *text) {
-    size_t add = strlen(text);
-    if (*len + add + 1 > *cap) {
-        size_t cap2 = (*cap + add + 1) * 2;
-        char *b = realloc(*buf, cap2);
-        if (b == NULL) return -1;
-        *buf = b;
-        *cap = cap2;
-    }
-    memcpy(*buf + *len, text, add + 1);
-    *len += add;
-    return 0;
-}
-
-char *matrix_text(const double *a, size_t rows, size_t cols) {
-    char *buf = NULL;
-    size_t len = 0, cap = 0;
-    int bad = append(&buf, &len, &cap, rows > 1 || cols > 0 ? "[" : "");
-    for (size_t i = 0; i < rows && !bad; i++) {
-        bad |= append(&buf, &len, &cap, i ? ", [" : "[");
-        for (size_t j = 0; j < cols && !bad; j++) {
-            if (j) bad |= append(&buf, &len, &cap, ", ");
-            bad |= append(&buf, &len, &cap, num(a[i * cols + j]).s);
-        }
-        bad |= append(&buf, &len, &cap, "]");
-    }
-    bad |= append(&buf, &len, &cap, "]");
-    if (bad) { free(buf); return NULL; }
-    return buf;
-}
-
-/* text += add, within TEXT_MAX (then cut, ending in "..."); -1 once cut */
-static int append_fixed(Text *text, size_t *len, const char *add) {
-    size_t n = strlen(add);
-    if (*len + n + 1 > TEXT_MAX - 4) {
-        memcpy(text->s + *len, "...", 4);
-        *len += 3;
-        return -1;
-    }
-    memcpy(text->s + *len, add, n + 1);
-    *len += n;
-    return 0;
-}
-
-Text vector_text(const double *v, size_t n) {
-    Text text;
-    size_t len = 0;
-    int cut = append_fixed(&text, &len, "[");
-    for (size_t j = 0; j < n && !cut; j++) {
-        if (j) cut = append_fixed(&text, &len, ", ");
-        if (!cut) cut = append_fixed(&text, &len, num(v[j]).s);
-    }
-    if (!cut) append_fixed(&text, &len, "]");
-    return text;
-}
-
-int check_real_parameters_finite(Instance *c) {
-    for (size_t vr = 0; vr < NVR; vr++) {
-        if (VAR_TYPE[vr] == 'r' && VAR_CAUSALITY[vr] == 'p' && !isfinite(c->d.real[vr])) {
-            log_error(c, "%s = %s is not allowed: must be a finite number", VAR_NAME[vr],
-                      num(c->d.real[vr]).s);
-            return -1;
-        }
-    }
-    return 0;
-}
-
-#if NSTRING > 0
-void join_choices(const char *const *choices, int count, char *buf, size_t size) {
-    buf[0] = '\0';
-    for (int j = 0; j < count; j++) {
-        strncat(buf, j ? ", " : "", size - strlen(buf) - 1);
-        strncat(buf, choices[j], size - strlen(buf) - 1);
-    }
-}
-
-int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_string,
-                         fmi2ValueReference vr_index, const char *const *choices,
-                         int count) {
-    int k = c->d.integer[vr_index];
-    if (k == 0) return 0;
-    if (k < 1 || k > count) {
-        char listed[STRING_MAX * 4];
-        join_choices(choices, count, listed, sizeof listed);
-        log_error(c, "%s_index = %d is not allowed: must be 0 (as %s says) or 1 .. %d (%s)",
-                  name, k, name, count, listed);
-        return -1;
-    }
-    char *value = c->d.string[STRING_SLOT[vr_string]];
-    if (strcmp(value, STRING_START[STRING_SLOT[vr_string]]) != 0 &&
-        strcmp(value, choices[k - 1]) != 0) {
-        log_error(c, "%s = '%s' and %s_index = %d ('%s') disagree: set one of them", name,
-                  value, name, k, choices[k - 1]);
-        return -1;
-    }
-    snprintf(value, STRING_MAX, "%s", choices[k - 1]);
-    return 0;
-}
-#endif
-
-int check_control_finite(Instance *c, const double *u, const double *y, double t,
-                         const char *why) {
-    int finite = 1, y_finite = 1;
-    for (size_t j = 0; j < NU; j++) finite &= isfinite(u[j]) != 0;
-    for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
-    if (finite || !y_finite) return 0;
-    log_error(c, "control %s = %s at t = %s is not allowed: must be finite (%s)",
-              OUTPUT_NAMES, vector_text(u, NU).s, num(t).s, why);
-    return -1;
-}
-
-int check_step(Instance *c, double t, double h) {
-    if (isfinite(t) && isfinite(h) && h > 0) return 0;
-    log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 from a "
-              "finite time", num(h).s, num(t).s);
-    return -1;
-}
-
-int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
-    for (size_t k = 0; k < count; k++) {
-        double v = c->d.real[first + k];
-        if (!isfinite(v)) {
-            log_error(c, "input %s = %s at t = %s is not allowed: must be a finite number",
-                      VAR_NAME[first + k], num(v).s, num(t).s);
-            return -1;
-        }
-    }
-    return 0;
-}
-
-int same_step(double step, double h, double t) {
-    return fabs(step - h) <= GRID_RTOL * h + 8 * DBL_EPSILON * fmax(fabs(t), fabs(t + step));
-}
-
-int alloc_buf(Instance *c, size_t n) {
-    free(c->buf);
-    c->buf = NULL;
-    c->nbuf = 0;
-    if (n == 0) return 0;
-    c->buf = calloc(n, sizeof(double));
-    if (c->buf == NULL) {
-        log_error(c, "out of memory: the model needs %lu numbers", (unsigned long)n);
-        return -1;
-    }
-    c->nbuf = n;
-    return 0;
 }
 
 /* ---- state machine ------------------------------------------------------------------- */
@@ -569,8 +349,6 @@ static Snapshot *snapshot_new(size_t nbuf) {
     return s;
 }
 
-static int model_state_ok(const Data *d, size_t nbuf);
-
 fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
     Instance *c = comp;
     if (!allowed(c, "fmi2GetFMUstate", MASK_STATE)) return fmi2Error;
@@ -591,9 +369,11 @@ fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
     return fmi2OK;
 }
 
+static int state_ok(const Data *d, size_t nbuf);
+
 static int snapshot_valid(Instance *c, const Snapshot *s, const char *fn) {
     if (memcmp(s->h.magic, MAGIC, 8) != 0 || strcmp(s->h.token, INSTANTIATION_TOKEN) != 0 ||
-        s->h.data_size != sizeof(Data) || !model_state_ok(&s->d, (size_t)s->h.nbuf)) {
+        s->h.data_size != sizeof(Data) || !state_ok(&s->d, (size_t)s->h.nbuf)) {
         log_error(c, "%s: FMU state is not allowed: it is not a consistent state of this FMU "
                   "(%s)", fn, INSTANTIATION_TOKEN);
         return 0;
@@ -786,31 +566,12 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     return no_status(c, "fmi2GetStringStatus");
 }
 
-/* The model's check of a restored state: buffer sizes and positions in range. */
-static int model_state_ok(const Data *d, size_t nbuf) {
+/* A restored state: a state of the state machine, and the model's own check of its data
+ * and buffer size (model_state_ok). */
+static int state_ok(const Data *d, size_t nbuf) {
     int st = d->state;
     if (st != StateInstantiated && st != StateInitializationMode && st != StateStepComplete &&
         st != StateTerminated && st != StateError)
         return 0;
-#if defined(KIND_DELAY)
-    if (!d->m.has_line) return nbuf == 0;
-    return d->m.D >= 0 && (size_t)d->m.D * NX == nbuf &&
-           (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
-#elif defined(KIND_PLANT)
-    return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU);
-#elif defined(KIND_MODEL_PLANT)
-    return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
-                         d->m.branch < MODEL_NBRANCH);
-#elif defined(KIND_MODEL_CONTROLLER)
-    return model_state_ok_controller(d, nbuf);
-#elif defined(KIND_CONTROLLER)
-    if (!d->m.built) return nbuf == 0;
-    return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&
-           nbuf == (size_t)NX * NX + (size_t)NX * NU * d->m.L + (size_t)d->m.L * NU &&
-           d->m.hist_head >= 0 && d->m.hist_head < d->m.L;
-#else
-    (void)d;
-    (void)nbuf;
-    return 0;
-#endif
+    return model_state_ok(d, nbuf);
 }

@@ -47,6 +47,11 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
+int model_state_ok(const Data *d, size_t nbuf) {
+    return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
+                         d->m.branch < MODEL_NBRANCH);
+}
+
 int model_step(Instance *c, double t, double h) {
     Data *d = &c->d;
     if (check_step(c, t, h) != 0) return -1;

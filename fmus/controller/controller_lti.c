@@ -16,6 +16,7 @@
 #include <string.h>
 
 #include "native.h"
+#include "linalg.h"  /* expm, flow, matmul, with the caller's work memory */
 
 #define EPS4 (4 * DBL_EPSILON)  /* round-off allowance on sampling-instant times */
 
@@ -202,6 +203,13 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 }
 
 void model_input_set(Instance *c) { c->d.m.proposal_valid = 0; }
+
+int model_state_ok(const Data *d, size_t nbuf) {
+    if (!d->m.built) return nbuf == 0;
+    return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&
+           nbuf == (size_t)NX * NX + (size_t)NX * NU * d->m.L + (size_t)d->m.L * NU &&
+           d->m.hist_head >= 0 && d->m.hist_head < d->m.L;
+}
 
 int model_step(Instance *c, double t, double h) {
     ModelData *m = &c->d.m;

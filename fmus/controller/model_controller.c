@@ -103,7 +103,7 @@ static size_t buffer_size(long W, long D) {
     return (size_t)(W + D) * NU + ode_work_size(NX) + 2 * (size_t)NX;
 }
 
-int model_state_ok_controller(const Data *d, size_t nbuf) {
+int model_state_ok(const Data *d, size_t nbuf) {
     const ModelData *m = &d->m;
     if (!m->built) return nbuf == 0;
     return m->branch >= 0 && m->branch < MODEL_NBRANCH && m->predictor >= 0 &&

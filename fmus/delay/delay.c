@@ -36,6 +36,12 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
+int model_state_ok(const Data *d, size_t nbuf) {
+    if (!d->m.has_line) return nbuf == 0;
+    return d->m.D >= 0 && (size_t)d->m.D * NX == nbuf &&
+           (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
+}
+
 /* delaycomp.maths.delayline.steps_of (delaycomp.maths.grid.steps_of): D with delay = D h, or -1
  * with a logged error */
 static long steps_of(Instance *c, double delay, double h) {

@@ -1,0 +1,133 @@
+/* What the FMI layer (fmi2.c) and the models share, defined once (declared in native.h):
+ * logging, the checks whose messages are the Python FMUs' own, the rule of a step on an
+ * FMU's own grid (same_step) and the model buffer. Knows no model: it reads only the
+ * generated variable table of config.h. */
+#include <float.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "native.h"
+
+/* ---- logging ------------------------------------------------------------------------ */
+/* The message is formatted on the stack (nothing allocated; a message longer than the
+ * buffer is cut and ends in "..."). */
+static void vlog(Instance *c, fmi2Status status, const char *category, const char *fmt,
+                 va_list ap) {
+    char text[TEXT_MAX + 2048];
+    int len = vsnprintf(text, sizeof text, fmt, ap);
+    if (len < 0 || c->cb.logger == NULL) return;
+    if ((size_t)len >= sizeof text) memcpy(text + sizeof text - 4, "...", 4);
+    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", text);
+}
+
+void log_error(Instance *c, const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    vlog(c, fmi2Error, "logStatusError", fmt, ap);
+    va_end(ap);
+}
+
+void log_info(Instance *c, const char *fmt, ...) {
+    if (!c->logging_on) return;
+    va_list ap;
+    va_start(ap, fmt);
+    vlog(c, fmi2OK, "logAll", fmt, ap);
+    va_end(ap);
+}
+
+/* ---- checks shared by the models --------------------------------------------------- */
+int check_real_parameters_finite(Instance *c) {
+    for (size_t vr = 0; vr < NVR; vr++) {
+        if (VAR_TYPE[vr] == 'r' && VAR_CAUSALITY[vr] == 'p' && !isfinite(c->d.real[vr])) {
+            log_error(c, "%s = %s is not allowed: must be a finite number", VAR_NAME[vr],
+                      num(c->d.real[vr]).s);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+#if NSTRING > 0
+void join_choices(const char *const *choices, int count, char *buf, size_t size) {
+    buf[0] = '\0';
+    for (int j = 0; j < count; j++) {
+        strncat(buf, j ? ", " : "", size - strlen(buf) - 1);
+        strncat(buf, choices[j], size - strlen(buf) - 1);
+    }
+}
+
+int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_string,
+                         fmi2ValueReference vr_index, const char *const *choices,
+                         int count) {
+    int k = c->d.integer[vr_index];
+    if (k == 0) return 0;
+    if (k < 1 || k > count) {
+        char listed[STRING_MAX * 4];
+        join_choices(choices, count, listed, sizeof listed);
+        log_error(c, "%s_index = %d is not allowed: must be 0 (as %s says) or 1 .. %d (%s)",
+                  name, k, name, count, listed);
+        return -1;
+    }
+    char *value = c->d.string[STRING_SLOT[vr_string]];
+    if (strcmp(value, STRING_START[STRING_SLOT[vr_string]]) != 0 &&
+        strcmp(value, choices[k - 1]) != 0) {
+        log_error(c, "%s = '%s' and %s_index = %d ('%s') disagree: set one of them", name,
+                  value, name, k, choices[k - 1]);
+        return -1;
+    }
+    snprintf(value, STRING_MAX, "%s", choices[k - 1]);
+    return 0;
+}
+#endif
+
+int check_control_finite(Instance *c, const double *u, const double *y, double t,
+                         const char *why) {
+    int finite = 1, y_finite = 1;
+    for (size_t j = 0; j < NU; j++) finite &= isfinite(u[j]) != 0;
+    for (size_t i = 0; i < NX; i++) y_finite &= isfinite(y[i]) != 0;
+    if (finite || !y_finite) return 0;
+    log_error(c, "control %s = %s at t = %s is not allowed: must be finite (%s)",
+              OUTPUT_NAMES, vector_text(u, NU).s, num(t).s, why);
+    return -1;
+}
+
+int check_step(Instance *c, double t, double h) {
+    if (isfinite(t) && isfinite(h) && h > 0) return 0;
+    log_error(c, "step size %s at t = %s is not allowed: must be a finite number > 0 from a "
+              "finite time", num(h).s, num(t).s);
+    return -1;
+}
+
+int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
+    for (size_t k = 0; k < count; k++) {
+        double v = c->d.real[first + k];
+        if (!isfinite(v)) {
+            log_error(c, "input %s = %s at t = %s is not allowed: must be a finite number",
+                      VAR_NAME[first + k], num(v).s, num(t).s);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+int same_step(double step, double h, double t) {
+    return fabs(step - h) <= GRID_RTOL * h + 8 * DBL_EPSILON * fmax(fabs(t), fabs(t + step));
+}
+
+int alloc_buf(Instance *c, size_t n) {
+    free(c->buf);
+    c->buf = NULL;
+    c->nbuf = 0;
+    if (n == 0) return 0;
+    c->buf = calloc(n, sizeof(double));
+    if (c->buf == NULL) {
+        log_error(c, "out of memory: the model needs %lu numbers", (unsigned long)n);
+        return -1;
+    }
+    c->nbuf = n;
+    return 0;
+}
+
