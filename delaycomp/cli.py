@@ -51,14 +51,14 @@ import time
 from pathlib import Path
 
 from delaycomp import __version__
-from delaycomp.errors import BadFileError, SspError
+from delaycomp.errors import BadFileError, DelaycompError, SspError
 from delaycomp.maths.model import ModelError
 from delaycomp.names import LOOP_GROUPS
 from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import ParameterError
 
 
-class UsageError(Exception):
+class UsageError(DelaycompError):
     """Bad command-line input: reported as one line, exit status 2."""
 
 
@@ -513,7 +513,7 @@ def _outputs(args) -> None:
 
 
 def _cmd_run(args) -> int:
-    from delaycomp.plotting import Timing, title_of_loop
+    from delaycomp.plotting import Marks, title_of_loop
 
     _outputs(args)
     if args.compare and not args.plot:
@@ -554,7 +554,7 @@ def _cmd_run(args) -> int:
     else:
         fmus = _chosen_fmus(args, loop)
     return _execute(args, loop, stop, source.name, title_of_loop(loop, args.compare),
-                    Timing.of_loop(loop), UNITS_BY_LOOP.get(source.name), label=mode,
+                    Marks.of_loop(loop), UNITS_BY_LOOP.get(source.name), label=mode,
                     others=others, fmus=fmus)
 
 
@@ -651,7 +651,7 @@ def _foreign(args):
 
 def _run_ssp(args) -> int:
     from delaycomp.formats.ssp import Archive, apply_sets
-    from delaycomp.plotting import Timing, title_of_loop
+    from delaycomp.plotting import Marks, title_of_loop
 
     if args.engine != "fmu":
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
@@ -692,7 +692,7 @@ def _run_ssp(args) -> int:
 
         name = Path(args.scenario).name
         loop = spec.replace(name=name, title=system.info.description or system.info.name)
-        return _execute(args, loop, stop, name, title_of_loop(loop), Timing.of_loop(loop),
+        return _execute(args, loop, stop, name, title_of_loop(loop), Marks.of_loop(loop),
                         None, fmus=archive.fmus(), runner=runner)
 
 
@@ -720,12 +720,6 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
     print(f"{name}: {result.row_count} rows to t = {result.times[-1]:.6g} "
           f"in {elapsed:.2f} s; final {last}")
     return 0
-
-
-def _describe(params: dict) -> str:
-    """``k=v, ...`` for a plot title; parameters left to their derived default (``None``,
-    such as ``r_true``) are omitted."""
-    return ", ".join(f"{k}={v}" for k, v in params.items() if v is not None)
 
 
 def _cmd_sweep(args) -> int:

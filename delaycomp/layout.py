@@ -42,6 +42,8 @@ import os
 import pkgutil
 import sys
 
+from delaycomp.names import CONFIG_NAME
+
 #: each earlier module name -> the module's name now (a package's submodules follow it)
 MOVED = {
     "delaycomp.grid": "delaycomp.maths.grid",
@@ -79,14 +81,11 @@ BESIDE = ("orchestrator", "fmus", "reference")
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 _ROOT = os.path.dirname(_PACKAGE_DIR)
-#: the build configuration a Python FMU keeps beside its bundled package
-#: (:data:`delaycomp.fmu.build.CONFIG_NAME`)
-_FMU_CONFIG = "delaycomp_fmu.json"
 
 
 def bundled() -> bool:
     """Whether this copy of the package is the part a Python FMU bundles."""
-    return os.path.isfile(os.path.join(_ROOT, _FMU_CONFIG))
+    return os.path.isfile(os.path.join(_ROOT, CONFIG_NAME))
 
 
 def whole(name: str, path: list[str]) -> list[str]:

@@ -14,6 +14,15 @@ LOOP_GROUPS: dict[str, tuple[str, ...]] = {"plant": ("plant",), "controller": ("
                                            "delays": ("meas_delay", "input_delay")}
 
 
+#: the build configuration a Python FMU keeps in ``resources/`` (its dimensions, names,
+#: version; a native FMU's says ``"native": true``)
+CONFIG_NAME = "delaycomp_fmu.json"
+
+#: suffix of the Integer twin ``<name>_index`` of a String parameter with a fixed set of
+#: choices (:mod:`delaycomp.fmu.slave`, item 7)
+INDEX_SUFFIX = "_index"
+
+
 def indexed(base: str, count: int) -> list[str]:
     """``[base]`` for one channel, ``[base1, ..., baseN]`` otherwise."""
     return [base] if count == 1 else [f"{base}{i + 1}" for i in range(count)]

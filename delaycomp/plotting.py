@@ -31,9 +31,10 @@ MAX_SAMPLE_LINES = 60
 
 
 @dataclass(frozen=True)
-class Timing:
+class Marks:
     """What the figure marks: period ``T`` and the delays ``r``, ``tau`` the controller
-    assumes (seconds), from ``t0``."""
+    assumes (seconds), from ``t0``. (The loop's base grid is
+    :class:`delaycomp.system.Timing`; this is only what a figure draws.)"""
 
     T: float
     r: float
@@ -41,7 +42,7 @@ class Timing:
     t0: float = 0.0
 
     @classmethod
-    def of_loop(cls, loop) -> Timing | None:
+    def of_loop(cls, loop) -> Marks | None:
         """From a loop's controller parameters (``None`` if it has no controller)."""
         ctrl = loop.by_role("controller")
         if ctrl is None:
@@ -50,6 +51,10 @@ class Timing:
         return cls(float(loop.T), float(params.get("r", 0.0)), float(params.get("tau", 0.0)))
 
     of_spec = of_loop
+
+
+#: the earlier name of :class:`Marks` (scripts written for it keep working)
+Timing = Marks
 
 
 def loop_title(name: str, description: str | None, params: dict | None = None) -> str:
@@ -106,7 +111,7 @@ def _label(name: str, units: dict[str, str]) -> str:
 
 
 def figure(results, title: str = "", labels: Sequence[str] | None = None,
-           timing: Timing | None = None, units: dict[str, str] | None = None):
+           timing: Marks | None = None, units: dict[str, str] | None = None):
     """One panel per recorded signal against time, one line per result; controller
     signals as staircases (they are held over each base step).
 
@@ -119,7 +124,7 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
         the figure's title (:func:`loop_title`).
     labels : sequence of str, optional
         one label per result, in the legend (``["compensated", "uncompensated"]``).
-    timing : Timing, optional
+    timing : Marks, optional
         marks the sampling instants and the first sample's delay window.
     units : dict, optional
         unit of a signal by variable name (``{"theta": "rad"}``).
@@ -157,7 +162,7 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
     return fig
 
 
-def result_figure(result, title: str, timing: Timing | None = None,
+def result_figure(result, title: str, timing: Marks | None = None,
                   units: dict[str, str] | None = None, compare: dict | None = None):
     """:func:`figure` of ``result``, or of the labelled runs ``compare``
     (``{"compensated": r1, "uncompensated": r2}``) of the same loop."""
@@ -166,7 +171,7 @@ def result_figure(result, title: str, timing: Timing | None = None,
     return figure(result, title, None, timing, units)
 
 
-def _mark_timing(ax, timing: Timing, t_end: float, legend: bool) -> None:
+def _mark_timing(ax, timing: Marks, t_end: float, legend: bool) -> None:
     T, r, tau, t0 = timing.T, timing.r, timing.tau, timing.t0
     count = math.floor((t_end - t0) / T + 1e-9) + 1
     if count <= MAX_SAMPLE_LINES:
@@ -195,7 +200,7 @@ def save(fig, path: str | Path) -> None:
     tmp.replace(path)
 
 
-def plot_result(result, path: str | Path, title: str, timing: Timing | None = None,
+def plot_result(result, path: str | Path, title: str, timing: Marks | None = None,
                 units: dict[str, str] | None = None, compare: dict | None = None) -> None:
     """:func:`result_figure` written to ``path`` (its suffix picks the format)."""
     save(result_figure(result, title, timing, units, compare), path)

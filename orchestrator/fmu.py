@@ -23,6 +23,7 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
+from delaycomp.errors import DelaycompError
 from delaycomp.orchestrator.master import ComponentBase
 from delaycomp.tmpfiles import mkdtemp
 
@@ -93,7 +94,7 @@ def _remove_unpacked() -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-class FmuRefused(RuntimeError):
+class FmuRefused(DelaycompError, RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmu.slave``)."""
 
 

@@ -17,11 +17,12 @@ from collections.abc import Sequence
 
 from pythonfmu.enums import Fmi2Causality
 
+from delaycomp.errors import DelaycompError
 from delaycomp.fmu.slaves import slave_class
 from delaycomp.orchestrator.master import ComponentBase
 
 
-class SlaveRefused(RuntimeError):
+class SlaveRefused(DelaycompError, RuntimeError):
     """The slave logged an error (bad parameter, or a step it cannot take)."""
 
 

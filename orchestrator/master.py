@@ -33,6 +33,9 @@ from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import Protocol
 
+from delaycomp.errors import DelaycompError
+from delaycomp.system.loop import Connection  # the one Connection: Port -> Port
+
 
 def feedthrough_order(feed: set[str], edges: Iterable[tuple[str, str]]) -> list[str]:
     """The components ``feed`` (those with direct feedthrough) in topological order of
@@ -60,7 +63,7 @@ def feedthrough_order(feed: set[str], edges: Iterable[tuple[str, str]]) -> list[
     return order
 
 
-class SimulationError(RuntimeError):
+class SimulationError(DelaycompError, RuntimeError):
     """A component failed; the message names it, the time and the reason."""
 
 
@@ -137,24 +140,6 @@ class ComponentBase:
         write(values)
 
 
-@dataclass(frozen=True)
-class Connection:
-    """``src.src_var -> dst.dst_var``."""
-
-    src: str
-    src_var: str
-    dst: str
-    dst_var: str
-
-    @classmethod
-    def parse(cls, text: str) -> Connection:
-        """From ``"plant.x -> delay.u"``."""
-        left, right = (part.strip() for part in text.split("->"))
-        src, src_var = left.split(".", 1)
-        dst, dst_var = right.split(".", 1)
-        return cls(src, src_var, dst, dst_var)
-
-
 @dataclass
 class _Plan:
     """Per-tick work precomputed at setup: the hot loop only indexes lists."""
@@ -181,9 +166,11 @@ def _find_cycle(names: set[str], connections: Sequence[Connection]) -> list[str]
     """One cycle among ``names`` (each has a predecessor among them), as
     ``[a, b, ..., a]`` in signal order; the components left over by a topological sort
     always contain one."""
-    succ = {n: sorted({c.dst for c in connections if c.src == n and c.dst in names})
+    succ = {n: sorted({c.dst.instance for c in connections
+                       if c.src.instance == n and c.dst.instance in names})
             for n in names}
-    pred = {n: sorted({c.src for c in connections if c.dst == n and c.src in names})
+    pred = {n: sorted({c.src.instance for c in connections
+                       if c.dst.instance == n and c.src.instance in names})
             for n in names}
     # walk backwards along predecessors until a component repeats: that closes a cycle
     path: list[str] = []
@@ -265,20 +252,22 @@ class Master:
         sources: dict[str, list[tuple[str, int]]] = {name: [] for name in comps}
         seen_inputs = set()
         for con in self.connections:
-            for inst, var, kind in ((con.src, con.src_var, "output"),
-                                    (con.dst, con.dst_var, "input")):
+            for port, kind in ((con.src, "output"), (con.dst, "input")):
+                inst, var = port.instance, port.variable
                 if inst not in comps:
                     raise ValueError(f"connection {con}: no component named {inst!r}")
                 names = comps[inst].output_names if kind == "output" else comps[inst].input_names
                 if var not in names:
                     raise ValueError(f"connection {con}: {inst} has no {kind} {var!r}")
-            if (con.dst, con.dst_var) in seen_inputs:
-                raise ValueError(f"input {con.dst}.{con.dst_var} is connected twice")
-            seen_inputs.add((con.dst, con.dst_var))
-            sources[con.dst].append((con.dst_var, self._slot_of[(con.src, con.src_var)]))
+            if con.dst in seen_inputs:
+                raise ValueError(f"input {con.dst} is connected twice")
+            seen_inputs.add(con.dst)
+            slot = self._slot_of[(con.src.instance, con.src.variable)]
+            sources[con.dst.instance].append((con.dst.variable, slot))
 
         feed = {n for n, c in comps.items() if c.feedthrough_outputs}
-        order = feedthrough_order(feed, ((con.src, con.dst) for con in self.connections))
+        order = feedthrough_order(feed, ((con.src.instance, con.dst.instance)
+                                         for con in self.connections))
         if len(order) != len(feed):
             cycle = _find_cycle(feed - set(order), self.connections)
             raise ValueError(f"algebraic loop {' -> '.join(cycle)}: every component in it "

@@ -16,7 +16,7 @@ import numpy as np
 from delaycomp.errors import ParameterError
 from delaycomp.fmu.cache import source_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
-from delaycomp.orchestrator.master import Connection, Master, Recorder, SimulationError
+from delaycomp.orchestrator.master import Master, Recorder, SimulationError
 from delaycomp.system import FmuFile, Loop, Timing
 
 __all__ = ["ENGINES", "Result", "SimulationError", "make_components", "make_master",
@@ -123,10 +123,8 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
     set up: call ``master.setup(stop_time, loop.parameters())``."""
     if components is None:
         components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
-    connections = [Connection(c.src.instance, c.src.variable, c.dst.instance, c.dst.variable)
-                   for c in loop.connections]
     try:
-        master = Master(components, connections, loop.T, loop.N, t0)
+        master = Master(components, loop.connections, loop.T, loop.N, t0)
     except ValueError as exc:  # an algebraic loop, named by its members: a loop to fix
         for c in components:
             if hasattr(c, "terminate") and getattr(c, "fmu", None) is not None:

@@ -265,7 +265,7 @@ def test_a_model_without_batch_is_not_batchable(tmp_path):
 
 @pytest.mark.parametrize("kwargs,match", [
     (dict(r=0.305), "r = 0.305"),
-    (dict(tau=0.5), "tau = 0.5 is not a multiple of T"),
+    (dict(tau=0.5), r"tau = 0.5 is not allowed: zero-order hold needs a multiple l\*T"),
     (dict(mode="sideways"), "mode = 'sideways'"),
     (dict(T=-1.0), "T is not allowed"),
 ])

@@ -26,7 +26,7 @@ BAD = [
     (["run", "example-3.6", "--set", "T=-1"], "T = '-1'"),
     (["run", "example-3.6", "--set", "r=-0.1"], "r = '-0.1' is not allowed: must be a finite "
                                                  "number >= 0"),
-    (["run", "example-3.6", "--set", "tau=0.5"], "tau = 0.5 is not allowed: must be a multiple"),
+    (["run", "example-3.6", "--set", "tau=0.5"], "tau = 0.5 is not allowed: zero-order hold needs a multiple l*T"),
     (["run", "example-3.6", "--set", "N=0"], "N = '0' is not allowed: must be a positive integer"),
     (["run", "example-3.6", "--set", "N=2.5"], "N = '2.5'"),
     (["run", "example-3.6", "--set", "k=inf"], "k = 'inf' is not allowed: must be a finite"),
@@ -152,6 +152,6 @@ def test_what_list_allows_for_r_and_tau_is_what_is_accepted(name):
         with pytest.raises(ParameterError, match="multiple l\\*T") as exc:
             sc.resolve(half)
         # the pad hint only where the scenario has pad, and pad=1 then takes the half period
-        assert ("pad=1" in str(exc.value)) == has_pad == ("pad=1" in allowed)
+        assert ("pad = true" in str(exc.value)) == has_pad == ("pad=1" in allowed)
         if has_pad:
             sc.resolve([*half, "pad=1"])

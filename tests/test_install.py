@@ -98,7 +98,7 @@ def absent_master(monkeypatch):
     """An optional master whose module is not installed."""
     calls = []
     masters = dict(check.PROVIDERS.masters)
-    masters["nowhere"] = check.Master(
+    masters["nowhere"] = check.RegisteredMaster(
         lambda cases: calls.append(cases) or [],
         check.Requirement(("delaycomp_no_such_module",), "pip install nowhere"))
     monkeypatch.setattr(check.PROVIDERS, "masters", masters)

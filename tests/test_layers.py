@@ -387,3 +387,54 @@ def test_each_native_model_lives_beside_its_python_twin():
                 and p.name != "fmi2.c"]
     assert "Num num(double v)" in (SHARED_C / "pyrepr.c").read_text(encoding="utf-8")
     assert '#include "native.h"' not in (SHARED_C / "pyrepr.c").read_text(encoding="utf-8")
+
+
+# -- errors (item 2): one class per name, every one a DelaycompError --------------------
+def _error_classes() -> dict[str, list[tuple[str, list[str]]]]:
+    """Every class of the package that is an exception, by name: ``[(module, bases)]``
+    (bases as written, the last part of a dotted name)."""
+    import builtins
+
+    classes: dict[str, list[tuple[str, list[str]]]] = {}
+    for module, path, _ in CASES:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef):
+                bases = [b.id if isinstance(b, ast.Name) else b.attr
+                         for b in node.bases if isinstance(b, (ast.Name, ast.Attribute))]
+                classes.setdefault(node.name, []).append((module, bases))
+
+    def is_error(name: str, seen=()) -> bool:
+        builtin = getattr(builtins, name, None)
+        if isinstance(builtin, type) and issubclass(builtin, BaseException):
+            return True
+        return name not in seen and any(is_error(b, (*seen, name))
+                                        for _, bases in classes.get(name, ())
+                                        for b in bases)
+
+    return {name: defs for name, defs in classes.items() if is_error(name)}
+
+
+def test_each_class_name_is_one_class():
+    """No two classes of the package share a name (one ``Timing``, the loop's base grid;
+    one ``Connection``, the loop's and the master's; one ``ParameterError``)."""
+    where: dict[str, list[str]] = {}
+    for module, path, _ in CASES:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef):
+                where.setdefault(node.name, []).append(module)
+    assert {name: mods for name, mods in where.items() if len(mods) > 1} == {}
+
+
+def test_every_error_is_a_delaycomp_error_and_each_name_is_one_class():
+    """One ``ParameterError`` (and one of every error name); each error class derives
+    from :class:`delaycomp.errors.DelaycompError`, so a caller catches them all with it."""
+    errors = _error_classes()
+    assert "ParameterError" in errors and "SimulationError" in errors
+    twice = {name: [m for m, _ in defs] for name, defs in errors.items() if len(defs) > 1}
+    assert twice == {}
+
+    def derives(name: str) -> bool:
+        return name == "DelaycompError" or any(
+            derives(b) for _, bases in errors.get(name, ()) for b in bases)
+
+    assert [name for name in errors if not derives(name)] == []

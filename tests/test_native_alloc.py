@@ -7,9 +7,9 @@ FMUs'; the host runs each native loop for 10^3 and for 10^5 base steps, on exact
 allocates (the instances, the model buffers, the host's own tables) is the same in all
 four runs, so the four counts are equal exactly when no step allocates. The same again
 from ``t0 = 1e5``, where an exact grid's steps differ from ``h`` by more than
-``GRID_RTOL h`` and only the FMUs' own integer grid (``same_step`` in ``fmus/native/native.c``) tells them
-apart from another step. glibc only (``__libc_malloc``): Linux, as the rest of the C-host
-tests.
+``GRID_RTOL h`` and only the FMUs' rule for their own step (``same_step`` in
+``fmus/native/native.c``) tells them apart from another step. glibc only
+(``__libc_malloc``): Linux, as the rest of the C-host tests.
 """
 from __future__ import annotations
 

@@ -109,14 +109,16 @@ RANGES = [
     ("controller", {"T": 0.0}, r"T = 0.0 is not allowed: must be > 0"),
     ("controller", {"T": 1.0, "r": -1.0}, r"r = -1.0 is not allowed: must be >= 0"),
     ("controller", {"T": 1.0, "tau": 0.5},
-     r"tau = 0.5 is not allowed: must be a multiple l\*T, l >= 0, of T = 1.0"),
+     r"tau = 0.5 is not allowed: zero-order hold needs a multiple l\*T \(l >= 0\) of "
+     r"T = 1.0"),
     ("controller", {"mode": "open"}, r"mode = 'open' is not allowed: must be one of"),
     ("model_plant-zoh", {"tolerance": 1.5}, r"tolerance = 1.5 is not allowed: must be in"),
     ("model_plant-zoh", {"p": "cube"},
      r"p = 'cube' is not allowed: must be one of square, sin"),
     ("model_controller-zoh", {"N": -3}, r"N = -3 is not allowed: must be a positive integer"),
     ("model_controller-zoh", {"T": 1.0, "N": 10, "tau": 0.5},
-     r"tau = 0.5 is not allowed: zero-order hold needs tau = l T"),
+     r"tau = 0.5 is not allowed: zero-order hold needs a multiple l\*T \(l >= 0\) of "
+     r"T = 1.0; pad = true pads it up to 1.0 \(Remark 3.3\(b\)\)"),
     ("model_controller-zoh", {"T": 1.0, "N": 10, "r": 0.55},
      r"r = 0.55 is not allowed: must be a multiple of the base step h = 0.1"),
     ("model_controller-zoh", {"predictor": "guess"},

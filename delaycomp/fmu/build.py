@@ -24,10 +24,8 @@ from xml.sax.saxutils import escape
 import delaycomp
 from delaycomp.child import module_argv
 from delaycomp.maths.model import model_id
+from delaycomp.names import CONFIG_NAME
 from delaycomp.tmpfiles import temp_dir
-
-CONFIG_NAME = "delaycomp_fmu.json"  # same as delaycomp.fmu.slave.CONFIG_NAME
-
 
 
 def _fmus_folder() -> Path:

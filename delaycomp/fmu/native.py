@@ -42,6 +42,7 @@ from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
+from delaycomp.errors import DelaycompError
 from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS
 from delaycomp.tmpfiles import zip_folder
 
@@ -91,7 +92,7 @@ _NOTES: list[str] = []
 _NOTED: set[str] = set()
 
 
-class NativeBuildError(RuntimeError):
+class NativeBuildError(DelaycompError, RuntimeError):
     """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
 
 

@@ -74,20 +74,15 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Intege
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
+from delaycomp.errors import ParameterError  # the one ParameterError (DelaycompError, ValueError)
+from delaycomp.names import CONFIG_NAME, INDEX_SUFFIX
 
-CONFIG_NAME = "delaycomp_fmu.json"
-#: suffix of the Integer twin of a String parameter with a fixed set of choices (item 7)
-INDEX_SUFFIX = "_index"
 #: pythonfmu 0.7's runtime releases one reference to the slave module's ``__dict__`` each
 #: time it instantiates the slave class (measured: a module whose dict nothing else holds
 #: is freed after the first instance, and the next instantiation reads freed memory). Each
 #: instance therefore pins one reference; generated slave modules also pin one at import.
 _PINNED_MODULE_DICTS: list = []
 _GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
-
-
-class ParameterError(ValueError):
-    """A parameter value outside its allowed range; the message names both."""
 
 
 #: a step shorter than this fraction of a slave's fixed step is the master's round-off, not

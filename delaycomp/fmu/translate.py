@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from delaycomp.errors import DelaycompError
 from delaycomp.maths.model import Model, ModelError
 
 #: the functions of the model interface that are translated, and their C parameters:
@@ -61,7 +62,7 @@ class TranslationError(ModelError):
     """A model function cannot be translated to C (one line: function, operation, line)."""
 
 
-class _Untraceable(Exception):
+class _Untraceable(DelaycompError):
     """Raised inside a trace where Python needs a number from a symbol."""
 
 

@@ -157,6 +157,51 @@ def split(value: float, period: float) -> tuple[int, float]:
     return q, max(value - q * period, 0.0)
 
 
+def periods(value: float, period: float, name: str = "tau", padding: bool = False) -> int:
+    """``l`` with ``value = l period``, ``l >= 0``: under zero-order hold the input delay
+    is a whole number of sampling periods (Theorem 3.2, ``tau = l T``), up to round-off as
+    :func:`split` decides it.
+
+    The rule and its message, written once: the typed loop
+    (:func:`delaycomp.system.loop.check_zoh_delay`), the scenarios, the batch engine and
+    the controllers (the FMUs, whose C twins log the same words) call it.
+
+    Parameters
+    ----------
+    padding : bool
+        The caller could pad the delay up (Remark 3.3(b)): the message says to what.
+
+    Raises
+    ------
+    ValueError
+        ``value`` is not such a multiple (or not a finite number >= 0), naming it and ``T``.
+
+    Examples
+    --------
+    >>> periods(0.6, 0.2)
+    3
+    >>> periods(2.5, 1.0, padding=True)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) ...
+    >>> try:
+    ...     periods(2.5, 1.0, padding=True)
+    ... except ValueError as exc:
+    ...     print(str(exc).split("; ")[1])
+    pad = true pads it up to 3.0 (Remark 3.3(b))
+    """
+    usable = math.isfinite(value) and value >= 0 and math.isfinite(period) and period > 0
+    if usable:
+        q, rest = split(value, period)
+        if rest == 0.0:
+            return q
+    text = (f"{name} = {value!r} is not allowed: zero-order hold needs a multiple l*T "
+            f"(l >= 0) of T = {period!r}")
+    if padding and usable:
+        text += f"; pad = true pads it up to {(q + 1) * period!r} (Remark 3.3(b))"
+    raise ValueError(text)
+
+
 def ticks(duration: float, T: float, N: int, name: str = "--stop-time") -> int:
     """Base steps ``k`` with ``duration = k h``, ``h = T / N``, for a duration > 0."""
     h = T / N

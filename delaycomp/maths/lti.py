@@ -18,7 +18,7 @@ import numpy as np
 from scipy.linalg import expm
 
 # the base grid is decided in one place; re-exported for the FMUs' imports
-from delaycomp.maths.grid import GRID_RTOL, MAX_STEPS, check_steps  # noqa: F401
+from delaycomp.maths.grid import GRID_RTOL, MAX_STEPS, check_steps, periods  # noqa: F401
 from delaycomp.maths.grid import split as split_delay
 from delaycomp.names import MODES  # the modes, used here and re-exported where the maths lives
 
@@ -69,14 +69,6 @@ def sampled_radius(A, B, K, T: float) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(Ad + Bd @ K))))
 
 
-def periods_in(tau: float, T: float) -> int:
-    """Return ``l`` with ``tau = l T``; raise ``ValueError`` if tau is not a multiple of T."""
-    q, rest = split_delay(tau, T)
-    if rest != 0.0:
-        raise ValueError(f"tau = {tau!r} is not a multiple of T = {T!r}")
-    return q
-
-
 @dataclass(frozen=True)
 class LiftedLoop:
     """The sampled-data loop as a discrete-time system ``X_{i+1} = M X_i``.
@@ -116,7 +108,7 @@ def lifted_loop(A, B, K, T: float, r: float, tau: float, mode: str,
     tau_true = tau if tau_true is None else tau_true
     if r_true < 0 or tau_true < 0:
         raise ValueError("true delays must be >= 0")
-    l = periods_in(tau, T)  # noqa: E741 - the paper's name
+    l = periods(tau, T)  # noqa: E741 - the paper's name
     q, _ = split_delay(r, T)
     Q, Dt = split_delay(r_true + tau_true, T)
     L = max(l + q + 1, Q + 1)
@@ -160,7 +152,7 @@ class LTIPredictor:
         A, B = as_matrices(A, B)
         self.n, self.m = B.shape
         check_steps("r + tau", r + tau, (r + tau) / T, f"sampling periods of T = {T!r}")
-        self.l = periods_in(tau, T)
+        self.l = periods(tau, T)
         self.q, self.r_tilde = split_delay(r, T)
         self.L = self.l + self.q + 1
         self.E = expm(A * (r + tau))

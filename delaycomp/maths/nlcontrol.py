@@ -179,8 +179,7 @@ class ZOHModelController(_Base):
         super().__init__(model, params, T, r, tau, N, u0, predictor, tol)
         tau_eff = padded_delay(tau, T)
         if tau_eff != tau and not pad:
-            raise ValueError(f"tau = {tau!r} is not allowed: zero-order hold needs tau = l T "
-                             f"(T = {T!r}); ask for padding to use tau = {tau_eff!r}")
+            grid.periods(tau, T, padding=True)  # refuses it, saying what padding gives
         self.tau_effective = tau_eff
         self.padding = tau_eff - tau
         self.pad_line = DelayLine(model.m, grid_steps(self.padding, self.h, "padding"), self.u0)

@@ -30,13 +30,15 @@ from fractions import Fraction
 
 import numpy as np
 
+from delaycomp.errors import DelaycompError
+
 #: Default tolerance of numerical solves (relative and absolute).
 DEFAULT_TOL = 1e-10
 
 Segments = Sequence[tuple[float, np.ndarray]]
 
 
-class IntegrationError(RuntimeError):
+class IntegrationError(DelaycompError, RuntimeError):
     """An ODE solve failed; the message says where."""
 
 

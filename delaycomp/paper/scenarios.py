@@ -17,9 +17,18 @@ import numpy as np
 
 from delaycomp.errors import ParameterError
 from delaycomp.maths.grid import on_grid
-from delaycomp.maths.grid import split as split_delay
 from delaycomp.names import MODES, indexed
-from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_design, lti_designs, lti_loop, model_loop
+from delaycomp.system import (
+    Loop,
+    LtiBatch,
+    LtiPoint,
+    Timing,
+    check_zoh_delay,
+    lti_design,
+    lti_designs,
+    lti_loop,
+    model_loop,
+)
 
 __all__ = [
     "SCENARIOS",
@@ -252,11 +261,7 @@ def _true_delay_params() -> tuple[Param, ...]:
 
 def _check_timing(p: dict) -> None:
     """Cross-parameter rules shared by the LTI scenarios."""
-    T = p["T"]
-    if p["tau"] > 0 and split_delay(p["tau"], T)[1] != 0.0:
-        raise ParameterError(
-            f"parameter tau = {p['tau']!r} is not allowed: must be a multiple l*T (l >= 0) "
-            f"of T = {T!r}")
+    check_zoh_delay(p["tau"], p["T"])
     _check_grid(p, zoh=False)
 
 
@@ -322,18 +327,15 @@ _PAD = Param("pad", False, "pad tau up to the next multiple of T (Remark 3.3(b))
 
 
 def _check_grid(p: dict, zoh: bool) -> None:
-    T, h = p["T"], p["T"] / p["N"]
+    """The delays on the base grid (:meth:`Timing.check_on_grid`) and, under zero-order
+    hold without padding, ``tau = l T`` (:func:`check_zoh_delay`)."""
+    timing = Timing(p["T"], p["N"])
     for name in ("r", "tau", "r_true", "tau_true"):
-        if p.get(name) is not None and not on_grid(p[name], h):
-            raise ParameterError(
-                f"parameter {name} = {p[name]!r} is not allowed: must be a multiple of the "
-                f"base step h = T/N = {h!r} (raise N)")
-    if zoh and not p.get("pad") and split_delay(p["tau"], T)[1] != 0.0:
+        if p.get(name) is not None:
+            timing.check_on_grid(name, p[name])
+    if zoh and not p.get("pad"):
         # only a scenario that has the pad parameter suggests it (corollary-3.7 has none)
-        hint = "; set pad=1 to pad the input delay (Remark 3.3(b))" if "pad" in p else ""
-        raise ParameterError(
-            f"parameter tau = {p['tau']!r} is not allowed: zero-order hold needs a multiple "
-            f"l*T (l >= 0) of T = {T!r}{hint}")
+        check_zoh_delay(p["tau"], p["T"], padding="pad" in p)
 
 
 def _check_lengths(p: dict, n: int, m: int, states, inputs) -> None:

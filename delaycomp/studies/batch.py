@@ -49,9 +49,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from delaycomp.errors import DelaycompError
 from delaycomp.maths.grid import on_grid_array
-from delaycomp.maths.grid import split as split_delay
-from delaycomp.maths.lti import MODES, LTIPredictor, discretize, periods_in
+from delaycomp.maths.grid import periods as zoh_periods
+from delaycomp.maths.lti import MODES, LTIPredictor, discretize
+from delaycomp.maths.nlcontrol import padded_delay
 
 #: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.studies.sweep.ZERO``).
 ZERO = 1e-9
@@ -59,7 +61,7 @@ ZERO = 1e-9
 BACKENDS = ("numpy", "cupy", "jax", "auto")
 
 
-class BatchError(ValueError):
+class BatchError(DelaycompError, ValueError):
     """A batch ingredient is out of range or inconsistent (one-line message)."""
 
 
@@ -393,7 +395,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
     Dt = _ticks("tau_true", tau_true, h)
     for p in _unique_rows(tau, T)[0]:
         try:
-            periods_in(float(tau[p]), float(T[p]))
+            zoh_periods(float(tau[p]), float(T[p]))
         except ValueError as exc:
             raise BatchError(f"{exc} (point {p})") from None
     # exact discretization, once per distinct (A, B, h)
@@ -745,12 +747,13 @@ def _model_group(model, params, T, N, r, tau, r_true, tau_true, x0, u0, stop, pa
     p = dict(params)
     p["T"] = T
     if zoh:
-        tau_eff = np.array([tau[i] if split_delay(tau[i], T[i])[1] == 0.0 else
-                            (split_delay(tau[i], T[i])[0] + 1) * T[i] for i in range(P)])
+        tau_eff = np.array([padded_delay(tau[i], T[i]) for i in range(P)])
         if not pad and np.any(tau_eff != tau):
             i = int(np.flatnonzero(tau_eff != tau)[0])
-            raise BatchError(f"tau = {float(tau[i])!r} is not allowed: zero-order hold needs "
-                             f"tau = l T (T = {float(T[i])!r}); ask for padding")
+            try:
+                zoh_periods(float(tau[i]), float(T[i]), padding=True)
+            except ValueError as exc:
+                raise BatchError(str(exc)) from None
         Dpad = _ticks("padding", tau_eff - tau, h)
         W = Dr + np.rint(tau_eff / h).astype(np.int64)
     else:

@@ -19,6 +19,7 @@ from delaycomp.system.loop import (
     Role,
     Source,
     Timing,
+    check_zoh_delay,
     design_loop,
     lti_design,
     lti_designs,
@@ -27,5 +28,5 @@ from delaycomp.system.loop import (
 )
 
 __all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiBatch",
-           "LtiDesign", "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing", "design_loop",
-           "lti_design", "lti_designs", "lti_loop", "model_loop"]
+           "LtiDesign", "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing",
+           "check_zoh_delay", "design_loop", "lti_design", "lti_designs", "lti_loop", "model_loop"]

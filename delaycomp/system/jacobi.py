@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from delaycomp.errors import DelaycompError
 from delaycomp.maths import grid
 from delaycomp.names import indexed
 from delaycomp.system.loop import Connection, Loop
@@ -27,7 +28,7 @@ JACOBI_LATENCY_STEPS = 1
 DELAY_ROLES = ("meas_delay", "input_delay")
 
 
-class CompensationError(ValueError):
+class CompensationError(DelaycompError, ValueError):
     """The loop cannot be made exact in a Jacobi master (one-line message)."""
 
 

@@ -120,6 +120,23 @@ class Connection:
     def __str__(self) -> str:
         return f"{self.src} -> {self.dst}"
 
+    @classmethod
+    def parse(cls, text: str) -> Connection:
+        """From ``"plant.x -> delay.u"`` (:meth:`__str__` read back).
+
+        Examples
+        --------
+        >>> c = Connection.parse("plant.x -> meas_delay.u")
+        >>> c.src, str(c)
+        (Port(instance='plant', variable='x'), 'plant.x -> meas_delay.u')
+        """
+        left, sep, right = text.partition("->")
+        ends = [part.strip().split(".", 1) for part in (left, right)]
+        if not sep or any(len(e) != 2 or not all(e) for e in ends):
+            raise ValueError(f"connection {text!r} is not allowed: must be "
+                             "'instance.variable -> instance.variable'")
+        return cls(Port(*ends[0]), Port(*ends[1]))
+
 
 @dataclass(frozen=True)
 class Instance:
@@ -323,6 +340,19 @@ def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tupl
     return (r if r_true is None else r_true), (tau if tau_true is None else tau_true)
 
 
+def check_zoh_delay(tau: float, T: float, padding: bool = False) -> None:
+    """Under zero-order hold the input delay is a whole number of periods, ``tau = l T``
+    (:func:`delaycomp.maths.grid.periods`, the rule written once), as a
+    :class:`~delaycomp.errors.ParameterError`. The loop builders call it where ``tau``
+    enters a loop whose controller holds its output over each period (the LTI controller;
+    a model with ``control = "zoh"`` unless it pads); ``padding``: the message says what
+    ``pad = true`` gives."""
+    try:
+        grid.periods(tau, T, "parameter tau", padding)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+
+
 @dataclass(frozen=True)
 class LtiPoint:
     """An LTI loop's design and timing without its instances: what a batch sweep needs of
@@ -378,6 +408,7 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
                              f"{' or '.join(MODES)}")
     timing = Timing(T, N)
     check_delays(timing, r, tau, r_true, tau_true)
+    check_zoh_delay(tau, T)
     return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true), timing)
 
 
@@ -467,6 +498,11 @@ def lti_designs(args: list[dict]) -> LtiBatch | None:
             ok = ok and bool(np.all(np.isfinite(d) & (d >= 0) & grid.on_grid_array(d, h)))
     if not ok:
         return None
+    try:  # zero-order hold: tau = l T at every point (each distinct pair once)
+        for tau_p, T_p in set(zip(tau.tolist(), T_a.tolist())):
+            grid.periods(tau_p, T_p)
+    except ValueError:
+        return None
     return LtiBatch(A, B, K, T_a, N_a, r, tau, r_true, tau_true, x0, u0, mode)
 
 
@@ -552,6 +588,8 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
                              f"are {allowed}")
     timing = Timing(T, N)
     r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
+    if model.control == "zoh" and not pad:
+        check_zoh_delay(tau, T, padding=True)
     path = Path(model_path)
     ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad), **vector_params("u0", u0),
             **vector_params("z0", x0 if z0 is None else z0), **params}

@@ -59,6 +59,7 @@ from delaycomp.system.loop import (
     Loop,
     LtiBatch,
     LtiPoint,
+    check_zoh_delay,
     design_loop,
     lti_design,
     lti_designs,
@@ -66,9 +67,6 @@ from delaycomp.system.loop import (
 )
 
 TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
-PLANT_KEYS = ("A", "B", "model", "x0", "state", "input", "tolerance", "fmu", "states",
-              "inputs", "parameters")
-CONTROLLER_KEYS = ("mode", "K", "u0", "predictor", "pad", "tolerance", "allow_unstable")
 SECTIONS = ("plant", "controller")
 #: tables that describe something besides the loop (``[reference]``: for ``check``)
 OTHER_TABLES = ("reference",)
@@ -269,10 +267,6 @@ class LoopFile:
         stop = self.data.get("stop_time")
         return None if stop is None else _real("stop_time", stop, positive=True)
 
-    @property
-    def is_lti(self) -> bool:
-        return "A" in self.data.get("plant", {})
-
     def resolve(self, assignments: list[str] | dict | None = None) -> dict:
         """The file's data with ``NAME=VALUE`` overrides (``r``, ``plant.x0``,
         ``controller.K``); the keys are checked, the values when the loop is built."""
@@ -384,16 +378,10 @@ def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str
 
 
 def _lti_last(args: dict, guard: bool) -> None:
-    """The checks of an LTI loop file after its design's: zero-order hold, the sign guard."""
-    T, tau = args["T"], args["tau"]
-    if tau > 0:
-        from delaycomp.maths.grid import split
-
-        if split(tau, T)[1] != 0.0:
-            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
-                                 f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+    """The checks of an LTI loop file after its design's (zero-order hold's ``tau = l T``
+    among them): the sign guard."""
     if guard:
-        check_sign(args["A"], args["B"], args["K"], T)
+        check_sign(args["A"], args["B"], args["K"], args["T"])
 
 
 def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
@@ -499,13 +487,6 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     tol = ctrl.get("tolerance", plant.get("tolerance"))
     tol = None if tol is None else _real("tolerance", tol, positive=True)
     pad = _flag("controller.pad", ctrl.get("pad", False))
-    if model.control == "zoh" and tau > 0 and not pad:
-        from delaycomp.maths.grid import split
-
-        if split(tau, T)[1] != 0.0:
-            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order hold "
-                                 f"needs a multiple l*T (l >= 0) of T = {T!r}; set "
-                                 "controller.pad = true to pad the input delay")
     return model_loop(model_path, T, r, tau, N, x0, u0, params=params, predictor=predictor,
                       tolerance=tol, pad=pad, **common)
 
@@ -542,12 +523,6 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         B = _array("controller.B", ctrl["B"], 2)
         K = _array("controller.K", ctrl["K"], 2)
         u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
-        if tau > 0:
-            from delaycomp.maths.grid import split
-
-            if split(tau, T)[1] != 0.0:
-                raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
-                                     f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
         loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
                               plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
                               mode=mode, **common)
@@ -603,12 +578,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
     if "tolerance" in ctrl:
         params["tolerance"] = _real("controller.tolerance", ctrl["tolerance"], positive=True)
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
-    if tau > 0:
-        from delaycomp.maths.grid import split
-
-        if split(tau, T)[1] != 0.0:
-            raise ParameterError(f"parameter tau = {tau!r} is not allowed: zero-order "
-                                 f"hold needs a multiple l*T (l >= 0) of T = {T!r}")
+    check_zoh_delay(tau, T)  # u = K x held over each period; no padding here
     return fmu_plant_loop(fmu, states, inputs, values, T, r, tau, N, x0, u0, model=model,
                           controller_parameters=params, **common)
 

@@ -37,6 +37,7 @@ from delaycomp.system.loop import (
     Port,
     Timing,
     check_delays,
+    check_zoh_delay,
     matrix_params,
     vector_params,
 )
@@ -252,6 +253,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
         if K.shape != (m, n):
             raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
                                  "(u = K x)")
+        check_zoh_delay(tau, T)
         ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
                         {"T": T, "r": r, "tau": tau, "mode": mode, **matrix_params("A", A),
                          **matrix_params("B", B), **matrix_params("K", K),
@@ -268,6 +270,8 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                                  f"states and m = {mdl.m} inputs: plant.states names {n}, "
                                  f"plant.inputs {m}")
         params = dict(controller_parameters or {})
+        if mdl.control == "zoh" and not params.get("pad", False):
+            check_zoh_delay(tau, T, padding=True)
         ctrl = Instance("controller", "controller",
                         ModelFmu("model_controller", Path(model)),
                         {"T": T, "r": r, "tau": tau, "N": N, **vector_params("u0", u0),

@@ -59,7 +59,7 @@ class Requirement:
 
 
 @dataclass(frozen=True)
-class Master:
+class RegisteredMaster:
     """A registered master: its provider and, for an optional one, what it needs."""
 
     provider: Provider
@@ -79,11 +79,11 @@ class Master:
 class Registry:
     """Named masters, in the order their rows are printed."""
 
-    masters: dict[str, Master] = field(default_factory=dict)
+    masters: dict[str, RegisteredMaster] = field(default_factory=dict)
 
     def register(self, name: str, provider: Provider,
                  requires: Requirement | None = None) -> None:
-        self.masters[name] = Master(provider, requires)
+        self.masters[name] = RegisteredMaster(provider, requires)
 
     @property
     def providers(self) -> dict[str, Provider]:

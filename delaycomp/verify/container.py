@@ -53,7 +53,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from delaycomp.child import module_argv
-from delaycomp.errors import ParameterError
+from delaycomp.errors import DelaycompError, ParameterError
 from delaycomp.system import Loop
 from delaycomp.verify.cases import CheckRow, RefCase, compare
 
@@ -63,7 +63,7 @@ ORDER = ("input_delay", "plant", "meas_delay", "controller")
 ADDED_STEPS = {"meas_delay": 1, "input_delay": 1}
 
 
-class ContainerError(RuntimeError):
+class ContainerError(DelaycompError, RuntimeError):
     """fmu-manipulation-toolbox is missing or refused the description."""
 
 

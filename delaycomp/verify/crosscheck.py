@@ -62,6 +62,7 @@ import numpy as np
 
 import delaycomp
 from delaycomp.child import module_argv
+from delaycomp.names import CONFIG_NAME
 from delaycomp.verify.cases import EXACT_TOL, CheckRow, RefCase
 
 #: tool folder of the cross-check tree
@@ -72,7 +73,6 @@ PLATFORM = "linux64"
 PERIODS = 6
 #: FMU alone against its ``_ref.csv``: ``|error| <= ALONE_TOL (1 + |ref|)``
 ALONE_TOL = EXACT_TOL
-CONFIG_NAME = "delaycomp_fmu.json"
 
 
 def models_dir(out: Path) -> Path:

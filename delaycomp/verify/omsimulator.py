@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from delaycomp.child import module_argv
+from delaycomp.errors import DelaycompError
 from delaycomp.orchestrator.simulate import Result
 
 #: the environment variable that names an OMSimulator install folder
@@ -52,7 +53,7 @@ INSTALL_HINT = (f"pip install OMSimulator (it downloads its binaries while it in
                 f"{PACKAGE_SUBDIR.as_posix()}/OMSimulator/")
 
 
-class NotInstalled(RuntimeError):
+class NotInstalled(DelaycompError, RuntimeError):
     """OMSimulator was not found (one-line message with the install hint)."""
 
 

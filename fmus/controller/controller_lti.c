@@ -71,8 +71,8 @@ int model_setup(Instance *c) {
     double tau_rest = 0.0;
     if (tau >= 0) split_delay(tau, T, &l, &tau_rest);
     if (tau < 0 || tau_rest != 0.0) {
-        log_error(c, "tau = %s is not allowed: must be a multiple l*T, l >= 0, of T = %s",
-                  num(tau).s, num(T).s);
+        log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T (l >= 0) "
+                  "of T = %s", num(tau).s, num(T).s);  /* delaycomp.maths.grid.periods */
         return -1;
     }
     if (strcmp(mode_of(c), "compensated") != 0 && strcmp(mode_of(c), "uncompensated") != 0) {

@@ -9,7 +9,8 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.fmu.slave import HeldSampleMixin, TableSlave, check_finite, check_inputs
-from delaycomp.maths.lti import MODES, check_steps, split_delay
+from delaycomp.maths.grid import periods
+from delaycomp.maths.lti import MODES, check_steps
 from delaycomp.maths.zoh import ZOHController
 from delaycomp.names import indexed
 
@@ -97,9 +98,10 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
                         f"sampling periods of T = {self.T!r}")
         except ValueError as exc:
             self.fail(str(exc))
-        if self.tau < 0 or split_delay(self.tau, self.T)[1] != 0.0:
-            self.fail(f"tau = {self.tau!r} is not allowed: must be a multiple l*T, l >= 0, "
-                      f"of T = {self.T!r}")
+        try:
+            periods(self.tau, self.T)
+        except ValueError as exc:
+            self.fail(str(exc))
         if self.mode not in MODES:
             self.fail(f"mode = {self.mode!r} is not allowed: must be one of {', '.join(MODES)}")
         try:

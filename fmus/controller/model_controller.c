@@ -191,9 +191,9 @@ int model_setup(Instance *c) {
     if (zoh) {
         tau_eff = padded_delay(tau, T);
         if (tau_eff != tau && !d->boolean[VR_PAD]) {
-            log_error(c, "tau = %s is not allowed: zero-order hold needs tau = l T (T = %s); "
-                      "ask for padding to use tau = %s", num(tau).s, num(T).s,
-                      num(tau_eff).s);
+            log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T "
+                      "(l >= 0) of T = %s; pad = true pads it up to %s (Remark 3.3(b))",
+                      num(tau).s, num(T).s, num(tau_eff).s);  /* delaycomp.maths.grid.periods */
             return -1;
         }
         long q;

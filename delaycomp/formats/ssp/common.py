@@ -13,6 +13,7 @@ from pathlib import Path
 from lxml import etree
 
 from delaycomp.errors import SspError
+from delaycomp.names import INDEX_SUFFIX
 
 SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -28,8 +29,6 @@ NSMAP = {"ssd": SSD_NS, "ssc": SSC_NS, "ssv": SSV_NS, "osp": OSP_NS, "oms": OMS_
 DC_ANNOTATION = "org.delaycomp.master"
 OSP_ANNOTATION = "com.opensimulationplatform"
 OMS_ANNOTATION = "org.openmodelica"
-#: suffix of a String parameter's Integer twin (:mod:`delaycomp.fmu.slave`, item 7)
-INDEX_SUFFIX = "_index"
 SSD_NAME = "SystemStructure.ssd"
 RESOURCES = "resources"
 DEFAULT_SET = "default"
