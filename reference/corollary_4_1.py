@@ -65,13 +65,12 @@ Run ``python reference/corollary_4_1.py`` from the repository root to regenerate
 
 from __future__ import annotations
 
-import csv
 import math
-import sys
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+from reftools import main, solve, write_trace
 from scipy.integrate import solve_ivp
 
 OUT = Path(__file__).resolve().parent / "corollary-4.1"
@@ -247,11 +246,7 @@ def trace(T, r, tau, N, x0, u0, stop, rtol=RTOL, atol=ATOL, diagnostics=False,
                 j += 3
             return out
 
-        sol = solve_ivp(rhs, (fa, fb), y0, method=method, rtol=rtol, atol=atol,
-                        max_step=max_step)
-        if not sol.success:
-            raise RuntimeError(sol.message)
-        y = sol.y[:, -1]
+        y = solve(rhs, y0, fa, fb, rtol, atol, method, max_step)
         j = 0
         if active_z:
             z, p = y[0:3].copy(), y[3:6].copy()
@@ -268,17 +263,9 @@ def trace(T, r, tau, N, x0, u0, stop, rtol=RTOL, atol=ATOL, diagnostics=False,
 
 
 def write(name: str, case: dict) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    rows = trace(**case)
-    with open(OUT / f"{name}_ref.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, quoting=csv.QUOTE_MINIMAL)
-        fh.write('"time","plant.x","plant.y","plant.theta","controller.v","controller.omega"\n')
-        for row in rows:
-            w.writerow([repr(float(v) + 0.0) for v in row])  # + 0.0: no "-0.0"
-    step = case["T"] / case["N"]
-    (OUT / f"{name}_ref.opt").write_text(
-        f"StartTime, 0.0\nStopTime, {case['stop']!r}\nStepSize, {step!r}\nRelTol, {RTOL!r}\n",
-        encoding="utf-8")
+    write_trace(OUT, name, ("time", "plant.x", "plant.y", "plant.theta", "controller.v",
+                            "controller.omega"), trace(**case), case["stop"],
+                case["T"] / case["N"], RTOL, positive_zero=True)
 
 
 # --------------------------------------------------------------------------- checks
@@ -376,11 +363,4 @@ def check(name="default"):
 
 
 if __name__ == "__main__":
-    if "--verify-law" in sys.argv:
-        verify_law()
-    elif "--check" in sys.argv:
-        check()
-    else:
-        for case_name, case_args in CASES.items():
-            write(case_name, case_args)
-            print(f"wrote {OUT / case_name}_ref.csv")
+    main(OUT, CASES, write, {"--verify-law": verify_law, "--check": check})

@@ -39,11 +39,10 @@ Run ``python reference/example_2_4.py`` from the repository root to regenerate
 
 from __future__ import annotations
 
-import csv
-import sys
 from pathlib import Path
 
 import numpy as np
+from reftools import main, solve, write_trace
 from scipy.integrate import solve_ivp
 
 OUT = Path(__file__).resolve().parent / "example-2.4"
@@ -83,12 +82,7 @@ def k_forwarding(x):
 
 
 def _solve(rhs, y0, duration, tol):
-    if duration <= 0.0:
-        return np.array(y0, dtype=float)
-    sol = solve_ivp(rhs, (0.0, duration), np.array(y0, dtype=float), method="DOP853",
-                    rtol=tol, atol=tol)
-    assert sol.success, sol.message
-    return sol.y[:, -1]
+    return solve(rhs, y0, 0.0, duration, tol)
 
 
 def _closed(t, y):   # a controller copy: y' = f(y, k(y))
@@ -203,17 +197,8 @@ def trace(T, r, tau, x0, u0, z0, N, stop, tol=TOL):
 
 
 def write(name: str, case: dict) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    rows = trace(**case)
-    with open(OUT / f"{name}_ref.csv", "w", newline="", encoding="utf-8") as fh:
-        wr = csv.writer(fh, quoting=csv.QUOTE_MINIMAL)
-        fh.write('"time","plant.x1","plant.x2","plant.x3","controller.u"\n')
-        for row in rows:
-            wr.writerow([repr(val) for val in row])
-    step = case["T"] / case["N"]
-    (OUT / f"{name}_ref.opt").write_text(
-        f"StartTime, 0.0\nStopTime, {case['stop']!r}\nStepSize, {step!r}\nRelTol, {TOL!r}\n",
-        encoding="utf-8")
+    write_trace(OUT, name, ("time", "plant.x1", "plant.x2", "plant.x3", "controller.u"),
+                trace(**case), case["stop"], case["T"] / case["N"], TOL)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -297,9 +282,4 @@ def check():
 
 
 if __name__ == "__main__":
-    if "--check" in sys.argv:
-        check()
-    else:
-        for case_name, case_args in CASES.items():
-            write(case_name, case_args)
-            print(f"wrote {OUT / case_name}_ref.csv")
+    main(OUT, CASES, write, {"--check": check})

@@ -17,9 +17,10 @@ root to regenerate ``reference/example-3.6/``.
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
+
+from reftools import main, write_trace
 
 OUT = Path(__file__).resolve().parent / "example-3.6"
 
@@ -62,20 +63,9 @@ def trace(k, T, r, mode, x0, u0, N, stop):
 
 
 def write(name: str, case: dict) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    rows = trace(**case)
-    with open(OUT / f"{name}_ref.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, quoting=csv.QUOTE_MINIMAL)
-        fh.write('"time","plant.x","controller.u"\n')
-        for row in rows:
-            w.writerow([repr(v) for v in row])
-    step = case["T"] / case["N"]
-    (OUT / f"{name}_ref.opt").write_text(
-        f"StartTime, 0.0\nStopTime, {case['stop']!r}\nStepSize, {step!r}\nRelTol, 1e-09\n",
-        encoding="utf-8")
+    write_trace(OUT, name, ("time", "plant.x", "controller.u"), trace(**case), case["stop"],
+                case["T"] / case["N"], 1e-09)
 
 
 if __name__ == "__main__":
-    for case_name, case_args in CASES.items():
-        write(case_name, case_args)
-        print(f"wrote {OUT / case_name}_ref.csv")
+    main(OUT, CASES, write)

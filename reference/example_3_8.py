@@ -32,14 +32,13 @@ Run ``python reference/example_3_8.py`` from the repository root to regenerate
 
 from __future__ import annotations
 
-import csv
 import math
-import sys
 from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import quad, solve_ivp
+from reftools import main, solve, split_delay, write_trace
+from scipy.integrate import quad
 
 OUT = Path(__file__).resolve().parent / "example-3.8"
 CHECK_TOL = 1e-12
@@ -58,14 +57,6 @@ CASES = {
     "delayed": dict(p="w^2", T=1.0, r=1.5, tau=1.0, x0=(1.0, -1.0), u0=0.0, N=100, stop=10.0),
     "sin": dict(p="sin", T=1.0, r=0.5, tau=0.0, x0=(1.0, -1.0), u0=0.0, N=100, stop=10.0),
 }
-
-
-def split_delay(r, T):
-    """``q = [r/T]`` and ``r~ = r - qT``, robust when ``r/T`` is an integer."""
-    ratio = r / T
-    q = round(ratio) if abs(ratio - round(ratio)) < 1e-12 else math.floor(ratio)
-    rt = r - q * T
-    return q, (0.0 if abs(rt) < 1e-12 * T else rt)
 
 
 def make_flow(p):
@@ -128,29 +119,15 @@ def trace(p, T, r, tau, x0, u0, N, stop):
 
 
 def write(name: str, case: dict) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    rows = trace(**case)
-    with open(OUT / f"{name}_ref.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, quoting=csv.QUOTE_MINIMAL)
-        fh.write('"time","plant.x1","plant.x2","controller.u"\n')
-        for row in rows:
-            w.writerow([repr(val) for val in row])
-    step = case["T"] / case["N"]
-    (OUT / f"{name}_ref.opt").write_text(
-        f"StartTime, 0.0\nStopTime, {case['stop']!r}\nStepSize, {step!r}\n"
-        f"RelTol, {CHECK_TOL!r}\n", encoding="utf-8")
+    write_trace(OUT, name, ("time", "plant.x1", "plant.x2", "controller.u"), trace(**case),
+                case["stop"], case["T"] / case["N"], CHECK_TOL)
 
 
 # ----------------------------------------------------------------------------- checks
 
 
 def _ivp(rhs, y0, t0, t1):
-    if t1 <= t0:
-        return np.array(y0, dtype=float)
-    sol = solve_ivp(rhs, (t0, t1), np.array(y0, dtype=float), method="DOP853",
-                    rtol=CHECK_TOL, atol=CHECK_TOL)
-    assert sol.success
-    return sol.y[:, -1]
+    return solve(rhs, y0, t0, t1, CHECK_TOL)
 
 
 def direct(p, T, r, tau, x0, u0, N, stop):
@@ -222,9 +199,4 @@ def check():
 
 
 if __name__ == "__main__":
-    if "--check" in sys.argv:
-        check()
-    else:
-        for case_name, case_args in CASES.items():
-            write(case_name, case_args)
-            print(f"wrote {OUT / case_name}_ref.csv")
+    main(OUT, CASES, write, {"--check": check})

@@ -41,13 +41,12 @@ The traces are exact up to round-off (no ODE solver is involved); ``RelTol`` in 
 
 from __future__ import annotations
 
-import csv
 import math
-import sys
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+from reftools import main, write_trace
 
 OUT = Path(__file__).resolve().parent / "proposition-4.2"
 
@@ -170,17 +169,9 @@ def trace(T, r, tau, N, x0, u0, stop, law=law_corrected):
 
 
 def write(name: str, case: dict) -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    rows = trace(**case)
-    with open(OUT / f"{name}_ref.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, quoting=csv.QUOTE_MINIMAL)
-        fh.write('"time","plant.x","plant.y","plant.theta","controller.v","controller.omega"\n')
-        for row in rows:
-            w.writerow([repr(float(v) + 0.0) for v in row])  # + 0.0: no "-0.0"
-    step = case["T"] / case["N"]
-    (OUT / f"{name}_ref.opt").write_text(
-        f"StartTime, 0.0\nStopTime, {case['stop']!r}\nStepSize, {step!r}\nRelTol, 1e-09\n",
-        encoding="utf-8")
+    write_trace(OUT, name, ("time", "plant.x", "plant.y", "plant.theta", "controller.v",
+                            "controller.omega"), trace(**case), case["stop"],
+                case["T"] / case["N"], 1e-09, positive_zero=True)
 
 
 # --------------------------------------------------------------------------- checks
@@ -286,9 +277,4 @@ def demo_dead_beat_no_delay(n=100, seed=7, T=1.0):
 
 
 if __name__ == "__main__":
-    if "--check" in sys.argv:
-        check()
-    else:
-        for case_name, case_args in CASES.items():
-            write(case_name, case_args)
-            print(f"wrote {OUT / case_name}_ref.csv")
+    main(OUT, CASES, write, {"--check": check})

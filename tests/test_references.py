@@ -33,7 +33,10 @@ from .roundoff import EXACT_ULPS, assert_csv_close
 #: script -> the accuracy it states for its ODE solve (absolute, on O(1) signals)
 ODE_ACCURACY = {"example_2_4": 2.9e-12, "corollary_4_1": 4e-14}
 
-SCRIPTS = sorted(p for p in (REPO / "reference").glob("*.py") if p.name != "__init__.py")
+#: what the scripts share (file writing, the ODE solve, the command line): no script itself
+HELPER = REPO / "reference" / "reftools.py"
+SCRIPTS = sorted(p for p in (REPO / "reference").glob("*.py")
+                 if p.name not in ("__init__.py", HELPER.name))
 
 
 def imported_roots(path):
@@ -47,10 +50,23 @@ def imported_roots(path):
     return roots
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=[s.stem for s in SCRIPTS])
+@pytest.mark.parametrize("script", [*SCRIPTS, HELPER], ids=[s.stem for s in [*SCRIPTS, HELPER]])
 def test_reference_script_uses_only_stdlib_numpy_scipy(script):
-    foreign = imported_roots(script) - set(sys.stdlib_module_names) - {"numpy", "scipy"}
+    """The scripts and their helper import the standard library, numpy, scipy and (the
+    scripts) the helper: nothing of delaycomp."""
+    allowed = {"numpy", "scipy"} | ({HELPER.stem} if script != HELPER else set())
+    foreign = imported_roots(script) - set(sys.stdlib_module_names) - allowed
     assert not foreign, f"{script.name} imports {sorted(foreign)}"
+
+
+def test_the_scripts_share_their_file_writing_and_solver_set_up():
+    """One helper writes every trace and sets up every ODE solve of the writing path: no
+    script opens a CSV itself or keeps its own copy of the solve."""
+    for script in SCRIPTS:
+        text = script.read_text(encoding="utf-8")
+        assert "write_trace(" in text and "csv.writer" not in text, script.name
+        assert "def _ivp" not in text or "return solve(" in text, script.name
+        assert "def split_delay" not in text, script.name
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[s.stem for s in SCRIPTS])
