@@ -5,7 +5,8 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 :class:`~delaycomp.system.Loop`, the typed description every command runs. Then
 
 - :func:`run` co-simulates it and returns a
-  :class:`~delaycomp.orchestrator.simulate.Result` (one numpy array per signal: ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
+  :class:`~delaycomp.orchestrator.simulate.Result` (one numpy array per signal:
+  ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
 - :func:`plot` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
 - :func:`build` writes the loop's FMUs, named after it, with its values as their start
   values (ready to instantiate with no parameter set), and a wiring sheet: your

@@ -108,11 +108,33 @@ RUN_EXAMPLES = """examples:
 
 
 def _parser() -> argparse.ArgumentParser:
+    """The command line: one subparser per command (each built by its own function),
+    each with ``-q`` / ``-v``."""
     p = _Parser(prog="delaycomp", description=__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"delaycomp {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    _build_parser(sub)
+    _run_parser(sub)
+    _critical_delay_parser(sub)
+    _sweep_parser(sub)
+    _check_parser(sub)
+    _crosscheck_parser(sub)
+    _export_loop_parser(sub)
+    _export_c_parser(sub)
+    _ssp_parser(sub)
+    sub.add_parser("list", help="list the scenarios and their parameters")
+    for command in sub.choices.values():
+        loud = command.add_mutually_exclusive_group()
+        loud.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=0,
+                          default=1, help="errors and results only (no progress, no notes)")
+        loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
+                          const=2, help="also say what is run (steps, estimates, snapping)")
+    return p
 
+
+def _build_parser(sub) -> None:
+    """``delaycomp build``: a loop's FMUs, or every kind's and each scenario's SSP."""
     b = sub.add_parser("build", help="build a loop's FMUs (LOOP.toml), or the FMUs and "
                                      "each scenario's SSP into a folder",
                        description="With LOOP.toml: the FMUs of that loop, named after it "
@@ -144,6 +166,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="build plant, controller and delay FMUs for this model module "
                         "(see README: the model interface)")
 
+
+def _run_parser(sub) -> None:
+    """``delaycomp run``: co-simulate a scenario, a loop file or an SSP file."""
     r = sub.add_parser("run", help="co-simulate a scenario, a loop file or an SSP file",
                        description="Co-simulate a scenario, a loop file or a packed FILE.ssp "
                                    "in delaycomp's exact master.",
@@ -187,6 +212,9 @@ def _parser() -> argparse.ArgumentParser:
                         "meas_delay, controller, input_delay); repeatable; roles not named "
                         "follow from the connections, walking the loop from the plant")
 
+
+def _critical_delay_parser(sub) -> None:
+    """``delaycomp critical-delay``: the largest stable measurement delay, uncompensated."""
     c = sub.add_parser("critical-delay",
                        help="largest measurement delay for which the uncompensated loop "
                             "is stable")
@@ -202,6 +230,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="with --grid: draw r_c against the grid parameter")
 
+
+def _sweep_parser(sub) -> None:
+    """``delaycomp sweep``: a scenario or loop file over a parameter grid."""
     s = sub.add_parser("sweep", help="run a scenario or a loop file over a parameter grid")
     s.add_argument("scenario", help=SCENARIO_HELP + " or LOOP.toml")
     _common(s)
@@ -234,6 +265,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="draw rho: a curve for one grid parameter, a map for two")
 
+
+def _check_parser(sub) -> None:
+    """``delaycomp check``: every reference case in every master."""
     k = sub.add_parser("check", help="cross-check every reference case in every master")
     k.add_argument("loop", nargs="?", default=None, metavar="LOOP.toml",
                    help="check this loop file against the reference CSV it names "
@@ -248,6 +282,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="an optional master that is not installed is a failure (CI), not "
                         "a skipped row")
 
+
+def _crosscheck_parser(sub) -> None:
+    """``delaycomp crosscheck``: each FMU of the reference cases alone, cross-check layout."""
     x = sub.add_parser("crosscheck",
                        help="write each FMU of the reference cases alone in the FMI "
                             "cross-check layout")
@@ -260,6 +297,9 @@ def _parser() -> argparse.ArgumentParser:
     x.add_argument("--fmu-dir", type=Path, default=None,
                    help="folder of built FMUs (default: a per-version cache, built on demand)")
 
+
+def _export_loop_parser(sub) -> None:
+    """``delaycomp export-loop``: a loop as one container FMU."""
     e = sub.add_parser("export-loop",
                        help="assemble a scenario's or a loop file's loop into one container "
                             "FMU")
@@ -270,6 +310,9 @@ def _parser() -> argparse.ArgumentParser:
     _fmu_kind(e, "the container holds the native C FMUs, an error where the loop has "
                  "none (the default holds them where it can)")
 
+
+def _export_c_parser(sub) -> None:
+    """``delaycomp export-c``: a loop's controller as plain C."""
     c = sub.add_parser("export-c",
                        help="write a loop's controller as plain C for an embedded target "
                             "(NAME.h, NAME.c: C99, no heap, no I/O, no global state)",
@@ -289,6 +332,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="the folder to write NAME.h and NAME.c into (created)")
 
+
+def _ssp_parser(sub) -> None:
+    """``delaycomp ssp``: SSP descriptions, or one packed ``.ssp``."""
     p_ssp = sub.add_parser("ssp", help="write SSP descriptions (SSD + SSV) or pack one .ssp")
     p_ssp.add_argument("scenario", nargs="?", default=None,
                        help="pack this scenario or LOOP.toml into --out FILE.ssp (default: "
@@ -301,15 +347,6 @@ def _parser() -> argparse.ArgumentParser:
                      "default packs them where it can)")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
                        help="a FILE.ssp for one scenario, else a folder for all of them")
-
-    sub.add_parser("list", help="list the scenarios and their parameters")
-    for command in sub.choices.values():
-        loud = command.add_mutually_exclusive_group()
-        loud.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=0,
-                          default=1, help="errors and results only (no progress, no notes)")
-        loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
-                          const=2, help="also say what is run (steps, estimates, snapping)")
-    return p
 
 
 def _fmu_kind(p: argparse.ArgumentParser, native_help: str) -> None:
@@ -411,6 +448,7 @@ def _cmd_build(args) -> int:
              f"{str(exc).splitlines()[0]}); --python says so and skips the attempt",
              args.verbosity)
 
+    paths: list[Path] | None = None
     if args.native:
         # no compiler: one line naming what to install; a model that does not translate:
         # one line naming the function, the operation and the line
@@ -420,7 +458,6 @@ def _cmd_build(args) -> int:
         from delaycomp.maths.model import load_model
 
         load_model(args.model)  # a bad model file is an error, not a reason to fall back
-        paths = None
         if not args.python:
             try:
                 paths = build_native_model(args.model, args.out)
@@ -431,14 +468,13 @@ def _cmd_build(args) -> int:
     else:
         from delaycomp.formats.ssp import pack_scenarios
 
-        paths = None
         if not args.python:
             try:
                 paths = build_native(args.out)  # packed below in place of the Python ones
             except NativeBuildError as exc:
                 fallback(exc)
         native = paths is not None
-        paths = paths if native else build_all(args.out)
+        paths = paths if paths is not None else build_all(args.out)
         archives = pack_scenarios(args.out, args.out)
         if native:
             _native_archives(archives, args.verbosity)
@@ -661,6 +697,7 @@ def _run_ssp(args) -> int:
                          "FILE.ssp)")
     with Archive(Path(args.scenario), _foreign(args)) as archive:
         system = archive.system
+        assert system is not None  # read by Archive.__enter__
         spec = apply_sets(system.spec, args.set, archive.fmus())
         stop = system.info.stop_time if args.stop_time is None else args.stop_time
         if stop is None:
@@ -956,6 +993,8 @@ def _platform_notes(args) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line: parse ``argv`` (default: ``sys.argv[1:]``), run the command, return the
+    exit status (2 for bad input, 1 for a failed run, with one line on stderr)."""
     try:
         sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
         args = _parser().parse_args(rest)

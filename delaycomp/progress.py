@@ -26,9 +26,11 @@ class NoBar:
         self.total, self.n = total, 0
 
     def update(self, count: int = 1) -> None:
+        """Count ``count`` more steps (nothing is shown)."""
         self.n += count
 
     def close(self) -> None:
+        """Nothing to close."""
         pass
 
     def __enter__(self) -> NoBar:

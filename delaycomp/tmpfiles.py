@@ -19,7 +19,7 @@ from pathlib import Path
 try:  # POSIX; elsewhere the atomic rename alone keeps readers safe
     import fcntl
 except ImportError:  # pragma: no cover - Windows
-    fcntl = None
+    fcntl = None  # type: ignore[assignment]  # no such module there: the locks are skipped
 
 
 def _alive(pid: int) -> bool:

@@ -6,9 +6,10 @@ import atexit
 import itertools
 import shutil
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from ctypes import byref, c_double, c_int, c_size_t, c_void_p
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import fmpy
 from fmpy import extract, read_model_description
@@ -27,6 +28,9 @@ from delaycomp.errors import DelaycompError
 from delaycomp.orchestrator.master import ComponentBase
 from delaycomp.tmpfiles import mkdtemp
 
+if TYPE_CHECKING:
+    from fmpy.model_description import ModelDescription
+
 FATAL = 4
 _TRUE = c_int(1)  # fmi2True
 #: Callback structures handed to FMUs. The pythonfmu runtime outlives ``fmi2FreeInstance``
@@ -37,6 +41,9 @@ _KEEPALIVE: list = []
 #: to their component by the componentEnvironment pointer the FMU passes back.
 _COMPONENTS: dict[int, weakref.ReferenceType] = {}
 _ENV_IDS = itertools.count(1)
+#: An FMI function of one instance as :meth:`FmuComponent._raw` returns it: the bare ctypes
+#: function (it returns the fmi2Status) and the instance pointer to pass it first.
+_RawCall = tuple[Callable[..., int], c_void_p]
 
 
 def _route(env, instance_name, status, category, message):
@@ -52,7 +59,7 @@ _DISPATCH = fmi2CallbackLoggerTYPE(_route)
 #: FMUs unpacked in this process, by (path, modification time, size): unpacking costs
 #: milliseconds per FMU, more than a short run of the loop; instances of one FMU, and later
 #: runs, share the folder. Removed at exit.
-_UNPACKED: dict[tuple[str, int, int], tuple[object, str]] = {}
+_UNPACKED: dict[tuple[str, int, int], tuple[ModelDescription, str]] = {}
 #: The binaries folders of this platform (FMI 2.0 names it ``linux64``, FMI 3.0
 #: ``x86_64-linux``).
 _PLATFORMS = {fmpy.platform, getattr(fmpy, "platform_tuple", fmpy.platform)}
@@ -75,7 +82,7 @@ def needed_to_run(name: str) -> bool:
     return top not in ("sources", "documentation")
 
 
-def _unpacked(path: Path) -> tuple[object, str]:
+def _unpacked(path: Path) -> tuple[ModelDescription, str]:
     """The model description and unpacked folder of the FMU file ``path`` (cached)."""
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
@@ -131,7 +138,7 @@ class FmuComponent(ComponentBase):
         self._writers: dict[tuple[str, ...], object] = {}
         self.fmu: FMU2Slave | None = None
         #: the instance's raw fmi2DoStep (None: not looked up yet; False: use fmpy's wrapper)
-        self._do_step_fn = None
+        self._do_step_fn: _RawCall | Literal[False] | None = None
         self._env_id = next(_ENV_IDS)
         _COMPONENTS[self._env_id] = weakref.ref(self)
 
@@ -164,6 +171,8 @@ class FmuComponent(ComponentBase):
         return vrs
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
+        """Instantiate the FMU, set up the experiment from ``start_time`` to ``stop_time``,
+        enter initialization mode and set the ``parameters`` (by variable name)."""
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                         instanceName=self.name)
@@ -187,6 +196,7 @@ class FmuComponent(ComponentBase):
     def _set_parameter(self, name: str, value) -> None:
         var = self._var(name)
         vr = [var.valueReference]
+        assert self.fmu is not None  # called by setup() once it is instantiated
         if var.type == "Real":
             self.fmu.setReal(vr, [float(value)])
         elif var.type in ("Integer", "Enumeration"):
@@ -203,6 +213,9 @@ class FmuComponent(ComponentBase):
         self.call_failed = True
 
     def initialize(self) -> None:
+        """Leave initialization mode; raise :class:`FmuRefused` if the FMU logged an
+        error (it would refuse to step)."""
+        assert self.fmu is not None  # after setup()
         try:
             self.fmu.exitInitializationMode()
         except FMICallException as exc:
@@ -211,7 +224,7 @@ class FmuComponent(ComponentBase):
         if self.worst_status >= 3:  # it logged an error: it will refuse to step
             raise FmuRefused(self.last_message or "the FMU logged an error")
 
-    def _raw(self, fname: str):
+    def _raw(self, fname: str) -> _RawCall | None:
         """``(fn, component)``: the FMU's function ``fname`` as a bare ctypes pointer (no
         argtypes: the caller passes ctypes values; no fmpy wrapper, which logs and checks
         the status) and the instance pointer, or None where fmpy has no library handle or
@@ -225,6 +238,7 @@ class FmuComponent(ComponentBase):
         except AttributeError:
             return None
         fn.restype = c_int
+        assert self.fmu is not None  # it has a library handle
         return fn, c_void_p(self.fmu.component)
 
     def _raise(self, fname: str, status: int):
@@ -232,13 +246,13 @@ class FmuComponent(ComponentBase):
         self._failed(exc)
         raise exc
 
-    def reader(self, names: Sequence[str]):
+    def reader(self, names: Sequence[str]) -> Callable[[], list[float]]:
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""
         vrs = self._vrs(names)
         n = len(vrs)
         vr_array = (fmi2ValueReference * n)(*vrs)
         values = (fmi2Real * n)()
-        raw = []  # the instance's fmi2GetReal, looked up at the first call
+        raw: list[_RawCall | None] = []  # the instance's fmi2GetReal, looked up at the first call
 
         count = c_size_t(n)
 
@@ -262,13 +276,13 @@ class FmuComponent(ComponentBase):
             return out
         return read
 
-    def writer(self, names: Sequence[str]):
+    def writer(self, names: Sequence[str]) -> Callable[[Sequence[float]], None]:
         """``(values) -> None`` setting the inputs ``names``: the master's hot path."""
         vrs = self._vrs(names)
         n = len(vrs)
         vr_array = (fmi2ValueReference * n)(*vrs)
         buffer = (fmi2Real * n)()
-        raw = []
+        raw: list[_RawCall | None] = []
 
         count = c_size_t(n)
 
@@ -290,10 +304,12 @@ class FmuComponent(ComponentBase):
         return write
 
     def do_step(self, t: float, h: float) -> None:
+        """``fmi2DoStep`` from ``t`` to ``t + h`` (through the bare function where it can)."""
         fast = self._do_step_fn
         if fast is None:
             fast = self._do_step_fn = self._raw("fmi2DoStep") or False
         if fast is False:
+            assert self.fmu is not None  # after setup()
             try:
                 self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
             except FMICallException as exc:
@@ -308,6 +324,7 @@ class FmuComponent(ComponentBase):
     def get_state(self) -> bytes:
         """The instance's complete state, serialized (``fmi2GetFMUstate`` and
         ``fmi2SerializeFMUstate``; the FMU-side state is freed again)."""
+        assert self.fmu is not None  # after setup()
         state = self._call(self.fmu.getFMUstate)
         try:
             return bytes(self._call(self.fmu.serializeFMUstate, state))
@@ -316,6 +333,7 @@ class FmuComponent(ComponentBase):
 
     def set_state(self, data: bytes) -> None:
         """Restore a state from :meth:`get_state`, possibly of another instance."""
+        assert self.fmu is not None  # after setup()
         state = self._call(self.fmu.deSerializeFMUstate, data)
         try:
             self._call(self.fmu.setFMUstate, state)
@@ -332,6 +350,8 @@ class FmuComponent(ComponentBase):
             raise
 
     def terminate(self) -> None:
+        """``fmi2Terminate`` (where FMI still allows it) and ``fmi2FreeInstance``; safe in
+        any phase and more than once."""
         try:
             if self.fmu is not None:
                 try:

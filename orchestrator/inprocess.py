@@ -14,12 +14,16 @@ step it cannot take returns ``False`` (``do_step`` raises with the logged reason
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from pythonfmu.enums import Fmi2Causality
 
 from delaycomp.errors import DelaycompError
 from delaycomp.fmu.slaves import slave_class
 from delaycomp.orchestrator.master import ComponentBase
+
+if TYPE_CHECKING:
+    from pythonfmu.variables import ScalarVariable
 
 
 class SlaveRefused(DelaycompError, RuntimeError):
@@ -40,7 +44,7 @@ class SlaveComponent(ComponentBase):
         self.slave = self._cls(instance_name=name, resources=None, config=self._config)
         if fp_guarded:  # else the slave class's own setting stands
             self.slave.fp_guarded = True
-        by_causality = {}
+        by_causality: dict[Fmi2Causality, list[ScalarVariable]] = {}
         for v in self.slave.vars.values():
             by_causality.setdefault(v.causality, []).append(v)
         self._vars = {v.name: v for v in self.slave.vars.values()}
@@ -59,6 +63,8 @@ class SlaveComponent(ComponentBase):
 
     # -- Component protocol ------------------------------------------------------------
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
+        """Set up the slave's experiment from ``start_time``, enter initialization mode and
+        set the ``parameters`` (by variable name, converted to the variable's type)."""
         self.slave.setup_experiment(start_time, stop_time, None)
         self.slave.enter_initialization_mode()
         for pname, value in parameters.items():
@@ -69,6 +75,8 @@ class SlaveComponent(ComponentBase):
         self._drain()
 
     def initialize(self) -> None:
+        """Leave initialization mode; raise :class:`SlaveRefused` if the slave logged an
+        error (it refused its parameters)."""
         self.slave.exit_initialization_mode()
         self._drain()
         if self.worst_status >= 3:
@@ -113,6 +121,8 @@ class SlaveComponent(ComponentBase):
         return write
 
     def do_step(self, t: float, h: float) -> None:
+        """Step the slave from ``t`` to ``t + h``; raise :class:`SlaveRefused` with the
+        logged reason if it refuses."""
         if not self.slave.do_step(t, h):
             self._drain()
             raise SlaveRefused(self.last_message or "the slave refused to step")
@@ -126,12 +136,16 @@ class SlaveComponent(ComponentBase):
         return data
 
     def set_state(self, data: bytes) -> None:
+        """Restore a state from :meth:`get_state`; raise :class:`SlaveRefused` if the slave
+        refuses it."""
         self.slave._set_fmu_state(self.slave._fmu_state_from_bytes(data))
         self._drain()
         if self.worst_status >= 3:
             raise SlaveRefused(self.last_message or "restoring the state failed")
 
     def terminate(self) -> None:
+        """Terminate the slave (its ``terminate``, as ``fmi2Terminate`` would) and collect the
+        messages it logged."""
         if self.slave is not None:
             self.slave.terminate()
             self._drain()

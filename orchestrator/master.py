@@ -28,10 +28,10 @@ refused at setup.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
-from typing import Protocol
+from typing import Protocol, cast
 
 from delaycomp.errors import DelaycompError
 from delaycomp.system.loop import Connection  # the one Connection: Port -> Port
@@ -76,12 +76,25 @@ class Component(Protocol):
     #: names of the outputs that depend on inputs at the same instant
     feedthrough_outputs: frozenset[str]
 
-    def setup(self, start_time: float, stop_time: float, parameters: dict) -> None: ...
-    def initialize(self) -> None: ...
-    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None: ...
-    def get_outputs(self, names: Sequence[str]) -> list[float]: ...
-    def do_step(self, t: float, h: float) -> None: ...
-    def terminate(self) -> None: ...
+    def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
+        """Instantiate for the run from ``start_time`` to ``stop_time``, enter
+        initialization mode and set the ``parameters`` (values by variable name)."""
+
+    def initialize(self) -> None:
+        """Leave initialization mode: the component is ready to step."""
+
+    def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
+        """Set the inputs ``names`` to ``values`` (in the same order)."""
+
+    def get_outputs(self, names: Sequence[str]) -> list[float]:
+        """The current values of the outputs ``names``."""
+
+    def do_step(self, t: float, h: float) -> None:
+        """Advance from ``t`` to ``t + h``; raise if the component cannot."""
+
+    def terminate(self) -> None:
+        """End the run and free the component."""
+
     # Optional, for the hot path: ``reader(names) -> (() -> values)`` and
     # ``writer(names) -> ((values) -> None)``, bound once at construction; without them the
     # master wraps ``get_outputs`` / ``set_inputs``. A wrapper that must see every value
@@ -89,6 +102,16 @@ class Component(Protocol):
     # Optional: ``runs_python`` (bool), whether stepping it runs Python code in this
     # interpreter; :func:`delaycomp.orchestrator.simulate.run_loop` keeps BLAS on one
     # thread only then. Without it a component is taken to run Python.
+
+
+class StatefulComponent(Component, Protocol):
+    """A component whose state can be saved and restored (:meth:`Master.get_state`)."""
+
+    def get_state(self) -> bytes:
+        """The component's complete state, serialized."""
+
+    def set_state(self, data: bytes) -> None:
+        """Restore a state from :meth:`get_state`."""
 
 
 #: FMI status names, by value
@@ -110,6 +133,10 @@ class ComponentBase:
     #: whether stepping it runs Python code in this interpreter (and so this numpy); a
     #: component that does not know says True
     runs_python: bool = True
+    #: ``reader(names) -> (() -> values)`` and ``writer(names) -> ((values) -> None)``, the
+    #: hot-path accessors that every subclass defines
+    reader: Callable[[Sequence[str]], Callable[[], list[float]]]
+    writer: Callable[[Sequence[str]], Callable[[Sequence[float]], None]]
 
     def _var(self, name: str):
         try:
@@ -126,6 +153,7 @@ class ComponentBase:
         self.worst_status = max(self.worst_status, status)
 
     def get_outputs(self, names: Sequence[str]) -> list[float]:
+        """The current values of the outputs ``names`` (through a cached ``reader``)."""
         key = tuple(names)
         read = self._readers.get(key)
         if read is None:
@@ -133,6 +161,7 @@ class ComponentBase:
         return read()
 
     def set_inputs(self, names: Sequence[str], values: Sequence[float]) -> None:
+        """Set the inputs ``names`` to ``values`` (through a cached ``writer``)."""
         key = tuple(names)
         write = self._writers.get(key)
         if write is None:
@@ -297,13 +326,19 @@ class Master:
         return self.t0 + i * self.T + j * self.h
 
     def add_observer(self, observer) -> None:
+        """Hand ``observer.record(k, t, values)`` the output values of every tick from now
+        on (``values[slot(instance, variable)]``, see :class:`Recorder`)."""
         self._observers.append(observer.record)
 
     def setup(self, stop_time: float, parameters: dict[str, dict]) -> None:
+        """Set up every component for the run from ``t0`` to ``stop_time``, with its
+        ``parameters`` (by component name; values by variable name)."""
         for name, c in self.components.items():
             self._guard(c, 0, c.setup, self.t0, stop_time, parameters.get(name, {}))
 
     def initialize(self) -> None:
+        """Initialize every component, go to tick 0 and propagate its values (observers
+        see tick 0)."""
         for c in self.components.values():
             self._guard(c, 0, c.initialize)
         self.k = 0
@@ -312,14 +347,16 @@ class Master:
     def get_state(self) -> dict:
         """The tick and every component's state (components need ``get_state``)."""
         return {"k": self.k, "components": {
-            name: self._guard(c, self.k, c.get_state) for name, c in self.components.items()}}
+            name: self._guard(c, self.k, cast(StatefulComponent, c).get_state)
+            for name, c in self.components.items()}}
 
     def set_state(self, state: dict) -> None:
         """Go back (or forward) to a state from :meth:`get_state`; observers are not told
         again about the restored tick (they saw it when it was first reached)."""
         self.k = int(state["k"])
         for name, c in self.components.items():
-            self._guard(c, self.k, c.set_state, state["components"][name])
+            self._guard(c, self.k, cast(StatefulComponent, c).set_state,
+                        state["components"][name])
         self._propagate(record=False)
 
     def _guard(self, comp, k, fn, *args):
@@ -359,7 +396,7 @@ class Master:
         culprit = next((c for c in self.components.values()
                         if getattr(c, "last_message", None)), None)
         name = culprit.name if culprit else "a component"
-        reason = (culprit.last_message if culprit else None) or str(exc)
+        reason = getattr(culprit, "last_message", None) or str(exc)
         raise SimulationError(f"{name} failed at t = {self.time_of(k):.12g}: {reason}") from exc
 
     def step(self) -> None:
@@ -374,16 +411,20 @@ class Master:
         except SimulationError:
             raise
         except Exception as exc:
+            assert comp is not None  # the loop raised: it ran
             reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
             raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}") from exc
         self.k = k + 1
         self._propagate()
 
     def run_until(self, stop_ticks: int) -> None:
+        """Step until tick ``stop_ticks`` (no step if it is reached already)."""
         while self.k < stop_ticks:
             self.step()
 
     def terminate(self) -> None:
+        """Terminate every component, all of them even if some fail; then raise
+        :class:`SimulationError` naming the failures, if any."""
         errors = []
         for c in self.components.values():
             try:
@@ -442,6 +483,8 @@ class Recorder:
         self.rows: list[Sequence[float]] = []
 
     def record(self, k: int, t: float, slots: Sequence[float]) -> None:
+        """Observer call for tick ``k`` at time ``t`` with the master's value vector
+        ``slots``: keep (and pass to the sink) the recorded signals if the tick is due."""
         if k % self.every and k != self.final:
             return
         row = self._gather(slots)
@@ -456,5 +499,6 @@ class Recorder:
             self.rows[:] = [row]
 
     def column(self, name: str) -> list[float]:
+        """The kept values of the signal ``name`` (``"instance.variable"``)."""
         j = self.names.index(name)
         return [row[j] for row in self.rows]

@@ -10,6 +10,7 @@ import contextlib
 import csv
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -43,6 +44,7 @@ class Result:
         return len(self.times) if self.rows is None else self.rows
 
     def column(self, name: str) -> np.ndarray:
+        """The signal ``name`` as an array over :attr:`times` (a view of :attr:`data`)."""
         return self.data[:, self.names.index(name)]
 
     def __getitem__(self, name: str) -> np.ndarray:
@@ -66,6 +68,8 @@ class Result:
                             columns=list(self.names))
 
     def write_csv(self, path: str | Path) -> None:
+        """Write a CSV file: a ``time`` column and one column per signal, every value as
+        ``repr`` of its float (exact round trip); written whole or not at all."""
         path = Path(path)
         tmp = path.with_name(path.name + ".part")
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -105,7 +109,9 @@ def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None
         if files:
             raise ParameterError(f"instance {files[0]} is an FMU file: the in-process "
                                  "engine runs delaycomp's own slaves only (use --engine fmu)")
-        return [SlaveComponent(i.name, *i.source.build_key(), fp_guarded)
+        # no FmuFile (refused above): every source has a build key
+        return [SlaveComponent(i.name, *cast("tuple[str, dict]", i.source.build_key()),
+                               fp_guarded)
                 for i in loop.instances]
     raise ParameterError(f"engine {engine!r} is not allowed: must be one of "
                          f"{', '.join(ENGINES)}")
@@ -137,6 +143,8 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
 
 
 def parameters_of(loop: Loop) -> dict[str, dict]:
+    """The parameters of every instance of ``loop``, by instance name, as
+    :meth:`Master.setup` takes them (``loop.parameters()``)."""
     return loop.parameters()
 
 

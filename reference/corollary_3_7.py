@@ -59,6 +59,7 @@ CASES = {
 
 
 def chain(n):
+    """The chain of ``n`` integrators: ``A`` (ones above the diagonal) and ``B = e_n``."""
     A = np.diag(np.ones(n - 1), 1)
     B = np.zeros(n)
     B[-1] = 1.0
@@ -138,6 +139,7 @@ def trace(n, T, r, tau, x0, u0, N, stop):
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     header = ["time", *(f"plant.x{c + 1}" for c in range(case["n"])), "controller.u"]
     write_trace(OUT, name, header, trace(**case), case["stop"], case["T"] / case["N"],
                 CHECK_TOL)
@@ -227,6 +229,8 @@ def formula_3_25(n, T, r, tau, x0, u0, N, stop):
 
 
 def check():
+    """Print the checks: the dead-beat gain nilpotent, the trace against a direct solve, (3.25)
+    against the Phi-based law."""
     for n, T in [(2, 0.5), (2, 1.0), (3, 1.0), (4, 0.3)]:
         K = deadbeat_gain(n, T)
         Ad, Bd = exact_flow(*chain(n), T)

@@ -263,6 +263,7 @@ def trace(T, r, tau, N, x0, u0, stop, rtol=RTOL, atol=ATOL, diagnostics=False,
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     write_trace(OUT, name, ("time", "plant.x", "plant.y", "plant.theta", "controller.v",
                             "controller.omega"), trace(**case), case["stop"],
                 case["T"] / case["N"], RTOL, positive_zero=True)

@@ -197,6 +197,7 @@ def trace(T, r, tau, x0, u0, z0, N, stop, tol=TOL):
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     write_trace(OUT, name, ("time", "plant.x1", "plant.x2", "plant.x3", "controller.u"),
                 trace(**case), case["stop"], case["T"] / case["N"], TOL)
 
@@ -223,6 +224,8 @@ def phi_formula(x, c, r, tau):
 
 
 def check():
+    """Print the checks: (2.18) against the forwarding form, the trace against dense outputs and
+    against the delay-free loop."""
     rng = np.random.default_rng(1)
     pts = rng.uniform(-5, 5, size=(2000, 3))
     d = max(abs(k(p) - k_forwarding(p)) / (1 + abs(k(p))) for p in pts)

@@ -63,6 +63,7 @@ def trace(k, T, r, mode, x0, u0, N, stop):
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     write_trace(OUT, name, ("time", "plant.x", "controller.u"), trace(**case), case["stop"],
                 case["T"] / case["N"], 1e-09)
 

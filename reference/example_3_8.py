@@ -60,6 +60,8 @@ CASES = {
 
 
 def make_flow(p):
+    """The exact flow of (3.27) under a held input, for the nonlinearity ``p``: ``flow(x, v,
+    s)``."""
     _, P = NONLINEARITIES[p]
 
     def flow(x, v, s):
@@ -71,6 +73,7 @@ def make_flow(p):
 
 
 def feedback(p, T):
+    """The dead-beat feedback (3.29) for the nonlinearity ``p`` and period ``T``."""
     _, P = NONLINEARITIES[p]
     return lambda x: -(x[0] - P(x[1])) / T ** 2 - 3.0 * x[1] / (2.0 * T)
 
@@ -119,6 +122,7 @@ def trace(p, T, r, tau, x0, u0, N, stop):
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     write_trace(OUT, name, ("time", "plant.x1", "plant.x2", "controller.u"), trace(**case),
                 case["stop"], case["T"] / case["N"], CHECK_TOL)
 
@@ -174,6 +178,8 @@ def direct(p, T, r, tau, x0, u0, N, stop):
 
 
 def check():
+    """Print the checks: the trace against a direct solve, the dead-beat time, (3.30) against the
+    Phi-based law."""
     for name, case in CASES.items():
         ref = np.array(trace(**case))
         d = np.array(direct(**case))

@@ -63,6 +63,7 @@ CASES = {
 
 # --------------------------------------------------------------------------- flow
 def sinc(z):
+    """``sin(z) / z`` (1 at 0)."""
     return 1.0 if z == 0.0 else math.sin(z) / z
 
 
@@ -169,6 +170,7 @@ def trace(T, r, tau, N, x0, u0, stop, law=law_corrected):
 
 
 def write(name: str, case: dict) -> None:
+    """Write case ``name``'s trace and settings files (``reftools.write_trace``)."""
     write_trace(OUT, name, ("time", "plant.x", "plant.y", "plant.theta", "controller.v",
                             "controller.omega"), trace(**case), case["stop"],
                 case["T"] / case["N"], 1e-09, positive_zero=True)
@@ -224,6 +226,8 @@ def check_plant_ode(name):
 
 
 def check():
+    """Print the checks: the sinc flow against a direct solve, each case's dead-beat time, the
+    plant re-integrated."""
     check_flow()
     for name, case in CASES.items():
         rows = trace(**case)

@@ -26,7 +26,8 @@ BAD = [
     (["run", "example-3.6", "--set", "T=-1"], "T = '-1'"),
     (["run", "example-3.6", "--set", "r=-0.1"], "r = '-0.1' is not allowed: must be a finite "
                                                  "number >= 0"),
-    (["run", "example-3.6", "--set", "tau=0.5"], "tau = 0.5 is not allowed: zero-order hold needs a multiple l*T"),
+    (["run", "example-3.6", "--set", "tau=0.5"],
+     "tau = 0.5 is not allowed: zero-order hold needs a multiple l*T"),
     (["run", "example-3.6", "--set", "N=0"], "N = '0' is not allowed: must be a positive integer"),
     (["run", "example-3.6", "--set", "N=2.5"], "N = '2.5'"),
     (["run", "example-3.6", "--set", "k=inf"], "k = 'inf' is not allowed: must be a finite"),

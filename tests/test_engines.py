@@ -54,9 +54,12 @@ def test_inprocess_engine_equals_fmu_engine(fmu_dir, case):
 
 
 def test_inprocess_engine_refuses_what_the_fmu_refuses(fmu_dir):
-    """A bad parameter stops both engines with the same one-line reason, naming it."""
-    spec = lti_loop([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, tau=0.5, N=10,
-                    mode="compensated", x0=[1.0], u0=[0.0])
+    """A bad parameter stops both engines with the same one-line reason, naming it. (The
+    typed loop refuses ``tau = 0.5`` itself; set on the instance afterwards, as a host
+    would set it, the FMU is the one to refuse it.)"""
+    spec = lti_loop([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, tau=0.0, N=10,
+                    mode="compensated", x0=[1.0], u0=[0.0]).set_parameters("controller",
+                                                                           tau=0.5)
     fmu = run_loop(spec, 2.0, fmu_dir)
     inproc = run_loop(spec, 2.0, engine="inprocess")
     assert not fmu.success and not inproc.success

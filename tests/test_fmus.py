@@ -145,7 +145,8 @@ def test_plant_fmu_is_the_exact_exponential(fmu_dir):
 BAD = [
     ("controller", {"T": -1.0}, r"T = -1.0 is not allowed: must be > 0"),
     ("controller", {"r": -0.1}, r"r = -0.1 is not allowed: must be >= 0"),
-    ("controller", {"tau": 0.5}, r"tau = 0.5 is not allowed: must be a multiple"),
+    ("controller", {"tau": 0.5},
+     r"tau = 0.5 is not allowed: zero-order hold needs a multiple l\*T"),
     ("controller", {"mode": "fast"}, r"mode = 'fast' is not allowed"),
     ("controller", {"K[1,1]": float("nan")}, r"K\[1,1\] = nan is not allowed"),
     ("delay", {"delay": -1.0}, r"delay = -1.0 is not allowed: must be >= 0"),

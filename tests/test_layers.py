@@ -438,3 +438,29 @@ def test_every_error_is_a_delaycomp_error_and_each_name_is_one_class():
             derives(b) for _, bases in errors.get(name, ()) for b in bases)
 
     assert [name for name in errors if not derives(name)] == []
+
+
+# -- public names documented (item 4) ----------------------------------------------------
+#: the paper's model files are in the model-file format of the README, and their text names
+#: their FMUs (a digest): they document themselves in their module docstrings
+UNDOCUMENTED_OK = ("delaycomp.paper.models.",)
+
+
+def test_public_names_have_a_docstring():
+    """Every public function and class of the package, and every public method of a
+    public class, has a docstring (what ``help()`` and the API pages show)."""
+    missing = []
+    for module, path, _ in CASES:
+        if module.startswith(UNDOCUMENTED_OK):
+            continue
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) \
+                    or node.name.startswith("_"):
+                continue
+            if ast.get_docstring(node) is None:
+                missing.append(f"{module}.{node.name}")
+            if isinstance(node, ast.ClassDef):
+                missing += [f"{module}.{node.name}.{sub.name}" for sub in node.body
+                            if isinstance(sub, (ast.FunctionDef, ast.AsyncFunctionDef))
+                            and not sub.name.startswith("_") and ast.get_docstring(sub) is None]
+    assert missing == []

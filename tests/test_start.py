@@ -80,9 +80,10 @@ def test_the_probe_sees_an_import_when_there_is_one():
 #: The LTI plant and controller need a matrix exponential (scipy.linalg); the delay copies
 #: values; the model FMUs of Example 2.4 use the model's own exact step and Phi (scipy's
 #: ODE solver is loaded at a model's first numerical solve, never at instantiation).
-#: every Python FMU imports these: the package's finder of earlier names (``layout``) and
-#: the two packages (their ``__init__`` imports nothing)
-FMU_BASE = {"layout", "maths", "fmu", "fmu.slave", "names"}
+#: every Python FMU imports these: the package's finder of earlier names (``layout``), the
+#: two packages (their ``__init__`` imports nothing), the names and the errors (the one
+#: ``ParameterError``; the standard library only)
+FMU_BASE = {"layout", "maths", "fmu", "fmu.slave", "names", "errors"}
 FMU_NEEDS = {
     "delay": (("numpy", "pythonfmu"),
               FMU_BASE | {"maths.delayline", "maths.grid"}),
@@ -91,10 +92,10 @@ FMU_NEEDS = {
     "controller": (("numpy", "pythonfmu", "scipy.linalg"),
                    FMU_BASE | {"maths.zoh", "maths.grid", "maths.lti"}),
     "model_plant": (("numpy", "pythonfmu"),
-                    FMU_BASE | {"maths.delayline", "errors", "maths.grid", "maths.history",
+                    FMU_BASE | {"maths.delayline", "maths.grid", "maths.history",
                                 "maths.model", "maths.nlcontrol", "maths.predictors"}),
     "model_controller": (("numpy", "pythonfmu"),
-                         FMU_BASE | {"maths.delayline", "errors", "maths.grid",
+                         FMU_BASE | {"maths.delayline", "maths.grid",
                                      "maths.history", "maths.model", "maths.nlcontrol",
                                      "maths.predictors"}),
 }

@@ -19,6 +19,7 @@ import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import escape
 
 import delaycomp
@@ -73,10 +74,12 @@ class FmuSpec:
 
     @property
     def folder(self) -> Path:
+        """The FMU's folder, ``fmus/<kind>`` (under :data:`FMU_ROOT`)."""
         return FMU_ROOT / self.kind
 
     @property
     def script_path(self) -> Path:
+        """The slave module's file in :attr:`folder`."""
         return self.folder / self.script
 
 
@@ -102,8 +105,9 @@ FMUS: dict[str, FmuSpec] = {
 }
 
 #: Dimensions of the default build: the scalar loop of Example 3.6.
-DEFAULT_CONFIG = {"plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
-                  "controller": {"n": 1, "m": 1}}
+DEFAULT_CONFIG: dict[str, dict[str, Any]] = {
+    "plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
+    "controller": {"n": 1, "m": 1}}
 
 
 def model_identifier(kind: str, config: dict) -> str:

@@ -26,7 +26,7 @@ from delaycomp.fmu.build import (
     build_fmu,
     model_identifier,
 )
-from delaycomp.system import FmuFile
+from delaycomp.system import FmuFile, Source
 from delaycomp.tmpfiles import build_lock
 
 __all__ = ["check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_fmu"]
@@ -159,7 +159,7 @@ def _check_fmu(path: Path, kind: str, config: dict) -> None:
                                  f"{ {k: wanted[k] for k in differs} }")
 
 
-def source_fmu(source, fmu_dir: Path | None = None) -> Path:
+def source_fmu(source: Source, fmu_dir: Path | None = None) -> Path:
     """The FMU file of an instance's source: a given file as it is, else the built FMU of
     its kind and configuration (:func:`fmu_path`)."""
     if isinstance(source, FmuFile):

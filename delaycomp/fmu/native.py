@@ -39,6 +39,7 @@ import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
@@ -295,7 +296,9 @@ def _exact_starts(root: Element, start: dict) -> None:
     is refused."""
     from delaycomp.fmu.build import start_text
 
-    by_name = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+    variables = root.find("ModelVariables")
+    assert variables is not None  # the table tree (slave.to_xml) has its variables
+    by_name = {sv.get("name"): sv for sv in variables}
     for name, value in start.items():
         sv = by_name.get(name)
         typed = next(iter(sv)) if sv is not None else None
@@ -307,9 +310,12 @@ def _exact_starts(root: Element, start: dict) -> None:
 
 def _variables(root: Element) -> list[dict]:
     out = []
-    for sv in root.find("ModelVariables"):
+    variables = root.find("ModelVariables")
+    assert variables is not None  # the table tree (slave.to_xml) has its variables
+    for sv in variables:
         typ = next(iter(sv))
-        out.append({"name": sv.get("name"), "vr": int(sv.get("valueReference")),
+        # every variable of the table tree has its valueReference
+        out.append({"name": sv.get("name"), "vr": int(cast(str, sv.get("valueReference"))),
                     "causality": sv.get("causality"), "type": typ.tag,
                     "start": typ.get("start")})
     if [v["vr"] for v in out] != list(range(len(out))):
@@ -438,6 +444,7 @@ def _native_description(kind: str, root: Element, ident: str, guid: str,
     root.set("generationTool", f"delaycomp {delaycomp.__version__} (native C)")
     root.attrib.pop("generationDateAndTime", None)  # a rebuild gives the same file
     cs = root.find("CoSimulation")
+    assert cs is not None  # the table tree (slave.to_xml) is a co-simulation FMU's
     cs.set("needsExecutionTool", "false")
     cs.set("canBeInstantiatedOnlyOncePerProcess", "false")
     cs.set("canNotUseMemoryManagementFunctions", "true")
@@ -624,6 +631,8 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
     """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
     machine, or cross-compiled for ``platform`` (a key of :data:`CROSS_TARGETS`: the host
     then loads that platform's binaries of the FMUs; run it with :func:`host_command`)."""
+    argv: list[str] | None
+    extra: tuple[str, ...]
     if platform is None:
         argv, extra, libs = compiler(), (), ["-ldl", "-lm"]
     elif platform in CROSS_TARGETS:

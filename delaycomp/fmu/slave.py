@@ -97,6 +97,7 @@ def is_roundoff_step(step_size: float, h: float) -> bool:
 
 
 def check_finite(name: str, value: float) -> float:
+    """Return ``value``; raise :class:`ParameterError` naming ``name`` if it is not finite."""
     if not math.isfinite(value):
         raise ParameterError(f"{name} = {value!r} is not allowed: must be a finite number")
     return value
@@ -243,6 +244,8 @@ class TableSlave(Fmi2Slave):
 
     # -- registration helpers ----------------------------------------------------------
     def register_variable(self, var, nested: bool = True):
+        """Register ``var`` with pythonfmu; a value for it in the build's ``start`` table
+        (module docstring, item 3b) replaces the slave's default through its setter."""
         super().register_variable(var, nested)
         start = getattr(self, "config", {}).get("start", {})
         if var.name in start:  # a start value of this build replaces the slave's default
@@ -252,6 +255,7 @@ class TableSlave(Fmi2Slave):
         self, name: str, getter: Callable[[], float], setter: Callable[[float], None],
         description: str,
     ) -> None:
+        """A Real parameter ``name`` (variability fixed: set before initialization ends)."""
         self.register_variable(
             Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                  getter=getter, setter=setter, description=description)
@@ -315,6 +319,7 @@ class TableSlave(Fmi2Slave):
                 self.parameter(name, get, put, "model parameter")
 
     def real_input(self, name: str, getter, setter, description: str) -> None:
+        """A continuous Real input ``name``."""
         self.register_variable(
             Real(name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
                  getter=getter, setter=setter, description=description)
@@ -324,6 +329,8 @@ class TableSlave(Fmi2Slave):
         self, name: str, getter, description: str, depends_on: Iterable[str] = (),
         variability: Fmi2Variability = Fmi2Variability.continuous,
     ) -> None:
+        """A Real output ``name`` (initial calculated) that depends at the same instant on
+        the inputs ``depends_on`` (its ModelStructure dependencies, item 4)."""
         self.register_variable(
             Real(name, causality=Fmi2Causality.output, variability=variability,
                  initial=Fmi2Initial.calculated, getter=getter, description=description)
@@ -340,6 +347,8 @@ class TableSlave(Fmi2Slave):
 
     # -- FMI entry points ----------------------------------------------------------------
     def setup_experiment(self, start_time, stop_time, tolerance):
+        """fmi2SetupExperiment: keep the start time ``t0`` (stop time and tolerance are not
+        used); refused outside the instantiated phase or for a time that is not finite."""
         try:
             if self.phase != "instantiated":
                 self._refuse(f"fmi2SetupExperiment is not allowed in the {self.phase} "
@@ -355,6 +364,7 @@ class TableSlave(Fmi2Slave):
             self._refuse(f"fmi2SetupExperiment failed: {type(exc).__name__}: {exc}")
 
     def enter_initialization_mode(self):
+        """fmi2EnterInitializationMode: allowed once, right after instantiation."""
         if self.phase != "instantiated":
             self._refuse(f"fmi2EnterInitializationMode is not allowed in the {self.phase} "
                          "phase: only after fmi2Instantiate")
@@ -362,6 +372,9 @@ class TableSlave(Fmi2Slave):
         self.phase = "initialization"
 
     def exit_initialization_mode(self):
+        """fmi2ExitInitializationMode: apply the Integer twins of the String parameters
+        (item 9) and build the maths objects (``_setup``); a bad parameter or a version
+        clash is logged and leaves the instance refusing to step (item 5)."""
         if self.phase != "initialization":
             self._refuse(f"fmi2ExitInitializationMode is not allowed in the {self.phase} "
                          "phase: only after fmi2EnterInitializationMode")
@@ -383,12 +396,21 @@ class TableSlave(Fmi2Slave):
             self._refuse(f"initialization failed: {type(exc).__name__}: {exc}")
 
     def terminate(self):
+        """fmi2Terminate: end the instance (a second call is refused)."""
         if self.phase == "terminated":
             self._refuse("fmi2Terminate is not allowed: the instance is already terminated")
             return
         self.phase = "terminated"
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        """fmi2DoStep: one communication step from ``current_time`` (``_step``).
+
+        Returns
+        -------
+        bool
+            False (fmi2Discard, the reason logged) when the instance refuses the step
+            (items 5 and 7) or the step fails, else True.
+        """
         if self.error is not None:
             self.log(f"refusing to step: {self.error}", Fmi2Status.discard)
             return False
@@ -475,15 +497,20 @@ class TableSlave(Fmi2Slave):
             self._refuse(f"set{kind.__name__} failed: {type(exc).__name__}: {exc}")
 
     def set_real(self, vrs, values):
+        """fmi2SetReal: set the Real variables ``vrs`` to ``values`` (a refused set is logged,
+        item 7)."""
         self._set(vrs, values, Real, float)
 
     def set_integer(self, vrs, values):
+        """fmi2SetInteger: as :meth:`set_real`, for Integer variables."""
         self._set(vrs, values, Integer, int)
 
     def set_boolean(self, vrs, values):
+        """fmi2SetBoolean: as :meth:`set_real`, for Boolean variables."""
         self._set(vrs, values, Boolean, bool)
 
     def set_string(self, vrs, values):
+        """fmi2SetString: as :meth:`set_real`, for String variables."""
         self._set(vrs, values, String, str)
 
     def _get(self, vrs, kind, convert, missing) -> list:
@@ -507,15 +534,21 @@ class TableSlave(Fmi2Slave):
         return out
 
     def get_real(self, vrs):
+        """fmi2GetReal: the values of the Real variables ``vrs`` (NaN, with the error
+        logged, for a value reference that is unknown or not a Real, or whose getter
+        fails)."""
         return self._get(vrs, Real, float, math.nan)
 
     def get_integer(self, vrs):
+        """fmi2GetInteger: as :meth:`get_real`, for Integer variables (0 when refused)."""
         return self._get(vrs, Integer, int, 0)
 
     def get_boolean(self, vrs):
+        """fmi2GetBoolean: as :meth:`get_real`, for Boolean variables (False when refused)."""
         return self._get(vrs, Boolean, bool, False)
 
     def get_string(self, vrs):
+        """fmi2GetString: as :meth:`get_real`, for String variables (``""`` when refused)."""
         return self._get(vrs, String, str, "")
 
     def _setup(self) -> None:
@@ -607,6 +640,8 @@ class TableSlave(Fmi2Slave):
 
     # -- modelDescription --------------------------------------------------------------
     def to_xml(self, model_options=None):
+        """The modelDescription (an ElementTree element) as pythonfmu writes it, with each
+        output's dependencies declared and the outputs listed as InitialUnknowns (item 4)."""
         root = super().to_xml(model_options or {})
         index_of = {v.name: i + 1 for i, v in enumerate(self.vars.values())}
         outputs = root.find("ModelStructure/Outputs")
@@ -633,9 +668,15 @@ class HeldSampleMixin:
     compensate. The held input is hidden state (saved with the FMU state).
     """
 
+    # what the TableSlave it is mixed into provides (annotations for the type checker only)
+    y: np.ndarray
+    register_variable: Callable[..., None]
+
     def register_held_sample(self) -> None:
+        """Register the Boolean parameter ``held_sample`` (default false); call it from the
+        slave's ``__init__``."""
         self.held_sample = False
-        self._y_held = None  # the input held over the step that just ended
+        self._y_held: np.ndarray | None = None  # the input held over the step that just ended
         self.register_variable(Boolean(
             "held_sample", causality=Fmi2Causality.parameter,
             variability=Fmi2Variability.fixed, getter=lambda: self.held_sample,

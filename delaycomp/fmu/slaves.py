@@ -24,6 +24,7 @@ def _load_model_module(model_path: str) -> str:
     name = f"delaycomp_model_{model_id(model_path)}"  # = delaycomp.maths.model.module_name
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, model_path)
+        assert spec is not None and spec.loader is not None  # a .py file always has one
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         try:

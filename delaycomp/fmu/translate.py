@@ -42,6 +42,7 @@ import sys
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -81,6 +82,8 @@ class CFunction:
 
     @property
     def signature(self) -> str:
+        """The C prototype: ``int <name>(<args>, double *out)``, ``t`` and ``h`` as
+        ``double``, the vectors as ``const double *``."""
         params = ", ".join(f"double {a}" if a in ("t", "h") else f"const double *{a}"
                            for a in self.args)
         return f"int {self.name}({params}, double *out)"
@@ -199,7 +202,8 @@ def _where(exc: BaseException, skip: tuple[str, ...]) -> str:
     if not frames:
         return "an unknown line"
     fr = frames[-1]
-    text = (fr.line or linecache.getline(fr.filename, fr.lineno)).strip()
+    # a frame of a traceback has its line number (typeshed allows None)
+    text = (fr.line or linecache.getline(fr.filename, cast(int, fr.lineno))).strip()
     return f"{Path(fr.filename).name}:{fr.lineno} (`{text}`)"
 
 

@@ -211,7 +211,7 @@ def _export_lti(prefix, loop, slave) -> tuple[str, str]:
     compensated = ctrl.mode == "compensated"
     QB = np.hstack(pred.QB)  # n x (m L)
     state = "\n".join([_COMMON_STATE,
-                       f"    long head;          /* ring position of u_{{i-1}} in hist */",
+                       "    long head;          /* ring position of u_{i-1} in hist */",
                        f"    double held[{prefix}_NU];  /* the control held over the period */",
                        f"    double pending[{prefix}_NU];  /* u_i from the current sample */",
                        f"    double hist[{prefix}_L][{prefix}_NU];  /* u_{{i-1}}, u_{{i-2}}, "
@@ -279,10 +279,10 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
     funcs = (*(("f",) if needs_ode else ()), "k", *(("step",) if uses_step else ()))
     P = prefix
     state = [_COMMON_STATE,
-             f"    long hist_head;     /* ring position of the oldest stored control */",
+             "    long hist_head;     /* ring position of the oldest stored control */",
              f"    double hist[{P}_HIST][{P}_NU];  /* the controls of the window, a ring */"]
     if zoh:
-        state += [f"    long pad_head;      /* ring position of the oldest padded control */",
+        state += ["    long pad_head;      /* ring position of the oldest padded control */",
                   f"    double pad[{P}_PAD][{P}_NU];  /* the output's padding delay line */",
                   f"    double held[{P}_NU];  /* the control held over the period */",
                   f"    double pending[{P}_NU];  /* u_i from the current sample */"]

@@ -37,7 +37,7 @@ from pathlib import Path
 import delaycomp
 from delaycomp.errors import ParameterError
 from delaycomp.names import FMU_KINDS, LOOP_GROUPS
-from delaycomp.system.loop import ROLES, FmuFile, Loop, ModelFmu
+from delaycomp.system.loop import ROLES, FmuFile, Loop, ModelFmu, Role
 
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
@@ -75,12 +75,12 @@ def file_stem(name: str) -> str:
     return stem
 
 
-def roles_of(only: Iterable[str] | None) -> tuple[str, ...]:
+def roles_of(only: Iterable[str] | None) -> tuple[Role, ...]:
     """The roles ``only`` names (:data:`delaycomp.names.LOOP_GROUPS`), in signal order;
     ``None``: every role."""
     if only is None:
         return ROLES
-    chosen = set()
+    chosen: set[str] = set()
     for group in only:
         if group not in LOOP_GROUPS:
             raise ParameterError(f"--only {group!r} is not allowed: allowed are "
@@ -136,19 +136,22 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
         if info is not None:
             info(text)
 
-    chosen = [loop.by_role(r) for r in roles if loop.by_role(r) is not None]
+    chosen = [inst for r in roles if (inst := loop.by_role(r)) is not None]
     if not chosen:
         raise ParameterError(f"loop {loop.name} has no {' or '.join(roles)} to build")
-    given = {i.role: Path(i.source.path) for i in chosen if isinstance(i.source, FmuFile)}
+    given: dict[str, Path] = {i.role: Path(i.source.path) for i in chosen
+                              if isinstance(i.source, FmuFile)}
     for role, path in given.items():
         note(f"note: the {role} is the loop's own FMU file {path} (used as it is, not "
              "rebuilt: set its parameters as the wiring sheet says)")
     todo = [i for i in chosen if not isinstance(i.source, FmuFile)]
 
     def build_all(native: bool, stage: Path) -> dict[str, Path]:
-        built = {}
+        built: dict[str, Path] = {}
         for inst in todo:
-            kind, config = inst.source.build_key()
+            source = inst.source
+            assert not isinstance(source, FmuFile)  # todo holds the instances to build
+            kind, config = source.build_key()
             config = {**config, "start": dict(inst.parameters)}
             file_name = f"{name}_{inst.role}.fmu"
             if native:
@@ -180,14 +183,15 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
                 note(text)
         for inst in todo:
             check_starts(staged[inst.role], inst.parameters, f"{name}_{inst.role}.fmu")
-        written = {}
+        written: dict[str, Path] = {}
         for role in roles:
             if role in staged:
                 written[role] = out_dir / staged[role].name
                 publish(staged[role], written[role])
     files = {**written, **given}
     wiring = out_dir / f"{name}_wiring.txt"
-    others = {i.role: None for i in loop.instances if i.role not in files}
+    others: dict[str, Path | None] = {i.role: None for i in loop.instances
+                                      if i.role not in files}
     wiring.write_text(wiring_sheet(loop, {**others, **files}, roles, native, name),
                       encoding="utf-8")
     return LoopBuild(name, written, wiring, native, given, tuple(notes))

@@ -19,9 +19,13 @@ import csv
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
 
 from delaycomp.errors import ParameterError
 from delaycomp.maths.grid import on_grid
+
+if TYPE_CHECKING:
+    from _csv import Writer  # the type csv.writer() returns (not exported by csv)
 
 #: suffix of the CSV of a failed run (rows up to the failure): never read as a result
 PARTIAL_SUFFIX = ".partial"
@@ -68,10 +72,15 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
     --------
     >>> check_output("out/run.csv", "--out")
     PosixPath('out/run.csv')
-    >>> check_output("out/", "--plot", "plot")
+    >>> check_output("out/", "--plot", "plot")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    delaycomp.formats.outputs.OutputError: --plot 'out/' is a folder: give a file name such as out/plot.png
+    delaycomp.formats.outputs.OutputError: --plot 'out/' is a folder: give a file name ...
+    >>> try:
+    ...     check_output("out/", "--plot", "plot")
+    ... except OutputError as exc:
+    ...     print(str(exc).split(": ")[1])
+    give a file name such as out/plot.png
     """
     if path is None:
         return None
@@ -148,8 +157,9 @@ class CsvStream:
         self.path = Path(path)
         self.names = list(names)
         self.tmp = self.path.with_name(self.path.name + WORKING_SUFFIX)
-        self._fh = None  # opened with the first row: a run that fails before has no file
-        self._writer = None
+        # opened with the first row: a run that fails before has no file
+        self._fh: TextIO | None = None
+        self._writer: Writer | None = None
         self.rows = 0
 
     def _open(self) -> None:
@@ -161,6 +171,7 @@ class CsvStream:
     def __call__(self, t: float, row) -> None:
         if self._writer is None:
             self._open()
+        assert self._writer is not None  # _open() made it
         self._writer.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
         self.rows += 1
 
@@ -172,6 +183,7 @@ class CsvStream:
                 self._open()
             else:
                 return final
+        assert self._fh is not None  # _open() made it
         self._fh.close()
         self.tmp.replace(final)
         return final

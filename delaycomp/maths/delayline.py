@@ -42,16 +42,20 @@ class DelayLine:
         self.buffer: deque[tuple[float, ...]] = deque([init] * D, maxlen=D)
 
     def output(self, u) -> tuple[float, ...]:
+        """The output now: the input of D steps ago (``u`` itself when ``D = 0``)."""
         if self.D == 0:
             return tuple(map(float, u))
         return self.buffer[0]
 
     def push(self, u) -> None:
+        """Take this step's input ``u`` (the oldest value leaves)."""
         if self.D:
             self.buffer.append(tuple(map(float, u)))
 
     def get_state(self) -> list:
+        """The buffer, oldest first, as lists (for the FMU state)."""
         return [list(v) for v in self.buffer]
 
     def set_state(self, state: list) -> None:
+        """Restore the buffer :meth:`get_state` returned."""
         self.buffer = deque((tuple(v) for v in state), maxlen=self.D)

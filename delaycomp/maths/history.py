@@ -42,7 +42,9 @@ class InputHistory:
         return [(count * self.h, np.array(v)) for count, v in out]
 
     def get_state(self) -> list:
+        """The stored inputs, oldest first, as lists (for the FMU state)."""
         return [list(v) for v in self.values]
 
     def set_state(self, state: list) -> None:
+        """Restore the inputs :meth:`get_state` returned."""
         self.values = deque((tuple(v) for v in state), maxlen=self.W)

@@ -84,6 +84,7 @@ class LiftedLoop:
 
     @property
     def spectral_radius(self) -> float:
+        """The largest modulus of the eigenvalues of ``M`` (< 1: the sampled loop is stable)."""
         return float(np.max(np.abs(np.linalg.eigvals(self.M))))
 
 

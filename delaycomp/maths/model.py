@@ -51,6 +51,9 @@ class ModelError(DelaycompError, ValueError):
 
 @dataclass(frozen=True)
 class Model:
+    """A model file, loaded and checked: its names, ``CONTROL``, ``f``, ``k``, the optional exact
+    ``predictor`` and ``step``, its parameters and String choices."""
+
     name: str
     states: tuple[str, ...]
     inputs: tuple[str, ...]
@@ -68,13 +71,16 @@ class Model:
 
     @property
     def n(self) -> int:
+        """The number of states."""
         return len(self.states)
 
     @property
     def m(self) -> int:
+        """The number of inputs."""
         return len(self.inputs)
 
     def params(self, **overrides) -> dict:
+        """The model's parameters with ``overrides`` (a new dict)."""
         p = dict(self.parameters)
         p.update(overrides)
         return p
@@ -120,10 +126,10 @@ def from_module(module: ModuleType, name: str | None = None) -> Model:
         form = "k(t, x, p)" if control == "continuous" else "k(x, p)"
         raise ModelError(f"model {label}: CONTROL = {control!r} needs {form}")
     _check_shapes(label, f, k, control, len(states), len(inputs), params)
+    file = getattr(module, "__file__", None)
     return Model(label, states, inputs, control, f, k, params,
                  getattr(module, "predictor", None), getattr(module, "step", None),
-                 Path(module.__file__) if getattr(module, "__file__", None) else None,
-                 choices, batch)
+                 Path(file) if file else None, choices, batch)
 
 
 def _check_shapes(label, f, k, control, n, m, params) -> None:
@@ -175,6 +181,8 @@ def load_model(path: str | Path) -> Model:
     module = sys.modules.get(mod_name)
     if module is None:
         spec = importlib.util.spec_from_file_location(mod_name, path)
+        if spec is None or spec.loader is None:  # a .py file always has one
+            raise ModelError(f"--model {path}: not importable as a Python module")
         module = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = module
         try:

@@ -57,6 +57,8 @@ class ModelPlant:
         self.x = np.asarray(x0, dtype=float).reshape(model.n)
 
     def step(self, u, h: float) -> np.ndarray:
+        """Advance the state over ``h`` with ``u`` held (the exact step, else an ODE solve);
+        return the new state."""
         u = np.asarray(u, dtype=float).reshape(self.model.m)
         if self.model.step is not None:
             x = np.asarray(self.model.step(self.x, u, h, self.p), dtype=float)
@@ -79,6 +81,12 @@ def _no_prediction(y, segments, p):
 
 
 class _Base:
+    """What both controller families share: the model, the base grid, the predictor, the
+    tick counter; each family sets its input history and its memo of ``output(y)``."""
+
+    history: InputHistory
+    _cache: tuple | None
+
     def __init__(self, model: Model, params: dict, T: float, r: float, tau: float, N: int,
                  u0, predictor: str, tol: float):
         if not T > 0:
@@ -153,17 +161,22 @@ class ContinuousController(_Base):
         return z, u
 
     def output(self, y) -> np.ndarray:
+        """The control at the current tick for the measurement ``y``."""
         return self._evaluate(y)[1]
 
     def get_state(self) -> dict:
+        """Everything that changes while stepping, as JSON-friendly values."""
         return {**super().get_state(), "z": self.z.tolist(), "t0": self.t0}
 
     def set_state(self, state: dict) -> None:
+        """Restore the state :meth:`get_state` returned."""
         super().set_state(state)
         self.z = np.array(state["z"], dtype=float).reshape(self.model.n)
         self.t0 = float(state["t0"])
 
     def advance(self, y) -> None:
+        """Take the base step: the controller's copy of the plant moves under the control held,
+        which enters the history."""
         z, u = self._evaluate(y)
         self.z = self._flow(z, u, self.h)
         self.history.push(u)
@@ -201,18 +214,22 @@ class ZOHModelController(_Base):
         return self._cache[1]
 
     def output(self, y) -> np.ndarray:
+        """The control held now for the measurement ``y`` (after the padding line)."""
         return np.asarray(self.pad_line.output(self._held_now(y)))
 
     def get_state(self) -> dict:
+        """Everything that changes while stepping, as JSON-friendly values."""
         return {**super().get_state(), "held": self.held.tolist(),
                 "pad_line": self.pad_line.get_state()}
 
     def set_state(self, state: dict) -> None:
+        """Restore the state :meth:`get_state` returned."""
         super().set_state(state)
         self.held = np.array(state["held"], dtype=float).reshape(self.model.m)
         self.pad_line.set_state(state["pad_line"])
 
     def advance(self, y) -> None:
+        """Take the base step: the control held enters the history and the padding line."""
         u = self._held_now(y)
         self.held = u
         self.history.push(u)

@@ -27,6 +27,7 @@ import threading
 import warnings
 from collections.abc import Callable, Sequence
 from fractions import Fraction
+from typing import cast
 
 import numpy as np
 
@@ -184,7 +185,7 @@ def _python_dop853(slot: _Slot, z, duration, u):
     """The same segment by scipy's Python DOP853 (same tolerances)."""
     from scipy.integrate import solve_ivp  # loaded by the slot already: a dict lookup
 
-    f, p = slot.f, slot.p
+    f, p = cast(Callable, slot.f), slot.p  # set by the caller for this solve
     try:
         # its error norm may divide 0 by 0 on such states (a warning, then a smaller step)
         with np.errstate(all="ignore"), warnings.catch_warnings():

@@ -48,21 +48,26 @@ class ZOHController:
         )
 
     def propose(self, y) -> np.ndarray:
+        """The control ``u_i = K Phi(y)`` (compensated) or ``K y`` for the sample ``y``, not yet
+        held."""
         y = np.asarray(y, dtype=float).reshape(self.n)
         if self.mode == "uncompensated":
             return self.K @ y
         return self.K @ self.predictor.predict(y, self.history)
 
     def commit(self, u) -> None:
+        """Hold ``u`` over the period and store it in the input history."""
         u = np.array(u, dtype=float).reshape(self.m)
         self.held = u
         self.history.appendleft(u)
 
     # -- state, for FMU get/set state -------------------------------------------------
     def get_state(self) -> dict:
+        """The held output and the input history, as JSON-friendly values."""
         return {"held": self.held.tolist(), "history": [h.tolist() for h in self.history]}
 
     def set_state(self, state: dict) -> None:
+        """Restore the state :meth:`get_state` returned."""
         self.held = np.asarray(state["held"], dtype=float)
         self.history = deque(
             (np.asarray(h, dtype=float) for h in state["history"]), maxlen=self.predictor.L

@@ -12,6 +12,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +55,7 @@ class Param:
     help: str
     allowed: str
     parse: Callable[[str], object]
-    ok: Callable[[object], bool]
+    ok: Callable[[Any], bool]
 
 
 #: ASCII decimal literals only: Python's float() and int() also take other scripts'
@@ -80,6 +81,7 @@ def _positive_int(text: str) -> int:
 
 
 def real(name, default, help, allowed="a finite number", ok=lambda v: True) -> Param:
+    """A finite real parameter, ``ok`` its further range."""
     return Param(name, default, help, allowed, _real, ok)
 
 
@@ -102,6 +104,7 @@ def vector(name, default, help) -> Param:
 
 
 def choice(name, default, help, options) -> Param:
+    """A parameter that takes one of ``options``."""
     return Param(name, default, help, " or ".join(options), str, lambda v: v in options)
 
 
@@ -116,6 +119,9 @@ def _flag(text: str) -> bool:
 
 @dataclass(frozen=True)
 class Scenario:
+    """A named loop of the paper: its parameters with defaults and allowed ranges, the builder of
+    its loop, its stop time, its LTI design where it has one."""
+
     name: str
     title: str
     params: tuple[Param, ...]
@@ -176,6 +182,7 @@ class Scenario:
         return lti_designs([self.lti_args(p) for p in params])
 
     def param(self, name: str) -> Param:
+        """The parameter called ``name`` (ParameterError listing the allowed ones if none)."""
         for p in self.params:
             if p.name == name:
                 return p
@@ -446,6 +453,7 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
 
 
 def get(name: str) -> Scenario:
+    """The scenario called ``name`` (ParameterError listing the scenarios if none)."""
     try:
         return SCENARIOS[name]
     except KeyError:

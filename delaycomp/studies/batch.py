@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
@@ -72,13 +73,17 @@ class Backend:
     """An array library with numpy's API: its namespace, conversions, in-place update."""
 
     name: str
-    xp: object
+    #: the array module (``numpy``, ``cupy`` or ``jax.numpy``): ``Any``, as the three share
+    #: numpy's API but no common static type
+    xp: Any
     device: str
 
     def asarray(self, a):
+        """``a`` as an array of this library (on its device)."""
         return self.xp.asarray(a)
 
     def to_numpy(self, a) -> np.ndarray:
+        """``a`` (an array of this library) as a numpy array on the host."""
         if self.name == "cupy":
             return self.xp.asnumpy(a)
         return np.asarray(a)
@@ -196,10 +201,13 @@ def _merge(parts: list[tuple[np.ndarray, BatchResult]], P: int) -> BatchResult:
             message[i] = res.message[j]
     states = inputs = None
     if first.states is not None:
-        K = max(r.states.shape[1] for _, r in parts)
+        # every group ran with the same ``record``: all of them hold both trajectories
+        assert first.inputs is not None
+        K = max(cast(np.ndarray, r.states).shape[1] for _, r in parts)
         states = np.full((P, K, first.states.shape[2]), np.nan)
         inputs = np.full((P, K, first.inputs.shape[2]), np.nan)
         for idx, res in parts:
+            assert res.states is not None and res.inputs is not None
             states[idx, :res.states.shape[1]] = res.states
             inputs[idx, :res.inputs.shape[1]] = res.inputs
     return BatchResult(**out, message=message, states=states, inputs=inputs)
@@ -516,6 +524,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
                 if changed:
                     bv = forced(v)
                 if record:
+                    assert states is not None and inputs is not None  # set when record
                     states[:, k] = be.to_numpy(xp.stack(x)).T
                     inputs[:, k] = be.to_numpy(held).T
                 if k == kmax:
@@ -528,6 +537,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
                     np.add(out, bv[0], out=out)
                     x = [out]
                 elif is_np:
+                    assert tmp is not None  # the scratch row of numpy
                     for a in range(n):
                         out = xb[bi1, row1, a]
                         np.multiply(Ad_d[a][0], x[0], out=out)
@@ -545,6 +555,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
             acc.block(xb[bi, :rows], k0, T, h)
     res = acc.finish(T, h)
     if record:
+        assert states is not None and inputs is not None
         for p, (c, e) in enumerate(zip(acc.cut_at, stop_k)):
             states[p, min(int(c), int(e) + 1):] = np.nan
             inputs[p, min(int(c), int(e) + 1):] = np.nan
@@ -863,6 +874,7 @@ def _model_group(model, params, T, N, r, tau, r_true, tau_true, x0, u0, stop, pa
             norm = np.sqrt(sq)
             metrics.record(k, np.where(failed, 0.0, norm), _np_put)
             if record:
+                assert states is not None and inputs is not None  # set when record
                 states[:, k] = x.T
                 inputs[:, k] = out.T
                 states[failed, k] = np.nan
@@ -877,6 +889,7 @@ def _model_group(model, params, T, N, r, tau, r_true, tau_true, x0, u0, stop, pa
                 fail(bad, norm, "the plant state is not finite", k + 1)
             norm_prev = norm
     if record:
+        assert states is not None and inputs is not None
         for i in range(P):
             states[i, stop_k[i] + 1:] = np.nan
             inputs[i, stop_k[i] + 1:] = np.nan

@@ -24,6 +24,9 @@ R_MAX_MIN = 1.0
 
 @dataclass
 class CriticalDelayReport:
+    """The critical delay ``r_c`` found on the lifted model, the report's text lines,
+    and whether co-simulation just below and just above ``r_c`` confirmed it."""
+
     r_c: float
     lines: list[str] = field(default_factory=list)
     confirmed: bool = False

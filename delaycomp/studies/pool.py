@@ -21,6 +21,7 @@ class Progress:
         self._bar = bar(total, "sweep", verbosity, unit="point")
 
     def tick(self, count: int = 1) -> None:
+        """Count ``count`` more finished points; the bar closes once all are done."""
         self.done += count
         self._bar.update(count)
         if self.done >= self.total:

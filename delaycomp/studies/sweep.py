@@ -33,6 +33,7 @@ import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -345,7 +346,8 @@ def _run_batch(job, loops, stop: float, workers: int, scheduler: str | None,
             _prebuild(jobs)
         for (i, _), row in zip(items, _run_jobs(jobs, workers, scheduler, progress)):
             results[i] = row
-    return results
+    # every point is filled: by its chunk, or by the per-point engine (the fallback)
+    return cast("list[dict]", results)
 
 
 def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
@@ -369,6 +371,8 @@ def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
 
 
 def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
+    """Write the sweep's rows to ``path`` as CSV: the grid columns ``names``, then
+    :data:`METRICS` (written to a ``.part`` file first, then moved into place)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")

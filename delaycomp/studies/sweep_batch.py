@@ -19,12 +19,16 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from delaycomp.studies import batch
 from delaycomp.studies.pool import on_dask, on_processes
 from delaycomp.system import BuiltinFmu, Loop, LtiBatch, ModelFmu
+
+if TYPE_CHECKING:
+    from delaycomp.maths.model import Model
 
 #: Points per chunk at most: arrays of this many float64 (128 KiB) stay in a core's L2
 #: cache, where one ufunc call costs the least per point (measured in bench/batch.py).
@@ -65,7 +69,8 @@ def compute_chunk(chunk: Chunk) -> batch.BatchResult:
     else:
         from delaycomp.maths.model import load_model
 
-        model = load_model(chunk.model_path)
+        # a model chunk names its model file (:func:`prepare` sets it)
+        model = load_model(cast(str, chunk.model_path))
         res = batch.simulate_model(model, model.params(**dict(chunk.params)), a["T"], a["N"],
                                    a["r"], a["tau"], a["x0"], a["u0"], chunk.stop,
                                    a["r_true"], a["tau_true"], pad=chunk.pad)
@@ -117,7 +122,7 @@ def lti_point(loop) -> dict | str:
                 x0=d.x0, u0=d.u0, mode=d.mode)
 
 
-def model_point(loop) -> tuple[dict, tuple, object] | str:
+def model_point(loop) -> tuple[dict, tuple, Model] | str:
     """The batch ingredients of a model loop, its group key and model, or why not."""
     from delaycomp.maths.model import load_model
 
@@ -179,10 +184,10 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
     fallback: list[tuple[int, str]] = []
     notes: list[str] = []
     data: dict[int, dict] = {}
-    models: dict[tuple, object] = {}
+    models: dict[tuple, Model] = {}
     stacked: dict[tuple, dict] = {}
     if isinstance(loops, LtiBatch):  # all points in one group, already arrays
-        key = ("lti", loops.A.shape[1:], loops.B.shape[1:])
+        key: tuple = ("lti", loops.A.shape[1:], loops.B.shape[1:])
         groups[key] = list(range(len(loops)))
         stacked[key] = {f.name: getattr(loops, f.name) for f in dataclasses.fields(loops)}
         loops = []
@@ -195,11 +200,11 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
             data[i] = got
             key = ("lti", got["A"].shape, got["B"].shape)
         else:
-            got = model_point(loop)
-            if isinstance(got, str):
-                fallback.append((i, got))
+            found = model_point(loop)
+            if isinstance(found, str):
+                fallback.append((i, found))
                 continue
-            data[i], mkey, model = got
+            data[i], mkey, model = found
             key = ("model", *mkey)
             models[key] = model
         groups.setdefault(key, []).append(i)

@@ -16,6 +16,7 @@ A rewrite of the typed loop by roles, never by instance names:
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 from delaycomp.errors import DelaycompError
 from delaycomp.maths import grid
@@ -34,7 +35,8 @@ class CompensationError(DelaycompError, ValueError):
 
 def _delay_input_of(loop: Loop, name: str, output: str) -> str:
     """The input of delay instance ``name`` whose value its ``output`` carries."""
-    n = int(loop.instance(name).source.build_key()[1]["n"])
+    key = cast(tuple, loop.instance(name).source.build_key())  # a delay: built by us
+    n = int(key[1]["n"])
     return indexed("u", n)[indexed("y", n).index(output)]
 
 
@@ -67,7 +69,8 @@ def jacobi_variant(loop: Loop) -> Loop:
             "shortened by h and must keep at least one base step (without it the "
             "controller would read the plant, whose output these masters take before "
             "initialization); use r >= 2 T/N")
-    changed = {meas.name: {"delay": delay - lat}, ctrl.name: {"held_sample": True}}
+    changed: dict[str, dict[str, Any]] = {meas.name: {"delay": delay - lat},
+                                          ctrl.name: {"held_sample": True}}
     instances = [i.with_parameters(**changed[i.name]) if i.name in changed else i
                  for i in loop.instances]
     bypass = {i.name for i in instances if i.role in DELAY_ROLES

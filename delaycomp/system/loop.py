@@ -39,7 +39,7 @@ import numbers
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Any, Literal, Union, cast
 
 import numpy as np
 
@@ -78,9 +78,11 @@ class ModelFmu:
 
     @property
     def config(self) -> dict:
+        """The build configuration: the model file's path."""
         return {"model": str(self.model)}
 
     def build_key(self) -> tuple[str, dict]:
+        """``(kind, config)``: what names the FMU in the build cache."""
         return self.kind, self.config
 
 
@@ -91,6 +93,7 @@ class FmuFile:
     path: Path
 
     def build_key(self) -> None:
+        """``None``: a user's FMU file is used as it is, never built."""
         return None
 
 
@@ -205,10 +208,12 @@ class LtiDesign:
 
     @property
     def n(self) -> int:
+        """The number of states."""
         return self.B.shape[0]
 
     @property
     def m(self) -> int:
+        """The number of inputs."""
         return self.B.shape[1]
 
 
@@ -251,21 +256,26 @@ class Loop:
     # -- reading --
     @property
     def T(self) -> float:
+        """The sampling period."""
         return self.timing.T
 
     @property
     def N(self) -> int:
+        """Base steps per sampling period."""
         return self.timing.N
 
     @property
     def h(self) -> float:
+        """The base step ``T / N``."""
         return self.timing.h
 
     @property
     def names(self) -> list[str]:
+        """The instances' names, in the loop's order."""
         return [i.name for i in self.instances]
 
     def instance(self, name: str) -> Instance:
+        """The instance called ``name`` (``KeyError`` naming the loop if there is none)."""
         for inst in self.instances:
             if inst.name == name:
                 return inst
@@ -289,6 +299,7 @@ class Loop:
         return dataclasses.replace(self, **changes)
 
     def with_instances(self, instances: Iterable[Instance]) -> Loop:
+        """A copy with these instances."""
         return self.replace(instances=tuple(instances))
 
     def set_parameters(self, name: str, **changes) -> Loop:
@@ -333,10 +344,11 @@ def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tupl
     for name, value in (("r", r), ("tau", tau), ("r_true", r_true), ("tau_true", tau_true)):
         if value is None and name in ("r_true", "tau_true"):  # default: the assumed one
             continue
-        if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
+        if not (isinstance(value, numbers.Real) and math.isfinite(value)
+                and float(value) >= 0):
             raise ParameterError(f"parameter {name} = {value!r} is not allowed: must be a "
                                  "finite number >= 0")
-        timing.check_on_grid(name, value)
+        timing.check_on_grid(name, cast(float, value))
     return (r if r_true is None else r_true), (tau if tau_true is None else tau_true)
 
 

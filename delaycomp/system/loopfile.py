@@ -264,6 +264,7 @@ class LoopFile:
 
     @property
     def default_stop_time(self) -> float | None:
+        """The file's ``stop_time`` (checked), or ``None`` where it gives none."""
         stop = self.data.get("stop_time")
         return None if stop is None else _real("stop_time", stop, positive=True)
 
@@ -312,6 +313,7 @@ class LoopFile:
         return designs(datas, where=self.path.name)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
+        """The loop for ``NAME=VALUE`` assignments over the file's values."""
         return self.make(self.resolve(assignments))
 
 

@@ -21,6 +21,7 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 from xml.etree import ElementTree
 
 import numpy as np
@@ -70,6 +71,8 @@ class FmuInterface:
     platforms: tuple[str, ...] = ()
 
     def of(self, causality: str, type_: str = "Real") -> list[str]:
+        """The names of the variables of this causality and type, in the modelDescription's
+        order."""
         return [v.name for v in self.variables.values()
                 if v.causality == causality and v.type == type_]
 
@@ -118,13 +121,14 @@ def read_interface(path: str | Path) -> FmuInterface:
         ordered.append(var)
     states, ders = [], []
     structure = root.find("ModelStructure")
-    if structure is not None and structure.find("Derivatives") is not None:
-        for unknown in structure.find("Derivatives"):
-            der = ordered[int(unknown.get("index")) - 1]
+    derivatives = structure.find("Derivatives") if structure is not None else None
+    if derivatives is not None:
+        for unknown in derivatives:
+            der = ordered[int(cast(str, unknown.get("index"))) - 1]
             ders.append(der.name)
-            real = next(sv for sv in root.iter("ScalarVariable")
-                        if sv.get("name") == der.name).find("Real")
-            states.append(ordered[int(real.get("derivative")) - 1].name)
+            real = cast(ElementTree.Element, next(sv for sv in root.iter("ScalarVariable")
+                                                  if sv.get("name") == der.name).find("Real"))
+            states.append(ordered[int(cast(str, real.get("derivative"))) - 1].name)
     platforms = tuple(sorted({n.split("/")[1] for n in names
                               if n.startswith("binaries/") and n.count("/") >= 2
                               and not n.endswith("/")}))

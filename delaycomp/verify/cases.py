@@ -56,16 +56,19 @@ class RefCase:
 
     @property
     def id(self) -> str:
+        """``scenario/case``, how the check's table names the case."""
         return f"{self.scenario}/{self.case}"
 
     @property
     def csv_path(self) -> Path:
+        """The reference trace (``reference/<scenario>/<case>_ref.csv``, or the case's own file)."""
         if self.csv is not None:
             return Path(self.csv)
         return REFERENCE_DIR / self.scenario / f"{self.case}_ref.csv"
 
     @property
     def opt_path(self) -> Path:
+        """The reference's settings file (start, stop, step, tolerance)."""
         return REFERENCE_DIR / self.scenario / f"{self.case}_ref.opt"
 
     def reference(self) -> tuple[list[str], np.ndarray]:
@@ -79,6 +82,7 @@ class RefCase:
         return rows[0], np.array(rows[1:], dtype=float)
 
     def stop_time(self) -> float:
+        """The time of the reference trace's last row."""
         return float(self.reference()[1][-1, 0])
 
 
@@ -125,6 +129,9 @@ class CheckRow:
 
 @dataclass(frozen=True)
 class Comparison:
+    """One comparison with a reference: the largest error, the tolerance it was held to (as text)
+    and whether it passed."""
+
     max_error: float
     tolerance: str
     passed: bool

@@ -83,10 +83,12 @@ class Registry:
 
     def register(self, name: str, provider: Provider,
                  requires: Requirement | None = None) -> None:
+        """Register a master by name: how it runs a case, and what it needs where it is optional."""
         self.masters[name] = RegisteredMaster(provider, requires)
 
     @property
     def providers(self) -> dict[str, Provider]:
+        """Each registered master's provider, by name."""
         return {name: m.provider for name, m in self.masters.items()}
 
 
@@ -176,6 +178,7 @@ class CompilerRequirement(Requirement):
     hint: str = "install a C compiler, e.g. `apt-get install gcc`, or set CC"
 
     def missing(self) -> list[str]:
+        """What is missing for the native FMUs here (a C compiler), as lines; empty if nothing."""
         from delaycomp.fmu.native import NativeBuildError, compiler
 
         try:

@@ -51,14 +51,15 @@ import shutil
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
+from typing import cast
 
 from delaycomp.child import module_argv
 from delaycomp.errors import DelaycompError, ParameterError
-from delaycomp.system import Loop
+from delaycomp.system import Loop, Role
 from delaycomp.verify.cases import CheckRow, RefCase, compare
 
 #: inner order of the container, by role (see the module docstring)
-ORDER = ("input_delay", "plant", "meas_delay", "controller")
+ORDER: tuple[Role, ...] = ("input_delay", "plant", "meas_delay", "controller")
 #: base steps added to each delay (by role) to absorb the container's order
 ADDED_STEPS = {"meas_delay": 1, "input_delay": 1}
 
@@ -91,7 +92,7 @@ def _ordered(spec: Loop) -> list:
     members = [spec.by_role(role) for role in ORDER]
     if None in members or len(spec.instances) != len(ORDER):
         raise ParameterError(f"a loop container needs exactly the roles {', '.join(ORDER)}")
-    return members
+    return cast(list, members)
 
 
 def _text(value) -> str:
@@ -106,7 +107,7 @@ def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
     """The container's JSON description (fmu-manipulation-toolbox's format)."""
     members = _ordered(spec)
     h = spec.h
-    meas = spec.by_role("meas_delay").parameters["delay"]
+    meas = members[ORDER.index("meas_delay")].parameters["delay"]
     if meas < h * (1 - 1e-9):
         raise ParameterError(
             f"parameter r = {meas!r} is not allowed for export-loop: the measurement delay "

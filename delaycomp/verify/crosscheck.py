@@ -81,6 +81,7 @@ def models_dir(out: Path) -> Path:
 
 
 def model_name(c: RefCase, instance: str) -> str:
+    """The cross-check folder's name of ``instance`` of case ``c``."""
     return f"{c.scenario}_{c.case}_{instance}"
 
 
@@ -211,6 +212,7 @@ def input_csv(trace: Trace) -> str:
 
 
 def ref_csv(trace: Trace) -> str:
+    """The FMU's trace as a cross-check ``_ref.csv`` (quoted header, ``repr`` numbers)."""
     lines = [_header(trace.output_names)]
     lines += [",".join(_num(v) for v in [t, *row])
               for t, row in zip(trace.times, trace.outputs)]
@@ -218,12 +220,14 @@ def ref_csv(trace: Trace) -> str:
 
 
 def ref_opt(trace: Trace) -> str:
+    """The cross-check ``_ref.opt`` of the trace: start, stop, step and the tolerance."""
     h = trace.times[1] - trace.times[0]
     return (f"StartTime, {_num(trace.times[0])}\nStopTime, {_num(trace.times[-1])}\n"
             f"StepSize, {_num(h)}\nRelTol, {ALONE_TOL!r}\n")
 
 
 def readme(c: RefCase, trace: Trace, ident: str) -> str:
+    """The cross-check folder's README of the FMU: the case, the FMU, its parameters."""
     params = "\n".join(f"| `{k}` | {v!r} |" for k, v in trace.parameters.items())
     return f"""# {model_name(c, trace.instance)}
 
@@ -255,7 +259,10 @@ def variant_fmu(src: Path, start: dict, dest: Path) -> Path:
     with zipfile.ZipFile(src) as zin:
         xml = zin.read("modelDescription.xml").decode("utf-8")
         config = json.loads(zin.read(f"resources/{CONFIG_NAME}").decode("utf-8"))
-        ident = re.search(r'modelIdentifier="([^"]+)"', xml).group(1)
+        found = re.search(r'modelIdentifier="([^"]+)"', xml)
+        if found is None:  # a delaycomp FMU always names it
+            raise ValueError(f"{src}: its modelDescription.xml names no modelIdentifier")
+        ident = found.group(1)
         config["start"] = dict(start)
         xml = re.sub(r'guid="[^"]*"', f'guid="{pinned_guid(ident, config)}"', xml, count=1)
         for name, value in start.items():
@@ -310,6 +317,9 @@ def generate(out: Path, cases: Iterable[RefCase], fmu_dir: Path | None = None,
 
 @dataclass(frozen=True)
 class AloneResult:
+    """One FMU run alone against its reference: the model, the largest error, whether it passed,
+    and why not."""
+
     model: str
     max_error: float
     passed: bool
@@ -317,6 +327,7 @@ class AloneResult:
 
 
 def read_table(path: Path) -> tuple[list[str], np.ndarray]:
+    """A CSV's header and its rows as an array of floats."""
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     return rows[0], np.array(rows[1:], dtype=float)

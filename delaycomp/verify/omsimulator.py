@@ -83,8 +83,8 @@ def locate() -> Install:
         if not (pkg / "OMSimulator" / "__init__.py").is_file():
             raise NotInstalled(f"{ENV}={folder} holds no {PACKAGE_SUBDIR.as_posix()}/"
                                "OMSimulator/ (it must name an OMSimulator install folder)")
-        cli = root / CLI_SUBPATH
-        return Install(pkg, cli if cli.is_file() else None)
+        cli_path = root / CLI_SUBPATH
+        return Install(pkg, cli_path if cli_path.is_file() else None)
     spec = importlib.util.find_spec("OMSimulator")
     if spec is None or spec.origin is None:
         raise NotInstalled(f"OMSimulator is not installed: {INSTALL_HINT}")
@@ -149,6 +149,7 @@ def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None
     from OMSimulator.capi import Status
 
     with Archive(ssp_path) as archive:
+        assert archive.system is not None and archive.folder is not None  # by __enter__
         spec = archive.system.spec
         system = etree.parse(str(archive.folder / SSD_NAME)).getroot().find(
             "ssd:System", NSMAP).get("name")

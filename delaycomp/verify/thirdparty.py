@@ -169,6 +169,7 @@ def _worker(master: str, ssp_path: str, stop_time: float, out: str) -> None:
     from delaycomp.orchestrator.simulate import stop_ticks
 
     with Archive(ssp_path) as archive:
+        assert archive.system is not None  # read by Archive.__enter__
         spec = archive.system.spec
         set_name = archive.system.info.parameter_set
     ticks = stop_ticks(stop_time, spec.T, spec.N)

@@ -121,11 +121,13 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
         self._y_held = None
 
     def _hidden_state(self) -> dict:
+        assert self.ctrl is not None  # saved only when initialized: _setup() built it
         return {"ctrl": self.ctrl.get_state(), "next": self._next,
                 "at_sample": self._at_sample,
                 "y_held": self._held_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
+        assert self.ctrl is not None  # called after _setup() built it
         self.ctrl.set_state(hidden["ctrl"])
         self._next = int(hidden["next"])
         self._at_sample = bool(hidden["at_sample"])
@@ -151,6 +153,7 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
     def _step(self, current_time: float, step_size: float) -> None:
         check_inputs(self.input_names, self.y, current_time)
         if self._at_sample:
+            assert self.ctrl is not None  # steps only when initialized: _setup() built it
             self.ctrl.commit(self._output())
             self._next += 1
             self._proposal = None

@@ -61,9 +61,11 @@ class ModelPlantSlave(TableSlave):
         self.plant = ModelPlant(self.model, self.values, self.x0, self.tolerance)
 
     def _hidden_state(self) -> dict:
+        assert self.plant is not None  # saved only when initialized: _setup() built it
         return {"x": self.plant.x.tolist()}
 
     def _restore_hidden(self, hidden: dict) -> None:
+        assert self.plant is not None  # called after _setup() built it
         self.plant.x = np.array(hidden["x"], dtype=float).reshape(self.model.n)
 
     def _step(self, t, h):

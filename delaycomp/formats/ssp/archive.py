@@ -91,12 +91,18 @@ class Archive:
         return self
 
     def fmu(self, instance: str) -> Path:
+        """The unpacked FMU file of component ``instance`` (inside the ``with`` block)."""
+        assert self.folder is not None and self.system is not None  # set by __enter__
         return self.folder / self.system.sources[instance]
 
     def fmus(self) -> dict[str, Path]:
+        """Component name -> its unpacked FMU file, for every component of the system."""
+        assert self.system is not None  # set by __enter__
         return {inst: self.fmu(inst) for inst in self.system.sources}
 
     def close(self) -> None:
+        """Remove the temporary folder and what it holds (``__exit__`` calls it; a second
+        call does nothing)."""
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None

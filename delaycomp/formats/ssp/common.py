@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from lxml import etree
 
@@ -120,7 +122,8 @@ def parameter_choices(key: tuple[str, dict] | None) -> dict[str, tuple[str, ...]
     return {}
 
 
-def foreign_parameters(params: dict, choices: dict[str, tuple[str, ...]]) -> dict:
+def foreign_parameters(params: Mapping[str, Any],
+                       choices: dict[str, tuple[str, ...]]) -> dict:
     """``params`` as an importer without String parameters can apply them: each String
     with ``choices`` becomes its Integer twin ``<name>_index`` (1-based), in its place.
     A String without choices, or with a value outside them, stays a String (the FMU then

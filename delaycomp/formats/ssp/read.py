@@ -10,6 +10,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 from lxml import etree
 
@@ -36,6 +37,8 @@ from delaycomp.system import (
     Loop,
     ModelFmu,
     Port,
+    Role,
+    Source,
     Timing,
 )
 
@@ -105,11 +108,12 @@ class Foreign:
 
 
 def _infer_roles(where: str, names: list[str], roles: dict[str, str | None],
-                 connections: list[Connection]) -> dict[str, str]:
+                 connections: list[Connection]) -> dict[str, Role]:
     """Fill unknown roles by walking the component cycle from the plant (see Foreign)."""
     unknown = [n for n in names if roles[n] is None]
     if not unknown:
-        return dict(roles)  # type: ignore[arg-type]
+        # every role is known, and each a role of ROLES (read_system checks them)
+        return cast("dict[str, Role]", dict(roles))
     how = (f"name its role with --role {unknown[0]}=ROLE ({', '.join(ROLES)})")
     plant = next((n for n, r in roles.items() if r == "plant"), None)
     if plant is None:
@@ -167,14 +171,17 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
                        "delaycomp system (to run an SSP of another tool give the master "
                        "settings: --period T --steps N)")
     given_roles = dict(foreign.roles) if foreign is not None else {}
-    for cname, role in given_roles.items():
-        if role not in ROLES:
-            raise SspError(f"--role {cname}={role}: role {role!r} is not allowed: allowed "
+    for cname, crole in given_roles.items():
+        if crole not in ROLES:
+            raise SspError(f"--role {cname}={crole}: role {crole!r} is not allowed: allowed "
                            f"are {', '.join(ROLES)}")
     described = ({c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
                  if master is not None else {})
     roles: dict[str, str | None] = {}
-    instances, sources, set_names = [], {}, set()
+    # each component's name, source and parameters (its role is known after the loop)
+    components: list[tuple[str, Source, dict]] = []
+    sources: dict[str, str] = {}
+    set_names: set[str] = set()
     for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
         name = required_attr(comp, "name", where)
         sources[name] = _inside(ssd_path,
@@ -204,6 +211,7 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
                                f"{', '.join(ROLES)}")
         roles[name] = role
         kind = fmu.get("kind") if fmu is not None else None
+        source: Source
         if kind is None:
             source = FmuFile(ssd_path.parent / sources[name])
         else:
@@ -223,7 +231,7 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
             set_names.add(set_name)
             params.update(values)
         params = native_parameters(params, choices, f"{where}: component {name}")
-        instances.append((name, source, params))
+        components.append((name, source, params))
     for name in given_roles:
         if name not in roles:
             raise SspError(f"--role {name}=...: {where} has no component {name!r}: its "
@@ -235,7 +243,7 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
         connections.append(Connection(Port(ends[0], ends[1]), Port(ends[2], ends[3])))
     found = _infer_roles(where, list(roles), roles, connections)
     instances = [Instance(name, found[name], source, params)
-                 for name, source, params in instances]
+                 for name, source, params in components]
     if master is not None:
         recorded = [Port(required_attr(r, "element", where), required_attr(r, "connector", where))
                     for r in master.iterfind("dc:Record", NSMAP)]
@@ -275,8 +283,8 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
         info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
                           set_name)
     try:
-        loop = Loop(instances, connections, Timing(T, N), recorded, info.name,
-                    info.description)
+        loop = Loop(tuple(instances), tuple(connections), Timing(T, N), tuple(recorded),
+                    info.name, info.description)
     except ParameterError as exc:
         raise SspError(f"{where}: {exc}") from None
     return System(loop, info, sources)

@@ -8,6 +8,7 @@ import json
 import shutil
 import tempfile
 from pathlib import Path
+from typing import cast
 
 from lxml import etree
 
@@ -211,10 +212,12 @@ def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Pat
     from delaycomp.paper.scenarios import SCENARIOS
 
     systems = [scenario_system(name) for name in SCENARIOS]
-    wanted = {}
+    wanted: dict[str, tuple[str, dict]] = {}
     for spec, _ in systems:
         for inst in spec.instances:
-            kind, config = inst.source.build_key()
+            key = inst.source.build_key()
+            assert key is not None  # a scenario's FMUs are all built (no FmuFile)
+            kind, config = key
             wanted.setdefault(fmu_file_name(kind, config), (kind, config))
     have = {name: Path(fmu_dir) / name for name in wanted
             if fmu_dir is not None and (Path(fmu_dir) / name).is_file()}
@@ -226,7 +229,9 @@ def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Pat
 
     out = []
     for spec, info in systems:
-        fmus = {inst.name: have[fmu_file_name(*inst.source.build_key())]
+        # a scenario's FMUs are all built (no FmuFile, whose key is None)
+        fmus = {inst.name: have[fmu_file_name(*cast("tuple[str, dict]",
+                                                    inst.source.build_key()))]
                 for inst in spec.instances}
         out.append(pack(spec, info, Path(out_dir) / f"{info.name}.ssp", fmus=fmus))
         variant = jacobi_variant(spec)
