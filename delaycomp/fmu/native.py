@@ -67,8 +67,8 @@ NATIVE_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.
 #: by :mod:`delaycomp.fmu.translate`
 MODEL_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.items()
                                if spec.native and spec.template}
-#: the FMI layer, in every native FMU (each ``.c`` with its ``.h``, but fmi2.c, whose
-#: header is native.h)
+#: the FMI layer, in every native FMU, and its headers (``native.h`` declares what
+#: ``fmi2.c`` and ``native.c`` share with the models)
 COMMON_SOURCES = ("fmi2.c", "native.c", "pyrepr.c")
 COMMON_HEADERS = ("native.h", "pyrepr.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
