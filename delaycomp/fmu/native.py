@@ -39,13 +39,16 @@ import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
 from delaycomp.errors import DelaycompError
 from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS
 from delaycomp.tmpfiles import zip_folder
+
+if TYPE_CHECKING:
+    from delaycomp.fmu.translate import Translation
 
 try:
     import tomllib
@@ -489,31 +492,12 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     twin = native_twin(kind)
     cc = compiler()
     crosses = cross_compilers()
-    if kind in MODEL_KINDS and not (config or {}).get("model"):
-        raise ValueError(f"a native {kind} FMU needs config = {{'model': FILE.py}}")
-    config = dict(DEFAULT_CONFIG[kind] if config is None else config)
-    for key in ("n", "m"):
-        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
-            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
-                             "from 1 to 1000 (a dimension of the FMU)")
-    translation = None
-    if kind in MODEL_KINDS:
-        from delaycomp.fmu.build import model_identifier
-        from delaycomp.fmu.translate import translate
-        from delaycomp.maths.model import load_model
-
-        config = {"model": str(Path(config["model"]).resolve()),
-                  **({"start": config["start"]} if config.get("start") else {})}
-        translation = translate(load_model(config["model"]))
-        check_closed_form(kind, translation)
-        ident = model_identifier(kind, config)
-    else:
-        ident = FMUS[kind].model_identifier
+    config, translation, ident = _native_config(kind, config)
     root = _python_table(kind, config)
     _exact_starts(root, config.get("start") or {})
     full = {**config, "version": delaycomp.__version__}
     guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
-    sources, headers = twin.sources(), twin.headers()
+    sources = twin.sources()
     description = _native_description(kind, root, ident, guid, sources)
     import fmpy
 
@@ -524,48 +508,92 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         stage = Path(tmp) / "fmu"
         src = stage / "sources"
         src.mkdir(parents=True)
-        generated = {}
-        if translation is not None:
-            generated = {**translation.c_files(),
-                         "model_config.h": _model_config_h(translation, root)}
-        for name in (*sources, *headers):
-            if name in generated:
-                (src / name).write_text(generated[name], encoding="utf-8")
-            else:
-                shutil.copy2(twin.path_of(name), src / name)
-        for name in FMI_HEADERS:
-            shutil.copy2(fmi_header_dir() / name, src / name)
+        _write_sources(src, twin, translation, root)
         (src / "config.h").write_text(_config_h(twin, config, root, guid), encoding="utf-8")
         targets = [(fmpy.platform, cc, ".so", ())] + [
             (platform, argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
             for platform, argv in crosses.items()]
-        builds = []
-        for platform, argv0, suffix, extra in targets:  # the compilers run at once
-            binary = stage / "binaries" / platform / f"{ident}{suffix}"
-            binary.parent.mkdir(parents=True)
-            argv = [*argv0, *CFLAGS, *extra, "-I", str(src), "-o", str(binary),
-                    *(str(src / s) for s in sources), "-lm"]
-            builds.append((platform, argv, subprocess.Popen(
-                argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
-        failed = []
-        for platform, argv, proc in builds:
-            _, err = proc.communicate()
-            if proc.returncode != 0:
-                failed.append(f"compiling the native {kind} FMU for {platform} failed "
-                              f"({argv[0]}):\n{err.strip()}")
-        if failed:
-            raise NativeBuildError(failed[0])
-        (stage / "modelDescription.xml").write_bytes(description)
-        res = stage / "resources"
-        res.mkdir()
-        (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True}, sort_keys=True),
-                                       encoding="utf-8")
-        doc = stage / "documentation"
-        doc.mkdir()
-        shutil.copy2(FMUS[kind].folder / "README.md", doc / "README.md")
-        shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
+        _compile_binaries(kind, stage, src, ident, sources, targets)
+        _write_metadata(kind, stage, description, full)
         zip_folder(stage, target)
     return target
+
+
+def _native_config(kind: str, config: dict | None
+                   ) -> tuple[dict, Translation | None, str]:
+    """The checked build configuration, the model's translation (None but for a model kind)
+    and the model identifier."""
+    if kind in MODEL_KINDS and not (config or {}).get("model"):
+        raise ValueError(f"a native {kind} FMU needs config = {{'model': FILE.py}}")
+    config = dict(DEFAULT_CONFIG[kind] if config is None else config)
+    for key in ("n", "m"):
+        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
+            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
+                             "from 1 to 1000 (a dimension of the FMU)")
+    if kind not in MODEL_KINDS:
+        return config, None, FMUS[kind].model_identifier
+    from delaycomp.fmu.build import model_identifier
+    from delaycomp.fmu.translate import translate
+    from delaycomp.maths.model import load_model
+
+    config = {"model": str(Path(config["model"]).resolve()),
+              **({"start": config["start"]} if config.get("start") else {})}
+    translation = translate(load_model(config["model"]))
+    check_closed_form(kind, translation)
+    return config, translation, model_identifier(kind, config)
+
+
+def _write_sources(src: Path, twin: NativeTwin, translation: Translation | None,
+                   root: Element) -> None:
+    """The twin's C sources and headers (a model's translated to C) and the FMI headers
+    into ``src``."""
+    generated = {}
+    if translation is not None:
+        generated = {**translation.c_files(),
+                     "model_config.h": _model_config_h(translation, root)}
+    for name in (*twin.sources(), *twin.headers()):
+        if name in generated:
+            (src / name).write_text(generated[name], encoding="utf-8")
+        else:
+            shutil.copy2(twin.path_of(name), src / name)
+    for name in FMI_HEADERS:
+        shutil.copy2(fmi_header_dir() / name, src / name)
+
+
+def _compile_binaries(kind: str, stage: Path, src: Path, ident: str, sources: list[str],
+                      targets: list) -> None:
+    """Compile the sources for each (platform, compiler, suffix, flags) of ``targets``
+    into ``stage/binaries``, the compilers at once; the first failure raises."""
+    builds = []
+    for platform, argv0, suffix, extra in targets:  # the compilers run at once
+        binary = stage / "binaries" / platform / f"{ident}{suffix}"
+        binary.parent.mkdir(parents=True)
+        argv = [*argv0, *CFLAGS, *extra, "-I", str(src), "-o", str(binary),
+                *(str(src / s) for s in sources), "-lm"]
+        builds.append((platform, argv, subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
+    failed = []
+    for platform, argv, proc in builds:
+        _, err = proc.communicate()
+        if proc.returncode != 0:
+            failed.append(f"compiling the native {kind} FMU for {platform} failed "
+                          f"({argv[0]}):\n{err.strip()}")
+    if failed:
+        raise NativeBuildError(failed[0])
+
+
+def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> None:
+    """modelDescription.xml, the build configuration and the documentation into
+    ``stage``."""
+    (stage / "modelDescription.xml").write_bytes(description)
+    res = stage / "resources"
+    res.mkdir()
+    (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True}, sort_keys=True),
+                                   encoding="utf-8")
+    doc = stage / "documentation"
+    doc.mkdir()
+    shutil.copy2(FMUS[kind].folder / "README.md", doc / "README.md")
+    shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
 
 
 def build_native(out_dir: Path) -> list[Path]:

@@ -273,11 +273,35 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
     # prediction flows only over a window (W > 0); z flows at every step (continuous)
     needs_ode = (predictor == PREDICTORS["numerical"] and W > 0) or (not zoh and not has_step)
     uses_step = has_step and ((predictor == PREDICTORS["closed"] and W > 0) or not zoh)
-    n, m = model.n, model.m
     D = ctrl.pad_line.D if zoh else 0
     p = [float(ctrl.p[name]) for name in translation.numeric]  # T included, last
     funcs = (*(("f",) if needs_ode else ()), "k", *(("step",) if uses_step else ()))
-    P = prefix
+    dims, state = _model_layout(prefix, model.n, model.m, W, D, zoh, needs_ode)
+    notes = _model_notes(prefix, loop, slave, zoh, D, W, needs_ode)
+    header = _header(prefix, loop, dims, state, notes)
+    args = {"x": "x", "u": "u", "p": prefix + "_P", "t": "t", "h": "h"}
+    template = (_templates() / "export" / "model.c.in").read_text(encoding="utf-8")
+    source = _fill(template, prefix, {
+        "MODEL": model.name, "LOOP": loop.name, "VERSION": __version__,
+        "ZOH": str(int(zoh)), "PREDICT": str(predictor), "HAS_STEP": str(int(uses_step)),
+        "NEEDS_ODE": str(int(needs_ode)), "TOL": _c(slave.tolerance),
+        "TAU": _c(slave.tau), "NP": str(max(len(p), 1)),
+        "P": _array(p), "U0": _array(slave.u0),
+        "GRID_RTOL": repr(GRID_RTOL), "MAX_ODE_STEPS": str(MAX_ODE_STEPS),
+        "Z0": _array(slave.z0),
+        "ODE": _ode_source() if needs_ode else "",
+        "FUNCTIONS": _model_functions(translation, branch, funcs),
+        "CALL_F": _call(translation, "f", branch, args, "dx") if needs_ode else "-1",
+        "CALL_K": _call(translation, "k", branch, args),
+        "CALL_STEP": _call(translation, "step", branch, args) if uses_step else "-1",
+        "COMMON": _common()})
+    return header, source
+
+
+def _model_layout(P: str, n: int, m: int, W: int, D: int, zoh: bool,
+                  needs_ode: bool) -> tuple[dict[str, int], str]:
+    """The dimensions (``P_NAME`` macros) and the state struct's fields of a model's
+    controller."""
     state = [_COMMON_STATE,
              "    long hist_head;     /* ring position of the oldest stored control */",
              f"    double hist[{P}_HIST][{P}_NU];  /* the controls of the window, a ring */"]
@@ -296,41 +320,33 @@ def _export_model(prefix, loop, slave) -> tuple[str, str]:
         dims |= {"D": D, "PAD": max(D, 1)}
     if needs_ode:
         dims["WORK"] = _ODE_WORK_PER_STATE * n
+    return dims, "\n".join(state)
+
+
+def _model_notes(P: str, loop, slave, zoh: bool, D: int, W: int,
+                 needs_ode: bool) -> list[str]:
+    """The header's lines on a model's controller: family, predictor, timing, window."""
+    ctrl, model = slave.ctrl, slave.model
     family = ("zero-order hold (Theorem 3.2)" if zoh
               else "continuous input (Theorem 2.1)")
-    notes = [f"Model {model.name}: {family}, predictor {slave.predictor}; n = {n} states, "
-             f"m = {m} inputs;",
-             f"T = {loop.T!r}, N = {loop.N}, r = {float(slave.r)!r}, "
-             f"tau = {float(slave.tau)!r}"
-             + (f" (padded to {float(ctrl.tau_effective)!r}: the output is delayed by "
-                f"{D} base steps)" if zoh and D else "") + ";",
-             f"the window holds W = {W} base steps of controls"
-             + (f"; each numerical flow tries at most {P}_MAX_ODE_STEPS + 1 DOP853 steps "
-                "(a prediction: all its segments together)" if needs_ode else "") + "."]
-    header = _header(prefix, loop, dims, "\n".join(state), notes)
-    ode = ""
-    if needs_ode:
-        native = _templates()
-        ode_h = (native / "ode.h").read_text(encoding="utf-8")
-        ode_c = (native / "ode.c").read_text(encoding="utf-8").replace(
-            '#include "ode.h"\n', "")
-        ode = "#define ODE_API static\n" + ode_h + "\n" + ode_c
-    args = {"x": "x", "u": "u", "p": P + "_P", "t": "t", "h": "h"}
-    template = (_templates() / "export" / "model.c.in").read_text(encoding="utf-8")
-    source = _fill(template, prefix, {
-        "MODEL": model.name, "LOOP": loop.name, "VERSION": __version__,
-        "ZOH": str(int(zoh)), "PREDICT": str(predictor), "HAS_STEP": str(int(uses_step)),
-        "NEEDS_ODE": str(int(needs_ode)), "TOL": _c(slave.tolerance),
-        "TAU": _c(slave.tau), "NP": str(max(len(p), 1)),
-        "P": _array(p), "U0": _array(slave.u0),
-        "GRID_RTOL": repr(GRID_RTOL), "MAX_ODE_STEPS": str(MAX_ODE_STEPS),
-        "Z0": _array(slave.z0),
-        "ODE": ode, "FUNCTIONS": _model_functions(translation, branch, funcs),
-        "CALL_F": _call(translation, "f", branch, args, "dx") if needs_ode else "-1",
-        "CALL_K": _call(translation, "k", branch, args),
-        "CALL_STEP": _call(translation, "step", branch, args) if uses_step else "-1",
-        "COMMON": _common()})
-    return header, source
+    return [f"Model {model.name}: {family}, predictor {slave.predictor}; n = {model.n} "
+            f"states, m = {model.m} inputs;",
+            f"T = {loop.T!r}, N = {loop.N}, r = {float(slave.r)!r}, "
+            f"tau = {float(slave.tau)!r}"
+            + (f" (padded to {float(ctrl.tau_effective)!r}: the output is delayed by "
+               f"{D} base steps)" if zoh and D else "") + ";",
+            f"the window holds W = {W} base steps of controls"
+            + (f"; each numerical flow tries at most {P}_MAX_ODE_STEPS + 1 DOP853 steps "
+               "(a prediction: all its segments together)" if needs_ode else "") + "."]
+
+
+def _ode_source() -> str:
+    """DOP853 (fmus/native/ode.h and ode.c) as static functions of the exported file."""
+    native = _templates()
+    ode_h = (native / "ode.h").read_text(encoding="utf-8")
+    ode_c = (native / "ode.c").read_text(encoding="utf-8").replace(
+        '#include "ode.h"\n', "")
+    return "#define ODE_API static\n" + ode_h + "\n" + ode_c
 
 
 def closed_loop_io(loop, ticks: int, fmu_dir: str | Path | None = None):

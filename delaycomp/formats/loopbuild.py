@@ -30,14 +30,14 @@ Examples
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import delaycomp
 from delaycomp.errors import ParameterError
 from delaycomp.names import FMU_KINDS, LOOP_GROUPS
-from delaycomp.system.loop import ROLES, FmuFile, Loop, ModelFmu, Role
+from delaycomp.system.loop import ROLES, FmuFile, Instance, Loop, ModelFmu, Role
 
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
@@ -115,20 +115,10 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     -------
     LoopBuild
     """
-    from delaycomp.fmu.build import build_fmu, publish
-    from delaycomp.fmu.native import NativeBuildError, build_native_fmu
-    from delaycomp.maths.model import ModelError
+    from delaycomp.fmu.build import publish
     from delaycomp.tmpfiles import temp_dir
 
-    if fmus not in FMU_KINDS:
-        raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
-                             f"{', '.join(FMU_KINDS)}")
-    roles = roles_of(only)
-    name = file_stem(loop.name)
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ParameterError(f"--out {out_dir} is not allowed: it is a file (a folder is "
-                             "needed)")
+    roles, name, out_dir = _build_args(loop, out_dir, only, fmus)
     notes: list[str] = []
 
     def note(text: str) -> None:
@@ -136,51 +126,10 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
         if info is not None:
             info(text)
 
-    chosen = [inst for r in roles if (inst := loop.by_role(r)) is not None]
-    if not chosen:
-        raise ParameterError(f"loop {loop.name} has no {' or '.join(roles)} to build")
-    given: dict[str, Path] = {i.role: Path(i.source.path) for i in chosen
-                              if isinstance(i.source, FmuFile)}
-    for role, path in given.items():
-        note(f"note: the {role} is the loop's own FMU file {path} (used as it is, not "
-             "rebuilt: set its parameters as the wiring sheet says)")
-    todo = [i for i in chosen if not isinstance(i.source, FmuFile)]
-
-    def build_all(native: bool, stage: Path) -> dict[str, Path]:
-        built: dict[str, Path] = {}
-        for inst in todo:
-            source = inst.source
-            assert not isinstance(source, FmuFile)  # todo holds the instances to build
-            kind, config = source.build_key()
-            config = {**config, "start": dict(inst.parameters)}
-            file_name = f"{name}_{inst.role}.fmu"
-            if native:
-                built[inst.role] = build_native_fmu(kind, stage, config, file_name)
-            else:
-                built[inst.role] = build_fmu(kind, stage, config, file_name)
-        return built
-
+    given, todo = _chosen(loop, roles, note)
     out_dir.mkdir(parents=True, exist_ok=True)
     with temp_dir("delaycomp-loopbuild-") as tmp:
-        native = fmus != "python" and bool(todo)
-        staged: dict[str, Path] = {}
-        if native:
-            try:
-                staged = build_all(True, Path(tmp) / "native")
-            except (NativeBuildError, ModelError, ValueError) as exc:
-                why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
-                if fmus == "native":
-                    raise NativeBuildError(f"native FMUs of loop {loop.name}: {why}") from None
-                note(f"note: building the Python FMUs (no native ones here: {why}); "
-                     "--python says so and skips the attempt")
-                native = False
-        if not native and todo:
-            staged = build_all(False, Path(tmp) / "python")
-        if native:
-            from delaycomp.fmu.native import pop_notes
-
-            for text in pop_notes():  # platforms left out for want of a cross compiler
-                note(text)
+        staged, native = _stage_fmus(loop, todo, name, fmus, Path(tmp), note)
         for inst in todo:
             check_starts(staged[inst.role], inst.parameters, f"{name}_{inst.role}.fmu")
         written: dict[str, Path] = {}
@@ -195,6 +144,87 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     wiring.write_text(wiring_sheet(loop, {**others, **files}, roles, native, name),
                       encoding="utf-8")
     return LoopBuild(name, written, wiring, native, given, tuple(notes))
+
+
+def _build_args(loop: Loop, out_dir: str | Path, only: Iterable[str] | None,
+                fmus: str) -> tuple[tuple[Role, ...], str, Path]:
+    """The arguments of :func:`build_loop` checked: the roles, the file stem, the folder."""
+    if fmus not in FMU_KINDS:
+        raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
+                             f"{', '.join(FMU_KINDS)}")
+    roles = roles_of(only)
+    name = file_stem(loop.name)
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ParameterError(f"--out {out_dir} is not allowed: it is a file (a folder is "
+                             "needed)")
+    return roles, name, out_dir
+
+
+def _chosen(loop: Loop, roles: tuple[Role, ...], note: Callable[[str], None]
+            ) -> tuple[dict[str, Path], list[Instance]]:
+    """The user's FMU files among the instances of ``roles`` (each noted), and the
+    instances to build."""
+    chosen = [inst for r in roles if (inst := loop.by_role(r)) is not None]
+    if not chosen:
+        raise ParameterError(f"loop {loop.name} has no {' or '.join(roles)} to build")
+    given: dict[str, Path] = {i.role: Path(i.source.path) for i in chosen
+                              if isinstance(i.source, FmuFile)}
+    for role, path in given.items():
+        note(f"note: the {role} is the loop's own FMU file {path} (used as it is, not "
+             "rebuilt: set its parameters as the wiring sheet says)")
+    return given, [i for i in chosen if not isinstance(i.source, FmuFile)]
+
+
+def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Path,
+                note: Callable[[str], None]) -> tuple[dict[str, Path], bool]:
+    """Build the FMUs of ``todo`` under ``tmp``: native ones unless ``fmus`` says python
+    (``auto`` falls back to Python with a note); role -> FMU and whether they are
+    native."""
+    from delaycomp.fmu.native import NativeBuildError
+    from delaycomp.maths.model import ModelError
+
+    native = fmus != "python" and bool(todo)
+    staged: dict[str, Path] = {}
+    if native:
+        try:
+            staged = _build_all(todo, name, True, tmp / "native")
+        except (NativeBuildError, ModelError, ValueError) as exc:
+            why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+            if fmus == "native":
+                raise NativeBuildError(f"native FMUs of loop {loop.name}: {why}") from None
+            note(f"note: building the Python FMUs (no native ones here: {why}); "
+                 "--python says so and skips the attempt")
+            native = False
+    if not native and todo:
+        staged = _build_all(todo, name, False, tmp / "python")
+    if native:
+        from delaycomp.fmu.native import pop_notes
+
+        for text in pop_notes():  # platforms left out for want of a cross compiler
+            note(text)
+    return staged, native
+
+
+def _build_all(todo: list[Instance], name: str, native: bool,
+               stage: Path) -> dict[str, Path]:
+    """Build each instance of ``todo`` (native or Python) into ``stage``, with its
+    parameters as start values; role -> FMU."""
+    from delaycomp.fmu.build import build_fmu
+    from delaycomp.fmu.native import build_native_fmu
+
+    built: dict[str, Path] = {}
+    for inst in todo:
+        source = inst.source
+        assert not isinstance(source, FmuFile)  # todo holds the instances to build
+        kind, config = source.build_key()
+        config = {**config, "start": dict(inst.parameters)}
+        file_name = f"{name}_{inst.role}.fmu"
+        if native:
+            built[inst.role] = build_native_fmu(kind, stage, config, file_name)
+        else:
+            built[inst.role] = build_fmu(kind, stage, config, file_name)
+    return built
 
 
 def check_starts(fmu: Path, parameters: Mapping, label: str) -> None:
@@ -261,6 +291,34 @@ def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[s
     ports = {r: _ports(files.get(r)) for r in by_role}
     ctrl = by_role.get("controller")
     cp = dict(ctrl.parameters) if ctrl is not None else {}
+    L = _sheet_timing(loop, by_role, cp, native)
+    L += ["", "FMUs"]
+    L += _sheet_fmus(by_role, ports, files, built, name)
+    L += ["", "Connections (output -> input)"]
+    L += [f"  {c}" for c in loop.connections]
+    have = {r for r, p in files.items() if p is not None}
+    feed = {inst.name for r, inst in by_role.items() if ports[r][2]}
+    heads = [inst.name for r, inst in by_role.items() if r in have and not ports[r][2]]
+    order = feedthrough_order(feed, ((c.src.instance, c.dst.instance)
+                                     for c in loop.connections))
+    if len(have) == len(by_role):
+        L += ["", "Order within each base step (Gauss-Seidel along the signal chain; an "
+              "output with direct",
+              "feedthrough depends on an input at the same instant):",
+              f"  1. read the outputs of {', '.join(heads) or '-'} (no direct feedthrough)",
+              f"  2. for {', '.join(order) or '-'}, in this order: set the inputs, read the "
+              "outputs",
+              f"  3. set the inputs of {', '.join(heads) or '-'}; step every FMU from t_k to "
+              "t_k + h",
+              "  A host that steps every FMU first and exchanges after (Jacobi: libcosim, Ecos)",
+              "  delays each connection by h: `delaycomp ssp --jacobi` packs the variant that "
+              "allows for it."]
+    L += _controller_alone(loop, by_role, ports, cp)
+    return "\n".join(L) + "\n"
+
+
+def _sheet_timing(loop: Loop, by_role, cp, native: bool) -> list[str]:
+    """The sheet's title, what the FMUs are, and its timing section."""
     T, h = loop.T, loop.h
     kind = ("native C: no Python in the host" if native else
             "Python: the host needs Python, see the FMUs' README")
@@ -284,7 +342,13 @@ def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[s
               if r in by_role and "delay" in by_role[r].parameters]
     if delays:
         L.append(f"  delay FMUs            {', '.join(delays)}")
-    L += ["", "FMUs"]
+    return L
+
+
+def _sheet_fmus(by_role, ports, files: Mapping[str, Path | None], built: list[str],
+                name: str) -> list[str]:
+    """One line per role: its FMU file, inputs and outputs (or that it was not built)."""
+    L = []
     width = max(len(str(Path(p).name)) for p in files.values() if p is not None)
     for role in by_role:
         path = files.get(role)
@@ -297,27 +361,7 @@ def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[s
         tag = "  (the loop's own FMU file, used as it is)" if given else ""
         L.append(f"  {where:<{width}}  {role:<12} inputs {', '.join(ins) or '-'}; "
                  f"outputs {', '.join(outs) or '-'}{tag}")
-    L += ["", "Connections (output -> input)"]
-    L += [f"  {c}" for c in loop.connections]
-    have = {r for r, p in files.items() if p is not None}
-    feed = {inst.name for r, inst in by_role.items() if ports[r][2]}
-    heads = [inst.name for r, inst in by_role.items() if r in have and not ports[r][2]]
-    order = feedthrough_order(feed, ((c.src.instance, c.dst.instance)
-                                     for c in loop.connections))
-    if len(have) == len(by_role):
-        L += ["", "Order within each base step (Gauss-Seidel along the signal chain; an "
-              "output with direct",
-              "feedthrough depends on an input at the same instant):",
-              f"  1. read the outputs of {', '.join(heads) or '-'} (no direct feedthrough)",
-              f"  2. for {', '.join(order) or '-'}, in this order: set the inputs, read the "
-              "outputs",
-              f"  3. set the inputs of {', '.join(heads) or '-'}; step every FMU from t_k to "
-              "t_k + h",
-              "  A host that steps every FMU first and exchanges after (Jacobi: libcosim, Ecos)",
-              "  delays each connection by h: `delaycomp ssp --jacobi` packs the variant that "
-              "allows for it."]
-    L += _controller_alone(loop, by_role, ports, cp)
-    return "\n".join(L) + "\n"
+    return L
 
 
 def _zoh_unpadded(ctrl, cp) -> bool:

@@ -236,51 +236,15 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     fmu = read_interface(fmu_path)
     states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters)
     n, m = len(states), len(inputs)
-    x0 = np.asarray(x0, dtype=float).ravel()
-    u0 = np.zeros(m) if u0 is None else np.asarray(u0, dtype=float).ravel()
-    if x0.shape != (n,):
-        raise ParameterError(f"parameter x0 has {x0.size} values: must have one per state "
-                             f"({', '.join(states)})")
-    if u0.shape != (m,):
-        raise ParameterError(f"parameter u0 has {u0.size} values: must have one per input "
-                             f"({', '.join(inputs)})")
+    x0, u0 = _histories(x0, u0, states, inputs)
     timing = Timing(T, N)
     r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
     if model is None:
-        A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
-        if A.shape != (n, n):
-            raise ParameterError(f"controller.A has shape {A.shape}: must be n x n = {n} x {n} "
-                                 f"(one row per state: {', '.join(states)})")
-        if B.shape != (n, m):
-            raise ParameterError(f"controller.B has shape {B.shape}: must be n x m = {n} x {m} "
-                                 f"(one column per input: {', '.join(inputs)})")
-        if K.shape != (m, n):
-            raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
-                                 "(u = K x)")
-        check_zoh_delay(tau, T)
-        ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
-                        {"T": T, "r": r, "tau": tau, "mode": mode, **matrix_params("A", A),
-                         **matrix_params("B", B), **matrix_params("K", K),
-                         **vector_params("u0", u0)})
-        ctrl_in, ctrl_out = indexed("y", n), indexed("u", m)
-        # no LtiDesign: the exact analyses (lifted loop, critical delay) would take A, B
-        # for the plant, and the plant here is the FMU
+        ctrl, ctrl_in, ctrl_out = _lti_controller(A, B, K, states, inputs, T, r, tau, mode,
+                                                  u0)
     else:
-        from delaycomp.maths.model import load_model
-
-        mdl = load_model(model)
-        if (mdl.n, mdl.m) != (n, m):
-            raise ParameterError(f"controller.model {Path(model).name} has n = {mdl.n} "
-                                 f"states and m = {mdl.m} inputs: plant.states names {n}, "
-                                 f"plant.inputs {m}")
-        params = dict(controller_parameters or {})
-        if mdl.control == "zoh" and not params.get("pad", False):
-            check_zoh_delay(tau, T, padding=True)
-        ctrl = Instance("controller", "controller",
-                        ModelFmu("model_controller", Path(model)),
-                        {"T": T, "r": r, "tau": tau, "N": N, **vector_params("u0", u0),
-                         **vector_params("z0", x0), **params})
-        ctrl_in, ctrl_out = [f"y_{s}" for s in mdl.states], list(mdl.inputs)
+        ctrl, ctrl_in, ctrl_out = _model_controller(model, controller_parameters, n, m, T,
+                                                    r, tau, N, x0, u0)
     instances = (
         Instance("plant", "plant", FmuFile(Path(fmu_path)), values),
         Instance("meas_delay", "meas_delay", _delay_source(n, r_loop, timing.h),
@@ -289,17 +253,86 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
         Instance("input_delay", "input_delay", _delay_source(m, tau_loop, timing.h),
                  {"delay": tau_loop, **vector_params("u0", u0)}),
     )
+    connections = _plant_connections(states, inputs, ctrl_in, ctrl_out)
+    recorded = tuple([Port("plant", s) for s in states]
+                     + [Port("controller", u) for u in ctrl_out])
+    return Loop(instances, connections, timing, recorded, name, title, stop_time)
+
+
+def _histories(x0, u0, states: list[str], inputs: list[str]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The initial histories x0 (one value per state) and u0 (per input; default 0)."""
+    x0 = np.asarray(x0, dtype=float).ravel()
+    u0 = np.zeros(len(inputs)) if u0 is None else np.asarray(u0, dtype=float).ravel()
+    if x0.shape != (len(states),):
+        raise ParameterError(f"parameter x0 has {x0.size} values: must have one per state "
+                             f"({', '.join(states)})")
+    if u0.shape != (len(inputs),):
+        raise ParameterError(f"parameter u0 has {u0.size} values: must have one per input "
+                             f"({', '.join(inputs)})")
+    return x0, u0
+
+
+def _lti_controller(A, B, K, states: list[str], inputs: list[str], T: float, r: float,
+                    tau: float, mode: str, u0: np.ndarray
+                    ) -> tuple[Instance, list[str], list[str]]:
+    """delaycomp's LTI controller of ``A``, ``B``, ``K`` (shapes checked), its inputs and
+    outputs."""
+    n, m = len(states), len(inputs)
+    A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
+    if A.shape != (n, n):
+        raise ParameterError(f"controller.A has shape {A.shape}: must be n x n = {n} x {n} "
+                             f"(one row per state: {', '.join(states)})")
+    if B.shape != (n, m):
+        raise ParameterError(f"controller.B has shape {B.shape}: must be n x m = {n} x {m} "
+                             f"(one column per input: {', '.join(inputs)})")
+    if K.shape != (m, n):
+        raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
+                             "(u = K x)")
+    check_zoh_delay(tau, T)
+    ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
+                    {"T": T, "r": r, "tau": tau, "mode": mode, **matrix_params("A", A),
+                     **matrix_params("B", B), **matrix_params("K", K),
+                     **vector_params("u0", u0)})
+    # no LtiDesign: the exact analyses (lifted loop, critical delay) would take A, B
+    # for the plant, and the plant here is the FMU
+    return ctrl, indexed("y", n), indexed("u", m)
+
+
+def _model_controller(model, controller_parameters: Mapping | None, n: int, m: int,
+                      T: float, r: float, tau: float, N: int, x0: np.ndarray,
+                      u0: np.ndarray) -> tuple[Instance, list[str], list[str]]:
+    """The controller FMU of the model file ``model`` (its n and m checked against the
+    plant's), its inputs and outputs."""
+    from delaycomp.maths.model import load_model
+
+    mdl = load_model(model)
+    if (mdl.n, mdl.m) != (n, m):
+        raise ParameterError(f"controller.model {Path(model).name} has n = {mdl.n} "
+                             f"states and m = {mdl.m} inputs: plant.states names {n}, "
+                             f"plant.inputs {m}")
+    params = dict(controller_parameters or {})
+    if mdl.control == "zoh" and not params.get("pad", False):
+        check_zoh_delay(tau, T, padding=True)
+    ctrl = Instance("controller", "controller",
+                    ModelFmu("model_controller", Path(model)),
+                    {"T": T, "r": r, "tau": tau, "N": N, **vector_params("u0", u0),
+                     **vector_params("z0", x0), **params})
+    return ctrl, [f"y_{s}" for s in mdl.states], list(mdl.inputs)
+
+
+def _plant_connections(states: list[str], inputs: list[str], ctrl_in: list[str],
+                       ctrl_out: list[str]) -> tuple[Connection, ...]:
+    """plant -> meas_delay -> controller -> input_delay -> plant, channel by channel."""
+    n, m = len(states), len(inputs)
     ys_in, ys_out = indexed("u", n), indexed("y", n)
     dl_in, dl_out = indexed("u", m), indexed("y", m)
 
     def c(a, av, b, bv):
         return Connection(Port(a, av), Port(b, bv))
 
-    connections = tuple(
+    return tuple(
         [c("plant", x, "meas_delay", i) for x, i in zip(states, ys_in)]
         + [c("meas_delay", o, "controller", i) for o, i in zip(ys_out, ctrl_in)]
         + [c("controller", u, "input_delay", i) for u, i in zip(ctrl_out, dl_in)]
         + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, inputs)])
-    recorded = tuple([Port("plant", s) for s in states]
-                     + [Port("controller", u) for u in ctrl_out])
-    return Loop(instances, connections, timing, recorded, name, title, stop_time)

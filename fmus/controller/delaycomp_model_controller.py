@@ -44,6 +44,11 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         self.u0, self.z0, self.y = np.zeros(m), np.zeros(n), np.zeros(n)
         self.t0 = 0.0
         self.ctrl = None
+        self._declare_settings()
+        self._declare_model_variables(model)
+
+    def _declare_settings(self):
+        """The controller's settings: T, r, tau, N, mode, predictor, tolerance, pad."""
         for name, text in (("T", "sampling period [s], > 0"),
                            ("r", "measurement delay [s], >= 0, a multiple of T/N"),
                            ("tau", "input delay [s], >= 0, a multiple of T/N (zoh: of T, "
@@ -67,6 +72,10 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
             "pad", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
             getter=lambda: self.pad, setter=lambda v: setattr(self, "pad", bool(v)),
             description="zoh: pad tau up to the next multiple of T (Remark 3.3(b))"))
+
+    def _declare_model_variables(self, model):
+        """The model's parameters, the histories u0 and z0, the held sample, the
+        measured inputs and the control outputs."""
         self.values: dict = {}
         self.model_parameters(self.values, model.parameters, model.choices)
         for j, s in enumerate(model.inputs):

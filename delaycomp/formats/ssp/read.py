@@ -157,6 +157,43 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
     its components are FMU files as they are, and the recorded signals are the plant's and
     the controller's connected outputs."""
     ssd_path = Path(ssd_path)
+    where = ssd_path.name
+    root, system, master = _open_ssd(ssd_path, foreign)
+    given_roles = _given_roles(foreign)
+    described = ({c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
+                 if master is not None else {})
+    roles: dict[str, str | None] = {}
+    # each component's name, source and parameters (its role is known after the loop)
+    components: list[tuple[str, Source, dict]] = []
+    sources: dict[str, str] = {}
+    set_names: set[str] = set()
+    for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
+        name, role, source, params = _read_component(ssd_path, comp, described, foreign,
+                                                     given_roles, sources, set_names)
+        roles[name] = role
+        components.append((name, source, params))
+    for name in given_roles:
+        if name not in roles:
+            raise SspError(f"--role {name}=...: {where} has no component {name!r}: its "
+                           f"components are {', '.join(roles)}")
+    connections = _read_connections(system, where)
+    found = _infer_roles(where, list(roles), roles, connections)
+    instances = [Instance(name, found[name], source, params)
+                 for name, source, params in components]
+    recorded = _recorded(master, found, connections, where)
+    T, N = _master_timing(master, foreign, where)
+    info = _system_info(root, system, master, set_names, where)
+    try:
+        loop = Loop(tuple(instances), tuple(connections), Timing(T, N), tuple(recorded),
+                    info.name, info.description)
+    except ParameterError as exc:
+        raise SspError(f"{where}: {exc}") from None
+    return System(loop, info, sources)
+
+
+def _open_ssd(ssd_path: Path, foreign: Foreign | None
+              ) -> tuple[etree._Element, etree._Element, etree._Element | None]:
+    """The SSD's root, its ssd:System and its dc:Master (None for a foreign SSD)."""
     root = parse_xml(ssd_path)
     where = ssd_path.name
     if root.tag != tag("ssd:SystemStructureDescription"):
@@ -170,88 +207,112 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
         raise SspError(f"{where}: no {DC_ANNOTATION} annotation with dc:Master: not a "
                        "delaycomp system (to run an SSP of another tool give the master "
                        "settings: --period T --steps N)")
+    return root, system, master
+
+
+def _given_roles(foreign: Foreign | None) -> dict[str, str]:
+    """The roles given with ``--role``, each checked to be a role of ROLES."""
     given_roles = dict(foreign.roles) if foreign is not None else {}
     for cname, crole in given_roles.items():
         if crole not in ROLES:
             raise SspError(f"--role {cname}={crole}: role {crole!r} is not allowed: allowed "
                            f"are {', '.join(ROLES)}")
-    described = ({c.get("element"): c for c in master.iterfind("dc:Component", NSMAP)}
-                 if master is not None else {})
-    roles: dict[str, str | None] = {}
-    # each component's name, source and parameters (its role is known after the loop)
-    components: list[tuple[str, Source, dict]] = []
-    sources: dict[str, str] = {}
-    set_names: set[str] = set()
-    for comp in system.iterfind("ssd:Elements/ssd:Component", NSMAP):
-        name = required_attr(comp, "name", where)
-        sources[name] = _inside(ssd_path,
-                                required_attr(comp, "source", f"{where}: component {name}"),
-                                f"{where}: component {name}")
-        fmu = described.get(name)
-        if fmu is None:  # an archive of an earlier layout: the description in the component
-            fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
-                            NSMAP)
-        if fmu is None and foreign is None:
-            raise SspError(f"{where}: component {name} has no dc:Component (nor dc:Fmu) "
-                           "annotation")
-        choices: dict = {}
-        if fmu is None:
-            role = given_roles.get(name) or (name if name in ROLES else None)
-        else:
-            try:
-                choices = {k: tuple(v)
-                           for k, v in json.loads(fmu.get("choices", "{}")).items()}
-            except (json.JSONDecodeError, AttributeError, TypeError):
-                raise SspError(f"{where}: component {name}: choices is not a JSON object of "
-                               "lists") from None
-            # archives before roles named instances by role
-            role = given_roles.get(name) or fmu.get("role") or name
-            if role not in ROLES:
-                raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
-                               f"{', '.join(ROLES)}")
-        roles[name] = role
-        kind = fmu.get("kind") if fmu is not None else None
-        source: Source
-        if kind is None:
-            source = FmuFile(ssd_path.parent / sources[name])
-        else:
-            try:
-                config = config_in(json.loads(required_attr(fmu, "config", f"{where}: {name}")))
-            except json.JSONDecodeError:
-                raise SspError(f"{where}: component {name}: dc:Fmu config is not JSON"
-                               ) from None
-            source = (ModelFmu(kind, Path(config["model"])) if "model" in config
-                      else BuiltinFmu(kind, config))
-        params: dict = {}
-        for binding in comp.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NSMAP):
-            bsource = _inside(ssd_path,
-                              required_attr(binding, "source", f"{where}: component {name}"),
-                              f"{where}: component {name}")
-            set_name, values = read_ssv(ssd_path.parent / bsource)
-            set_names.add(set_name)
-            params.update(values)
-        params = native_parameters(params, choices, f"{where}: component {name}")
-        components.append((name, source, params))
-    for name in given_roles:
-        if name not in roles:
-            raise SspError(f"--role {name}=...: {where} has no component {name!r}: its "
-                           f"components are {', '.join(roles)}")
+    return given_roles
+
+
+def _read_component(ssd_path: Path, comp: etree._Element, described: dict,
+                    foreign: Foreign | None, given_roles: dict[str, str],
+                    sources: dict[str, str], set_names: set[str]
+                    ) -> tuple[str, str | None, Source, dict]:
+    """Name, role (None: to be found), source and parameters of one ssd:Component; its
+    file goes into ``sources``, the names of its parameter sets into ``set_names``."""
+    where = ssd_path.name
+    name = required_attr(comp, "name", where)
+    sources[name] = _inside(ssd_path,
+                            required_attr(comp, "source", f"{where}: component {name}"),
+                            f"{where}: component {name}")
+    fmu = described.get(name)
+    if fmu is None:  # an archive of an earlier layout: the description in the component
+        fmu = comp.find(f"ssd:Annotations/ssc:Annotation[@type='{DC_ANNOTATION}']/dc:Fmu",
+                        NSMAP)
+    if fmu is None and foreign is None:
+        raise SspError(f"{where}: component {name} has no dc:Component (nor dc:Fmu) "
+                       "annotation")
+    role, choices = _role_and_choices(where, name, fmu, given_roles)
+    source = _component_source(ssd_path, name, fmu, sources[name])
+    params: dict = {}
+    for binding in comp.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NSMAP):
+        bsource = _inside(ssd_path,
+                          required_attr(binding, "source", f"{where}: component {name}"),
+                          f"{where}: component {name}")
+        set_name, values = read_ssv(ssd_path.parent / bsource)
+        set_names.add(set_name)
+        params.update(values)
+    params = native_parameters(params, choices, f"{where}: component {name}")
+    return name, role, source, params
+
+
+def _role_and_choices(where: str, name: str, fmu: etree._Element | None,
+                      given_roles: dict[str, str]) -> tuple[str | None, dict]:
+    """A component's role (None when neither given nor described) and its choices."""
+    choices: dict = {}
+    if fmu is None:
+        return given_roles.get(name) or (name if name in ROLES else None), choices
+    try:
+        choices = {k: tuple(v)
+                   for k, v in json.loads(fmu.get("choices", "{}")).items()}
+    except (json.JSONDecodeError, AttributeError, TypeError):
+        raise SspError(f"{where}: component {name}: choices is not a JSON object of "
+                       "lists") from None
+    # archives before roles named instances by role
+    role = given_roles.get(name) or fmu.get("role") or name
+    if role not in ROLES:
+        raise SspError(f"{where}: component {name} has role {role!r}: allowed are "
+                       f"{', '.join(ROLES)}")
+    return role, choices
+
+
+def _component_source(ssd_path: Path, name: str, fmu: etree._Element | None,
+                      rel: str) -> Source:
+    """What a component runs: its dc:Fmu's kind and config, else its FMU file ``rel``."""
+    kind = fmu.get("kind") if fmu is not None else None
+    if kind is None:
+        return FmuFile(ssd_path.parent / rel)
+    try:
+        config = config_in(json.loads(required_attr(fmu, "config",
+                                                    f"{ssd_path.name}: {name}")))
+    except json.JSONDecodeError:
+        raise SspError(f"{ssd_path.name}: component {name}: dc:Fmu config is not JSON"
+                       ) from None
+    return (ModelFmu(kind, Path(config["model"])) if "model" in config
+            else BuiltinFmu(kind, config))
+
+
+def _read_connections(system: etree._Element, where: str) -> list[Connection]:
+    """The ssd:Connections of ``system``."""
     connections = []
     for c in system.iterfind("ssd:Connections/ssd:Connection", NSMAP):
         ends = [required_attr(c, a, f"{where}: connection") for a in
                 ("startElement", "startConnector", "endElement", "endConnector")]
         connections.append(Connection(Port(ends[0], ends[1]), Port(ends[2], ends[3])))
-    found = _infer_roles(where, list(roles), roles, connections)
-    instances = [Instance(name, found[name], source, params)
-                 for name, source, params in components]
+    return connections
+
+
+def _recorded(master: etree._Element | None, found: dict[str, Role],
+              connections: list[Connection], where: str) -> list[Port]:
+    """The dc:Record ports; for a foreign SSD the plant's and controller's outputs."""
     if master is not None:
-        recorded = [Port(required_attr(r, "element", where), required_attr(r, "connector", where))
-                    for r in master.iterfind("dc:Record", NSMAP)]
-    else:
-        by_role = {role: name for name, role in found.items()}
-        recorded = list(dict.fromkeys(
-            c.src for role in ("plant", "controller") for c in connections
-            if c.src.instance == by_role.get(role)))
+        return [Port(required_attr(r, "element", where), required_attr(r, "connector", where))
+                for r in master.iterfind("dc:Record", NSMAP)]
+    by_role = {role: name for name, role in found.items()}
+    return list(dict.fromkeys(
+        c.src for role in ("plant", "controller") for c in connections
+        if c.src.instance == by_role.get(role)))
+
+
+def _master_timing(master: etree._Element | None, foreign: Foreign | None,
+                   where: str) -> tuple[float, int]:
+    """The sampling period T and base steps N, from ``foreign`` else dc:Master, checked."""
     try:
         if foreign is not None and foreign.T is not None and foreign.N is not None:
             T, N = float(foreign.T), foreign.N
@@ -265,6 +326,13 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
     if not 1 <= N <= MAX_N:
         raise SspError(f"{where}: dc:Master N = {N!r} is not allowed: must be an integer "
                        f"from 1 to {MAX_N}")
+    return T, N
+
+
+def _system_info(root: etree._Element, system: etree._Element,
+                 master: etree._Element | None, set_names: set[str],
+                 where: str) -> SystemInfo:
+    """Name, description, stop time (checked) and parameter set of the SSD."""
     exp = root.find("ssd:DefaultExperiment", NSMAP)
     stop = exp.get("stopTime") if exp is not None else None
     try:
@@ -276,18 +344,11 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
                        "number >= 0")
     set_name = next(iter(set_names), DEFAULT_SET)
     if master is not None:
-        info = SystemInfo(master.get("name", root.get("name", "")),
+        return SystemInfo(master.get("name", root.get("name", "")),
                           system.get("description", ""), stop_time,
                           master.get("parameterSet", set_name))
-    else:
-        info = SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
-                          set_name)
-    try:
-        loop = Loop(tuple(instances), tuple(connections), Timing(T, N), tuple(recorded),
-                    info.name, info.description)
-    except ParameterError as exc:
-        raise SspError(f"{where}: {exc}") from None
-    return System(loop, info, sources)
+    return SystemInfo(root.get("name", ""), system.get("description", ""), stop_time,
+                      set_name)
 
 
 def _schema(name: str) -> etree.XMLSchema:
