@@ -45,6 +45,7 @@ from delaycomp.paper import scenarios  # noqa: E402
 from delaycomp.paper.models import path as model_path  # noqa: E402
 from delaycomp.studies import batch, pool, sweep  # noqa: E402
 from delaycomp.studies.axes import format_value, parse_grid, points  # noqa: E402
+from delaycomp.system import LtiBatch  # noqa: E402
 
 TARGET_3_6 = 1000.0
 TARGET_2_4 = 50.0
@@ -151,15 +152,14 @@ def bench_proposition_4_2(repeats, k_sample, cores, side):
 
     def run(workers):
         from delaycomp.studies import sweep_batch
-        arrays = dict(T=np.full(P, base["T"]), N=np.full(P, base["N"]),
-                      r=np.full(P, base["r"]), tau=np.full(P, base["tau"]),
-                      r_true=np.full(P, base["r"]), tau_true=np.full(P, base["tau"]),
-                      x0=x0, u0=np.zeros((P, 2)))
+        pts = batch.ModelBatch(T=np.full(P, base["T"]), N=np.full(P, base["N"]),
+                               r=np.full(P, base["r"]), tau=np.full(P, base["tau"]),
+                               r_true=np.full(P, base["r"]), tau_true=np.full(P, base["tau"]),
+                               x0=x0, u0=np.zeros((P, 2)))
         size = max(1, math.ceil(P / workers))
         chunks = [(list(range(s, min(P, s + size))),
-                   sweep_batch.Chunk("model", {k: v[s:s + size] for k, v in arrays.items()},
-                                     stop, "numpy", str(model.source),
-                                     (("law", "corrected"),), False))
+                   sweep_batch.Chunk(batch.take(pts, slice(s, s + size)), stop, "numpy",
+                                     str(model.source), (("law", "corrected"),), False))
                   for s in range(0, P, size)]
         out = sweep_batch.run_chunks(chunks, workers, None, pool.Progress(P))
         return [row for rows in out for row in rows]
@@ -207,13 +207,13 @@ def bench_million(side, gpu, cores):
         chunks = []
         for s in range(0, P, size):
             n_s = len(R[s:s + size])
-            arrays = dict(A=np.ones((n_s, 1, 1)), B=np.ones((n_s, 1, 1)), K=K[s:s + size],
-                          T=np.ones(n_s), N=np.full(n_s, 100), r=R[s:s + size],
-                          tau=np.zeros(n_s), x0=np.ones((n_s, 1)), u0=np.zeros((n_s, 1)),
-                          mode=np.array(["uncompensated"] * n_s, dtype=object),
-                          r_true=R[s:s + size], tau_true=np.zeros(n_s))
+            design = LtiBatch(A=np.ones((n_s, 1, 1)), B=np.ones((n_s, 1, 1)), K=K[s:s + size],
+                              T=np.ones(n_s), N=np.full(n_s, 100), r=R[s:s + size],
+                              tau=np.zeros(n_s), x0=np.ones((n_s, 1)), u0=np.zeros((n_s, 1)),
+                              mode=np.array(["uncompensated"] * n_s, dtype=object),
+                              r_true=R[s:s + size], tau_true=np.zeros(n_s))
             chunks.append((list(range(s, s + n_s)),
-                           sweep_batch.Chunk("lti", arrays, 20.0, "numpy")))
+                           sweep_batch.Chunk(design, 20.0, "numpy")))
         t = time.perf_counter()
         rows = sweep_batch.run_chunks(chunks, cores, None, pool.Progress(P))
         out["all"] = time.perf_counter() - t

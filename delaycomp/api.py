@@ -70,8 +70,8 @@ from delaycomp.system import model_loop as _model_loop
 from delaycomp.system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
-           "Result", "SignError", "SimulationFailed", "build", "critical_delay", "export_c",
-           "load", "lti", "model", "plot", "run", "sweep", "to_ssp"]
+           "Result", "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
+           "export_c", "load", "lti", "model", "plot", "run", "sweep", "to_ssp"]
 
 
 def load(path: str | Path, **overrides) -> Loop:
@@ -190,35 +190,68 @@ def _fmu_kind(fmus: str) -> None:
                              f"{', '.join(FMU_KINDS)}")
 
 
+def choose_fmus(loop: Loop, fmus: str = "auto", fmu_dir: str | Path | None = None,
+                engine: str = "fmu") -> tuple[dict[str, Path] | None, str | None]:
+    """The FMU files a run of ``loop`` uses, and why not the native ones where it could
+    have: ``(files, why)``, ``files`` ``None`` for the Python FMUs of the build cache.
+
+    ``fmus`` (:data:`FMU_KINDS`): ``auto`` takes the native C FMUs where the loop has them
+    here (``why`` says otherwise: no native twin, no C compiler, a model that does not
+    translate), ``native`` only those (:class:`ValueError` where there are none),
+    ``python`` the Python ones. ``engine="inprocess"`` runs no FMU files. Native FMUs are
+    built into ``fmu_dir/native``; :func:`run` and the command line choose through here.
+
+    Examples
+    --------
+    >>> loop = lti([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, x0=[1.0])
+    >>> choose_fmus(loop, "python")
+    (None, None)
+    """
+    _fmu_kind(fmus)
+    if engine != "fmu":
+        if fmus == "native":
+            raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
+                                 "(the Python slaves run in this process)")
+        return None, None
+    if fmus == "python":
+        return None, None
+    from delaycomp.fmu.native import native_fmus, native_or_why
+
+    native_dir = Path(fmu_dir) / "native" if fmu_dir else None
+    if fmus == "native":
+        return native_fmus(loop, native_dir), None
+    return native_or_why(loop, native_dir)
+
+
 def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
-        fmu_dir: str | Path | None = None, fmus: str = "auto") -> Result:
+        fmu_dir: str | Path | None = None, fmus: str | Mapping[str, Path] = "auto",
+        every: int = 1, sink=None, keep: bool = True, progress=None) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (:data:`FMU_KINDS`): with the FMU engine, the native C
     FMUs where the loop has them (``auto``: LTI loops and model files that translate, with
     a C compiler; a note in ``result.notes`` says when the Python FMUs ran instead), only
-    native ones, or the Python ones. Native FMUs are built into ``fmu_dir/native``. Raises
-    :class:`SimulationFailed` if the run stops early."""
+    native ones, or the Python ones (:func:`choose_fmus`); or the FMU file of each
+    instance, by name (an SSP archive's). Native FMUs are built into ``fmu_dir/native``.
+
+    The rest is for long runs (as the command line's ``run``): a row every ``every`` base
+    steps; ``sink(t, row)`` receives each row as it is made
+    (:class:`~delaycomp.formats.outputs.CsvStream`); ``keep=False`` keeps no rows in the
+    result; ``progress(k)`` hears the base step reached. Raises :class:`SimulationFailed`
+    if the run stops early (its rows so far in ``exc.result``)."""
     from delaycomp.orchestrator.simulate import run_loop
 
-    _fmu_kind(fmus)
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
         raise ParameterError("stop_time is required (the loop has none)")
-    fmu_dir = Path(fmu_dir) if fmu_dir else None
-    chosen, why = None, None
-    if engine == "fmu" and fmus != "python":
-        from delaycomp.fmu.native import native_fmus, native_or_why
-
-        native_dir = fmu_dir / "native" if fmu_dir else None
-        if fmus == "native":
-            chosen = native_fmus(loop, native_dir)
-        else:
-            chosen, why = native_or_why(loop, native_dir)
-    elif fmus == "native":
-        raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
-                             "(the Python slaves run in this process)")
-    result = run_loop(loop, stop, fmu_dir, engine=engine, fmus=chosen)
+    chosen: dict[str, Path] | None
+    why: str | None
+    if isinstance(fmus, Mapping):
+        chosen, why = dict(fmus), None
+    else:
+        chosen, why = choose_fmus(loop, fmus, fmu_dir, engine)
+    result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine,
+                      fmus=chosen, every=every, sink=sink, keep=keep, progress=progress)
     if why:
         result.notes.append(f"the Python FMUs ran (no native ones here: {why})")
     if not result.success:
@@ -312,11 +345,13 @@ def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
 
 
 def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
-           fmu_dir: str | Path | None = None, fmus: str = "auto") -> Path:
+           fmu_dir: str | Path | None = None, fmus: str = "auto",
+           notes: list[str] | None = None) -> Path:
     """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
     variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`).
-    ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``), only
-    native ones, or the Python ones."""
+    ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``: where they
+    do not, the Python ones, and ``notes`` hears why), only native ones, or the Python
+    ones. ``delaycomp ssp`` on the command line."""
     from delaycomp.formats import ssp
     _fmu_kind(fmus)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
@@ -326,16 +361,19 @@ def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
         path = pack_jacobi(loop, out, fmu_dir)
     else:
         path = ssp.pack(*ssp.loop_system(loop), out, fmu_dir)
-    if fmus != "python":
+    if fmus != "python":  # the same archive with the native twins of its FMUs
         from delaycomp.fmu.native import NativeBuildError, native_archive
 
         try:
             native_archive(path, path)
-        except (ValueError, NativeBuildError):
+        except (ValueError, NativeBuildError) as exc:  # ModelError is a ValueError
             Path(path).with_name(Path(path).name + ".part").unlink(missing_ok=True)
             if fmus == "native":
                 Path(path).unlink()
                 raise
+            if notes is not None:
+                notes.append("the archive holds the Python FMUs (no native ones here: "
+                             f"{str(exc).splitlines()[0]})")
     return path
 
 

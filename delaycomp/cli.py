@@ -51,7 +51,7 @@ import time
 from pathlib import Path
 
 from delaycomp import __version__
-from delaycomp.errors import BadFileError, DelaycompError, SspError
+from delaycomp.errors import BadFileError, DelaycompError, SimulationFailed, SspError
 from delaycomp.maths.model import ModelError
 from delaycomp.names import LOOP_GROUPS
 from delaycomp.paper import scenarios
@@ -365,15 +365,15 @@ def _chosen_fmus(args, loop) -> dict | None:
     the Python FMUs of the build cache."""
     if args.fmu_dir is not None and args.fmu_dir.exists() and not args.fmu_dir.is_dir():
         raise BadFileError(args.fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
-    if args.python:
-        return None
-    if args.native:
-        return _native_fmus(loop, args.fmu_dir)
-    from delaycomp.fmu.native import native_or_why
+    from delaycomp.api import choose_fmus
     from delaycomp.progress import info
 
-    fmus, why = native_or_why(loop, args.fmu_dir / "native" if args.fmu_dir else None)
-    if fmus is None:
+    kind = "python" if args.python else "native" if args.native else "auto"
+    try:
+        fmus, why = choose_fmus(loop, kind, args.fmu_dir)
+    except ValueError as exc:  # --native for a loop without native twins
+        raise UsageError(str(exc)) from None
+    if why:
         info(f"note: the Python FMUs run this loop (no native ones here: {why}); "
              "--python says so and skips the attempt", args.verbosity)
     return fmus
@@ -511,31 +511,24 @@ def _cmd_ssp(args) -> int:
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
     _, _, loop = _loop(args)
-    from delaycomp.formats import ssp  # the arguments are checked: now the SSP writer (lxml)
+    from delaycomp.api import to_ssp  # the arguments are checked: now the SSP writer (lxml)
+    from delaycomp.fmu.native import NativeBuildError
+    from delaycomp.progress import info
+    from delaycomp.system.jacobi import CompensationError
 
-    if args.jacobi:
-        from delaycomp.verify.thirdparty import CompensationError, pack_jacobi
-
-        try:
-            path = pack_jacobi(loop, args.out, args.fmu_dir)
-        except CompensationError as exc:
-            raise UsageError(str(exc)) from None
-    else:
-        path = ssp.pack(*ssp.loop_system(loop), args.out, args.fmu_dir)
-    if not args.python:  # the same archive with the native twins of its FMUs
-        from delaycomp.fmu.native import NativeBuildError, native_archive
-        from delaycomp.progress import info
-
-        try:
-            native_archive(path, path)
-        except (ValueError, NativeBuildError) as exc:  # ModelError is a ValueError
-            Path(path).with_name(Path(path).name + ".part").unlink(missing_ok=True)
-            if args.native:
-                Path(path).unlink()
-                raise UsageError(str(exc).splitlines()[0]) from None
-            info(f"note: the archive holds the Python FMUs (no native ones here: "
-                 f"{str(exc).splitlines()[0]}); --python says so and skips the attempt",
-                 args.verbosity)
+    notes: list[str] = []
+    kind = "python" if args.python else "native" if args.native else "auto"
+    try:
+        path = to_ssp(loop, args.out, jacobi=args.jacobi, fmu_dir=args.fmu_dir, fmus=kind,
+                      notes=notes)
+    except CompensationError as exc:
+        raise UsageError(str(exc)) from None
+    except (ValueError, NativeBuildError) as exc:  # --native without native twins
+        if not args.native:
+            raise
+        raise UsageError(str(exc).splitlines()[0]) from None
+    for note in notes:
+        info(f"note: {note}; --python says so and skips the attempt", args.verbosity)
     print(path)
     return 0
 
@@ -612,9 +605,16 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
 
     ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
     and are decimated afterwards)."""
+    from delaycomp.api import run
     from delaycomp.formats.outputs import CsvStream, check_budget, clear_previous, output_every
-    from delaycomp.orchestrator.simulate import run_loop
     from delaycomp.progress import bar, info
+
+    def run_or_failed(loop, **options):
+        try:
+            return run(loop, stop, engine=args.engine, fmu_dir=args.fmu_dir, every=every,
+                       **options)
+        except SimulationFailed as exc:  # reported with its rows so far below
+            return exc.result
 
     ticks = loop.timing.ticks(stop)
     every = output_every(args.output_interval, loop.T, loop.N)
@@ -633,8 +633,8 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
                 def tick(k, progress=progress):
                     progress.update(k - progress.n)
 
-                result = run_loop(loop, stop, args.fmu_dir, engine=args.engine, fmus=fmus,
-                                  every=every, sink=stream, keep=keep, progress=tick)
+                result = run_or_failed(loop, fmus="python" if fmus is None else fmus,
+                                       sink=stream, keep=keep, progress=tick)
         else:
             result = runner(stop)
             if stream is not None and result.success:
@@ -651,9 +651,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
     if others and result.success:
         runs = {label or "this run": result}
         for other_label, other_loop in others.items():
-            other = run_loop(other_loop, stop, args.fmu_dir, engine=args.engine,
-                             every=every, keep=True)
-            runs[other_label] = other
+            runs[other_label] = run_or_failed(other_loop, fmus="python", keep=True)
     return _report_run(args, result, elapsed, name, title, where, timing, units, runs)
 
 
@@ -897,17 +895,6 @@ def _cmd_export_c(args) -> int:
     for path in export_c(loop, args.out, args.prefix):
         print(path)
     return 0
-
-
-def _native_fmus(spec, fmu_dir):
-    """The native FMUs of ``spec`` (``--native``); a loop without native twins is a usage
-    error."""
-    from delaycomp.fmu.native import native_fmus
-
-    try:
-        return native_fmus(spec, fmu_dir / "native" if fmu_dir else None)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
 
 
 #: width of ``delaycomp list`` (it fits a 100-column terminal)

@@ -92,9 +92,11 @@ LTI_GRIDS = {
 
 
 def lti_ingredients(sc, ps):
-    """The batch ingredients of resolved points, as the sweep takes them from the loops."""
-    arr = sweep_batch._arrays([sweep_batch.lti_point(sc.make(p)) for p in ps], lti=True)
-    arr["mode"] = list(arr["mode"])
+    """The batch ingredients of resolved points (loose arrays, for ``simulate_lti``), as
+    the sweep takes them from the loops."""
+    pts = [sweep_batch.lti_point(sc.make(p)) for p in ps]
+    arr = {key: np.array([p[key] for p in pts]) for key in pts[0] if key != "mode"}
+    arr["mode"] = [p["mode"] for p in pts]
     return arr
 
 
@@ -218,7 +220,7 @@ def test_sweep_batch_equals_inprocess(name):
     b = sweep.run_sweep(name, axes, sets, stop=stop, engine="batch", notes=notes)
     s = sweep.run_sweep(name, axes, sets, stop=stop, engine="inprocess")
     assert any(f"{len(b)} of {len(b)} points" in note for note in notes), notes
-    rel = LTI_REL if scenarios.get(name).lti is not None else MODEL_REL
+    rel = LTI_REL if name in LTI_GRIDS else MODEL_REL  # the LTI scenarios
     for x, y in zip(b, s):
         assert {k: x[k] for k in x if k in y and k not in sweep.METRICS} == \
             {k: y[k] for k in y if k not in sweep.METRICS}
@@ -518,6 +520,46 @@ def test_designs_of_many_points_accept_no_point_that_one_by_one_refuses(changes)
         assert lti_designs([*good[:at], bad, *good[at:]]) is None
     with pytest.raises(ParameterError):
         lti_design(**bad)
+
+
+def test_the_engine_takes_the_validated_designs():
+    """``run_lti`` takes the ``LtiBatch`` a sweep validates (``lti_designs``): the numbers
+    of the loose-array ``simulate_lti`` to the bit (the same arithmetic), and a chunk of it
+    (``take``) gives its points' numbers."""
+    from delaycomp.system import lti_designs
+
+    args = [_design_args(k, r, mode=mode, N=N) for k in (0.5, 2.5) for r in (0.0, 0.35)
+            for mode in ("compensated", "uncompensated") for N in (10, 20)]
+    design = lti_designs(args)
+    res = batch.run_lti(design, 6.0, record=True)
+    loose = batch.simulate_lti(design.A, design.B, design.K, design.T, design.N, design.r,
+                               design.tau, design.x0, design.u0, list(design.mode), 6.0,
+                               design.r_true, design.tau_true, record=True)
+    for name in ("rho", "final_norm", "peak_norm", "deadbeat_time", "states", "inputs"):
+        assert np.array_equal(getattr(res, name), getattr(loose, name), equal_nan=True), name
+    part = batch.run_lti(batch.take(design, slice(3, 7)), 6.0)
+    assert part.rows() == res.rows()[3:7]
+    with pytest.raises(batch.BatchError, match="mode = 'sideways'"):
+        batch.run_lti(dataclasses.replace(design, mode=np.array(["sideways"] * len(design),
+                                                                 dtype=object)), 6.0)
+
+
+def test_the_model_engine_takes_its_points_as_one_object():
+    """``run_model`` takes the per-point timing as a ``ModelBatch``; ``simulate_model``
+    gathers its loose arguments into one (the true delays filled in)."""
+    model = load_model(path("example_3_8"))
+    pts = batch.ModelBatch(T=np.array([1.0, 0.5, 1.0]), N=np.array([20, 20, 10]),
+                           r=np.array([0.5, 0.25, 0.3]), tau=np.array([0.0, 0.5, 1.0]),
+                           r_true=np.array([0.5, 0.25, 0.3]), tau_true=np.array([0.0, 0.5, 1.0]),
+                           x0=np.array([[1.0, -1.0], [2.0, 1.0], [0.5, 0.5]]),
+                           u0=np.zeros((3, 1)))
+    res = batch.run_model(model, model.params(), pts, 6.0, record=True)
+    loose = batch.simulate_model(model, model.params(), pts.T, pts.N, pts.r, pts.tau, pts.x0,
+                                 [0.0], 6.0, record=True)
+    assert len(pts) == 3 and res.rows() == loose.rows()
+    assert np.array_equal(res.states, loose.states, equal_nan=True)
+    assert batch.run_model(model, model.params(), batch.take(pts, [1]), 6.0).rows() == \
+        res.rows()[1:2]
 
 
 def test_a_batch_sweep_over_the_dimension_runs_each_shape_as_its_own_group():

@@ -10,6 +10,7 @@ import pytest
 from delaycomp.errors import ParameterError
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.paper import scenarios
+from delaycomp.system import loopfile
 from delaycomp.paper.models import corollary_4_1, unicycle
 from delaycomp.verify.check import CASES
 
@@ -190,3 +191,65 @@ def test_resolve_grid_refuses_what_resolve_refuses(sets, point):
     with pytest.raises(ParameterError):
         sc.resolve([*sets, *point])
     assert sc.resolve_grid(sets, [("k=1",), point, ("k=2",)]) is None
+
+
+@pytest.mark.parametrize("name", sorted(scenarios.SCENARIOS))
+def test_a_scenario_is_its_shipped_loop_file_with_short_names(name):
+    """Issue 26, item 2: a scenario is its loop file read by the loop-file reader; its
+    parameters are aliases of the file's keys, their defaults the file's values."""
+    from delaycomp.system.loopfile import LoopFile
+
+    sc = scenarios.get(name)
+    file = LoopFile(scenarios.loop_file(name))
+    assert repr(sc.loop([])) == repr(file.loop([]))
+    assert (sc.title, sc.default_stop_time) == (file.title, file.default_stop_time)
+    for p in sc.params:
+        if p.key is not None and p.from_file is None and p.name not in ("r_true", "tau_true",
+                                                                        "pad"):
+            section, _, key = p.key.rpartition(".")
+            value = (file.data[section] if section else file.data)[key]
+            assert p.default == value, (name, p.name)
+
+
+# bad values of parameters that stand for one loop-file key each
+_BAD = {"T": ["0", "-1", "inf", "x", "true"], "N": ["0", "2.5", "x", "-3"],
+        "r": ["-0.1", "0.3001", "nan"], "tau": ["-1", "0.5", "x"], "r_true": ["-1", "0.0001"],
+        "mode": ["fast", "1"], "predictor": ["guess"], "law": ["other", "1"], "p": ["cube"],
+        "x0": ["1,x", "1,2,3,4,5"], "u0": ["inf", "1,2,3"]}
+
+
+@pytest.mark.parametrize("name", sorted(scenarios.SCENARIOS))
+def test_a_scenario_refuses_what_its_loop_file_refuses(name):
+    """One rule, not two (issue 26, item 2): each value a scenario parameter refuses, the
+    loop file refuses at the key it stands for, and the other way round."""
+    from delaycomp.system.loopfile import LoopFile
+
+    sc = scenarios.get(name)
+    file = LoopFile(scenarios.loop_file(name))
+    tried = 0
+    for p in sc.params:
+        if p.name not in _BAD or p.to_file not in (None, scenarios._listed):
+            continue
+        for text in _BAD[p.name]:
+            refusals = []
+            for source, assignment in ((sc, f"{p.name}={text}"), (file, f"{p.key}={text}")):
+                try:
+                    source.loop([assignment])
+                    refusals.append(False)
+                except ParameterError:
+                    refusals.append(True)
+            assert refusals[0] == refusals[1], (name, p.name, text, refusals)
+            tried += refusals[0]
+    assert tried >= 10  # refused by both
+
+
+@pytest.mark.parametrize("name", sorted(scenarios.SCENARIOS))
+def test_a_models_own_parameters_state_the_models_choices(name):
+    """``delaycomp list`` prints a model parameter's choices without importing the model
+    (no scipy at start, tests/test_start.py): the words it prints are the model's."""
+    sc = scenarios.get(name)
+    for p in sc.params:
+        if p.key is not None and p.key not in loopfile.KEYS:
+            choices = sc.model.choices[p.key.partition(".")[2]]
+            assert p.allowed == " or ".join(choices), (name, p.name)
+            assert p.default in choices

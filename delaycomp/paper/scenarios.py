@@ -1,16 +1,20 @@
-"""Scenarios: named closed loops with their parameters, defaults and allowed ranges.
+"""Scenarios: the paper's closed loops by name, each its shipped loop file with short names.
 
-A scenario turns user parameters into a :class:`~delaycomp.system.Loop` (the typed loop
-that every command runs): which FMU each instance is, its parameter values, the
-connections and the recorded signals. It does not run anything.
+A scenario is a loop file in ``delaycomp/paper/loops/`` (the paper as data: the matrices
+or the model file, the timing, the histories) read by the loop-file reader
+(:mod:`delaycomp.system.loopfile`), which parses and checks every value, plus an alias
+table: each scenario parameter (``k``, ``T``, ``x0``, ``law``) names the loop-file key it
+sets (``k`` is ``controller.K = [[-k]]``) and how its value maps to the key's. Defaults are
+the file's values; the allowed ranges are the reader's. A scenario turns ``NAME=VALUE``
+assignments into a :class:`~delaycomp.system.Loop`; it does not run anything.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,21 +22,15 @@ import numpy as np
 
 from delaycomp.errors import ParameterError
 from delaycomp.maths.grid import on_grid
-from delaycomp.names import MODES, indexed
-from delaycomp.system import (
-    Loop,
-    LtiBatch,
-    LtiPoint,
-    Timing,
-    check_zoh_delay,
-    lti_design,
-    lti_designs,
-    lti_loop,
-    model_loop,
-)
+from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_loop, model_loop
+from delaycomp.system import loopfile as lf
+from delaycomp.system.loopfile import ON_BASE_GRID, ZOH_TAU, ZOH_TAU_PAD, LoopFile
 
 __all__ = [
+    "ON_BASE_GRID",
     "SCENARIOS",
+    "ZOH_TAU",
+    "ZOH_TAU_PAD",
     "Loop",
     "Param",
     "ParameterError",
@@ -45,102 +43,278 @@ __all__ = [
     "open_source",
 ]
 
+#: the scenarios at their defaults, as loop files shipped in the package
+LOOPS_DIR = Path(__file__).resolve().parent / "loops"
+
+#: distinct values remembered per parameter (:meth:`Scenario._file_value`)
+_MEMO_SIZE = 4096
+#: no default in the alias: the loop file's value is the default
+_FROM_FILE: Any = object()
+
 
 @dataclass(frozen=True)
 class Param:
-    """A scenario parameter: name, default, how to parse it, and its allowed range."""
+    """A scenario parameter: an alias of one loop-file key.
+
+    ``key`` is the key it sets (``"controller.K"``; ``None``: it sets keys through the
+    scenario's ``derive``), ``to_file`` maps the parameter's value to the key's (``k`` to
+    ``[[-k]]``) and ``from_file`` the key's checked value back (the default shown by
+    ``delaycomp list`` is the file's value read so). ``allowed`` is the range in words
+    (``None``: the reader's, :data:`delaycomp.system.loopfile.KEYS`; a model's own
+    parameter states its choices, which ``delaycomp list`` prints without importing the
+    model, tested equal to the model's). The reader checks every value; a refusal names
+    this parameter. A parameter without a key (Corollary 3.7's ``n``) has its own
+    ``check``.
+    """
 
     name: str
-    default: object
     help: str
-    allowed: str
-    parse: Callable[[str], object]
-    ok: Callable[[Any], bool]
+    key: str | None = None
+    allowed: str | None = None
+    to_file: Callable[[Any], Any] | None = None
+    from_file: Callable[[Any], Any] | None = None
+    default: Any = _FROM_FILE
+    #: for a parameter without ``key``: its value checked (``derive`` uses it)
+    check: Callable[[Any], Any] | None = None
 
 
-#: ASCII decimal literals only: Python's float() and int() also take other scripts'
-#: digits ('١' is 1, '２' is 2) and underscores ('1_000'), which a user did not mean  # noqa: RUF003
-_REAL_TEXT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:inf|nan)",
-                        re.ASCII | re.IGNORECASE)
-_INT_TEXT = re.compile(r"[+-]?\d+", re.ASCII)
+def _number(value) -> float:
+    """A number given to an alias that wraps it (``k``, a scalar ``x0``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError("not a number")
+    return float(value)
 
 
-def _real(text: str) -> float:
-    if not _REAL_TEXT.fullmatch(text.strip()):
-        raise ValueError("not an ASCII decimal number")
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError("not finite")
-    return value
+def _listed(value):
+    """A single number given for a list key (``u0=0``) as a list of one."""
+    return [value] if isinstance(value, (int, float)) and not isinstance(value, bool) else value
 
 
-def _positive_int(text: str) -> int:
-    if not _INT_TEXT.fullmatch(text.strip()):
-        raise ValueError("not an ASCII decimal integer")
-    return int(text)
+def _vector(value) -> tuple[float, ...]:
+    return tuple(float(v) for v in value)
 
 
-def real(name, default, help, allowed="a finite number", ok=lambda v: True) -> Param:
-    """A finite real parameter, ``ok`` its further range."""
-    return Param(name, default, help, allowed, _real, ok)
+def _zero_one(value):
+    """``pad=1`` and ``pad=0`` (as ``delaycomp list`` says) for the file's true/false."""
+    return {0.0: False, 1.0: True}.get(value, value) if not isinstance(value, bool) else value
 
 
-#: The allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
-#: ``tau`` under continuous input): what :func:`_check_grid` enforces through
-#: :func:`delaycomp.maths.grid.on_grid`, as ``delaycomp list`` and the README say it.
-ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
-#: ``tau`` under zero-order hold (Theorem 3.2); :data:`ZOH_TAU_PAD` where ``pad=1`` is offered.
-ZOH_TAU = "a finite multiple l*T of T, l >= 0"
-ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
+def _timing(tau_allowed: str) -> tuple[Param, ...]:
+    return (
+        Param("T", "sampling period", "T"),
+        Param("r", "measurement delay", "r"),
+        Param("tau", "input delay", "tau", allowed=tau_allowed),
+        Param("N", "base steps per sampling period (h = T/N)", "N"),
+    )
 
 
-def _vector(text: str) -> tuple[float, ...]:
-    return tuple(_real(part) for part in text.split(","))
+_TRUE_DELAYS = (
+    Param("r_true", "the loop's true measurement delay (default: r, the one the controller "
+          "assumes)", "r_true", default=None),
+    Param("tau_true", "the loop's true input delay (default: tau)", "tau_true", default=None),
+)
+_MODE = Param("mode", "controller: u = K Phi(y) or u = K y", "controller.mode")
 
 
-def vector(name, default, help) -> Param:
-    """Comma-separated finite numbers (the length is checked by the scenario)."""
-    return Param(name, default, help, "comma-separated finite numbers", _vector, lambda v: True)
+def _histories() -> tuple[Param, ...]:
+    return (
+        Param("x0", "initial state, comma-separated in state order, constant on [-r, 0]",
+              "plant.x0", to_file=_listed, from_file=_vector),
+        Param("u0", "input history, comma-separated, constant on [-r - tau, 0)",
+              "controller.u0", to_file=_listed, from_file=_vector),
+    )
 
 
-def choice(name, default, help, options) -> Param:
-    """A parameter that takes one of ``options``."""
-    return Param(name, default, help, " or ".join(options), str, lambda v: v in options)
-
-
-def _flag(text: str) -> bool:
-    value = text.strip().lower()
-    if value in ("1", "true", "yes", "on"):
-        return True
-    if value in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(text)
-
-
-@dataclass(frozen=True)
 class Scenario:
-    """A named loop of the paper: its parameters with defaults and allowed ranges, the builder of
-    its loop, its stop time, its LTI design where it has one."""
+    """A named loop of the paper: its shipped loop file and the alias table of its
+    parameters.
 
-    name: str
-    title: str
-    params: tuple[Param, ...]
-    #: validated parameters -> the loop
-    builder: Callable[[dict], Loop]
-    default_stop_time: float
-    check: Callable[[dict], None] = lambda p: None
-    #: for LTI scenarios: parameters -> the arguments of :func:`~delaycomp.system.lti_design`
-    #: (the builder is then ``lti_loop`` of the same arguments), for :meth:`design`
-    lti_args: Callable[[dict], dict] | None = None
+    Parameters
+    ----------
+    name : str
+        The scenario's name, also its loop file's stem in :data:`LOOPS_DIR`.
+    params : tuple of Param
+        The alias table, in the order ``delaycomp list`` shows it.
+    derive : callable, optional
+        ``derive(values) -> {key: value}``: loop-file keys that follow from several
+        parameters (Corollary 3.7's matrices and gain from ``n`` and ``T``); it may fill in
+        a parameter left ``None`` (its ``x0`` follows ``n``).
+    study : dict, optional
+        Loop-file keys the scenario sets beyond its file (the LTI scenarios allow unstable
+        gains: a sweep over ``k`` crosses into instability).
+    """
+
+    def __init__(self, name: str, params: tuple[Param, ...],
+                 derive: Callable[[dict], dict] | None = None, study: dict | None = None):
+        self.name = name
+        self._aliases = params
+        self._derive = derive
+        self._study = dict(study or {})
+        self._memo: dict[str, dict] = {}
+
+    def __repr__(self) -> str:
+        return f"Scenario({self.name!r})"
+
+    @functools.cached_property
+    def file(self) -> LoopFile:
+        """The shipped loop file (read once)."""
+        return LoopFile(LOOPS_DIR / f"{self.name}.toml")
 
     @property
-    def lti(self) -> Callable[[dict], tuple] | None:
-        """For LTI scenarios: parameters -> ``(A, B, K)`` of ``x' = A x + B u``,
-        ``u = K x`` (from :attr:`lti_args`); ``None`` for the others."""
-        args = self.lti_args
-        if args is None:
+    def title(self) -> str:
+        """The title, from the loop file."""
+        return self.file.title
+
+    @property
+    def default_stop_time(self) -> float:
+        """The stop time of a run that names none, from the loop file."""
+        stop = self.file.default_stop_time
+        assert stop is not None  # every shipped file has one (tested)
+        return stop
+
+    @functools.cached_property
+    def model(self):
+        """The model of a model scenario (:mod:`delaycomp.maths.model`), ``None`` for LTI."""
+        plant = self.file.data["plant"]
+        if "model" not in plant:
             return None
-        return lambda p: tuple(args(p)[key] for key in ("A", "B", "K"))
+        from delaycomp.maths.model import load_model
+
+        return load_model(lf.model_path(plant, self.file.base))
+
+    @functools.cached_property
+    def params(self) -> tuple[Param, ...]:
+        """The parameters, each with its default and allowed range filled in."""
+        return tuple(replace(p, default=self._default(p), allowed=self._allowed(p))
+                     for p in self._aliases)
+
+    def _default(self, p: Param):
+        if p.default is not _FROM_FILE or p.key is None:
+            return p.default
+        value = _get(self.file.data, p.key)
+        if p.key in lf.KEYS:  # a model's own parameter is checked when it is resolved
+            value = lf.check_value(p.key, value)
+        return p.from_file(value) if p.from_file else value
+
+    def _allowed(self, p: Param) -> str:
+        if p.allowed is not None:
+            return p.allowed
+        return lf.KEYS[str(p.key)].allowed  # the others state theirs
+
+    def _check_key(self, key, value):
+        """``value`` of loop-file ``key`` checked by the reader (a model's own parameter
+        against the model)."""
+        if key in lf.KEYS:
+            return lf.check_value(key, value)
+        return lf.model_value(self.model, key.partition(".")[2], value)
+
+    def param(self, name: str) -> Param:
+        """The parameter called ``name`` (ParameterError listing the allowed ones if none)."""
+        for p in self.params:
+            if p.name == name:
+                return p
+        names = ", ".join(p.name for p in self.params)
+        raise ParameterError(f"unknown parameter {name!r} for {self.name}: allowed are {names}")
+
+    def _parse(self, name: str, text) -> object:
+        """The value of one assignment, parsed and checked by the loop-file reader as the
+        key it stands for; a refusal names the parameter and its range."""
+        p = self.param(name)
+        try:
+            value = lf.parse_value(text) if isinstance(text, str) else text
+            if p.key is None:
+                return p.check(value) if p.check else value
+            value = self._check_key(p.key, p.to_file(value) if p.to_file else value)
+            value = p.from_file(value) if p.from_file else value
+        except (ParameterError, ValueError, TypeError):
+            raise ParameterError(
+                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
+        if isinstance(value, np.ndarray):  # as the reader keeps it, as a tuple here
+            return _vector(value)
+        return value
+
+    def data(self, params: dict) -> dict:
+        """The loop-file data of resolved ``params``: the file's, each parameter written
+        to its key, the derived keys and the scenario's own."""
+        data = {k: dict(v) if isinstance(v, dict) else v for k, v in self.file.data.items()}
+        data.pop("stop_time", None)  # the scenario's stop time is applied by make
+        for p in self._aliases:
+            value = params.get(p.name)
+            if p.key is not None and value is not None:
+                _set(data, p.key, self._file_value(p, value))
+        for key, value in {**(self._derive(params) if self._derive else {}),
+                           **self._study}.items():
+            _set(data, key, value)
+        return data
+
+    def _file_value(self, p: Param, value):
+        """The key's value of parameter ``p``'s ``value``, one object per distinct value (the
+        reader parses a list it has seen once: :func:`~delaycomp.system.loopfile.designs`)."""
+        memo = self._memo.setdefault(p.name, {})
+        key = repr(value)  # not the value: 0.0 == -0.0, and K = [[-k]] keeps the sign
+        got = memo.get(key)
+        if got is None:
+            if len(memo) >= _MEMO_SIZE:
+                memo.clear()
+            got = memo[key] = p.to_file(value) if p.to_file else (
+                list(value) if isinstance(value, tuple) else value)
+        return got
+
+    def _values(self, base: dict, texts, parsed: dict | None = None,
+                derive: bool = True) -> dict:
+        """``base`` with the ``NAME=VALUE`` items of ``texts`` (strings or pairs) parsed,
+        then (``derive``) what follows from them filled in; ``parsed`` remembers each
+        distinct text's value across grid points."""
+        values = dict(base)
+        for text in texts:
+            got = parsed.get(text) if parsed is not None else None
+            if got is None:
+                name, value = _split(text) if isinstance(text, str) else text
+                got = (name, self._parse(name, value))
+                if parsed is not None:
+                    parsed[text] = got
+            values[got[0]] = got[1]
+        if derive and self._derive is not None:
+            self._derive(values)  # fills in what follows from the others (and checks it)
+        return values
+
+    def resolve(self, assignments: list[str] | dict | None = None) -> dict:
+        """Defaults overridden by ``NAME=VALUE`` strings (or a dict), each checked by the
+        loop-file reader, then the whole loop checked as it will be built."""
+        items = list(assignments.items()) if isinstance(assignments, dict) else list(
+            assignments or [])
+        values = self._values({p.name: p.default for p in self.params}, items)
+        lf.check(self.data(values), self.file.base, where=self.file.path.name)
+        return values
+
+    def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> Grid | None:
+        """:meth:`resolve` of ``sets`` followed by each point's assignments, for every
+        point of a grid, parsing each distinct assignment once (an LTI grid is checked
+        at once, :func:`~delaycomp.system.loopfile.designs`); ``None`` if some point is
+        refused (resolve the points one by one to name it).
+
+        Examples
+        --------
+        >>> sc = get("example-3.6")
+        >>> grid = sc.resolve_grid(["mode=uncompensated"], [("k=1", "r=0"), ("k=1", "r=0.5")])
+        >>> grid == [sc.resolve(["mode=uncompensated", "k=1", f"r={r}"]) for r in (0, 0.5)]
+        True
+        >>> sc.resolve_grid([], [("r=0.305",)]) is None   # off the base grid
+        True
+        """
+        try:
+            base = self._values({p.name: p.default for p in self.params}, list(sets),
+                                derive=False)  # per point below
+            parsed: dict = {}
+            out = Grid(self._values(base, texts, parsed) for texts in points)
+            if self.model is None:  # all at once where the points stack
+                out.designs = self.designs(out)
+            if out.designs is None:
+                for values in out:
+                    lf.check(self.data(values), self.file.base, where=self.file.path.name)
+            return out
+        except ParameterError:
+            return None
 
     def make(self, params: dict) -> Loop:
         """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
@@ -149,10 +323,9 @@ class Scenario:
         with a new ``T`` or ``N`` it may not, and the loop then has none (a run names
         ``--stop-time``; critical-delay and sweeps, which choose their own, just work).
         """
-        loop = self.builder(params)
+        loop = self.file.make(self.data(params))
         stop = self.default_stop_time
-        return loop.replace(name=self.name, title=self.title,
-                            stop_time=stop if on_grid(stop, loop.h) else None)
+        return loop.replace(stop_time=stop if on_grid(stop, loop.h) else None)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         """The loop for ``NAME=VALUE`` assignments over the defaults."""
@@ -170,82 +343,37 @@ class Scenario:
         >>> pt.lti.K.tolist(), pt.timing == sc.loop(["k=1.5"]).timing
         ([[-1.5]], True)
         """
-        return None if self.lti_args is None else lti_design(**self.lti_args(params))
+        return self.file.design(self.data(params))
 
     def designs(self, params: list[dict]) -> LtiBatch | None:
         """:meth:`design` of many resolved points at once, as arrays
-        (:func:`~delaycomp.system.lti_designs`: the same checks, vectorized); ``None`` for
-        a scenario that is not LTI, or points that do not stack or fail a check (validate
-        those one by one with :meth:`design`, which names what is wrong)."""
-        if self.lti_args is None:
-            return None
-        return lti_designs([self.lti_args(p) for p in params])
+        (:func:`~delaycomp.system.loopfile.designs`: the same checks, vectorized); ``None``
+        for a scenario that is not LTI, or points that do not stack or fail a check
+        (validate those one by one with :meth:`design`, which names what is wrong)."""
+        if isinstance(params, Grid) and params.designs is not None:
+            return params.designs  # checked by resolve_grid
+        return self.file.designs([self.data(p) for p in params])
 
-    def param(self, name: str) -> Param:
-        """The parameter called ``name`` (ParameterError listing the allowed ones if none)."""
-        for p in self.params:
-            if p.name == name:
-                return p
-        names = ", ".join(p.name for p in self.params)
-        raise ParameterError(f"unknown parameter {name!r} for {self.name}: allowed are {names}")
 
-    def resolve(self, assignments: list[str] | dict | None = None) -> dict:
-        """Defaults overridden by ``NAME=VALUE`` strings (or a dict); validated."""
-        values = {p.name: p.default for p in self.params}
-        items = assignments.items() if isinstance(assignments, dict) else (
-            _split(a) for a in (assignments or []))
-        for name, text in items:
-            values[name] = self._parse(name, text)
-        self.check(values)
-        return values
+class Grid(list):
+    """The resolved points of a grid (:meth:`Scenario.resolve_grid`); for an LTI scenario
+    it keeps their designs (``designs``: the check made them), so that
+    :meth:`Scenario.designs` does not make them twice."""
 
-    def _parse(self, name: str, text) -> object:
-        """The value of one assignment, checked against its parameter's range."""
-        p = self.param(name)
-        try:
-            value = p.parse(str(text))
-        except ValueError:
-            raise ParameterError(
-                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
-        if not p.ok(value):
-            raise ParameterError(
-                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}")
-        return value
+    designs: LtiBatch | None = None
 
-    def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> list[dict] | None:
-        """:meth:`resolve` of ``sets`` followed by each point's assignments, for every
-        point of a grid, parsing each distinct assignment once; ``None`` if some point is
-        refused (resolve the points one by one to name it).
 
-        Examples
-        --------
-        >>> sc = get("example-3.6")
-        >>> grid = sc.resolve_grid(["mode=uncompensated"], [("k=1", "r=0"), ("k=1", "r=0.5")])
-        >>> grid == [sc.resolve(["mode=uncompensated", "k=1", f"r={r}"]) for r in (0, 0.5)]
-        True
-        >>> sc.resolve_grid([], [("r=0.305",)]) is None   # off the base grid
-        True
-        """
-        try:
-            base = {p.name: p.default for p in self.params}  # checked per point below
-            for text in sets:
-                name, value = _split(text)
-                base[name] = self._parse(name, value)
-            parsed: dict[str, tuple[str, object]] = {}
-            out = []
-            for texts in points:
-                values = dict(base)
-                for text in texts:
-                    got = parsed.get(text)
-                    if got is None:
-                        name, value = _split(text)
-                        got = parsed[text] = (name, self._parse(name, value))
-                    values[got[0]] = got[1]
-                self.check(values)
-                out.append(values)
-            return out
-        except ParameterError:
-            return None
+def _get(data: dict, key: str):
+    section, dot, name = key.partition(".")
+    return data[section][name] if dot else data[key]
+
+
+def _set(data: dict, key: str, value) -> None:
+    section, dot, name = key.partition(".")
+    if dot:
+        data.setdefault(section, {})[name] = value
+    else:
+        data[key] = value
 
 
 def _split(assignment: str) -> tuple[str, str]:
@@ -255,198 +383,87 @@ def _split(assignment: str) -> tuple[str, str]:
     return name.strip(), value.strip()
 
 
-def _true_delay_params() -> tuple[Param, ...]:
-    return (
-        Param("r_true", None, "the loop's true measurement delay (default: r, the one the "
-              "controller assumes)", ON_BASE_GRID, _real, lambda v: v >= 0),
-        Param("tau_true", None, "the loop's true input delay (default: tau)",
-              ON_BASE_GRID, _real, lambda v: v >= 0),
-    )
+# -- the alias tables ------------------------------------------------------------------------
+
+#: the scenarios' gains are studied across stability: the sign guard is the loop files'
+_STUDY = {"controller.allow_unstable": True}
+
+EXAMPLE_3_6 = Scenario("example-3.6", (
+    Param("k", "feedback gain, u = -k x", "controller.K", "a finite number",
+          to_file=lambda k: [[-_number(k)]], from_file=lambda K: float(-K[0, 0])),
+    *_timing(ZOH_TAU),
+    _MODE,
+    Param("x0", "constant history of x on [-r, 0]", "plant.x0", "a finite number",
+          to_file=lambda v: [_number(v)], from_file=lambda x: float(x[0])),
+    Param("u0", "constant input history on [-r - tau, 0)", "controller.u0", "a finite number",
+          to_file=lambda v: [_number(v)], from_file=lambda u: float(u[0])),
+    *_TRUE_DELAYS,
+), study=_STUDY)
+
+_PREDICTOR = Param("predictor", "predictor map: the closed form or an ODE solve",
+                   "controller.predictor")
+_PAD = Param("pad", "pad tau up to the next multiple of T (Remark 3.3(b))", "controller.pad",
+             "0 or 1", to_file=_zero_one, default=False)
 
 
-# -- Example 3.6 ----------------------------------------------------------------------
-
-def _check_timing(p: dict) -> None:
-    """Cross-parameter rules shared by the LTI scenarios."""
-    check_zoh_delay(p["tau"], p["T"])
-    _check_grid(p, zoh=False)
-
-
-def _example_3_6_args(p: dict) -> dict:
-    return dict(A=[[1.0]], B=[[1.0]], K=[[-p["k"]]], T=p["T"], r=p["r"], tau=p["tau"],
-                N=p["N"], mode=p["mode"], x0=[p["x0"]], u0=[p["u0"]], r_true=p["r_true"],
-                tau_true=p["tau_true"])
-
-
-def _example_3_6(p: dict) -> Loop:
-    return lti_loop(**_example_3_6_args(p))
-
-
-def _mode_param() -> Param:
-    return Param("mode", "compensated", "controller: u = K Phi(y) or u = K y",
-                 " or ".join(MODES), str, lambda v: v in MODES)
-
-
-EXAMPLE_3_6 = Scenario(
-    name="example-3.6",
-    title="Example 3.6: x' = x + u, u = -k x under ZOH, measurement delay r",
-    params=(
-        real("k", 2.0, "feedback gain, u = -k x"),
-        real("T", 1.0, "sampling period", "a finite number > 0", lambda v: v > 0),
-        real("r", 0.3, "measurement delay", ON_BASE_GRID, lambda v: v >= 0),
-        real("tau", 0.0, "input delay", ZOH_TAU, lambda v: v >= 0),
-        Param("N", 100, "base steps per sampling period (h = T/N)", "a positive integer",
-              _positive_int, lambda v: v >= 1),
-        _mode_param(),
-        real("x0", 1.0, "constant history of x on [-r, 0]"),
-        real("u0", 0.0, "constant input history on [-r - tau, 0)"),
-        *_true_delay_params(),
-    ),
-    builder=_example_3_6,
-    default_stop_time=20.0,
-    check=_check_timing,
-    lti_args=_example_3_6_args,
-)
-
-# -- the nonlinear examples and Corollary 3.7 -------------------------------------------
-
-def _timing_params(T, r, tau, tau_allowed: str, N=100) -> tuple[Param, ...]:
-    return (
-        real("T", T, "sampling period", "a finite number > 0", lambda v: v > 0),
-        real("r", r, "measurement delay", ON_BASE_GRID, lambda v: v >= 0),
-        real("tau", tau, "input delay", tau_allowed, lambda v: v >= 0),
-        Param("N", N, "base steps per sampling period (h = T/N)", "a positive integer",
-              _positive_int, lambda v: v >= 1),
-        *_true_delay_params(),
-    )
-
-
-def _history_params(x0, u0) -> tuple[Param, ...]:
-    return (vector("x0", x0, "initial state, comma-separated in state order, constant "
-                             "on [-r, 0]"),
-            vector("u0", u0, "input history, comma-separated, constant on [-r - tau, 0)"))
-
-
-_PREDICTOR = choice("predictor", "closed", "predictor map: the closed form or an ODE solve",
-                    ("closed", "numerical"))
-_PAD = Param("pad", False, "pad tau up to the next multiple of T (Remark 3.3(b))",
-             "0 or 1", _flag, lambda v: True)
-
-
-def _check_grid(p: dict, zoh: bool) -> None:
-    """The delays on the base grid (:meth:`Timing.check_on_grid`) and, under zero-order
-    hold without padding, ``tau = l T`` (:func:`check_zoh_delay`)."""
-    timing = Timing(p["T"], p["N"])
-    for name in ("r", "tau", "r_true", "tau_true"):
-        if p.get(name) is not None:
-            timing.check_on_grid(name, p[name])
-    if zoh and not p.get("pad"):
-        # only a scenario that has the pad parameter suggests it (corollary-3.7 has none)
-        check_zoh_delay(p["tau"], p["T"], padding="pad" in p)
-
-
-def _check_lengths(p: dict, n: int, m: int, states, inputs) -> None:
-    for name, want, names in (("x0", n, states), ("u0", m, inputs)):
-        if len(p[name]) != want:
-            raise ParameterError(f"parameter {name} has {len(p[name])} values: must have "
-                                 f"{want} ({', '.join(names)})")
-
-
-def _model_scenario(name: str, title: str, module: str, defaults: dict, own: tuple,
-                    stop: float, states, inputs, zoh: bool) -> Scenario:
-    from delaycomp.paper.models import path
-
-    def check(p):
-        _check_grid(p, zoh)
-        _check_lengths(p, len(states), len(inputs), states, inputs)
-
-    def make(p):
-        params = {key: p[key] for key in ("law", "p") if key in p}
-        return model_loop(path(module), p["T"], p["r"], p["tau"], p["N"], p["x0"], p["u0"],
-                          params=params, predictor=p["predictor"],
-                          pad=p.get("pad", False), r_true=p["r_true"],
-                          tau_true=p["tau_true"])
-
-    tau_allowed = ZOH_TAU_PAD if zoh else ON_BASE_GRID
-    params = (*_timing_params(defaults["T"], defaults["r"], defaults["tau"], tau_allowed),
-              *_history_params(defaults["x0"], defaults["u0"]), _PREDICTOR,
-              *((_PAD,) if zoh else ()), *own)
-    return Scenario(name, title, params, make, stop, check)
+def _model_scenario(name: str, zoh: bool, *own: Param) -> Scenario:
+    """A scenario around a model file: timing, histories, the predictor, ``pad`` under
+    zero-order hold, and the model's own parameters ``own``."""
+    return Scenario(name, (*_timing(ZOH_TAU_PAD if zoh else ON_BASE_GRID), *_TRUE_DELAYS,
+                           *_histories(), _PREDICTOR, *((_PAD,) if zoh else ()), *own))
 
 
 EXAMPLE_2_4 = _model_scenario(
-    "example-2.4",
-    "Example 2.4: strict-feedforward system (2.15), continuous input, corrected (2.18)",
-    "example_2_4", dict(T=0.5, r=0.3, tau=0.7, x0=(1.0, -1.0, 0.5), u0=(0.0,)),
-    (choice("law", "corrected", "feedback (2.18): corrected (errata) or as printed",
-            ("corrected", "printed")),),
-    30.0, ("x1", "x2", "x3"), ("u",), zoh=False)
-
+    "example-2.4", False,
+    Param("law", "feedback (2.18): corrected (errata) or as printed", "controller.law",
+          "corrected or printed"))
 EXAMPLE_3_8 = _model_scenario(
-    "example-3.8",
-    "Example 3.8: x1' = x2 + p(x2) u, x2' = u under ZOH, dead-beat (3.25)/(3.29)",
-    "example_3_8", dict(T=1.0, r=0.5, tau=0.0, x0=(1.0, -1.0), u0=(0.0,)),
-    (choice("p", "square", "p(w) = w^2 (square) or sin(w) (sin)", ("square", "sin")),),
-    10.0, ("x1", "x2"), ("u",), zoh=True)
-
+    "example-3.8", True,
+    Param("p", "p(w) = w^2 (square) or sin(w) (sin)", "controller.p", "square or sin"))
 PROPOSITION_4_2 = _model_scenario(
-    "proposition-4.2",
-    "Proposition 4.2: unicycle, ZOH on (v, omega), dead-beat (corrected law)",
-    "proposition_4_2", dict(T=1.0, r=0.5, tau=1.0, x0=(1.0, 1.0, 0.5), u0=(0.0, 0.0)),
-    (choice("law", "corrected", "ZOH law: corrected (errata) or as printed (4.9)-(4.11)",
-            ("corrected", "printed")),),
-    10.0, ("x", "y", "theta"), ("v", "omega"), zoh=True)
+    "proposition-4.2", True,
+    Param("law", "ZOH law: corrected (errata) or as printed (4.9)-(4.11)", "controller.law",
+          "corrected or printed"))
+COROLLARY_4_1 = _model_scenario("corollary-4.1", False)
 
 
-COROLLARY_4_1 = _model_scenario(
-    "corollary-4.1",
-    "Corollary 4.1: unicycle, continuous input, Pomet's time-periodic stabilizer",
-    "corollary_4_1", dict(T=0.5, r=0.2, tau=0.3, x0=(1.0, 1.0, 0.5), u0=(0.0, 0.0)),
-    (), 100.0, ("x", "y", "theta"), ("v", "omega"), zoh=False)
+#: Corollary 3.7's chain length: from 1 to 12 integrators (the dead-beat gain's entries
+#: grow like n!/T^n: beyond 12 the closed loop is not computed reliably in floating point)
+CHAIN_MAX = 12
 
 
-def _chain_x0(n: int) -> tuple[float, ...]:
-    return tuple((1.0, -1.0, 0.5)[i % 3] for i in range(n))
+def _chain_length(n) -> int:
+    """Corollary 3.7's ``n``: an integer from 1 to :data:`CHAIN_MAX`."""
+    if isinstance(n, bool) or not isinstance(n, (int, float)) or not (
+            math.isfinite(n) and n == int(n) and 1 <= n <= CHAIN_MAX):
+        raise ValueError(n)
+    return int(n)
 
 
-def _corollary_3_7_check(p: dict) -> None:
-    if p["x0"] is None:
-        p["x0"] = _chain_x0(p["n"])
-    _check_grid(p, zoh=True)
-    _check_lengths(p, p["n"], 1, indexed("x", p["n"]), ("u",))
-
-
-def _corollary_3_7_args(p: dict) -> dict:
+def _chain(values: dict) -> dict:
+    """Corollary 3.7's keys from ``n`` and ``T``: the chain of ``n`` integrators, its
+    dead-beat gain for period ``T``, and ``x0`` (``1, -1, 0.5, 1, ...`` where none is
+    given)."""
     from delaycomp.maths.predictors import deadbeat_gain
 
-    n = p["n"]
-    return dict(A=np.eye(n, k=1), B=np.eye(n)[:, -1:], K=deadbeat_gain(n, p["T"]), T=p["T"],
-                r=p["r"], tau=p["tau"], N=p["N"], mode=p["mode"], x0=p["x0"], u0=p["u0"],
-                r_true=p["r_true"], tau_true=p["tau_true"])
+    n = values["n"]
+    if values.get("x0") is None:
+        values["x0"] = tuple((1.0, -1.0, 0.5)[i % 3] for i in range(n))
+    return {"plant.A": np.eye(n, k=1).tolist(), "plant.B": np.eye(n)[:, -1:].tolist(),
+            "controller.K": deadbeat_gain(n, values["T"]).tolist()}
 
 
-def _corollary_3_7(p: dict) -> Loop:
-    return lti_loop(**_corollary_3_7_args(p))
-
-
-COROLLARY_3_7 = Scenario(
-    name="corollary-3.7",
-    title="Corollary 3.7: chain of n integrators under ZOH, dead-beat gain for period T",
-    params=(
-        Param("n", 3, "number of integrators", "an integer from 1 to 12", _positive_int,
-              lambda v: 1 <= v <= 12),
-        *_timing_params(1.0, 0.5, 1.0, ZOH_TAU),
-        Param("x0", None, "initial state, comma-separated (default 1,-1,0.5,1,... of length "
-                          "n), constant on [-r, 0]", "comma-separated finite numbers",
-              _vector, lambda v: True),
-        vector("u0", (0.0,), "input history, constant on [-r - tau, 0)"),
-        _mode_param(),
-    ),
-    builder=_corollary_3_7,
-    default_stop_time=10.0,
-    check=_corollary_3_7_check,
-    lti_args=_corollary_3_7_args,
-)
+COROLLARY_3_7 = Scenario("corollary-3.7", (
+    Param("n", "number of integrators", allowed=f"an integer from 1 to {CHAIN_MAX}",
+          default=3, check=_chain_length),
+    *_timing(ZOH_TAU),
+    *_TRUE_DELAYS,
+    Param("x0", "initial state, comma-separated (default 1,-1,0.5,1,... of length n), "
+          "constant on [-r, 0]", "plant.x0", to_file=_listed, from_file=_vector, default=None),
+    Param("u0", "input history, constant on [-r - tau, 0)", "controller.u0", to_file=_listed,
+          from_file=_vector),
+    _MODE,
+), derive=_chain, study=_STUDY)
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     EXAMPLE_3_6, EXAMPLE_2_4, EXAMPLE_3_8, COROLLARY_3_7, COROLLARY_4_1, PROPOSITION_4_2)}
@@ -461,13 +478,9 @@ def get(name: str) -> Scenario:
             f"unknown scenario {name!r}: allowed are {', '.join(SCENARIOS)}") from None
 
 
-#: the scenarios at their defaults, as loop files shipped in the package
-LOOPS_DIR = Path(__file__).resolve().parent / "loops"
-
-
 def loop_file(name: str) -> Path:
-    """The shipped loop file of scenario ``name`` at its defaults (a starting point for
-    one's own; it builds the same loop as the scenario, tested)."""
+    """The shipped loop file of scenario ``name``: the scenario at its defaults, and a
+    starting point for one's own (``delaycomp run FILE.toml`` runs the same loop)."""
     get(name)
     return LOOPS_DIR / f"{name}.toml"
 
@@ -479,7 +492,5 @@ def open_source(text: str | Path):
     none), ``resolve(assignments)``, ``make(resolved) -> Loop`` and ``loop(assignments)``.
     """
     if str(text).endswith(".toml"):
-        from delaycomp.system.loopfile import LoopFile
-
         return LoopFile(text)
     return get(str(text))

@@ -1,9 +1,11 @@
 """Many closed loops at once: the sampled-data loop advanced for a batch of points.
 
-A maths module (numpy/scipy; no FMI, no scenario): it takes the loop's ingredients as
-arrays, one entry per point, and advances every point together on the base grid, tick by
-tick, vectorized over the points. It computes what the per-point engine (the master
-stepping the slaves) computes, in the same order, so the sweep's metrics come out the same:
+A maths module (numpy/scipy; no FMI, no scenario): it takes the loops as validated
+batches of points (:class:`delaycomp.system.LtiBatch` for LTI loops, :class:`ModelBatch`
+for a model's), arrays with one entry per point, and advances every point together on
+the base grid, tick by tick, vectorized over the points. It computes what the per-point
+engine (the master stepping the slaves) computes, in the same order, so the sweep's
+metrics come out the same:
 
 1. at tick ``k`` (time ``(k // N) T + (k % N) h``, ``h = T / N``) the controller reads
    ``y_k = x_{k - Dr}`` (``x0`` before ``t = 0``; ``Dr = r_true / h``) and, at a sampling
@@ -19,18 +21,24 @@ under zero-order hold, one per tick under continuous input) for the predictor's 
 the input delay. Points with different ``N`` run in separate groups; within a group the
 ticks are common and ``T`` (hence ``h``), ``r``, ``tau`` differ freely.
 
-- :func:`simulate_lti`: ``x' = A x + B u``, exactly discretized (per-point matrices, one
-  matrix exponential per distinct ``(A, B, h)``), the zero-order-hold controller of
+- :func:`run_lti` (an ``LtiBatch``; :func:`simulate_lti` takes loose arrays):
+  ``x' = A x + B u``, exactly discretized (per-point matrices, one matrix exponential per
+  distinct ``(A, B, h)``), the zero-order-hold controller of
   Theorem 3.2 with the closed-form predictor of Corollary 3.4 (``compensated``) or
   ``u = K y`` (``uncompensated``). Any array library with numpy's API (numpy, CuPy, JAX)
   through :func:`get_backend`.
-- :func:`simulate_model`: a model (:mod:`delaycomp.maths.model`) that declares ``BATCH = True``
+- :func:`run_model` (a model, its parameters and a ``ModelBatch``; :func:`simulate_model`
+  takes loose arrays): a model (:mod:`delaycomp.maths.model`) that declares ``BATCH = True``
   and has an exact ``step``: its ``f``, ``k`` and ``step`` accept a batch (states of shape
   ``(n, P)``). Zero-order hold (Theorem 3.2, with Remark 3.3(b) padding) and continuous
   input (Theorem 2.1, the controller's copy ``z`` integrated on the base grid and reset to
   ``Phi`` at every sample after the first). ``Phi`` is the composition of exact steps over
   the stored window (the per-point engine's closed forms compose the same exact flows).
   numpy only.
+
+Each engine splits its bookkeeping (a group's plan: integer ticks, maps and checks; the
+metrics; the failures; the record) from its stepping (``_LtiStepper``,
+``_ModelStepper``: the maths of one tick or one period).
 
 Failures follow the per-point engine: a control that is not finite (from a finite
 measurement) refuses the tick (not recorded), a plant state that is not finite after a
@@ -44,9 +52,10 @@ periods, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time`` (the time 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -55,6 +64,7 @@ from delaycomp.maths.grid import on_grid_array
 from delaycomp.maths.grid import periods as zoh_periods
 from delaycomp.maths.lti import MODES, LTIPredictor, discretize
 from delaycomp.maths.nlcontrol import padded_delay
+from delaycomp.system import LtiBatch
 
 #: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.studies.sweep.ZERO``).
 ZERO = 1e-9
@@ -292,12 +302,103 @@ def _finish(metrics: _Metrics, backend: Backend, failed: np.ndarray, fail_norm: 
     return BatchResult(rho, stable, final, peak, db, ~bad, messages)
 
 
+# -- the points of a batch --------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ModelBatch:
+    """Many loops of one model at once: each point's timing and constant histories, arrays
+    with a leading axis of points. What :func:`run_model` takes; :func:`simulate_model`
+    gathers its loose per-point arguments into one (broadcast and checked: ``T > 0``,
+    delays finite and ``>= 0``, ``N >= 1``; ``r_true`` and ``tau_true`` filled in with
+    ``r`` and ``tau`` where not given). The timing fields of
+    :class:`delaycomp.system.LtiBatch`, in its order."""
+
+    T: np.ndarray  # (P,)
+    N: np.ndarray  # (P,) int64
+    r: np.ndarray
+    tau: np.ndarray
+    r_true: np.ndarray
+    tau_true: np.ndarray
+    x0: np.ndarray  # (P, n): also the controller's initial copy z (continuous input)
+    u0: np.ndarray  # (P, m)
+
+    def __len__(self) -> int:
+        return len(self.T)
+
+
+_Points = TypeVar("_Points", bound="LtiBatch | ModelBatch")
+
+
+def take(points: _Points, index) -> _Points:
+    """The points ``index`` (an index array, a slice or a mask) of an
+    :class:`~delaycomp.system.LtiBatch` or a :class:`ModelBatch`: every field indexed on
+    its leading axis (a group of points, a chunk)."""
+    return type(points)(*(getattr(points, f.name)[index]
+                          for f in dataclasses.fields(points)))
+
+
+def _points(P: int, n: int, m: int, T, r, tau, N, r_true, tau_true, x0, u0) -> ModelBatch:
+    """Timing and histories per point, broadcast and checked: ``T > 0``, delays ``>= 0``
+    and finite, ``N >= 1``; the true delays default to the assumed ones."""
+    T = _per_point(T, P, (), "T")
+    r = _per_point(r, P, (), "r")
+    tau = _per_point(tau, P, (), "tau")
+    r_true = r if r_true is None else _per_point(r_true, P, (), "r_true")
+    tau_true = tau if tau_true is None else _per_point(tau_true, P, (), "tau_true")
+    x0 = _per_point(x0, P, (n,), "x0")
+    u0 = _per_point(u0, P, (m,), "u0")
+    Ns = np.broadcast_to(np.asarray(N), (P,)).astype(np.int64)
+    for name, v in (("T", T), ("r", r), ("tau", tau), ("r_true", r_true),
+                    ("tau_true", tau_true)):
+        if not np.all(np.isfinite(v)) or np.any(v < 0) or (name == "T" and np.any(v <= 0)):
+            raise BatchError(f"{name} is not allowed: must be finite and "
+                             f"{'> 0' if name == 'T' else '>= 0'} at every point")
+    if np.any(Ns < 1):
+        raise BatchError("N is not allowed: must be a positive integer at every point")
+    return ModelBatch(T, Ns, r, tau, r_true, tau_true, x0, u0)
+
+
+def _count(matrices, scalars, vectors, mode=None) -> int:
+    """Number of points: the leading axis of any per-point ingredient (1 if none)."""
+    found = [np.shape(a)[0] for a in matrices if np.ndim(a) == 3]
+    found += [np.size(v) for v in scalars if v is not None and np.ndim(v) >= 1]
+    found += [np.shape(v)[0] for v in vectors if np.ndim(v) == 2]
+    if mode is not None and not isinstance(mode, str):
+        found.append(len(mode))
+    if len(set(found)) > 1:
+        raise BatchError(f"the per-point ingredients disagree on the number of points: "
+                         f"{sorted(set(found))}")
+    return int(found[0]) if found else 1
+
+
+def _unique_rows(*arrays) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the first occurrence of each distinct row, and the inverse map."""
+    key = np.concatenate([np.ascontiguousarray(a).reshape(len(a), -1) for a in arrays],
+                         axis=1)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+def _trim(states, inputs, end: np.ndarray):
+    """Recorded trajectories with the ticks from ``end[p]`` on of each point ``p`` set to
+    ``nan`` (``None`` stays ``None``)."""
+    if states is not None:
+        for p, e in enumerate(end.tolist()):
+            states[p, e:] = np.nan
+            inputs[p, e:] = np.nan
+    return states, inputs
+
+
 # -- LTI loops --------------------------------------------------------------------------
 
 def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
                  tau_true=None, *, record: bool = False,
                  backend: Backend | str = "numpy") -> BatchResult:
     """Advance ``P`` LTI loops of Theorem 3.2 / Corollary 3.4 together to ``stop``.
+
+    A convenience over :func:`run_lti` for loose arrays: the ingredients are broadcast
+    over the points (shared matrices and scalars to every point), checked (shapes, finite
+    timing; :class:`BatchError`) and stacked into a :class:`delaycomp.system.LtiBatch`.
 
     Parameters
     ----------
@@ -325,6 +426,15 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
     Returns
     -------
     BatchResult
+
+    Examples
+    --------
+    Shared ``A``, ``B``, ``T``, ``N``; a gain and a delay per point:
+
+    >>> res = simulate_lti([[1.0]], [[1.0]], [[[-2.0]], [[-1.5]]], 1.0, 100, [0.0, 0.3],
+    ...                    0.0, [1.0], [0.0], "compensated", 10.0)
+    >>> res.stable.tolist()
+    [1, 1]
     """
     be = backend if isinstance(backend, Backend) else get_backend(backend)
     A = np.asarray(A, dtype=float)
@@ -334,85 +444,90 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
     A = _per_point(A, P, (n, n), "A")
     B = _per_point(B, P, (n, m), "B")
     K = _per_point(K, P, (m, n), "K")
-    T, r, tau, r_true, tau_true, x0, u0, Ns = _timing(P, n, m, T, r, tau, N, r_true,
-                                                      tau_true, x0, u0)
-    modes = np.broadcast_to(np.asarray(mode, dtype=object), (P,))
-    bad = [md for md in set(modes.tolist()) if md not in MODES]
+    t = _points(P, n, m, T, r, tau, N, r_true, tau_true, x0, u0)
+    modes = np.broadcast_to(np.asarray(mode, dtype=object), (P,)).copy()
+    design = LtiBatch(A, B, K, t.T, t.N, t.r, t.tau, t.r_true, t.tau_true, t.x0, t.u0, modes)
+    return run_lti(design, stop, record=record, backend=be)
+
+
+def run_lti(design: LtiBatch, stop: float, *, record: bool = False,
+            backend: Backend | str = "numpy") -> BatchResult:
+    """Advance the ``P`` LTI loops of ``design`` together to ``stop`` (Theorem 3.2 with the
+    closed-form predictor of Corollary 3.4, or ``u = K y``): the batch engine's core.
+
+    ``design`` is a validated :class:`delaycomp.system.LtiBatch` (from
+    :func:`delaycomp.system.lti_designs`, a scenario's or a loop file's ``designs``, or
+    :func:`simulate_lti`), one entry per point; points with different ``N`` run as
+    separate groups (:func:`take`), within a group ``T``, the delays and the matrices
+    differ freely. ``stop`` is a multiple of every point's ``h = T / N``; ``record`` keeps
+    every tick's state and control; ``backend`` is the array library
+    (:func:`get_backend`). Raises :class:`BatchError` where a mode, a delay or ``stop``
+    is not allowed at some point, or a predictor overflows.
+
+    Examples
+    --------
+    >>> from delaycomp.system import lti_designs
+    >>> pts = [dict(A=[[1.0]], B=[[1.0]], K=[[-k]], T=1.0, r=0.3, tau=0.0, N=100,
+    ...             mode="compensated", x0=[1.0], u0=[0.0]) for k in (0.5, 2.0, 3.5)]
+    >>> run_lti(lti_designs(pts), 20.0).stable.tolist()
+    [0, 1, 0]
+    """
+    be = backend if isinstance(backend, Backend) else get_backend(backend)
+    bad = [md for md in set(design.mode.tolist()) if md not in MODES]
     if bad:
         raise BatchError(f"mode = {bad[0]!r} is not allowed: must be one of {', '.join(MODES)}")
     parts = []
-    for Nv in np.unique(Ns):
-        idx = np.flatnonzero(Ns == Nv)
-        res = _lti_group(be, A[idx], B[idx], K[idx], T[idx], int(Nv), r[idx], tau[idx],
-                         r_true[idx], tau_true[idx], x0[idx], u0[idx],
-                         modes[idx] == "compensated", float(stop), record)
-        parts.append((idx, res))
-    return _merge(parts, P)
+    for Nv in np.unique(design.N):
+        idx = np.flatnonzero(design.N == Nv)
+        parts.append((idx, _lti_group(be, take(design, idx), int(Nv), float(stop), record)))
+    return _merge(parts, len(design))
 
 
-def _timing(P: int, n: int, m: int, T, r, tau, N, r_true, tau_true, x0, u0):
-    """Timing and histories per point, checked: ``T > 0``, delays ``>= 0`` and finite,
-    ``N >= 1``; the true delays default to the assumed ones."""
-    T = _per_point(T, P, (), "T")
-    r = _per_point(r, P, (), "r")
-    tau = _per_point(tau, P, (), "tau")
-    r_true = r if r_true is None else _per_point(r_true, P, (), "r_true")
-    tau_true = tau if tau_true is None else _per_point(tau_true, P, (), "tau_true")
-    x0 = _per_point(x0, P, (n,), "x0")
-    u0 = _per_point(u0, P, (m,), "u0")
-    Ns = np.broadcast_to(np.asarray(N), (P,)).astype(np.int64)
-    for name, v in (("T", T), ("r", r), ("tau", tau), ("r_true", r_true),
-                    ("tau_true", tau_true)):
-        if not np.all(np.isfinite(v)) or np.any(v < 0) or (name == "T" and np.any(v <= 0)):
-            raise BatchError(f"{name} is not allowed: must be finite and "
-                             f"{'> 0' if name == 'T' else '>= 0'} at every point")
-    if np.any(Ns < 1):
-        raise BatchError("N is not allowed: must be a positive integer at every point")
-    return T, r, tau, r_true, tau_true, x0, u0, Ns
+@dataclass(frozen=True)
+class _LtiPlan:
+    """One LTI group on the host, checked: its integer ticks, the exact discretization
+    and the predictor ``Phi = E y + sum_q QB[q] u_{i-q-1}`` (Corollary 3.4) per point."""
+
+    N: int
+    T: np.ndarray
+    h: np.ndarray
+    stop_k: np.ndarray  # the last tick, per point
+    Dr: np.ndarray  # the true measurement delay, in ticks
+    Dt: np.ndarray  # the true input delay, in ticks
+    Ad: np.ndarray  # (P, n, n): e^(A h)
+    Bd: np.ndarray  # (P, n, m)
+    E: np.ndarray  # (P, n, n)
+    QB: np.ndarray  # (Lmax, P, n, m)
 
 
-def _count(matrices, scalars, vectors, mode=None) -> int:
-    """Number of points: the leading axis of any per-point ingredient (1 if none)."""
-    found = [np.shape(a)[0] for a in matrices if np.ndim(a) == 3]
-    found += [np.size(v) for v in scalars if v is not None and np.ndim(v) >= 1]
-    found += [np.shape(v)[0] for v in vectors if np.ndim(v) == 2]
-    if mode is not None and not isinstance(mode, str):
-        found.append(len(mode))
-    if len(set(found)) > 1:
-        raise BatchError(f"the per-point ingredients disagree on the number of points: "
-                         f"{sorted(set(found))}")
-    return int(found[0]) if found else 1
-
-
-def _unique_rows(*arrays) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the first occurrence of each distinct row, and the inverse map."""
-    key = np.concatenate([np.ascontiguousarray(a).reshape(len(a), -1) for a in arrays],
-                         axis=1)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    return first, inverse.reshape(-1)
-
-
-def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, comp,
-               stop, record) -> BatchResult:
-    xp = be.xp
-    P, n, m = B.shape
+def _lti_plan(d: LtiBatch, N: int, stop: float) -> _LtiPlan:
+    """The plan of the group ``d`` (every point with ``N`` base steps a period), or a
+    :class:`BatchError` naming the first point off the grid."""
+    P = len(d)
+    T = d.T
     h = T / N
     stop_k = _ticks("stop", np.full(P, stop), h)
-    _ticks("r", r, h)
-    Dr = _ticks("r_true", r_true, h)
-    Dt = _ticks("tau_true", tau_true, h)
-    for p in _unique_rows(tau, T)[0]:
+    _ticks("r", d.r, h)
+    Dr = _ticks("r_true", d.r_true, h)
+    Dt = _ticks("tau_true", d.tau_true, h)
+    for p in _unique_rows(d.tau, T)[0]:
         try:
-            zoh_periods(float(tau[p]), float(T[p]))
+            zoh_periods(float(d.tau[p]), float(T[p]))
         except ValueError as exc:
             raise BatchError(f"{exc} (point {p})") from None
     # exact discretization, once per distinct (A, B, h)
-    first, inv = _unique_rows(A, B, h)
-    Ad_u, Bd_u = zip(*(discretize(A[i], B[i], float(h[i])) for i in first))
-    Ad = np.stack(Ad_u)[inv]
-    Bd = np.stack(Bd_u)[inv]
-    # predictor Phi = E y + sum_p QB_p u_{i-p}, once per distinct (A, B, T, r, tau);
-    # an uncompensated point has E = I, QB = 0, hence u = K y
+    first, inv = _unique_rows(d.A, d.B, h)
+    Ad_u, Bd_u = zip(*(discretize(d.A[i], d.B[i], float(h[i])) for i in first))
+    E, QB = _predictors(d, d.mode == "compensated")
+    return _LtiPlan(N, T, h, stop_k, Dr, Dt, np.stack(Ad_u)[inv], np.stack(Bd_u)[inv], E, QB)
+
+
+def _predictors(d: LtiBatch, comp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``E`` (P, n, n) and ``QB`` (Lmax, P, n, m) of the points' predictors, once per
+    distinct ``(A, B, T, r, tau)``; an uncompensated point has ``E = I``, ``QB = 0``,
+    hence ``u = K y``. :class:`BatchError` where a predictor is not finite."""
+    A, B, T, r, tau = d.A, d.B, d.T, d.r, d.tau
+    P, n, m = B.shape
     L = np.ones(P, dtype=np.int64)
     E = np.broadcast_to(np.eye(n), (P, n, n)).copy()
     cidx = np.flatnonzero(comp)
@@ -426,8 +541,7 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
             pr = preds[inv2[j]]
             L[p] = pr.L
             E[p] = pr.E
-    Lmax = int(L.max())
-    QB = np.zeros((Lmax, P, n, m))
+    QB = np.zeros((int(L.max()), P, n, m))
     for j, p in enumerate(cidx):
         pr = preds[inv2[j]]
         for q in range(pr.L):
@@ -438,129 +552,174 @@ def _lti_group(be: Backend, A, B, K, T, N, r, tau, r_true, tau_true, x0, u0, com
         raise BatchError(f"A = {A[p].tolist()} (point {p}) is not allowed: must keep the "
                          f"predictor e^(A (r + tau)) finite for r + tau = "
                          f"{float(r[p] + tau[p])!r} (it overflows)")
-    kmax = int(stop_k.max())
-    nb = int(Dr.max()) // N + 2  # blocks of N ticks kept for the measurement delay
-    Ru = max(Lmax, int(Dt.max()) // N + 1) + 2
-    dev = be.asarray
-    is_np = be.name == "numpy"
-    # per-point coefficients as contiguous (P,) arrays, points on the last axis
-    Ad_d = [[dev(np.ascontiguousarray(Ad[:, a, b])) for b in range(n)] for a in range(n)]
-    Bd_d = [[dev(np.ascontiguousarray(Bd[:, a, c])) for c in range(m)] for a in range(n)]
-    K_d = [[dev(np.ascontiguousarray(K[:, c, a])) for a in range(n)] for c in range(m)]
-    E_d = [[dev(np.ascontiguousarray(E[:, a, b])) for b in range(n)] for a in range(n)]
-    QB_d = [[[dev(np.ascontiguousarray(QB[q, :, a, c])) for c in range(m)] for a in range(n)]
-            for q in range(Lmax)]
-    x0_d = dev(np.ascontiguousarray(x0.T))
-    u0_d = dev(np.ascontiguousarray(u0.T))
-    pidx = dev(np.arange(P))
-    Dr_uniform = bool(np.all(Dr == Dr[0]))
-    Dt_uniform = bool(np.all(Dt == Dt[0]))
-    Dr_d = dev(Dr)
-    xb = xp.zeros((nb, N, n, P))  # states of the last nb blocks of N ticks
-    U = xp.zeros((Ru, m, P))  # controller outputs, one per period
-    x = [x0_d[a] for a in range(n)]
-    v = u0_d
-    held = u0_d
-    tmp = np.empty(P) if is_np else None
-    acc = _BlockMetrics(be, P, N, stop_k, int((stop_k // N).max()))
-    states = inputs = None
-    if record:
-        states = np.full((P, kmax + 1, n), np.nan)
-        inputs = np.full((P, kmax + 1, m), np.nan)
-    # the plant input changes at the ticks k with (k - Dt) % N == 0: rows Dt % N of a block
-    change_rows = {int(c) for c in np.unique(Dt % N)}
-    Dt_rows = Dt % N
+    return E, QB
 
-    def plant_input(k, row, v):
+
+def _lti_group(be: Backend, d: LtiBatch, N: int, stop: float, record: bool) -> BatchResult:
+    """The points of ``d`` (every one with ``N`` base steps a period) to ``stop``: the
+    bookkeeping (plan, metrics a block at a time, the record's end) around the stepping
+    of :class:`_LtiStepper`."""
+    plan = _lti_plan(d, N, stop)
+    run = _LtiStepper(be, plan, d, record)
+    acc = _BlockMetrics(be, len(d), N, plan.stop_k, int((plan.stop_k // N).max()))
+    with np.errstate(all="ignore"):  # overflow is detected per block, as the FMUs refuse
+        run.start()
+        for i in range(run.kmax // N + 1):
+            bad = run.sample(i)
+            if bool(run.xp.any(bad)):
+                acc.cut(be.to_numpy(bad), i * N, "the control is not finite (the feedback "
+                        "overflowed)", plan.T, plan.h)
+            run.hold(i)
+            rows = run.advance(i)
+            acc.block(run.xb[i % run.nb, :rows], i * N, plan.T, plan.h)
+    res = acc.finish(plan.T, plan.h)
+    res.states, res.inputs = _trim(run.states, run.inputs,
+                                   np.minimum(acc.cut_at, plan.stop_k + 1))
+    return res
+
+
+class _LtiStepper:
+    """The stepping of one LTI group (the maths), on the backend's arrays, the points on
+    the last axis: the controller at each sampling tick, the plant's exact step each tick.
+
+    The states of the last ``nb`` periods are kept in blocks of ``N`` ticks,
+    ``xb[b, row]`` (the measurement delay's ring); the controller outputs one per period,
+    ``U`` (the predictor's window and the input delay's ring).
+    """
+
+    def __init__(self, be: Backend, plan: _LtiPlan, d: LtiBatch, record: bool):
+        xp, dev = be.xp, be.asarray
+        P, n, m = d.B.shape
+        N = plan.N
+        self.be, self.xp, self.plan, self.N, self.n, self.m = be, xp, plan, N, n, m
+        self.kmax = int(plan.stop_k.max())
+        self.Lmax = plan.QB.shape[0]
+        self.nb = int(plan.Dr.max()) // N + 2  # blocks of N ticks kept for the measurement
+        self.Ru = max(self.Lmax, int(plan.Dt.max()) // N + 1) + 2
+        self.is_np = be.name == "numpy"
+        self.scalar = self.is_np and n == 1  # the hot path: two ufunc calls a tick
+
+        def col(a):  # a per-point coefficient as a contiguous (P,) array
+            return dev(np.ascontiguousarray(a))
+
+        self.Ad = [[col(plan.Ad[:, a, b]) for b in range(n)] for a in range(n)]
+        self.Bd = [[col(plan.Bd[:, a, c]) for c in range(m)] for a in range(n)]
+        self.K = [[col(d.K[:, c, a]) for a in range(n)] for c in range(m)]
+        self.E = [[col(plan.E[:, a, b]) for b in range(n)] for a in range(n)]
+        self.QB = [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
+                   for q in range(self.Lmax)]
+        self.x0 = col(d.x0.T)
+        self.u0 = col(d.u0.T)
+        self.pidx = dev(np.arange(P))
+        self.Dr_uniform = bool(np.all(plan.Dr == plan.Dr[0]))
+        self.Dt_uniform = bool(np.all(plan.Dt == plan.Dt[0]))
+        self.Dr_d = dev(plan.Dr)
+        self.xb = xp.zeros((self.nb, N, n, P))  # states of the last nb blocks of N ticks
+        self.U = xp.zeros((self.Ru, m, P))  # controller outputs, one per period
+        self.x = [self.x0[a] for a in range(n)]
+        self.v = self.held = self.u0
+        self.tmp = np.empty(P) if self.is_np else None
+        self.states = np.full((P, self.kmax + 1, n), np.nan) if record else None
+        self.inputs = np.full((P, self.kmax + 1, m), np.nan) if record else None
+        # the plant input changes at the ticks k with (k - Dt) % N == 0: rows Dt % N
+        self.change_rows = {int(c) for c in np.unique(plan.Dt % N)}
+        self.Dt_rows = plan.Dt % N
+        self.bv = self.forced(self.v)
+
+    def start(self) -> None:
+        """Tick 0's state into the ring."""
+        for a in range(self.n):
+            self.xb = self.be.put(self.xb, (0, 0, a), self.x[a])
+
+    def forced(self, v) -> list:
+        """``Bd v``, per state component."""
+        return [_dot(self.Bd[a], v) for a in range(self.n)]
+
+    def sample(self, i: int):
+        """The controller at the sampling tick ``i N``: ``held = K Phi(y)``, ``y`` the
+        state ``Dr`` ticks before; returns where it is not finite from a finite ``y``."""
+        xp, N, n, k0, bi = self.xp, self.N, self.n, i * self.N, i % self.nb
+        if not self.is_np and i > 0:  # row 0 of this block: the last step's result
+            self.xb = self.be.put(self.xb, (bi, 0), xp.stack(self.x))
+        xb, U, u0 = self.xb, self.U, self.u0
+        if self.Dr_uniform:
+            src = k0 - int(self.plan.Dr[0])
+            y = xb[(src // N) % self.nb, src % N] if src >= 0 else self.x0
+        else:
+            src = k0 - self.Dr_d
+            y = xp.where(src >= 0, xb[(src // N) % self.nb, src % N, :, self.pidx].T,
+                         self.x0)
+        phi = [_dot(self.E[a], y) for a in range(n)]
+        for q in range(self.Lmax):
+            past = U[(i - q - 1) % self.Ru] if i - q - 1 >= 0 else u0
+            for a in range(n):
+                phi[a] = phi[a] + _dot(self.QB[q][a], past)
+        self.held = xp.stack([_dot(self.K[c], phi) for c in range(self.m)])
+        return ~xp.all(xp.isfinite(self.held), axis=0) & xp.all(xp.isfinite(y), axis=0)
+
+    def hold(self, i: int) -> None:
+        """The controller output of period ``i`` into its ring."""
+        self.U = self.be.put(self.U, i % self.Ru, self.held)
+
+    def plant_input(self, k: int, row: int, v):
         """``v`` at tick ``k``: the controller output of tick ``k - Dt``."""
-        if row not in change_rows:
+        if row not in self.change_rows:
             return v, False
-        if Dt_uniform:
+        N, Dt, U, Ru = self.N, self.plan.Dt, self.U, self.Ru
+        if self.Dt_uniform:
             s = k - int(Dt[0])
             return (U[(s // N) % Ru], True) if s >= 0 else (v, False)
-        due = (Dt_rows == row) & (k - Dt >= 0)
+        due = (self.Dt_rows == row) & (k - Dt >= 0)
         if not due.any():
             return v, False
         s = np.maximum(k - Dt, 0)
-        return xp.where(dev(due), U[dev((s // N) % Ru), :, pidx].T, v), True
+        dev = self.be.asarray
+        return self.xp.where(dev(due), U[dev((s // N) % Ru), :, self.pidx].T, v), True
 
-    def forced(v):
-        return [_dot(Bd_d[a], v) for a in range(n)]
-
-    bv = forced(v)
-    scalar = is_np and n == 1
-    A00 = Ad_d[0][0]
-    with np.errstate(all="ignore"):  # overflow is detected per block, as the FMUs refuse
-        for a in range(n):
-            xb = be.put(xb, (0, 0, a), x[a])
-        for i in range(kmax // N + 1):
-            k0 = i * N
-            bi = i % nb
-            if not is_np and i > 0:  # row 0 of this block: the last step's result
-                xb = be.put(xb, (bi, 0), xp.stack(x))
-            # the controller at the sampling instant k0
-            if Dr_uniform:
-                src = k0 - int(Dr[0])
-                y = xb[(src // N) % nb, src % N] if src >= 0 else x0_d
-            else:
-                src = k0 - Dr_d
-                y = xp.where(src >= 0, xb[(src // N) % nb, src % N, :, pidx].T, x0_d)
-            phi = [_dot(E_d[a], y) for a in range(n)]
-            for q in range(Lmax):
-                past = U[(i - q - 1) % Ru] if i - q - 1 >= 0 else u0_d
+    def advance(self, i: int) -> int:
+        """The plant through the ticks of period ``i`` (each recorded first, with
+        ``record``), its states into block ``i % nb`` of the ring; returns their number."""
+        xp, be, N, n, kmax = self.xp, self.be, self.N, self.n, self.kmax
+        Ad, xb, tmp = self.Ad, self.xb, self.tmp
+        k0, bi = i * N, i % self.nb
+        rows = min(N, kmax - k0 + 1)
+        x, v, bv = self.x, self.v, self.bv
+        later = []  # other libraries: rows 1.. of this block, written once at its end
+        for row in range(rows):
+            k = k0 + row
+            v, changed = self.plant_input(k, row, v)
+            if changed:
+                bv = self.forced(v)
+            if self.states is not None and self.inputs is not None:
+                self.states[:, k] = be.to_numpy(xp.stack(x)).T
+                self.inputs[:, k] = be.to_numpy(self.held).T
+            if k == kmax:
+                break
+            # the plant's step to tick k + 1, into its row of the block ring
+            bi1, row1 = (bi, row + 1) if row + 1 < N else ((i + 1) % self.nb, 0)
+            if self.scalar:  # n = 1 on numpy: the hot path, two ufunc calls a tick
+                out = xb[bi1, row1, 0]
+                np.multiply(Ad[0][0], x[0], out=out)
+                np.add(out, bv[0], out=out)
+                x = [out]
+            elif self.is_np:
+                assert tmp is not None  # the scratch row of numpy
                 for a in range(n):
-                    phi[a] = phi[a] + _dot(QB_d[q][a], past)
-            held = xp.stack([_dot(K_d[c], phi) for c in range(m)])
-            bad = ~xp.all(xp.isfinite(held), axis=0) & xp.all(xp.isfinite(y), axis=0)
-            if bool(xp.any(bad)):
-                acc.cut(be.to_numpy(bad), k0, "the control is not finite (the feedback "
-                        "overflowed)", T, h)
-            U = be.put(U, i % Ru, held)
-            rows = min(N, kmax - k0 + 1)
-            later = []  # other libraries: rows 1.. of this block, written once at its end
-            for row in range(rows):
-                k = k0 + row
-                v, changed = plant_input(k, row, v)
-                if changed:
-                    bv = forced(v)
-                if record:
-                    assert states is not None and inputs is not None  # set when record
-                    states[:, k] = be.to_numpy(xp.stack(x)).T
-                    inputs[:, k] = be.to_numpy(held).T
-                if k == kmax:
-                    break
-                # the plant's step to tick k + 1, into its row of the block ring
-                bi1, row1 = (bi, row + 1) if row + 1 < N else ((i + 1) % nb, 0)
-                if scalar:  # n = 1 on numpy: the hot path, two ufunc calls a tick
-                    out = xb[bi1, row1, 0]
-                    np.multiply(A00, x[0], out=out)
-                    np.add(out, bv[0], out=out)
-                    x = [out]
-                elif is_np:
-                    assert tmp is not None  # the scratch row of numpy
-                    for a in range(n):
-                        out = xb[bi1, row1, a]
-                        np.multiply(Ad_d[a][0], x[0], out=out)
-                        for b in range(1, n):
-                            np.multiply(Ad_d[a][b], x[b], out=tmp)
-                            np.add(out, tmp, out=out)
-                        np.add(out, bv[a], out=out)
-                    x = [xb[bi1, row1, a] for a in range(n)]
-                else:  # JAX arrays are immutable: one write a block, not one a tick
-                    x = [_dot(Ad_d[a], x) + bv[a] for a in range(n)]
-                    if row1:
-                        later.append(xp.stack(x))
-            if later:
-                xb = be.put(xb, (bi, slice(1, 1 + len(later))), xp.stack(later))
-            acc.block(xb[bi, :rows], k0, T, h)
-    res = acc.finish(T, h)
-    if record:
-        assert states is not None and inputs is not None
-        for p, (c, e) in enumerate(zip(acc.cut_at, stop_k)):
-            states[p, min(int(c), int(e) + 1):] = np.nan
-            inputs[p, min(int(c), int(e) + 1):] = np.nan
-    res.states, res.inputs = states, inputs
-    return res
+                    out = xb[bi1, row1, a]
+                    np.multiply(Ad[a][0], x[0], out=out)
+                    for b in range(1, n):
+                        np.multiply(Ad[a][b], x[b], out=tmp)
+                        np.add(out, tmp, out=out)
+                    np.add(out, bv[a], out=out)
+                x = [xb[bi1, row1, a] for a in range(n)]
+            else:  # JAX arrays are immutable: one write a block, not one a tick
+                x = [_dot(Ad[a], x) + bv[a] for a in range(n)]
+                if row1:
+                    later.append(xp.stack(x))
+        if later:
+            self.xb = be.put(xb, (bi, slice(1, 1 + len(later))), xp.stack(later))
+        self.x, self.v, self.bv = x, v, bv
+        return rows
 
 
 class _BlockMetrics:
@@ -585,6 +744,8 @@ class _BlockMetrics:
         self.prev_last = np.full(P, np.nan)  # norm of the tick before the current block
 
     def cut(self, mask: np.ndarray, k: int, why: str, T, h) -> None:
+        """End the record of the points ``mask`` at tick ``k`` (the first not recorded),
+        saying ``why``; a point already cut keeps its first cut."""
         new = mask & (self.cut_at > k)
         if not new.any():
             return
@@ -606,15 +767,35 @@ class _BlockMetrics:
         for a in range(1, xs.shape[1]):
             sq = sq + xs[:, a] * xs[:, a]
         colmax = xp.max(sq, axis=0)
-        if not bool(xp.isfinite(xp.max(colmax))):  # rare: states not finite, or |x|^2 overflow
-            bad = ~xp.all(xp.isfinite(xs), axis=1)  # (a norm may overflow, finite states)
-            has = self.be.to_numpy(xp.any(bad, axis=0))
-            first = self.be.to_numpy(xp.argmax(bad, axis=0))
-            for p in np.flatnonzero(has):
-                self.cut(np.arange(self.P) == p, start + int(first[p]),
-                         "the plant state is not finite (the plant diverged: overflow)", T, h)
+        finite = bool(xp.isfinite(xp.max(colmax)))
+        if not finite:  # rare: states not finite, or |x|^2 overflow
+            self._cut_diverged(xs, start, T, h)
         end = np.minimum(self.cut_at, self.ticks + 1)
-        if np.any(end < start + R) or not bool(xp.isfinite(xp.max(colmax))):
+        sq_in, above, last_row, need = self._peaks(sq, colmax, start, end, finite)
+        self._last_above(sq, above, last_row, need, start)
+        j = start // self.N
+        if j < self.periods_max and R == self.N:
+            self.envsq[j] = self.be.to_numpy(xp.sum(sq_in, axis=0))
+        self._final(sq, start, end)
+
+    def _cut_diverged(self, xs, start: int, T, h) -> None:
+        """Cut each point at its first tick of the block whose state is not finite (a
+        norm may overflow where the states are finite: those are not cut)."""
+        xp = self.xp
+        bad = ~xp.all(xp.isfinite(xs), axis=1)
+        has = self.be.to_numpy(xp.any(bad, axis=0))
+        first = self.be.to_numpy(xp.argmax(bad, axis=0))
+        for p in np.flatnonzero(has):
+            self.cut(np.arange(self.P) == p, start + int(first[p]),
+                     "the plant state is not finite (the plant diverged: overflow)", T, h)
+
+    def _peaks(self, sq, colmax, start: int, end: np.ndarray, finite: bool):
+        """The peaks updated with the block's recorded rows; returns the squares of the
+        recorded rows, where ``|x| >= ZERO`` (``None``: every row recorded), that on the
+        last row, and the points whose last such row is to be searched."""
+        xp = self.xp
+        R = sq.shape[0]
+        if np.any(end < start + R) or not finite:
             norms = xp.sqrt(sq)
             rows = xp.asarray(start + np.arange(R))[:, None]
             incl = rows < xp.asarray(end)[None, :]
@@ -623,14 +804,17 @@ class _BlockMetrics:
             self.peak = xp.maximum(self.peak, xp.max(xp.where(incl, norms, 0.0), axis=0))
             last_row = above[R - 1]
             need = self.be.to_numpy(xp.any(above, axis=0) & ~last_row)
-        else:
-            sq_in = sq
-            above = None
-            self.peak = xp.maximum(self.peak, xp.sqrt(colmax))
-            last_row = xp.sqrt(sq[R - 1]) >= ZERO
-            need = self.be.to_numpy((xp.sqrt(colmax) >= ZERO) & ~last_row)
-        # the last tick with |x| >= ZERO: the block's last row for most points; a search
-        # only where some earlier row is above and the last is not
+            return sq_in, above, last_row, need
+        self.peak = xp.maximum(self.peak, xp.sqrt(colmax))
+        last_row = xp.sqrt(sq[R - 1]) >= ZERO
+        need = self.be.to_numpy((xp.sqrt(colmax) >= ZERO) & ~last_row)
+        return sq, None, last_row, need
+
+    def _last_above(self, sq, above, last_row, need: np.ndarray, start: int) -> None:
+        """The last tick with ``|x| >= ZERO``: the block's last row for most points; a
+        search only where some earlier row is above and the last is not."""
+        xp = self.xp
+        R = sq.shape[0]
         self.last_above = xp.where(last_row, start + R - 1, self.last_above)
         if need.any():
             sel = np.flatnonzero(need)
@@ -640,10 +824,11 @@ class _BlockMetrics:
             host = self.be.to_numpy(self.last_above).copy()
             host[sel] = start + last
             self.last_above = self.be.asarray(host)
-        j = start // self.N
-        if j < self.periods_max and R == self.N:
-            self.envsq[j] = self.be.to_numpy(xp.sum(sq_in, axis=0))
-        # the last recorded norm of points whose record ends in this block (or just before)
+
+    def _final(self, sq, start: int, end: np.ndarray) -> None:
+        """The last recorded norm of the points whose record ends in this block (or just
+        before it)."""
+        R = sq.shape[0]
         hit = (end - 1 >= start) & (end - 1 < start + R)
         if hit.any():
             sel = np.flatnonzero(hit)
@@ -656,6 +841,7 @@ class _BlockMetrics:
         self.prev_last = np.sqrt(self.be.to_numpy(sq[R - 1]))
 
     def finish(self, T, h) -> BatchResult:
+        """The metrics per point from what the blocks streamed (on the host)."""
         to = self.be.to_numpy
         N = self.N
         peak = to(self.peak).copy()
@@ -709,6 +895,10 @@ def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_tru
                    tau_true=None, *, pad: bool = False, record: bool = False) -> BatchResult:
     """Advance ``P`` loops of a batchable model (:func:`batchable`) together to ``stop``.
 
+    A convenience over :func:`run_model` for loose arrays: the per-point timing and
+    histories are broadcast over the points, checked (:class:`BatchError`) and gathered
+    into one :class:`ModelBatch`.
+
     Parameters
     ----------
     model : delaycomp.maths.model.Model
@@ -731,33 +921,63 @@ def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_tru
     if why:
         raise BatchError(why)
     P = _count([], [T, r, tau, N, r_true, tau_true], [x0, u0])
-    n, m = model.n, model.m
-    T, r, tau, r_true, tau_true, x0, u0, Ns = _timing(P, n, m, T, r, tau, N, r_true,
-                                                      tau_true, x0, u0)
+    points = _points(P, model.n, model.m, T, r, tau, N, r_true, tau_true, x0, u0)
+    return run_model(model, params, points, stop, pad=pad, record=record)
+
+
+def run_model(model, params: dict, points: ModelBatch, stop: float, *, pad: bool = False,
+              record: bool = False) -> BatchResult:
+    """Advance the ``P`` loops of a batchable ``model`` (:func:`batchable`) at ``points``
+    together to ``stop``: the batch engine's core for model loops.
+
+    ``params`` are the model's parameters, shared by every point (a number may be an array
+    of length ``P``, one per point); ``points`` the checked per-point timing and histories
+    (:class:`ModelBatch`); points with different ``N`` run as separate groups. ``pad``:
+    under zero-order hold, pad ``tau`` up to the next multiple of ``T`` (Remark 3.3(b));
+    ``record`` keeps every tick's state and control. Raises :class:`BatchError` where the
+    model is not batchable or a delay or ``stop`` is not allowed at some point.
+    """
+    why = batchable(model)
+    if why:
+        raise BatchError(why)
+    P = len(points)
     parts = []
-    for Nv in np.unique(Ns):
-        idx = np.flatnonzero(Ns == Nv)
+    for Nv in np.unique(points.N):
+        idx = np.flatnonzero(points.N == Nv)
         p_idx = {key: (np.asarray(val)[idx] if np.ndim(val) == 1 and np.size(val) == P
                        else val) for key, val in params.items()}
-        res = _model_group(model, p_idx, T[idx], int(Nv), r[idx], tau[idx], r_true[idx],
-                           tau_true[idx], x0[idx], u0[idx], float(stop), pad, record)
+        res = _model_group(model, p_idx, take(points, idx), int(Nv), float(stop), pad,
+                           record)
         parts.append((idx, res))
     return _merge(parts, P)
 
 
-def _model_group(model, params, T, N, r, tau, r_true, tau_true, x0, u0, stop, pad,
-                 record) -> BatchResult:
+@dataclass(frozen=True)
+class _ModelPlan:
+    """One model group's integer ticks (host numpy), checked."""
+
+    N: int
+    T: np.ndarray
+    h: np.ndarray
+    stop_k: np.ndarray  # the last tick, per point
+    Dr_true: np.ndarray  # the true measurement delay, in ticks
+    Dpad: np.ndarray  # zero-order hold: the padding of tau (Remark 3.3(b)), in ticks
+    Dt: np.ndarray  # the controller's held value -> the plant's input, in ticks
+    W: np.ndarray  # the predictor's window r + tau (padded), in ticks
+    Ru: int  # slots of the ring of controller outputs
+
+
+def _model_plan(model, pts: ModelBatch, N: int, stop: float, pad: bool) -> _ModelPlan:
+    """The plan of the group ``pts`` (every point with ``N`` base steps a period), or a
+    :class:`BatchError` naming what is off the grid."""
+    T, tau = pts.T, pts.tau
     P = len(T)
-    n, m = model.n, model.m
     h = T / N
     stop_k = _ticks("stop", np.full(P, stop), h)
-    Dr_true = _ticks("r_true", r_true, h)
-    Dt_true = _ticks("tau_true", tau_true, h)
-    Dr = _ticks("r", r, h)
-    zoh = model.control == "zoh"
-    p = dict(params)
-    p["T"] = T
-    if zoh:
+    Dr_true = _ticks("r_true", pts.r_true, h)
+    Dt_true = _ticks("tau_true", pts.tau_true, h)
+    Dr = _ticks("r", pts.r, h)
+    if model.control == "zoh":
         tau_eff = np.array([padded_delay(tau[i], T[i]) for i in range(P)])
         if not pad and np.any(tau_eff != tau):
             i = int(np.flatnonzero(tau_eff != tau)[0])
@@ -767,136 +987,201 @@ def _model_group(model, params, T, N, r, tau, r_true, tau_true, x0, u0, stop, pa
                 raise BatchError(str(exc)) from None
         Dpad = _ticks("padding", tau_eff - tau, h)
         W = Dr + np.rint(tau_eff / h).astype(np.int64)
+        Dt = Dt_true + Dpad
+        nseg = W // N + (W % N > 0)
+        Ru = max(int(nseg.max()), int(Dt.max()) // N + 1) + 2
     else:
         Dpad = np.zeros(P, dtype=np.int64)
         W = Dr + _ticks("tau", tau, h)
-    Dt = Dt_true + Dpad  # controller's held value -> plant input, in ticks
-    kmax = int(stop_k.max())
-    periods = stop_k // N
-    Rx = int(Dr_true.max()) + 1
-    pidx = np.arange(P)
-    x = x0.T.copy()
-    xring = np.zeros((Rx, n, P))
-    metrics = _Metrics(np, P, N, stop_k, int(periods.max()))
-    failed = np.zeros(P, dtype=bool)
-    fail_norm = np.zeros(P)
-    fail_peak = np.zeros(P)
-    messages = [""] * P
-    norm_prev = np.zeros(P)
-    u0T = u0.T.copy()
-    states = inputs = None
-    if record:
-        states = np.full((P, kmax + 1, n), np.nan)
-        inputs = np.full((P, kmax + 1, m), np.nan)
-    if zoh:
-        nfull, rem = W // N, W % N
-        nseg = nfull + (rem > 0)
-        Ru = max(int(nseg.max()), int(Dt.max()) // N + 1) + 2
-    else:
+        Dt = Dt_true + Dpad
         Ru = max(int(W.max()), int(Dt.max())) + 2
-        z = x0.T.copy()
-    U = np.zeros((Ru, m, P))  # per period (zoh) or per tick (continuous)
-    held = u0T.copy()
-    v = u0T.copy()
-    out = u0T.copy()
+    return _ModelPlan(N, T, h, stop_k, Dr_true, Dpad, Dt, W, Ru)
 
-    def past(j):
-        """Controller output of slot index ``j`` (period or tick), ``u0`` before t = 0."""
-        return U[j % Ru] if j >= 0 else u0T
+
+class _Failures:
+    """Which points of a group failed, when and why, with their last recorded norm and
+    peak (the per-point engine's record ends there)."""
+
+    def __init__(self, P: int, N: int, T: np.ndarray, h: np.ndarray):
+        self.N, self.T, self.h = N, T, h
+        self.failed = np.zeros(P, dtype=bool)
+        self.norm = np.zeros(P)
+        self.peak = np.zeros(P)
+        self.messages = [""] * P
+
+    def mark(self, mask: np.ndarray, norms: np.ndarray, peak: np.ndarray, why: str,
+             k: int) -> bool:
+        """Mark the points ``mask`` failed at tick ``k`` (those not failed before keep
+        ``norms`` and ``peak``); whether any is new."""
+        new = mask & ~self.failed
+        if not new.any():
+            return False
+        self.norm[new] = norms[new]
+        self.peak[new] = peak[new]
+        t = (k // self.N) * self.T + (k % self.N) * self.h
+        for i in np.flatnonzero(new):
+            self.messages[i] = f"{why} at t = {float(t[i])!r}"
+        self.failed[new] = True
+        return True
+
+
+def _model_group(model, params: dict, pts: ModelBatch, N: int, stop: float, pad: bool,
+                 record: bool) -> BatchResult:
+    """The points of ``pts`` (every one with ``N`` base steps a period) to ``stop``: the
+    bookkeeping (plan, metrics, failures, the record) around the stepping of
+    :class:`_ModelStepper`."""
+    plan = _model_plan(model, pts, N, stop, pad)
+    P, n, m = len(pts), model.n, model.m
+    run = _ModelStepper(model, {**params, "T": plan.T}, pts, plan)
+    kmax = int(plan.stop_k.max())
+    metrics = _Metrics(np, P, N, plan.stop_k, int((plan.stop_k // N).max()))
+    failures = _Failures(P, N, plan.T, plan.h)
+    states = np.full((P, kmax + 1, n), np.nan) if record else None
+    inputs = np.full((P, kmax + 1, m), np.nan) if record else None
+    norm_prev = np.zeros(P)
 
     def fail(mask, norms, why, k):
-        nonlocal x, held, v, out
-        new = mask & ~failed
-        if not new.any():
-            return
-        fail_norm[new] = norms[new]
-        fail_peak[new] = metrics.peak[new]
-        t = (k // N) * T + (k % N) * h
-        for i in np.flatnonzero(new):
-            messages[i] = f"{why} at t = {float(t[i])!r}"
-        failed[new] = True
-        x[:, failed] = 0.0
-        held[:, failed] = 0.0
-        v[:, failed] = 0.0
-        out[:, failed] = 0.0
-        U[:, :, failed] = 0.0
-        if not zoh:
-            z[:, failed] = 0.0
+        if failures.mark(mask, norms, metrics.peak, why, k):
+            run.zero(failures.failed)
 
     with np.errstate(all="ignore"):
         for k in range(kmax + 1):
-            xring[k % Rx] = x
-            i, jj = divmod(k, N)
-            if k % N == 0:
-                src = k - Dr_true
-                y = np.where(src >= 0, xring[src % Rx, :, pidx].T, x0.T)
-            if zoh:
-                if k % N == 0:
-                    xs = y.copy()
-                    for e in range(int(nseg.max()), 0, -1):
-                        active = (e <= nfull) | ((e == nfull + 1) & (rem > 0))
-                        dur = np.where(e <= nfull, N * h, rem * h)
-                        stepped = np.asarray(model.step(xs, past(i - e), dur, p), dtype=float)
-                        xs = np.where(active, stepped, xs)
-                    held = np.asarray(model.k(xs, p), dtype=float).reshape(m, P)
-                    bad = ~np.all(np.isfinite(held), axis=0) & np.all(np.isfinite(y), axis=0)
-                    if bad.any():
-                        fail(bad, norm_prev, "the control is not finite (the predictor or "
-                             "the feedback diverged)", k)
-                    U[i % Ru] = held
-                s = k - Dt
-                due = (s >= 0) & (s % N == 0)
-                if due.any():
-                    v = np.where(due, U[(s // N) % Ru, :, pidx].T, v)
-                if record:
-                    sp = k - Dpad
-                    out = np.where(sp >= 0, U[(sp // N) % Ru, :, pidx].T, u0T)
-            else:
-                if k % N == 0 and k > 0:
-                    xs = y.copy()
-                    for e in range(int(W.max()), 0, -1):
-                        stepped = np.asarray(model.step(xs, past(k - e), h, p), dtype=float)
-                        xs = np.where(e <= W, stepped, xs)
-                    z = xs
-                t = i * T + jj * h
-                held = np.asarray(model.k(t + tau, z, p), dtype=float).reshape(m, P)
-                bad = ~np.all(np.isfinite(held), axis=0) & np.all(np.isfinite(y), axis=0)
-                if bad.any():
-                    fail(bad, norm_prev, "the control is not finite (the predictor or the "
-                         "feedback diverged)", k)
-                U[k % Ru] = held
-                s = k - Dt
-                v = np.where(s >= 0, U[s % Ru, :, pidx].T, u0T)
-                out = held
-            sq = x[0] * x[0]
-            for a in range(1, n):
-                sq = sq + x[a] * x[a]
-            norm = np.sqrt(sq)
-            metrics.record(k, np.where(failed, 0.0, norm), _np_put)
-            if record:
-                assert states is not None and inputs is not None  # set when record
-                states[:, k] = x.T
-                inputs[:, k] = out.T
-                states[failed, k] = np.nan
-                inputs[failed, k] = np.nan
+            bad = run.control(k)
+            if bad is not None and bad.any():
+                fail(bad, norm_prev, "the control is not finite (the predictor or the "
+                     "feedback diverged)", k)
+            run.hold(k, record)
+            norm = _norm(run.x)
+            metrics.record(k, np.where(failures.failed, 0.0, norm), _np_put)
+            if states is not None and inputs is not None:
+                states[:, k] = run.x.T
+                inputs[:, k] = run.out.T
+                states[failures.failed, k] = np.nan
+                inputs[failures.failed, k] = np.nan
             if k == kmax:
                 break
-            if not zoh:
-                z = np.asarray(model.step(z, held, h, p), dtype=float)
-            x = np.asarray(model.step(x, v, h, p), dtype=float)
-            bad = ~np.all(np.isfinite(x), axis=0)
+            bad = run.step()
             if bad.any():
                 fail(bad, norm, "the plant state is not finite", k + 1)
             norm_prev = norm
-    if record:
-        assert states is not None and inputs is not None
-        for i in range(P):
-            states[i, stop_k[i] + 1:] = np.nan
-            inputs[i, stop_k[i] + 1:] = np.nan
-    res = _finish(metrics, get_backend("numpy"), failed, fail_norm, fail_peak, T, h, N,
-                  messages)
-    res.states, res.inputs = states, inputs
+    res = _finish(metrics, get_backend("numpy"), failures.failed, failures.norm,
+                  failures.peak, plan.T, plan.h, N, failures.messages)
+    res.states, res.inputs = _trim(states, inputs, plan.stop_k + 1)
     return res
+
+
+def _norm(x: np.ndarray) -> np.ndarray:
+    """``|x|`` per point (``x`` of shape ``(n, P)``), the squares summed left to right."""
+    sq = x[0] * x[0]
+    for a in range(1, x.shape[0]):
+        sq = sq + x[a] * x[a]
+    return np.sqrt(sq)
+
+
+class _ModelStepper:
+    """The stepping of one model group (the maths), numpy, the points on the last axis:
+    the controller at the sampling ticks (zero-order hold, Theorem 3.2, the predictor
+    composing exact steps over the window) or at every tick (continuous input, Theorem
+    2.1, its copy ``z`` reset to the predictor at every sample after the first), the
+    plant's exact step each tick. ``U`` is the ring of controller outputs, one per period
+    (zero-order hold) or per tick (continuous input)."""
+
+    def __init__(self, model, p: dict, pts: ModelBatch, plan: _ModelPlan):
+        P, n, m = len(pts), model.n, model.m
+        self.model, self.p, self.plan, self.N, self.P, self.m = model, p, plan, plan.N, P, m
+        self.zoh = model.control == "zoh"
+        self.tau = pts.tau
+        self.pidx = np.arange(P)
+        self.Rx = int(plan.Dr_true.max()) + 1
+        self.x0T = pts.x0.T
+        self.x = pts.x0.T.copy()
+        self.xring = np.zeros((self.Rx, n, P))
+        self.y = self.x0T  # the controller's measurement (set at every sampling tick)
+        self.u0T = pts.u0.T.copy()
+        self.U = np.zeros((plan.Ru, m, P))
+        self.held = self.u0T.copy()
+        self.v = self.u0T.copy()
+        self.out = self.u0T.copy()
+        self.z = pts.x0.T.copy()  # the controller's copy of the state (continuous input)
+        self.nfull, self.rem = plan.W // plan.N, plan.W % plan.N
+        self.nseg = self.nfull + (self.rem > 0)
+
+    def past(self, j: int) -> np.ndarray:
+        """Controller output of slot index ``j`` (period or tick), ``u0`` before t = 0."""
+        return self.U[j % self.plan.Ru] if j >= 0 else self.u0T
+
+    def control(self, k: int) -> np.ndarray | None:
+        """The controller at tick ``k`` (it measures at a sampling tick); returns where
+        its output is not finite from a finite measurement (``None``: no output now)."""
+        N, p, P, m = self.N, self.p, self.P, self.m
+        self.xring[k % self.Rx] = self.x
+        i, jj = divmod(k, N)
+        if k % N == 0:
+            src = k - self.plan.Dr_true
+            self.y = np.where(src >= 0, self.xring[src % self.Rx, :, self.pidx].T,
+                              self.x0T)
+        if self.zoh:
+            if k % N != 0:
+                return None
+            xs = self.y.copy()
+            for e in range(int(self.nseg.max()), 0, -1):
+                active = (e <= self.nfull) | ((e == self.nfull + 1) & (self.rem > 0))
+                dur = np.where(e <= self.nfull, N * self.plan.h, self.rem * self.plan.h)
+                stepped = np.asarray(self.model.step(xs, self.past(i - e), dur, p),
+                                     dtype=float)
+                xs = np.where(active, stepped, xs)
+            self.held = np.asarray(self.model.k(xs, p), dtype=float).reshape(m, P)
+        else:
+            if k % N == 0 and k > 0:
+                xs = self.y.copy()
+                for e in range(int(self.plan.W.max()), 0, -1):
+                    stepped = np.asarray(self.model.step(xs, self.past(k - e), self.plan.h,
+                                                         p), dtype=float)
+                    xs = np.where(e <= self.plan.W, stepped, xs)
+                self.z = xs
+            t = i * self.plan.T + jj * self.plan.h
+            self.held = np.asarray(self.model.k(t + self.tau, self.z, p),
+                                   dtype=float).reshape(m, P)
+        return ~np.all(np.isfinite(self.held), axis=0) & np.all(np.isfinite(self.y), axis=0)
+
+    def hold(self, k: int, record: bool) -> None:
+        """The controller's output into its ring at tick ``k``, and the plant's input
+        ``v`` through the input delay (``out``: what the controller outputs now)."""
+        N, Ru, Dt, U = self.N, self.plan.Ru, self.plan.Dt, self.U
+        if self.zoh:
+            if k % N == 0:
+                U[(k // N) % Ru] = self.held
+            s = k - Dt
+            due = (s >= 0) & (s % N == 0)
+            if due.any():
+                self.v = np.where(due, U[(s // N) % Ru, :, self.pidx].T, self.v)
+            if record:
+                sp = k - self.plan.Dpad
+                self.out = np.where(sp >= 0, U[(sp // N) % Ru, :, self.pidx].T, self.u0T)
+        else:
+            U[k % Ru] = self.held
+            s = k - Dt
+            self.v = np.where(s >= 0, U[s % Ru, :, self.pidx].T, self.u0T)
+            self.out = self.held
+
+    def step(self) -> np.ndarray:
+        """The plant (and the controller's copy) one base step on; returns where the
+        plant state is not finite."""
+        h, p = self.plan.h, self.p
+        if not self.zoh:
+            self.z = np.asarray(self.model.step(self.z, self.held, h, p), dtype=float)
+        self.x = np.asarray(self.model.step(self.x, self.v, h, p), dtype=float)
+        return ~np.all(np.isfinite(self.x), axis=0)
+
+    def zero(self, failed: np.ndarray) -> None:
+        """The state, outputs and rings of the ``failed`` points held at zero."""
+        self.x[:, failed] = 0.0
+        self.held[:, failed] = 0.0
+        self.v[:, failed] = 0.0
+        self.out[:, failed] = 0.0
+        self.U[:, :, failed] = 0.0
+        if not self.zoh:
+            self.z[:, failed] = 0.0
 
 
 def _dot(row, vec):

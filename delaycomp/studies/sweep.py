@@ -199,24 +199,9 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     in-process engine and why, is appended to ``notes``. ``verbosity`` 0 hides the progress
     bar (shown on a terminal otherwise).
     """
-    check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
-                     exact)
-    sc = open_source(scenario)
-    if exact and sc.loop(list(sets)).lti is None:
-        raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
-    if workers < 1:
-        raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     names = [a.name for a in axes]
-    if len(set(names)) != len(names):
-        raise ParameterError("--grid: each parameter may be swept once")
-    if engine not in SWEEP_ENGINES:
-        raise ParameterError(f"--engine {engine!r} is not allowed: must be one of "
-                             f"{', '.join(SWEEP_ENGINES)}")
-    if chunk is not None and chunk < 1:
-        raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
-    stop = sc.default_stop_time if stop is None else stop
-    if stop is None:
-        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
+    sc, stop = _checked(scenario, axes, names, sets, stop, engine, workers, scheduler,
+                        exact, chunk)
     source = (str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
               else scenario)
     job_engine = "inprocess" if engine == "batch" else engine
@@ -228,28 +213,7 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
 
     batched = engine == "batch" and not exact
     with _gc_paused():
-        # validate every point before running any: all at once where the source can
-        # (Scenario.resolve_grid), else (or to name a refused point) one by one
-        params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
-                  else None)
-        if params is None:
-            params = [_named(texts, sc.resolve, [*sets, *texts]) for texts in grid_texts]
-        # a batch sweep of an LTI source needs each point's design, not its loop's
-        # instances: Scenario.designs (all points at once), else Scenario.design /
-        # LoopFile.design (one by one) validate it with the same checks as make
-        loops = None
-        if batched and hasattr(sc, "designs"):
-            try:
-                loops = sc.designs(params)
-            except ParameterError:  # one by one below, which names the point
-                loops = None
-        if loops is None:
-            design = getattr(sc, "design", None) if batched else None
-            loops = []
-            for p, point_texts in zip(params, grid_texts):
-                item = _named(point_texts, design, p) if design is not None else None
-                loops.append(item if item is not None else _named(point_texts, sc.make, p))
-        del params
+        loops = _grid_loops(sc, sets, grid_texts, batched)
         rows = [dict(zip(names, values)) for values in points(axes)]
     if not exact:  # --exact takes rho from the lifted model: no run, no stop time
         _check_stop(loops, grid_texts, float(stop))
@@ -265,6 +229,60 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
         for row, res in zip(rows, results):
             row.update(res)
     return rows
+
+
+def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
+             stop: float | None, engine: str, workers: int, scheduler: str | None,
+             exact: bool, chunk: int | None):
+    """The sweep's arguments checked (in one line each, before anything runs): the opened
+    source and the stop time (the source's default where ``stop`` is ``None``)."""
+    check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
+                     exact)
+    sc = open_source(scenario)
+    if exact and sc.loop(list(sets)).lti is None:
+        raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
+    if workers < 1:
+        raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
+    if len(set(names)) != len(names):
+        raise ParameterError("--grid: each parameter may be swept once")
+    if engine not in SWEEP_ENGINES:
+        raise ParameterError(f"--engine {engine!r} is not allowed: must be one of "
+                             f"{', '.join(SWEEP_ENGINES)}")
+    if chunk is not None and chunk < 1:
+        raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
+    stop = sc.default_stop_time if stop is None else stop
+    if stop is None:
+        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
+    return sc, stop
+
+
+def _grid_loops(sc, sets: list[str], grid_texts: list[tuple[str, ...]], batched: bool):
+    """Every grid point validated before any runs: all at once where the source can
+    (``Scenario.resolve_grid``), else (or to name a refused point) one by one. Returns
+    the points' loops; for a batch sweep of an LTI source, their designs instead (what
+    the batch engine reads): one :class:`delaycomp.system.LtiBatch` where the source
+    validates them all at once (``Scenario.designs``, ``LoopFile.designs``), else one
+    :class:`delaycomp.system.LtiPoint` (or, where a point has none, its loop) each."""
+    params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
+              else None)
+    if params is None:
+        params = [_named(texts, sc.resolve, [*sets, *texts]) for texts in grid_texts]
+    # a batch sweep of an LTI source needs each point's design, not its loop's
+    # instances: Scenario.designs (all points at once), else Scenario.design /
+    # LoopFile.design (one by one) validate it with the same checks as make
+    if batched and hasattr(sc, "designs"):
+        try:
+            designs = sc.designs(params)
+        except ParameterError:  # one by one below, which names the point
+            designs = None
+        if designs is not None:
+            return designs
+    design = getattr(sc, "design", None) if batched else None
+    loops = []
+    for p, point_texts in zip(params, grid_texts):
+        item = _named(point_texts, design, p) if design is not None else None
+        loops.append(item if item is not None else _named(point_texts, sc.make, p))
+    return loops
 
 
 def _check_stop(loops, grid_texts: list[tuple[str, ...]], stop: float) -> None:

@@ -2,10 +2,12 @@
 
 Each grid point is a typed loop (:class:`delaycomp.system.Loop`, from a scenario or a loop
 file); this module takes from it what :mod:`delaycomp.studies.batch` needs (the LTI design and
-timing; or the model file, its parameters and timing), groups the
-points that can share a batch (same dimensions, same model and string parameters), cuts the
-groups into chunks that fit in memory, and runs the chunks here, on local worker processes
-or on a Dask cluster. Every point of a chunk is computed independently of the others, so
+timing; or the model file, its parameters and timing), groups the points that can share a
+batch (same dimensions, same model and string parameters), stacks each group into the
+engine's typed batch (:class:`delaycomp.system.LtiBatch`, which a scenario or a loop file
+may also hand over whole, or :class:`delaycomp.studies.batch.ModelBatch`), cuts the groups
+into chunks that fit in memory, and runs the chunks here, on local worker processes or on
+a Dask cluster. Every point of a chunk is computed independently of the others, so
 the results do not depend on the chunking or on where a chunk runs (tested).
 
 A point that cannot be batched (a model without ``BATCH = True`` or without an exact
@@ -15,7 +17,6 @@ FMU file or ``held_sample``) is returned with the reason, for the per-point engi
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -41,15 +42,22 @@ MEMORY_SHARE = 0.25
 
 @dataclass(frozen=True)
 class Chunk:
-    """One batch: picklable, for worker processes and Dask."""
+    """One batch: picklable, for worker processes and Dask. ``points`` is a
+    :class:`delaycomp.system.LtiBatch` (an LTI chunk, run on ``backend``) or a
+    :class:`delaycomp.studies.batch.ModelBatch` of the model file ``model_path`` with its
+    parameters ``params`` and padding ``pad`` (a model chunk, run on numpy)."""
 
-    kind: str  # "lti" or "model"
-    arrays: dict
+    points: LtiBatch | batch.ModelBatch
     stop: float
     backend: str
     model_path: str | None = None
     params: tuple = ()
     pad: bool = False
+
+    @property
+    def kind(self) -> str:
+        """``lti`` or ``model``."""
+        return "lti" if isinstance(self.points, LtiBatch) else "model"
 
 
 def run_chunk(chunk: Chunk) -> list[dict]:
@@ -61,19 +69,15 @@ def compute_chunk(chunk: Chunk) -> batch.BatchResult:
     """The metrics of every point of ``chunk`` as arrays (a top-level function: worker
     processes and Dask run it and send the arrays back, which pickle much faster than one
     dict per point)."""
-    a = chunk.arrays
-    if chunk.kind == "lti":
-        res = batch.simulate_lti(a["A"], a["B"], a["K"], a["T"], a["N"], a["r"], a["tau"],
-                                 a["x0"], a["u0"], list(a["mode"]), chunk.stop, a["r_true"],
-                                 a["tau_true"], backend=chunk.backend)
+    if isinstance(chunk.points, LtiBatch):
+        res = batch.run_lti(chunk.points, chunk.stop, backend=chunk.backend)
     else:
         from delaycomp.maths.model import load_model
 
         # a model chunk names its model file (:func:`prepare` sets it)
         model = load_model(cast(str, chunk.model_path))
-        res = batch.simulate_model(model, model.params(**dict(chunk.params)), a["T"], a["N"],
-                                   a["r"], a["tau"], a["x0"], a["u0"], chunk.stop,
-                                   a["r_true"], a["tau_true"], pad=chunk.pad)
+        res = batch.run_model(model, model.params(**dict(chunk.params)), chunk.points,
+                              chunk.stop, pad=chunk.pad)
     return res.without_trajectories()
 
 
@@ -101,7 +105,7 @@ def chunk_size(bytes_per_point: int, workers: int, limit: int | None = None) -> 
 
 
 def _lti_bytes(n: int, m: int, N: int, periods: int, ring_ticks: int, L: int) -> int:
-    """Memory per point of :func:`delaycomp.studies.batch.simulate_lti`, a generous estimate."""
+    """Memory per point of :func:`delaycomp.studies.batch.run_lti`, a generous estimate."""
     floats = ((ring_ticks // N + 2) * N * n + (L + ring_ticks // N + 3) * m
               + 3 * n * n + 2 * n * m + L * n * m + periods + 16)
     return 8 * floats * 2
@@ -171,26 +175,55 @@ def _standard(loop, kind) -> str | None:
     return None
 
 
-def prepare(loops: list, stop: float, backend: str, workers: int,
+def prepare(loops: list | LtiBatch, stop: float, backend: str, workers: int,
             limit: int | None) -> tuple[list, list[tuple[int, str]], list[str]]:
     """Chunks for the batchable points, and ``(index, reason)`` for the others.
 
     ``loops`` are the grid's points (:class:`delaycomp.system.Loop` or
     :class:`delaycomp.system.LtiPoint` each), or all of them as one
-    :class:`delaycomp.system.LtiBatch`. Returns ``(chunks, fallback, notes)`` where each
-    chunk comes with the point indices it covers: ``[(indices, Chunk), ...]``.
+    :class:`delaycomp.system.LtiBatch` (one group, cut into chunks as it is). Returns
+    ``(chunks, fallback, notes)`` where each chunk comes with the point indices it covers:
+    ``[(indices, Chunk), ...]``.
     """
+    fallback: list[tuple[int, str]] = []
+    models: dict[tuple, Model] = {}
+    if isinstance(loops, LtiBatch):  # all points in one group, already arrays
+        groups: dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]] = {
+            ("lti",): (list(range(len(loops))), loops)}
+    else:
+        groups, fallback, models = _groups(loops)
+    notes: list[str] = []
+    if backend != "numpy" and any(k[0] == "model" for k in groups):
+        notes.append(f"array backend {backend}: model loops run on numpy (their f, k and "
+                     "step are numpy code)")
+    chunks = []
+    for key, (idx, points) in groups.items():
+        if isinstance(points, LtiBatch):
+            per = _lti_batch_bytes(points, stop)
+            cap = CHUNK_MAX if backend == "numpy" else CHUNK_MAX_GPU
+        else:
+            per = _model_batch_bytes(points, models[key].n, stop)
+            cap = CHUNK_MAX
+        size = chunk_size(per, workers, limit or cap)
+        for s in range(0, len(idx), size):
+            sel = slice(s, s + size)
+            part = batch.take(points, sel)
+            if isinstance(part, LtiBatch):
+                chunks.append((idx[sel], Chunk(part, stop, backend)))
+            else:
+                chunks.append((idx[sel], Chunk(part, stop, "numpy", key[1], key[2], key[3])))
+    return chunks, fallback, notes
+
+
+def _groups(loops: list) -> tuple[dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]],
+                                  list[tuple[int, str]], dict[tuple, Model]]:
+    """The batchable points in groups that share a batch (LTI: the same dimensions; a
+    model: the same model file, string parameters and padding), each group's indices and
+    points stacked; ``(index, reason)`` for the others; each model group's model."""
     groups: dict[tuple, list[int]] = {}
     fallback: list[tuple[int, str]] = []
-    notes: list[str] = []
     data: dict[int, dict] = {}
     models: dict[tuple, Model] = {}
-    stacked: dict[tuple, dict] = {}
-    if isinstance(loops, LtiBatch):  # all points in one group, already arrays
-        key: tuple = ("lti", loops.A.shape[1:], loops.B.shape[1:])
-        groups[key] = list(range(len(loops)))
-        stacked[key] = {f.name: getattr(loops, f.name) for f in dataclasses.fields(loops)}
-        loops = []
     for i, loop in enumerate(loops):
         if loop.lti is not None:
             got = lti_point(loop)
@@ -198,7 +231,7 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
                 fallback.append((i, got))
                 continue
             data[i] = got
-            key = ("lti", got["A"].shape, got["B"].shape)
+            key: tuple = ("lti", got["A"].shape, got["B"].shape)
         else:
             found = model_point(loop)
             if isinstance(found, str):
@@ -208,51 +241,44 @@ def prepare(loops: list, stop: float, backend: str, workers: int,
             key = ("model", *mkey)
             models[key] = model
         groups.setdefault(key, []).append(i)
-    if backend != "numpy" and any(k[0] == "model" for k in groups):
-        notes.append(f"array backend {backend}: model loops run on numpy (their f, k and "
-                     "step are numpy code)")
-    chunks = []
-    for key, idx in groups.items():
-        P = len(idx)
-        arr = stacked.get(key) or _arrays([data[i] for i in idx], key[0] == "lti")
-        h = arr["T"] / arr["N"]
-        if key[0] == "lti":
-            n, m = key[1][0], key[2][1]
-            Nmax = int(arr["N"].max())
-            ring = int(np.max(np.rint(np.maximum(arr["r_true"], arr["tau_true"]) / h)))
-            L = int(np.max(np.floor((arr["r"] + arr["tau"]) / arr["T"]))) + 2
-            periods = math.ceil(stop / float(arr["T"].min()))
-            per = _lti_bytes(n, m, Nmax, periods, ring, L)
-        else:
-            n = models[key].n
-            ring = int(np.max(np.rint((arr["r_true"] + arr["tau_true"] + arr["r"]
-                                       + arr["tau"] + arr["T"]) / h)))
-            per = 8 * 4 * (ring * (n + 2) + int(stop / float(arr["T"].min())) + 64)
-        size = chunk_size(per, workers, limit or (
-            CHUNK_MAX if key[0] == "model" or backend == "numpy" else CHUNK_MAX_GPU))
-        for s in range(0, P, size):
-            sel = slice(s, s + size)
-            part = {k: v[sel] for k, v in arr.items()}
-            if key[0] == "lti":
-                chunks.append((idx[sel], Chunk("lti", part, stop, backend)))
-            else:
-                chunks.append((idx[sel], Chunk("model", part, stop, "numpy", key[1], key[2],
-                                               key[3])))
-    return chunks, fallback, notes
+    stacked = {key: (idx, _stack([data[i] for i in idx], key[0] == "lti"))
+               for key, idx in groups.items()}
+    return stacked, fallback, models
 
 
-def _arrays(points: list[dict], lti: bool) -> dict:
-    """Per-point ingredients stacked into arrays (a leading axis of points)."""
+def _lti_batch_bytes(points: LtiBatch, stop: float) -> int:
+    """Memory per point of a chunk of ``points`` (:func:`_lti_bytes` of the largest)."""
+    h = points.T / points.N
+    n, m = points.B.shape[1:]
+    ring = int(np.max(np.rint(np.maximum(points.r_true, points.tau_true) / h)))
+    L = int(np.max(np.floor((points.r + points.tau) / points.T))) + 2
+    periods = math.ceil(stop / float(points.T.min()))
+    return _lti_bytes(n, m, int(points.N.max()), periods, ring, L)
+
+
+def _model_batch_bytes(points: batch.ModelBatch, n: int, stop: float) -> int:
+    """Memory per point of a chunk of ``points`` of a model with ``n`` states, a generous
+    estimate."""
+    h = points.T / points.N
+    ring = int(np.max(np.rint((points.r_true + points.tau_true + points.r + points.tau
+                               + points.T) / h)))
+    return 8 * 4 * (ring * (n + 2) + int(stop / float(points.T.min())) + 64)
+
+
+def _stack(points: list[dict], lti: bool) -> LtiBatch | batch.ModelBatch:
+    """Per-point ingredients stacked into arrays (a leading axis of points): an
+    :class:`~delaycomp.system.LtiBatch` or a :class:`~delaycomp.studies.batch.ModelBatch`."""
     out = {key: np.array([p[key] for p in points], dtype=float)
            for key in ("T", "r", "tau", "r_true", "tau_true")}
     out["N"] = np.array([p["N"] for p in points], dtype=np.int64)
     out["x0"] = np.array([p["x0"] for p in points], dtype=float).reshape(len(points), -1)
     out["u0"] = np.array([p["u0"] for p in points], dtype=float).reshape(len(points), -1)
-    if lti:
-        for key in ("A", "B", "K"):
-            out[key] = np.stack([p[key] for p in points])
-        out["mode"] = np.array([p["mode"] for p in points], dtype=object)
-    return out
+    if not lti:
+        return batch.ModelBatch(**out)
+    for key in ("A", "B", "K"):
+        out[key] = np.stack([p[key] for p in points])
+    out["mode"] = np.array([p["mode"] for p in points], dtype=object)
+    return LtiBatch(**out)
 
 
 def run_chunks(chunks: list, workers: int, scheduler: str | None, progress) -> list[list]:

@@ -474,6 +474,32 @@ def lti_designs(args: list[dict]) -> LtiBatch | None:
     """
     if not args:
         return None
+    stacked = _stacked_arrays(args)
+    if stacked is None:
+        return None
+    T = [a["T"] for a in args]
+    Ns = [a["N"] for a in args]
+    delays = {key: [a.get(key) for a in args] for key in ("r", "tau", "r_true", "tau_true")}
+    if not (all(isinstance(v, (int, float)) for v in T)
+            and all(type(v) is int for v in Ns)
+            and all(isinstance(v, (int, float)) for key in ("r", "tau") for v in delays[key])
+            and all(v is None or isinstance(v, (int, float))
+                    for key in ("r_true", "tau_true") for v in delays[key])):
+        return None
+    batch = _checked_batch(args, *stacked, T, Ns, delays)
+    if batch is None:
+        return None
+    try:  # zero-order hold: tau = l T at every point (each distinct pair once)
+        for tau_p, T_p in set(zip(batch.tau.tolist(), batch.T.tolist())):
+            grid.periods(tau_p, T_p)
+    except ValueError:
+        return None
+    return batch
+
+
+def _stacked_arrays(args: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                np.ndarray, np.ndarray] | None:
+    """A, B, K (3-d), x0 and u0 (2-d) of the points stacked; None where they do not stack."""
     try:
         A, B, K = (np.array([a[key] for a in args], dtype=float) for key in "ABK")
         x0, u0 = (np.array([np.ravel(a[key]) for a in args], dtype=float)
@@ -482,39 +508,33 @@ def lti_designs(args: list[dict]) -> LtiBatch | None:
         return None
     if A.ndim != 3 or B.ndim != 3 or K.ndim != 3 or x0.ndim != 2 or u0.ndim != 2:
         return None
-    T = [a["T"] for a in args]
-    Ns = [a["N"] for a in args]
-    delays = {key: [a.get(key) for a in args] for key in ("r", "tau", "r_true", "tau_true")}
-    ok = (all(isinstance(v, (int, float)) for v in T)
-          and all(type(v) is int for v in Ns)
-          and all(isinstance(v, (int, float)) for key in ("r", "tau") for v in delays[key])
-          and all(v is None or isinstance(v, (int, float))
-                  for key in ("r_true", "tau_true") for v in delays[key]))
-    if ok:
-        _, n, m = B.shape
-        T_a, N_a = np.array(T, dtype=float), np.array(Ns, dtype=np.int64)
-        with np.errstate(divide="ignore", invalid="ignore"):  # a bad T or N: refused below
-            h = T_a / N_a
-        r, tau = np.array(delays["r"], dtype=float), np.array(delays["tau"], dtype=float)
-        r_true = np.array([x if v is None else v for x, v in zip(delays["r"],
-                                                                 delays["r_true"])], float)
-        tau_true = np.array([x if v is None else v for x, v in zip(delays["tau"],
-                                                                   delays["tau_true"])], float)
-        mode = np.array([a["mode"] for a in args], dtype=object)
-        ok = (A.shape[1:] == (n, n) and K.shape[1:] == (m, n) and x0.shape[1] == n
-              and u0.shape[1] == m and np.isfinite(A).all() and np.isfinite(B).all()
-              and np.isfinite(K).all() and all(isinstance(md, str) and md in MODES
-                                               for md in mode.tolist())
-              and bool(np.all(np.isfinite(T_a) & (T_a > 0))) and bool(np.all(N_a >= 1)))
-        for d in (r, tau, r_true, tau_true):
-            ok = ok and bool(np.all(np.isfinite(d) & (d >= 0) & grid.on_grid_array(d, h)))
-    if not ok:
+    return A, B, K, x0, u0
+
+
+def _checked_batch(args: list[dict], A: np.ndarray, B: np.ndarray, K: np.ndarray,
+                   x0: np.ndarray, u0: np.ndarray, T: list, Ns: list,
+                   delays: dict[str, list]) -> LtiBatch | None:
+    """The batch of stacked points when the shapes, entries, modes, timings and delays (on
+    the base grid) of every point pass :func:`lti_design`'s checks, else None."""
+    _, n, m = B.shape
+    T_a, N_a = np.array(T, dtype=float), np.array(Ns, dtype=np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a bad T or N: refused below
+        h = T_a / N_a
+    r, tau = np.array(delays["r"], dtype=float), np.array(delays["tau"], dtype=float)
+    r_true = np.array([x if v is None else v for x, v in zip(delays["r"],
+                                                             delays["r_true"])], float)
+    tau_true = np.array([x if v is None else v for x, v in zip(delays["tau"],
+                                                               delays["tau_true"])], float)
+    mode = np.array([a["mode"] for a in args], dtype=object)
+    if not (A.shape[1:] == (n, n) and K.shape[1:] == (m, n) and x0.shape[1] == n
+            and u0.shape[1] == m and np.isfinite(A).all() and np.isfinite(B).all()
+            and np.isfinite(K).all() and all(isinstance(md, str) and md in MODES
+                                             for md in mode.tolist())
+            and bool(np.all(np.isfinite(T_a) & (T_a > 0))) and bool(np.all(N_a >= 1))):
         return None
-    try:  # zero-order hold: tau = l T at every point (each distinct pair once)
-        for tau_p, T_p in set(zip(tau.tolist(), T_a.tolist())):
-            grid.periods(tau_p, T_p)
-    except ValueError:
-        return None
+    for d in (r, tau, r_true, tau_true):
+        if not bool(np.all(np.isfinite(d) & (d >= 0) & grid.on_grid_array(d, h))):
+            return None
     return LtiBatch(A, B, K, T_a, N_a, r, tau, r_true, tau_true, x0, u0, mode)
 
 
@@ -569,20 +589,16 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
                        state, inp, name, title, stop_time)
 
 
-def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
-               params: dict | None = None, mode: str | None = None,
-               predictor: str | None = None, tolerance: float | None = None,
-               pad: bool = False, r_true: float | None = None,
-               tau_true: float | None = None, name: str = "loop", title: str = "",
-               stop_time: float | None = None) -> Loop:
-    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.maths.model`).
+def check_model_loop(model, T: float, r: float, tau: float, N: int, x0, u0,
+                     params: dict | None = None, pad: bool = False,
+                     r_true: float | None = None, tau_true: float | None = None) -> tuple:
+    """The checks of :func:`model_loop` for a loaded ``model`` (:mod:`delaycomp.maths.model`),
+    without building the loop: the lengths of ``x0`` and ``u0``, the parameter names, the
+    delays on the base grid and, under zero-order hold unless ``pad``, ``tau = l T``.
 
-    Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
-    ``params`` are the model's parameters (an unknown name is refused).
+    Returns ``(x0, u0, params, timing, r_true, tau_true)``: the histories as lists of
+    floats, the parameters as a new dict, the :class:`Timing` and the true delays.
     """
-    from delaycomp.maths.model import load_model
-
-    model = load_model(model_path)
     n, m = model.n, model.m
     x0 = [float(v) for v in np.ravel(x0)]
     u0 = [float(v) for v in np.ravel(u0)]
@@ -602,6 +618,26 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
     r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
     if model.control == "zoh" and not pad:
         check_zoh_delay(tau, T, padding=True)
+    return x0, u0, params, timing, r_loop, tau_loop
+
+
+def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=None,
+               params: dict | None = None, mode: str | None = None,
+               predictor: str | None = None, tolerance: float | None = None,
+               pad: bool = False, r_true: float | None = None,
+               tau_true: float | None = None, name: str = "loop", title: str = "",
+               stop_time: float | None = None) -> Loop:
+    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.maths.model`).
+
+    Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
+    ``params`` are the model's parameters (an unknown name is refused).
+    """
+    from delaycomp.maths.model import load_model
+
+    model = load_model(model_path)
+    x0, u0, params, timing, r_loop, tau_loop = check_model_loop(
+        model, T, r, tau, N, x0, u0, params, pad, r_true, tau_true)
+    n, m = model.n, model.m
     path = Path(model_path)
     ctrl = {"T": T, "r": r, "tau": tau, "N": N, "pad": bool(pad), **vector_params("u0", u0),
             **vector_params("z0", x0 if z0 is None else z0), **params}

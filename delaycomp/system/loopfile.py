@@ -43,6 +43,8 @@ from __future__ import annotations
 import functools
 import math
 import re
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +61,7 @@ from delaycomp.system.loop import (
     Loop,
     LtiBatch,
     LtiPoint,
+    check_model_loop,
     check_zoh_delay,
     design_loop,
     lti_design,
@@ -171,6 +174,92 @@ def _flag(where: str, value) -> bool:
     if not isinstance(value, bool):
         raise ParameterError(f"{where} = {value!r} is not allowed: must be true or false")
     return value
+
+
+def _mode(where: str, value) -> str:
+    if value not in MODES:
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be "
+                             f"{' or '.join(MODES)}")
+    return value
+
+
+def _predictor(where: str, value) -> str:
+    if value not in PREDICTORS:
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be "
+                             f"{' or '.join(PREDICTORS)}")
+    return value
+
+
+#: the model predictors a loop file names (``[controller] predictor``)
+PREDICTORS = ("closed", "numerical")
+#: the allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
+#: ``tau`` under continuous input), as ``delaycomp list`` and the README say it
+ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
+#: ``tau`` under zero-order hold (Theorem 3.2); :data:`ZOH_TAU_PAD` where ``pad`` is offered
+ZOH_TAU = "a finite multiple l*T of T, l >= 0"
+ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
+
+
+@dataclass(frozen=True)
+class Key:
+    """A loop-file key whose value is checked on its own: ``check(where, value)`` returns
+    the value checked (or raises :class:`ParameterError` naming ``where``); ``allowed`` says
+    the range in words (the rules between keys, such as the base grid, are :func:`check`'s)."""
+
+    check: Callable[[str, Any], Any]
+    allowed: str
+
+
+def _nonneg(where: str, value) -> float:
+    return _real(where, value, nonneg=True)
+
+
+def _positive(where: str, value) -> float:
+    return _real(where, value, positive=True)
+
+
+def _vector(where: str, value) -> np.ndarray:
+    return _array(where, value, 1)
+
+
+def _matrix(where: str, value) -> np.ndarray:
+    return _array(where, value, 2)
+
+
+#: the keys checked on their own, each rule written once (what :func:`check_value` and the
+#: reader apply); a model's own parameters are checked against the model (:func:`check`)
+KEYS: dict[str, Key] = {
+    "T": Key(_positive, "a finite number > 0"),
+    "N": Key(_int, "a positive integer"),
+    **{name: Key(_nonneg, ON_BASE_GRID) for name in ("r", "tau", "r_true", "tau_true")},
+    "stop_time": Key(_positive, "a finite number > 0"),
+    "plant.A": Key(_matrix, "rows of finite numbers"),
+    "plant.B": Key(_matrix, "rows of finite numbers"),
+    "plant.x0": Key(_vector, "comma-separated finite numbers"),
+    "controller.K": Key(_matrix, "rows of finite numbers"),
+    "controller.u0": Key(_vector, "comma-separated finite numbers"),
+    "controller.mode": Key(_mode, " or ".join(MODES)),
+    "controller.predictor": Key(_predictor, " or ".join(PREDICTORS)),
+    "controller.pad": Key(_flag, "true or false"),
+    "controller.allow_unstable": Key(_flag, "true or false"),
+}
+
+
+def check_value(key: str, value, where: str | None = None) -> Any:
+    """``value`` of loop-file ``key`` (``"T"``, ``"plant.x0"``, ``"controller.mode"``)
+    checked on its own, as the reader checks it; a key not in :data:`KEYS` passes as it is.
+
+    Examples
+    --------
+    >>> check_value("N", 20.0), check_value("controller.mode", "uncompensated")
+    (20, 'uncompensated')
+    >>> check_value("T", 0)
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: T = 0.0 is not allowed: must be > 0
+    """
+    spec = KEYS.get(key)
+    return value if spec is None else spec.check(where or key, value)
 
 
 # -- the sign guard ------------------------------------------------------------------------
@@ -334,19 +423,15 @@ def _top(data: dict, where: str) -> dict:
     if "T" not in data:
         raise ParameterError(f"{where}: T (the sampling period) is required")
     ctrl = dict(data.get("controller") or {})
-    top = dict(plant=plant, ctrl=ctrl, T=_real("T", data["T"], positive=True),
-               N=_int("N", data.get("N", DEFAULT_N)),
-               r=_real("r", data.get("r", 0.0), nonneg=True),
-               tau=_real("tau", data.get("tau", 0.0), nonneg=True))
+    top = dict(plant=plant, ctrl=ctrl, T=check_value("T", data["T"]),
+               N=check_value("N", data.get("N", DEFAULT_N)),
+               r=check_value("r", data.get("r", 0.0)),
+               tau=check_value("tau", data.get("tau", 0.0)))
     for key in ("r_true", "tau_true"):
-        top[key] = None if data.get(key) is None else _real(key, data[key], nonneg=True)
-    top["stop"] = None if data.get("stop_time") is None else _real(
-        "stop_time", data["stop_time"], positive=True)
-    mode = ctrl.get("mode", "compensated")
-    if mode not in MODES:
-        raise ParameterError(f"controller.mode = {mode!r} is not allowed: must be "
-                             f"{' or '.join(MODES)}")
-    top["mode"] = mode
+        top[key] = None if data.get(key) is None else check_value(key, data[key])
+    top["stop"] = None if data.get("stop_time") is None else check_value(
+        "stop_time", data["stop_time"])
+    top["mode"] = check_value("controller.mode", ctrl.get("mode", "compensated"))
     if "fmu" not in plant:
         if ("A" in plant) == ("model" in plant):
             raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
@@ -453,14 +538,43 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     if "A" in plant:
         point, state, inp = _lti(top, where)
         return design_loop(point, state, inp, name=name, title=title, stop_time=stop)
-    x0 = _array("plant.x0", plant["x0"], 1)
+    model_path, _, args = _model_args(top, base, where)
+    return model_loop(model_path, T, r, tau, N, **args, **common)
+
+
+def model_value(model, key: str, value, where: str | None = None) -> Any:
+    """``value`` of a model's own parameter ``key`` (``[controller] law = "printed"``)
+    checked against the model (:mod:`delaycomp.maths.model`): a string among its choices,
+    or a finite number."""
+    where = where or f"controller.{key}"
+    if isinstance(model.parameters[key], str):
+        if not isinstance(value, str):
+            raise ParameterError(f"{where} = {value!r} is not allowed: must be a string")
+        choices = model.choices.get(key)
+        if choices and value not in choices:
+            raise ParameterError(f"{where} = {value!r} is not allowed: must be one of "
+                                 f"{', '.join(choices)}")
+        return value
+    return _real(where, value)
+
+
+def model_path(plant: dict, base: Path) -> Path:
+    """The model file of a ``[plant] model = "file.py"`` table (relative to ``base``)."""
+    path = Path(str(plant["model"]))
+    return path if path.is_absolute() else (base / path).resolve()
+
+
+def _model_args(top: dict, base: Path, where: str) -> tuple[Path, Any, dict]:
+    """The model file, the model and the :func:`~delaycomp.system.model_loop` arguments
+    (``x0``, ``u0``, ``params``, ``predictor``, ``tolerance``, ``pad``) of a model loop
+    file, its keys and values checked."""
+    plant, ctrl = top["plant"], top["ctrl"]
+    x0 = check_value("plant.x0", plant["x0"])
     _check_keys(f"{where} [plant]", plant, ("model", "x0", "tolerance"))
-    model_path = Path(str(plant["model"]))
-    if not model_path.is_absolute():
-        model_path = (base / model_path).resolve()
+    path = model_path(plant, base)
     from delaycomp.maths.model import load_model
 
-    model = load_model(model_path)
+    model = load_model(path)
     known = {"mode", "u0", "predictor", "pad", "tolerance", "allow_unstable"}
     params = {k: v for k, v in ctrl.items() if k not in known}
     for key, value in params.items():
@@ -468,29 +582,36 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
             allowed = ", ".join([*known, *model.parameters])
             raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
                                  f"{allowed}")
-        want = model.parameters[key]
-        if isinstance(want, str):
-            if not isinstance(value, str):
-                raise ParameterError(f"controller.{key} = {value!r} is not allowed: must be a "
-                                     "string")
-            choices = model.choices.get(key)
-            if choices and value not in choices:
-                raise ParameterError(f"controller.{key} = {value!r} is not allowed: must be "
-                                     f"one of {', '.join(choices)}")
-        else:
-            params[key] = _real(f"controller.{key}", value)
-    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(model.m)
+        params[key] = model_value(model, key, value)
+    u0 = check_value("controller.u0", ctrl["u0"]) if "u0" in ctrl else np.zeros(model.m)
     predictor = ctrl.get("predictor")
-    if predictor is not None and predictor not in ("closed", "numerical"):
-        raise ParameterError(f"controller.predictor = {predictor!r} is not allowed: must be "
-                             "closed or numerical")
-    if mode == "uncompensated":
+    if predictor is not None:
+        check_value("controller.predictor", predictor)
+    if top["mode"] == "uncompensated":
         predictor = "none"
     tol = ctrl.get("tolerance", plant.get("tolerance"))
     tol = None if tol is None else _real("tolerance", tol, positive=True)
-    pad = _flag("controller.pad", ctrl.get("pad", False))
-    return model_loop(model_path, T, r, tau, N, x0, u0, params=params, predictor=predictor,
-                      tolerance=tol, pad=pad, **common)
+    pad = check_value("controller.pad", ctrl.get("pad", False))
+    return path, model, dict(x0=x0, u0=u0, params=params, predictor=predictor,
+                             tolerance=tol, pad=pad)
+
+
+def check(data: dict, base: Path, where: str = "loop") -> None:
+    """Check a loop file's ``data`` as :func:`build` checks it, without building the loop's
+    instances: an LTI loop's design (:func:`design`), a model loop's keys, values, lengths,
+    grid and zero-order hold (:func:`~delaycomp.system.check_model_loop`). A loop around a
+    plant FMU is checked by building it."""
+    top = _top(data, where)
+    plant = top["plant"]
+    if "fmu" in plant:
+        build(data, base, where=where)
+    elif "A" in plant:
+        _lti(top, where)
+    else:
+        _, model, args = _model_args(top, base, where)
+        check_model_loop(model, top["T"], top["r"], top["tau"], top["N"], args["x0"],
+                         args["u0"], args["params"], args["pad"], top["r_true"],
+                         top["tau_true"])
 
 
 def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mode,
