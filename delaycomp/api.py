@@ -50,7 +50,7 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -269,7 +269,7 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
 
 
 def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
-          fmus: str = "auto"):
+          fmus: str = "auto", info: Callable[[str], None] | None = None):
     """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
     (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
     ``<name>_input_delay.fmu``) with the loop's values as their start values, and
@@ -288,6 +288,8 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     fmus : str
         As for :func:`run`: the native C FMUs where they exist (``auto``; the Python ones
         with a note in ``.notes`` otherwise), only native ones, or the Python ones.
+    info : callable, optional
+        Hears what is being built, one line at a time (the command line's ``-v``).
 
     Returns
     -------
@@ -306,7 +308,7 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     """
     from delaycomp.formats.loopbuild import build_loop
 
-    return build_loop(loop, out, only=only, fmus=fmus)
+    return build_loop(loop, out, only=only, fmus=fmus, info=info)
 
 
 def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:

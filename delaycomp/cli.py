@@ -406,8 +406,7 @@ def _loop(args):
 
 def _cmd_build_loop(args) -> int:
     """``build LOOP.toml``: the loop's FMUs with its values as start values, and its
-    wiring sheet (:func:`delaycomp.formats.loopbuild.build_loop`)."""
-    from delaycomp.formats.loopbuild import build_loop
+    wiring sheet (:func:`delaycomp.api.build`)."""
     from delaycomp.progress import info
 
     if args.model is not None:
@@ -418,10 +417,12 @@ def _cmd_build_loop(args) -> int:
                          "SSP archive (its FMUs are inside it)")
     _, _, loop = _loop(argparse.Namespace(scenario=args.loop, set=args.set,
                                           allow_unstable=args.allow_unstable))
+    from delaycomp.api import build  # the arguments and the loop are checked
+
     kind = "python" if args.python else "native" if args.native else "auto"
-    built = build_loop(loop, args.out if args.out is not None else Path.cwd(),
-                       only=args.only or None, fmus=kind,
-                       info=lambda text: info(text, args.verbosity))
+    built = build(loop, args.out if args.out is not None else Path.cwd(),
+                  only=args.only or None, fmus=kind,
+                  info=lambda text: info(text, args.verbosity))
     for path in built.paths:
         print(path)
     return 0
@@ -885,13 +886,15 @@ def _cmd_export_loop(args) -> int:
 
 
 def _cmd_export_c(args) -> int:
-    from delaycomp.formats.exportc import check_prefix, export_c
+    from delaycomp.formats.exportc import check_prefix
 
     check_prefix(args.prefix)  # before the loop: the cheaper refusal first
     if str(args.scenario).endswith(".ssp"):
         raise UsageError(f"{args.scenario}: export-c takes a loop file or a scenario name, "
                          "not an SSP archive")
     _, _, loop = _loop(args)
+    from delaycomp.api import export_c
+
     for path in export_c(loop, args.out, args.prefix):
         print(path)
     return 0
