@@ -28,6 +28,7 @@ refused at setup.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -386,13 +387,34 @@ class Master:
                 put(gather(slots))
         except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             self._fail(exc, k)
+        if not math.isfinite(sum(slots)):  # NaN or inf among the outputs (one sum a tick)
+            self._refuse_nonfinite(k)
         if not record or not self._observers:
             return
         t = self.time_of(k)
         for rec in self._observers:
             rec(k, t, slots)
 
+    def _nonfinite(self) -> tuple[str, str, float] | None:
+        """The first output that is NaN or infinite: ``(instance, variable, value)``."""
+        slots = self._slots
+        for (inst, var), s in self._slot_of.items():
+            if not math.isfinite(slots[s]):
+                return inst, var, slots[s]
+        return None
+
+    def _refuse_nonfinite(self, k: int) -> None:
+        """Stop the run where an output is NaN or infinite (a plant FMU that broke down,
+        at any tick, the last included), naming it and the time; a sum that overflowed
+        over finite outputs passes."""
+        bad = self._nonfinite()
+        if bad is not None:
+            inst, var, value = bad
+            raise SimulationError(f"{inst} failed at t = {self.time_of(k):.12g}: its output "
+                                  f"{var} = {value!r} is not allowed: must be finite")
+
     def _fail(self, exc: Exception, k: int):
+        self._refuse_nonfinite(k)  # a component refusing a NaN input: blame the source
         culprit = next((c for c in self.components.values()
                         if getattr(c, "last_message", None)), None)
         name = culprit.name if culprit else "a component"

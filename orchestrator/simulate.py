@@ -43,6 +43,26 @@ class Result:
         """Rows recorded in the run (more than :attr:`times` holds if the run streamed)."""
         return len(self.times) if self.rows is None else self.rows
 
+    def checked_finite(self, who: str) -> Result:
+        """This result, or where a recorded value is NaN or infinite, a failed one that
+        keeps the rows before it and names the signal and the time (a master we drive
+        that ran on through a plant's breakdown: ``who`` names it).
+
+        Examples
+        --------
+        >>> res = Result(["plant.x"], np.array([0.0, 1.0]), np.array([[1.0], [np.nan]]))
+        >>> bad = res.checked_finite("ecos")
+        >>> bad.success, bad.message, len(bad.times)
+        (False, 'ecos: plant.x = nan at t = 1 is not allowed: must be finite', 1)
+        """
+        if not self.success or self.data.size == 0 or np.all(np.isfinite(self.data)):
+            return self
+        k, j = (int(i[0]) for i in np.nonzero(~np.isfinite(self.data)))
+        message = (f"{who}: {self.names[j]} = {float(self.data[k, j])!r} at "
+                   f"t = {float(self.times[k]):.12g} is not allowed: must be finite")
+        return Result(self.names, self.times[:k], self.data[:k], False, message,
+                      list(self.notes))
+
     def column(self, name: str) -> np.ndarray:
         """The signal ``name`` as an array over :attr:`times` (a view of :attr:`data`)."""
         return self.data[:, self.names.index(name)]

@@ -190,7 +190,12 @@ def simulate_loop(path: Path, spec: Loop, stop_time: float):
     res = simulate_kept(path, stop_time=stop_time, output_interval=spec.T,
                         output=list(names))
     data = np.column_stack([np.asarray(res[n], dtype=float) for n in names])
-    return list(names.values()), np.asarray(res["time"], dtype=float), data
+    times = np.asarray(res["time"], dtype=float)
+    if not np.all(np.isfinite(data)):  # fmpy runs on through a plant's breakdown
+        k, j = (int(i[0]) for i in np.nonzero(~np.isfinite(data)))
+        raise ContainerError(f"{list(names.values())[j]} = {float(data[k, j])!r} at "
+                             f"t = {float(times[k]):.12g} is not allowed: must be finite")
+    return list(names.values()), times, data
 
 
 def run_container_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:

@@ -120,7 +120,7 @@ def run_ssp(ssp_path: str | Path, stop_time: float, timeout: float = 900.0) -> R
             return Result([], np.zeros(0), np.zeros((0, 0)), False, f"omsimulator: {reason}")
         with np.load(out) as z:
             return Result(json.loads(str(z["names"])), z["times"], z["data"],
-                          bool(z["success"]), str(z["message"]))
+                          bool(z["success"]), str(z["message"])).checked_finite("omsimulator")
 
 
 def _logged_error(log: Path) -> str:

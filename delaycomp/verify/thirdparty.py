@@ -91,7 +91,7 @@ def run_ssp(master: str, ssp_path: str | Path, stop_time: float,
         with np.load(out) as z:
             names = json.loads(str(z["names"]))
             return Result(names, z["times"], z["data"], bool(z["success"]),
-                          str(z["message"]))
+                          str(z["message"])).checked_finite(master)
 
 
 def _run_libcosim(ssp_path: Path, spec: Loop, ticks: int) -> tuple[np.ndarray, str]:

@@ -21,8 +21,11 @@ class CompilerMissing(RuntimeError):
     """No C compiler on PATH (the tests that need this FMU fail with this message)."""
 
 
-def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu") -> Path:
-    """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path."""
+def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
+                     broken_after: float | None = None) -> Path:
+    """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path.
+    ``broken_after``: a plant that breaks down, its ``position`` NaN from that time on
+    (its state and every FMI status as before: only its output is broken)."""
     import fmpy
 
     if not sys.platform.startswith("linux"):
@@ -37,6 +40,7 @@ def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu") -> Path:
     lib = work / "binaries" / "linux64" / f"{MODEL}.so"
     proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
                            "-fPIC", f"-I{headers}", "-o", str(lib),
+                           *([] if broken_after is None else [f"-DBROKEN_AFTER={broken_after!r}"]),
                            str(HERE / "oscillator.c"), "-lm"], capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")
