@@ -284,7 +284,8 @@ class Scenario:
         items = list(assignments.items()) if isinstance(assignments, dict) else list(
             assignments or [])
         values = self._values({p.name: p.default for p in self.params}, items)
-        lf.check(self.data(values), self.file.base, where=self.file.path.name)
+        lf.check(self.data(values), self.file.base, where=self.file.path.name,
+                 model=self.model)
         return values
 
     def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> Grid | None:
@@ -311,7 +312,8 @@ class Scenario:
                 out.designs = self.designs(out)
             if out.designs is None:
                 for values in out:
-                    lf.check(self.data(values), self.file.base, where=self.file.path.name)
+                    lf.check(self.data(values), self.file.base,
+                             where=self.file.path.name, model=self.model)
             return out
         except ParameterError:
             return None

@@ -564,17 +564,17 @@ def model_path(plant: dict, base: Path) -> Path:
     return path if path.is_absolute() else (base / path).resolve()
 
 
-def _model_args(top: dict, base: Path, where: str) -> tuple[Path, Any, dict]:
+def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, Any, dict]:
     """The model file, the model and the :func:`~delaycomp.system.model_loop` arguments
     (``x0``, ``u0``, ``params``, ``predictor``, ``tolerance``, ``pad``) of a model loop
-    file, its keys and values checked."""
+    file, its keys and values checked (``model``: the file's model, already loaded)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = check_value("plant.x0", plant["x0"])
     _check_keys(f"{where} [plant]", plant, ("model", "x0", "tolerance"))
     path = model_path(plant, base)
     from delaycomp.maths.model import load_model
 
-    model = load_model(path)
+    model = model if model is not None else load_model(path)
     known = {"mode", "u0", "predictor", "pad", "tolerance", "allow_unstable"}
     params = {k: v for k, v in ctrl.items() if k not in known}
     for key, value in params.items():
@@ -596,11 +596,12 @@ def _model_args(top: dict, base: Path, where: str) -> tuple[Path, Any, dict]:
                              tolerance=tol, pad=pad)
 
 
-def check(data: dict, base: Path, where: str = "loop") -> None:
+def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
     """Check a loop file's ``data`` as :func:`build` checks it, without building the loop's
     instances: an LTI loop's design (:func:`design`), a model loop's keys, values, lengths,
     grid and zero-order hold (:func:`~delaycomp.system.check_model_loop`). A loop around a
-    plant FMU is checked by building it."""
+    plant FMU is checked by building it. ``model``: the model of ``[plant] model``, where
+    the caller has it loaded (a grid checks many points of one model)."""
     top = _top(data, where)
     plant = top["plant"]
     if "fmu" in plant:
@@ -608,7 +609,7 @@ def check(data: dict, base: Path, where: str = "loop") -> None:
     elif "A" in plant:
         _lti(top, where)
     else:
-        _, model, args = _model_args(top, base, where)
+        _, model, args = _model_args(top, base, where, model)
         check_model_loop(model, top["T"], top["r"], top["tau"], top["N"], args["x0"],
                          args["u0"], args["params"], args["pad"], top["r_true"],
                          top["tau_true"])
