@@ -67,8 +67,7 @@ def per_point_rows(name: str, point_sets: list[list[str]], stop: float) -> tuple
             p = sc.resolve(sets)
             spec = sc.make(p)
             dt, res = timed(lambda spec=spec: run_loop(spec, stop, engine="inprocess"))
-            n = sum(1 for port in spec.recorded if port.instance == "plant")
-            rows.append(sweep.metrics_of(res.times, res.data[:, :n], p["N"], res.success))
+            rows.append(sweep.result_metrics(spec, res))
             times.append(dt)
     return statistics.median(times), rows
 

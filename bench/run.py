@@ -451,7 +451,8 @@ def report_export(rows) -> list[str]:
          f"`bench/export_timing.c` for {ticks:,} base steps: episodes of 20 periods from "
          "the controller's start, along the measurements of a closed-loop run of the loop's "
          "native FMUs (`delaycomp.formats.exportc.closed_loop_io`); each step (`NAME_sample` "
-         "and `NAME_output` at a sample instant, `NAME_output` between) timed with the monotonic clock. The maximum is "
+         "and `NAME_output` at a sample instant, `NAME_output` between) timed with the "
+         "monotonic clock. The maximum is "
          "reported, not gated on: this machine is shared, and a step that the scheduler "
          "interrupts shows here. The last column is the bound on a step's work (issue 33, "
          "item 1): what a target's worst case is made of.", "",

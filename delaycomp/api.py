@@ -383,9 +383,12 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
           stop_time: float | None = None, engine: str = "batch", workers: int = 1,
           exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
           scheduler: str | None = None, notes: list[str] | None = None) -> list[dict]:
-    """Metrics (``rho``, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time``) of
-    ``source`` at every point of ``grid`` (parameter name -> values), one dict per point
-    in grid order (the last parameter varies fastest).
+    """Metrics (``rho``, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time``,
+    ``failed``) of ``source`` at every point of ``grid`` (parameter name -> values), one
+    dict per point in grid order (the last parameter varies fastest). ``failed`` is empty
+    where the run reached its stop time, else why not; where that is not the loop's own
+    divergence (which is unstable, ``rho = inf``) ``rho`` and ``stable`` are ``None``
+    (:mod:`delaycomp.studies.sweep`).
 
     ``source`` is a scenario name or a loop file's path; grid and ``sets`` names are its
     keys (``r``, ``T``, ``controller.K``, ...). ``engine`` is ``batch`` (all points

@@ -797,9 +797,15 @@ def _cmd_sweep(args) -> int:
                                [a.values for a in axes])
         sweep.plot_sweep(rows, axes, args.plot, loop_title(source.name, source.title, fixed),
                          curve)
-    stable = sum(r["stable"] for r in rows)
+    stable = sum(1 for r in rows if r["stable"] == 1)
+    failed = [r for r in rows if r["failed"] and r["stable"] is None]
     print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
-          f"{stable} stable; wrote {args.out}")
+          f"{stable} stable" + (f", {len(failed)} failed" if failed else "")
+          + f"; wrote {args.out}")
+    if failed:  # neither stable nor unstable: the run broke down (the column says why)
+        print(f"delaycomp: error: {len(failed)} of {len(rows)} points failed (column "
+              f"failed of {args.out}); the first: {failed[0]['failed']}", file=sys.stderr)
+        return 1
     return 0
 
 

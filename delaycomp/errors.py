@@ -10,6 +10,33 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: The word with which delaycomp's own components (the Python and native FMUs, the batch
+#: engine) say that a refusal was caused by the loop itself diverging: a state, prediction
+#: or control that overflowed from finite values (``... must be finite (the plant
+#: diverged: overflow)``). A sweep counts such a point unstable (``rho = inf``); any other
+#: failure (a plant FMU file whose output turned NaN, a refused call) is marked failed,
+#: neither stable nor unstable. See :func:`is_divergence`.
+DIVERGED = "diverged"
+
+
+def is_divergence(reason: str, ours: bool = True) -> bool:
+    """Whether a failure's ``reason`` is the loop's own divergence, as reported by one of
+    delaycomp's own components (``ours``; another tool's FMU may use the same word for
+    anything).
+
+    Examples
+    --------
+    >>> is_divergence("plant failed at t = 2: state ['x'] = [inf] at t = 2.0 is not "
+    ...               "allowed: must be finite (the plant diverged: overflow)")
+    True
+    >>> is_divergence("plant failed at t = 2: its output x = nan is not allowed: must be "
+    ...               "finite")
+    False
+    >>> is_divergence("plant failed at t = 2: the model diverged", ours=False)
+    False
+    """
+    return ours and DIVERGED in reason
+
 
 class DelaycompError(Exception):
     """Base of the errors delaycomp raises for bad input or a failed run (the CLI prints

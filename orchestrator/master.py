@@ -65,7 +65,14 @@ def feedthrough_order(feed: set[str], edges: Iterable[tuple[str, str]]) -> list[
 
 
 class SimulationError(DelaycompError, RuntimeError):
-    """A component failed; the message names it, the time and the reason."""
+    """A component failed; the message names it, the time and the reason.
+
+    ``instance`` is the failing component's name (``None`` where no one component is to
+    blame, as when several fail to terminate)."""
+
+    def __init__(self, message: str, instance: str | None = None):
+        super().__init__(message)
+        self.instance = instance
 
 
 class Component(Protocol):
@@ -367,8 +374,8 @@ class Master:
             raise
         except Exception as exc:
             reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
-            raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}"
-                                  ) from exc
+            raise SimulationError(f"{comp.name} failed at t = {self.time_of(k):.12g}: {reason}",
+                                  comp.name) from exc
 
     def _propagate(self, record: bool = True) -> None:
         """Bring every output and input to the values of the current tick."""
@@ -411,7 +418,7 @@ class Master:
         if bad is not None:
             inst, var, value = bad
             raise SimulationError(f"{inst} failed at t = {self.time_of(k):.12g}: its output "
-                                  f"{var} = {value!r} is not allowed: must be finite")
+                                  f"{var} = {value!r} is not allowed: must be finite", inst)
 
     def _fail(self, exc: Exception, k: int):
         self._refuse_nonfinite(k)  # a component refusing a NaN input: blame the source
@@ -419,7 +426,8 @@ class Master:
                         if getattr(c, "last_message", None)), None)
         name = culprit.name if culprit else "a component"
         reason = getattr(culprit, "last_message", None) or str(exc)
-        raise SimulationError(f"{name} failed at t = {self.time_of(k):.12g}: {reason}") from exc
+        raise SimulationError(f"{name} failed at t = {self.time_of(k):.12g}: {reason}",
+                              culprit.name if culprit else None) from exc
 
     def step(self) -> None:
         """Advance every component from ``t_k`` to ``t_{k+1}``; then propagate."""
@@ -435,7 +443,8 @@ class Master:
         except Exception as exc:
             assert comp is not None  # the loop raised: it ran
             reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
-            raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}") from exc
+            raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}",
+                                  comp.name) from exc
         self.k = k + 1
         self._propagate()
 

@@ -37,6 +37,8 @@ class Result:
     notes: list[str] = field(default_factory=list)
     #: rows recorded (streamed to a sink, or kept here); ``None``: ``len(times)``
     rows: int | None = None
+    #: the instance that failed the run (``None`` where it completed or no one is to blame)
+    failed_by: str | None = None
 
     @property
     def row_count(self) -> int:
@@ -61,7 +63,7 @@ class Result:
         message = (f"{who}: {self.names[j]} = {float(self.data[k, j])!r} at "
                    f"t = {float(self.times[k]):.12g} is not allowed: must be finite")
         return Result(self.names, self.times[:k], self.data[:k], False, message,
-                      list(self.notes))
+                      list(self.notes), failed_by=self.names[j].split(".", 1)[0])
 
     def column(self, name: str) -> np.ndarray:
         """The signal ``name`` as an array over :attr:`times` (a view of :attr:`data`)."""
@@ -232,7 +234,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                                    fp_guarded=guard, fmus=fmus, sink=sink, keep=keep,
                                    final=ticks)
     components = list(master.components.values())
-    success, message = True, ""
+    success, message, culprit = True, "", None
     with contextlib.ExitStack() as stack:
         # BLAS on one thread where Python maths runs in this process (the in-process
         # slaves, pythonfmu FMUs); a loop of native FMUs does not pay for threadpoolctl
@@ -247,14 +249,14 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
             else:
                 _run_until(master, ticks, progress)
         except SimulationError as exc:
-            success, message = False, str(exc)
+            success, message, culprit = False, str(exc), exc.instance
         finally:
             master.terminate()
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
     notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
              for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
-                  recorder.count)
+                  recorder.count, culprit)
 
 
 def _run_until(master: Master, ticks: int, progress) -> None:

@@ -75,7 +75,7 @@ def per_point(sc, p: dict, stop: float):
     loop = sc.make(p)
     res = run_loop(loop, stop, engine="inprocess")
     n = sum(1 for port in loop.recorded if port.instance == "plant")
-    return res, sweep.metrics_of(res.times, res.data[:, :n], p["N"], res.success), n
+    return res, sweep.result_metrics(loop, res), n
 
 
 # -- LTI: trajectories and metrics ---------------------------------------------------------
@@ -185,8 +185,10 @@ def test_failures_end_the_record_as_the_per_point_engine_does():
         s = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
                             engine="inprocess")
     assert all(math.isinf(row["rho"]) for row in s)
+    # the loop diverged: unstable, with the reason (in each engine's words)
+    assert all(row["stable"] == 0 and "diverged" in row["failed"] for row in b + s)
     for x, y in zip(b, s):
-        assert x == y
+        assert {**x, "failed": ""} == {**y, "failed": ""}
 
 
 def test_finite_time_escape_of_the_printed_law():
@@ -298,7 +300,7 @@ def test_cli_sweep_defaults_to_batch_and_says_so(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "batch engine (numpy, cpu): 9 of 9 points in 1 chunk" in proc.stdout
     assert out.read_text().splitlines()[0] == "k,r,rho,stable,final_norm,peak_norm," \
-                                              "deadbeat_time"
+                                              "deadbeat_time,failed"
 
 
 def test_cli_array_backend_without_its_library_is_a_usage_error(tmp_path):

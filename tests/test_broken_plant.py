@@ -142,3 +142,119 @@ def test_run_fails_on_a_plant_fmu_that_breaks_down(tmp_path, broken_after):
     assert proc.returncode == 0, proc.stderr
     proc = _cli("run", "loop.ssp", cwd=tmp_path)
     assert proc.returncode == 1 and "its output position = nan" in proc.stderr, proc.stderr
+
+
+# -- sweeps: a broken plant's point is failed, never "unstable" ----------------------------
+
+def _sweep_rows(path: Path) -> list[dict]:
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("broken_after", [1.0, 2.0])  # 2.0: the stop time, the last row
+def test_a_sweep_marks_a_broken_plant_failed_not_unstable(tmp_path, broken_after):
+    """Before the fix each point read ``stable = 0``, ``rho = inf`` and the command exited 0."""
+    from tests.cfmu.build import build_oscillator
+
+    build_oscillator(tmp_path, "Broken.fmu", broken_after=broken_after)
+    (tmp_path / "loop.toml").write_text(LOOP, encoding="utf-8")
+    proc = _cli("sweep", "loop.toml", "--grid", "r=0.2:0.3:2", "--workers", "1",
+                "--out", "map.csv", cwd=tmp_path)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert ", 0 stable, 2 failed; wrote map.csv" in proc.stdout
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("delaycomp: error: 2 of 2 points failed (column failed of map.csv)")
+    rows = _sweep_rows(tmp_path / "map.csv")
+    assert [r["r"] for r in rows] == ["0.2", "0.3"]
+    for row in rows:
+        assert row["rho"] == "" and row["stable"] == "" and row["deadbeat_time"] == ""
+        assert row["failed"].startswith(f"plant failed at t = {broken_after:g}: its output "
+                                        "position = nan is not allowed: must be finite")
+        assert math.isfinite(float(row["peak_norm"]))  # the metrics of the rows before it
+
+
+@pytest.mark.fmu
+def test_a_sweep_of_a_healthy_plant_fmu_has_no_failures(tmp_path):
+    """The same loop with the plant intact: every point completes, ``failed`` is empty."""
+    from tests.cfmu.build import build_oscillator
+
+    build_oscillator(tmp_path, "Broken.fmu")
+    (tmp_path / "loop.toml").write_text(LOOP, encoding="utf-8")
+    proc = _cli("sweep", "loop.toml", "--grid", "r=0.2:0.3:2", "--workers", "1",
+                "--out", "map.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert " failed" not in proc.stdout
+    rows = _sweep_rows(tmp_path / "map.csv")
+    assert all(r["failed"] == "" and r["stable"] in ("0", "1") and r["rho"] for r in rows)
+
+
+@pytest.mark.parametrize("engine", ["batch", "inprocess"])
+def test_a_sweep_calls_a_diverging_loop_unstable_with_its_reason(tmp_path, engine):
+    """Our own plant refuses a state that overflowed (the loop diverged): unstable,
+    ``rho = inf``, the reason in ``failed``, exit 0 (a result, not a failure)."""
+    proc = _cli("sweep", "example-3.6", "--set", "mode=uncompensated", "--grid",
+                "k=1e150:1e300:2", "--stop-time", "5", "--engine", engine, "--workers", "1",
+                "--out", "map.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert ", 0 stable; wrote map.csv" in proc.stdout
+    for row in _sweep_rows(tmp_path / "map.csv"):
+        assert row["rho"] == "inf" and row["stable"] == "0"
+        assert "is not finite" in row["failed"] or "must be finite" in row["failed"]
+        assert "diverged" in row["failed"]
+
+
+MODEL = '''
+import math
+import numpy as np
+STATES = ("x",)
+INPUTS = ("u",)
+CONTROL = "zoh"
+PARAMETERS = {}
+
+def f(x, u, p):
+    return np.array([x[0] + u[0]])
+
+def step(x, u, h, p):
+    if x[0] < 0.5:
+        math.sqrt(-1.0)  # a bug in the model's own code: ValueError, math domain error
+    e = math.exp(h)
+    return np.array([e * x[0] + (e - 1.0) * u[0]])
+
+def k(x, p):
+    return np.array([-2.0 * x[0]])
+'''
+
+MODEL_LOOP = """
+T = 0.5
+N = 5
+r = 0.1
+tau = 0.0
+stop_time = 5.0
+[plant]
+model = "buggy.py"
+x0 = [1.0]
+[controller]
+predictor = "numerical"
+"""
+
+
+def test_an_exception_in_a_models_step_is_a_failure_not_a_divergence(tmp_path):
+    """A ValueError raised by a model's own ``step`` was reported as "the plant diverged"
+    (and a sweep called the point unstable); it is a failure of the model, named."""
+    from delaycomp import api
+
+    (tmp_path / "buggy.py").write_text(MODEL, encoding="utf-8")
+    (tmp_path / "loop.toml").write_text(MODEL_LOOP, encoding="utf-8")
+    from delaycomp.errors import SimulationFailed
+
+    with pytest.raises(SimulationFailed) as info:
+        api.run(api.load(tmp_path / "loop.toml"), engine="inprocess")
+    message = str(info.value)
+    assert "the model's step raised ValueError: math domain error" in message
+    assert "diverged" not in message
+    rows = api.sweep(tmp_path / "loop.toml", {"r": [0.1, 0.2]}, engine="inprocess")
+    assert all(row["stable"] is None and row["rho"] is None for row in rows)
+    assert all("math domain error" in row["failed"] for row in rows)

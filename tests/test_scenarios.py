@@ -10,8 +10,8 @@ import pytest
 from delaycomp.errors import ParameterError
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.paper import scenarios
-from delaycomp.system import loopfile
 from delaycomp.paper.models import corollary_4_1, unicycle
+from delaycomp.system import loopfile
 from delaycomp.verify.check import CASES
 
 from .conftest import REPO

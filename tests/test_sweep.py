@@ -56,8 +56,20 @@ def test_metrics_deadbeat_and_failure():
     x = np.where(t < 3.0, 1.0, 1e-14)[:, None]
     m = sweep.metrics_of(t, x, 10, True)
     assert m["deadbeat_time"] == pytest.approx(3.0) and m["stable"] == 1
-    m = sweep.metrics_of(t, np.ones((101, 1)), 10, False)
+    assert m["failed"] == ""
+    # the loop diverged (one of our components said so): unstable, with its reason
+    m = sweep.metrics_of(t, np.ones((101, 1)), 10, False, "plant diverged", diverged=True)
     assert m["rho"] == math.inf and m["stable"] == 0 and m["deadbeat_time"] is None
+    assert m["failed"] == "plant diverged"
+    # any other failure: neither stable nor unstable
+    m = sweep.metrics_of(t, np.ones((101, 1)), 10, False, "plant: x = nan\nat t = 1")
+    assert m["rho"] is None and m["stable"] is None and m["failed"] == "plant: x = nan at t = 1"
+    # a trajectory that turned NaN in a run that reported success (a master that ran on)
+    x = np.ones((101, 1))
+    x[57:] = np.nan
+    m = sweep.metrics_of(t, x, 10, True)
+    assert m["stable"] is None and m["failed"] == "the plant state is not finite at t = 5.7"
+    assert m["peak_norm"] == 1.0 and math.isnan(m["final_norm"])
 
 
 @pytest.mark.fmu
@@ -133,8 +145,9 @@ def test_sweep_cli_exact_heat_map(tmp_path):
     with open(out, newline="") as fh:
         rows = list(csv.reader(fh))
     assert rows[0] == ["r_true", "r", "rho", "stable", "final_norm", "peak_norm",
-                       "deadbeat_time"]
+                       "deadbeat_time", "failed"]
     assert len(rows) == 1 + 49
+    assert all(row[-1] == "" for row in rows[1:])  # --exact: nothing runs, nothing fails
     diag = [row for row in rows[1:] if row[0] == row[1]]
     assert all(float(row[2]) == pytest.approx(math.e - 2, rel=1e-9) for row in diag)
     assert png.read_bytes()[:4] == b"\x89PNG"

@@ -49,6 +49,11 @@ def padded_delay(tau: float, T: float) -> float:
     return tau if rest == 0.0 else (q + 1) * T
 
 
+class StateNotFinite(ValueError):
+    """A plant step from a finite state and input ended in a state that is not finite
+    (the loop diverged: overflow, or a finite-time escape)."""
+
+
 class ModelPlant:
     """The plant ``x' = f(x, u)`` stepped over held inputs: exact step, else ODE solve."""
 
@@ -65,7 +70,8 @@ class ModelPlant:
         else:
             x = integrate(self.model.f, self.p, self.x, [(h, u)], self.tol, self.tol)
         if not np.isfinite(x).all():
-            raise ValueError(f"the state is not finite after the step (input {u.tolist()})")
+            raise StateNotFinite(f"the state is not finite after the step (input "
+                                 f"{u.tolist()})")
         self.x = x
         return x
 

@@ -42,7 +42,8 @@ metrics; the failures; the record) from its stepping (``_LtiStepper``,
 
 Failures follow the per-point engine: a control that is not finite (from a finite
 measurement) refuses the tick (not recorded), a plant state that is not finite after a
-step ends the run after the last recorded tick; the point then has ``rho = inf``.
+step ends the run after the last recorded tick; the point then has ``rho = inf`` (the loop
+diverged: every failure of this engine says so, as the per-point engine's components do).
 
 Metrics (the sweep's, :mod:`delaycomp.studies.sweep`): ``rho`` from a least-squares line through
 the logarithm of the per-period root-sum-square of ``|x|`` after the first fifth of the
@@ -59,7 +60,7 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from delaycomp.errors import DelaycompError
+from delaycomp.errors import DelaycompError, is_divergence
 from delaycomp.maths.grid import on_grid_array
 from delaycomp.maths.grid import periods as zoh_periods
 from delaycomp.maths.lti import MODES, LTIPredictor, discretize
@@ -177,16 +178,25 @@ class BatchResult:
     inputs: np.ndarray | None = None
 
     def rows(self) -> list[dict]:
-        """One dict per point with the sweep's metric columns (``None`` for never)."""
+        """One dict per point with the sweep's metric columns (``None`` for never;
+        ``failed`` the message of a point that did not reach its stop time: every failure
+        of this engine is the loop's own divergence, :func:`delaycomp.errors.is_divergence`)."""
         deadbeat = [None if math.isnan(d) else d for d in np.asarray(
             self.deadbeat_time, dtype=float).tolist()]
         # tolist() gives Python floats and ints at once (a float() per value is 10x slower)
-        return [{"rho": a, "stable": b, "final_norm": c, "peak_norm": d, "deadbeat_time": e}
+        rows = [{"rho": a, "stable": b, "final_norm": c, "peak_norm": d, "deadbeat_time": e,
+                 "failed": ""}
                 for a, b, c, d, e in zip(np.asarray(self.rho, dtype=float).tolist(),
                                          np.asarray(self.stable).astype(int).tolist(),
                                          np.asarray(self.final_norm, dtype=float).tolist(),
                                          np.asarray(self.peak_norm, dtype=float).tolist(),
                                          deadbeat)]
+        for p in np.flatnonzero(~np.asarray(self.success, dtype=bool)).tolist():
+            why = self.message[p] if p < len(self.message) else ""
+            rows[p]["failed"] = why or "the run failed"
+            if not is_divergence(why):  # not ours to call unstable
+                rows[p]["rho"] = rows[p]["stable"] = None
+        return rows
 
     def without_trajectories(self) -> BatchResult:
         """The metrics alone (what a worker sends back: arrays pickle fast, dicts do not)."""
@@ -568,7 +578,7 @@ def _lti_group(be: Backend, d: LtiBatch, N: int, stop: float, record: bool) -> B
             bad = run.sample(i)
             if bool(run.xp.any(bad)):
                 acc.cut(be.to_numpy(bad), i * N, "the control is not finite (the feedback "
-                        "overflowed)", plan.T, plan.h)
+                        "diverged: overflow)", plan.T, plan.h)
             run.hold(i)
             rows = run.advance(i)
             acc.block(run.xb[i % run.nb, :rows], i * N, plan.T, plan.h)
@@ -1062,7 +1072,7 @@ def _model_group(model, params: dict, pts: ModelBatch, N: int, stop: float, pad:
                 break
             bad = run.step()
             if bad.any():
-                fail(bad, norm, "the plant state is not finite", k + 1)
+                fail(bad, norm, "the plant state is not finite (the plant diverged)", k + 1)
             norm_prev = norm
     res = _finish(metrics, get_backend("numpy"), failures.failed, failures.norm,
                   failures.peak, plan.T, plan.h, N, failures.messages)

@@ -8,12 +8,20 @@ LTI scenarios). Per point the sweep reports
   ``e_j`` the root-sum-square of ``|x|`` over period ``j`` (which averages out the phase of
   oscillating modes), ``rho = exp(slope)`` of a least-squares line through ``log e_j``
   after the first fifth of the periods (0 if the state is exactly zero there, ``inf`` if
-  the run failed); on Example 3.6 over 20 periods it is within 0.017 of the exact value.
-  With ``exact`` it is the spectral radius of the lifted closed loop
+  the loop diverged); on Example 3.6 over 20 periods it is within 0.017 of the exact
+  value. With ``exact`` it is the spectral radius of the lifted closed loop
   (:func:`delaycomp.maths.lti.lifted_loop`);
 - ``stable``: 1 if ``rho < 1``, else 0;
-- ``final_norm``, ``peak_norm``: ``|x|`` at the end and its largest value;
-- ``deadbeat_time``: the time from which ``|x| < 1e-9`` holds to the end (empty if never).
+- ``final_norm``, ``peak_norm``: ``|x|`` at the end (of what was recorded) and its largest
+  value;
+- ``deadbeat_time``: the time from which ``|x| < 1e-9`` holds to the end (empty if never);
+- ``failed``: empty where the run reached its stop time, else why it did not (the failing
+  component, the time and its reason; the wording depends on the engine). A run that
+  ends because the loop itself diverged (one of delaycomp's own components found its
+  state, prediction or control overflowing: :func:`delaycomp.errors.is_divergence`) is
+  unstable: ``rho = inf``, ``stable = 0``. Any other failure (a plant FMU file whose
+  output turned NaN or infinite, a refused call, an exception in a model) says nothing
+  about stability: ``rho`` and ``stable`` are empty (``None``), never "unstable".
 
 Points run one after another, on local worker processes, or on a Dask cluster; every
 point is computed by the same deterministic function, so the results do not depend on how
@@ -37,7 +45,7 @@ from typing import cast
 
 import numpy as np
 
-from delaycomp.errors import ParameterError
+from delaycomp.errors import ParameterError, is_divergence
 from delaycomp.paper.scenarios import open_source
 from delaycomp.studies.axes import Axis, base_loop, format_value, points
 from delaycomp.studies.pool import Progress, on_dask, on_processes
@@ -45,7 +53,7 @@ from delaycomp.system import FmuFile, LtiBatch, Timing
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
-METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time")
+METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time", "failed")
 
 
 @dataclass(frozen=True)
@@ -61,10 +69,23 @@ class Job:
     exact: bool
 
 
-def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool) -> dict:
-    """The sweep's metrics for a recorded trajectory (``states``: one row per base step)."""
+def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool = True,
+               reason: str = "", diverged: bool = False) -> dict:
+    """The sweep's metrics for a recorded trajectory (``states``: one row per base step).
+
+    ``success`` False: the run stopped early for ``reason``; ``diverged``: because the
+    loop diverged (``rho = inf``, unstable), else ``rho`` and ``stable`` are ``None``.
+
+    Examples
+    --------
+    >>> t = np.arange(11) * 0.1
+    >>> m = metrics_of(t, np.ones((11, 1)), 2, False, "plant failed at t = 1: ...")
+    >>> m["rho"], m["stable"], m["failed"]
+    (None, None, 'plant failed at t = 1: ...')
+    """
     norms = np.linalg.norm(states, axis=1) if states.size else np.array([np.nan])
-    peak = float(np.nanmax(norms)) if norms.size else math.nan
+    peak = float(np.nanmax(norms)) if norms.size and not np.all(np.isnan(norms)) \
+        else math.nan
     final = float(norms[-1])
     above = np.nonzero(~(norms < ZERO))[0]
     if above.size == 0:
@@ -73,9 +94,15 @@ def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool) -> 
         deadbeat = float(times[above[-1] + 1])
     else:
         deadbeat = None
-    if not success or not np.all(np.isfinite(norms)):
-        return {"rho": math.inf, "stable": 0, "final_norm": final, "peak_norm": peak,
-                "deadbeat_time": None}
+    if success and not np.all(np.isfinite(norms)):  # a master that ran on (never ours)
+        k = int(np.nonzero(~np.isfinite(norms))[0][0])
+        success, diverged = False, False
+        reason = f"the plant state is not finite at t = {float(times[k]):.12g}"
+    if not success:
+        rho = math.inf if diverged else None
+        return {"rho": rho, "stable": 0 if diverged else None, "final_norm": final,
+                "peak_norm": peak, "deadbeat_time": None,
+                "failed": " ".join(str(reason).split()) or "the run failed"}
     periods = (len(norms) - 1) // N
     env = np.array([math.sqrt(float(np.sum(norms[j * N:(j + 1) * N] ** 2)))
                     for j in range(periods)])
@@ -88,7 +115,19 @@ def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool) -> 
         slope = np.polyfit(np.arange(tail.size), np.log(tail), 1)[0]
         rho = float(math.exp(slope))
     return {"rho": rho, "stable": int(rho < 1.0), "final_norm": final, "peak_norm": peak,
-            "deadbeat_time": deadbeat}
+            "deadbeat_time": deadbeat, "failed": ""}
+
+
+def result_metrics(loop, res) -> dict:
+    """The sweep's metrics of a run of ``loop`` (a :class:`delaycomp.system.Loop`): its
+    plant's recorded states, and where the run failed, whether the loop diverged (one of
+    delaycomp's own components said so; a plant FMU file's breakdown is a failure)."""
+    plant = loop.by_role("plant").name
+    n_states = sum(1 for port in loop.recorded if port.instance == plant)
+    ours = {inst.name for inst in loop.instances if not isinstance(inst.source, FmuFile)}
+    diverged = is_divergence(res.message, res.failed_by in ours)
+    return metrics_of(res.times, res.data[:, :n_states], loop.N, res.success,
+                      res.message, diverged)
 
 
 def evaluate(job: Job) -> dict:
@@ -103,12 +142,9 @@ def evaluate(job: Job) -> dict:
         lifted = lifted_loop(d.A, d.B, d.K, spec.T, d.r, d.tau, d.mode, d.r_true, d.tau_true)
         rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
-                "deadbeat_time": None}
+                "deadbeat_time": None, "failed": ""}
     kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
-    res = run_loop(spec, job.stop, job.fmu_dir, **kwargs)
-    plant = spec.by_role("plant").name
-    n_states = sum(1 for port in spec.recorded if port.instance == plant)
-    return metrics_of(res.times, res.data[:, :n_states], spec.N, res.success)
+    return result_metrics(spec, run_loop(spec, job.stop, job.fmu_dir, **kwargs))
 
 
 def _prebuild(jobs: list[Job]) -> None:
@@ -405,6 +441,8 @@ def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
 def _cell(value) -> str:
     if value is None:
         return ""
+    if isinstance(value, str):
+        return value
     if isinstance(value, (int, np.integer)):
         return str(int(value))
     return repr(float(value))

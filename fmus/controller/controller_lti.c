@@ -186,7 +186,7 @@ static int output(Instance *c, const double **u) {
         m->proposal_valid = 1;
         if (check_control_finite(c, m->proposal, y,
                                  c->d.t0 + (double)m->next * c->d.real[VR_T],
-                                 "the feedback overflowed") != 0) {
+                                 "the feedback diverged: overflow") != 0) {
             *u = m->proposal;
             return -1;
         }

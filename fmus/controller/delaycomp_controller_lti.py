@@ -146,7 +146,7 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
                     and self.error is None:
                 t = self.t0 + self._next * self.T
                 self._refuse(f"control {self.output_names} = {u.tolist()} at t = {t!r} is "
-                             "not allowed: must be finite (the feedback overflowed)")
+                             "not allowed: must be finite (the feedback diverged: overflow)")
             self._proposal = u
         return self._proposal
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, check_model_parameters
 from delaycomp.maths.model import from_module
-from delaycomp.maths.nlcontrol import ModelPlant
+from delaycomp.maths.nlcontrol import ModelPlant, StateNotFinite
 from delaycomp.maths.predictors import DEFAULT_TOL, IntegrationError
 
 
@@ -77,6 +77,9 @@ class ModelPlantSlave(TableSlave):
             self.plant.step(self.u, h)
         except IntegrationError as exc:
             self.fail(f"plant step at t = {t!r} failed: {exc}")
-        except ValueError as exc:
+        except StateNotFinite as exc:
             self.fail(f"state {list(self.model.states)} at t = {t + h!r} is not allowed: "
                       f"must be finite (the plant diverged: {exc})")
+        except Exception as exc:  # noqa: BLE001 - the model's own code: a failure, named
+            self.fail(f"plant step at t = {t!r} failed: the model's step raised "
+                      f"{type(exc).__name__}: {exc}")
