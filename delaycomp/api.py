@@ -225,7 +225,8 @@ def choose_fmus(loop: Loop, fmus: str = "auto", fmu_dir: str | Path | None = Non
 
 def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
         fmu_dir: str | Path | None = None, fmus: str | Mapping[str, Path] = "auto",
-        every: int = 1, sink=None, keep: bool = True, progress=None) -> Result:
+        every: int = 1, sink=None, keep: bool = True, progress=None,
+        watchdog: float | None = None) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (:data:`FMU_KINDS`): with the FMU engine, the native C
@@ -238,12 +239,20 @@ def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
     steps; ``sink(t, row)`` receives each row as it is made
     (:class:`~delaycomp.formats.outputs.CsvStream`); ``keep=False`` keeps no rows in the
     result; ``progress(k)`` hears the base step reached. Raises :class:`SimulationFailed`
-    if the run stops early (its rows so far in ``exc.result``)."""
+    if the run stops early (its rows so far in ``exc.result``).
+
+    An FMU file of another tool in the loop runs in a child process of its own; a call of
+    it that takes longer than ``watchdog`` seconds (default: 10 s, or 100 base steps if
+    longer) stops the run, as does the FMU ending or crashing its process
+    (:mod:`delaycomp.orchestrator.isolated`)."""
+    from delaycomp.orchestrator.isolated import check_watchdog
     from delaycomp.orchestrator.simulate import run_loop
 
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
         raise ParameterError("stop_time is required (the loop has none)")
+    if watchdog is not None:
+        check_watchdog(watchdog)
     chosen: dict[str, Path] | None
     why: str | None
     if isinstance(fmus, Mapping):
@@ -251,7 +260,8 @@ def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
     else:
         chosen, why = choose_fmus(loop, fmus, fmu_dir, engine)
     result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine,
-                      fmus=chosen, every=every, sink=sink, keep=keep, progress=progress)
+                      fmus=chosen, every=every, sink=sink, keep=keep, progress=progress,
+                      watchdog=watchdog)
     if why:
         result.notes.append(f"the Python FMUs ran (no native ones here: {why})")
     if not result.success:

@@ -197,6 +197,10 @@ def _run_parser(sub) -> None:
     _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
                  "runs them where it can); with --fmu-dir DIR they are built into "
                  "DIR/native")
+    r.add_argument("--watchdog", type=float, default=None, metavar="SECONDS",
+                   help="an FMU file of another tool (run in a child process) may take "
+                        "this long per call before the run is stopped (default: 10 s, or "
+                        "100 base steps of wall time if longer)")
     r.add_argument("--master", choices=("delaycomp", "libcosim", "ecos", "omsimulator"),
                    default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
@@ -613,7 +617,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
     def run_or_failed(loop, **options):
         try:
             return run(loop, stop, engine=args.engine, fmu_dir=args.fmu_dir, every=every,
-                       **options)
+                       watchdog=args.watchdog, **options)
         except SimulationFailed as exc:  # reported with its rows so far below
             return exc.result
 

@@ -101,6 +101,22 @@ def _remove_unpacked() -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def interface(md: ModelDescription, path: Path
+              ) -> tuple[list[str], list[str], frozenset[str], bool]:
+    """What the master needs of an FMU's model description: its inputs and outputs (in
+    the description's order), the outputs with direct feedthrough, and whether it runs
+    Python in its host (pythonfmu's binary runs its slave in the host's interpreter).
+    Raises ``ValueError`` for an FMU without co-simulation."""
+    if md.coSimulation is None:
+        raise ValueError(f"{path.name} is not a co-simulation FMU")
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    feedthrough = frozenset(
+        u.variable.name for u in md.outputs
+        if u.dependencies is None or any(d.causality == "input" for d in u.dependencies))
+    return inputs, outputs, feedthrough, (md.generationTool or "").startswith("PythonFMU")
+
+
 class FmuRefused(DelaycompError, RuntimeError):
     """The FMU logged an error while its call returned OK (see ``delaycomp.fmu.slave``)."""
 
@@ -118,17 +134,9 @@ class FmuComponent(ComponentBase):
         self.name = name
         self.path = Path(path)
         self.md, self._unzipdir = _unpacked(self.path)
-        if self.md.coSimulation is None:
-            raise ValueError(f"{self.path.name} is not a co-simulation FMU")
+        (self.input_names, self.output_names, self.feedthrough_outputs,
+         self.runs_python) = interface(self.md, self.path)
         self._vars = {v.name: v for v in self.md.modelVariables}
-        self.input_names = [v.name for v in self.md.modelVariables if v.causality == "input"]
-        self.output_names = [v.name for v in self.md.modelVariables if v.causality == "output"]
-        #: pythonfmu's binary runs its slave in the host's interpreter: this one
-        self.runs_python = (self.md.generationTool or "").startswith("PythonFMU")
-        self.feedthrough_outputs = frozenset(
-            u.variable.name for u in self.md.outputs
-            if u.dependencies is None or any(d.causality == "input" for d in u.dependencies)
-        )
         self.messages: list[str] = []
         self.last_message: str | None = None
         #: worst status an FMI call of this instance returned (0 = ok .. 4 = fatal)

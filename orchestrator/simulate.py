@@ -113,14 +113,23 @@ ENGINES = ("fmu", "inprocess")
 
 
 def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None,
-                    fp_guarded: bool = False, fmus: dict[str, Path] | None = None) -> list:
+                    fp_guarded: bool = False, fmus: dict[str, Path] | None = None,
+                    watchdog: float | None = None) -> list:
     """The master components of ``loop`` for ``engine``. ``fp_guarded`` (in-process only):
     the caller steps them under ``np.errstate(all="ignore")``. ``fmus`` (FMU engine only)
     gives the FMU file of some instances (e.g. from an SSP archive); the others come from
-    :func:`source_fmu`."""
+    :func:`source_fmu`. An instance whose source is an FMU file (another tool's FMU) runs
+    in a child process with a watchdog of ``watchdog`` seconds per call (default
+    :func:`~delaycomp.orchestrator.isolated.default_watchdog` of the loop's base step;
+    :mod:`delaycomp.orchestrator.isolated`); delaycomp's own FMUs run in this process."""
     if engine == "fmu":
+        from delaycomp.orchestrator.isolated import IsolatedFmu, default_watchdog
+
         fmus = fmus or {}
-        return [FmuComponent(i.name, fmus.get(i.name) or source_fmu(i.source, fmu_dir))
+        limit = default_watchdog(loop.h) if watchdog is None else watchdog
+        return [IsolatedFmu(i.name, fmus.get(i.name) or i.source.path, limit)
+                if isinstance(i.source, FmuFile)
+                else FmuComponent(i.name, fmus.get(i.name) or source_fmu(i.source, fmu_dir))
                 for i in loop.instances]
     if fmus:
         raise ParameterError("FMU files are not allowed with the in-process engine")
@@ -143,14 +152,16 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
                 every: int = 1, engine: str = "fmu", fp_guarded: bool = False,
                 fmus: dict[str, Path] | None = None,
                 components: list | None = None, sink=None, keep: bool = True,
-                final: int | None = None) -> tuple[Master, Recorder]:
+                final: int | None = None, watchdog: float | None = None
+                ) -> tuple[Master, Recorder]:
     """The master of ``loop``: its components (fresh ones for ``engine``, or the given
     ``components``, e.g. wrapped to tap their signals), its connections, its timing, and a
     recorder of its recorded ports at every ``every``-th tick and at tick ``final``
     (``sink`` and ``keep`` as in :class:`~delaycomp.orchestrator.master.Recorder`). Not yet
-    set up: call ``master.setup(stop_time, loop.parameters())``."""
+    set up: call ``master.setup(stop_time, loop.parameters())``. ``watchdog``: seconds per
+    call of an FMU file's instance (:func:`make_components`)."""
     if components is None:
-        components = make_components(loop, engine, fmu_dir, fp_guarded, fmus)
+        components = make_components(loop, engine, fmu_dir, fp_guarded, fmus, watchdog)
     try:
         master = Master(components, loop.connections, loop.T, loop.N, t0)
     except ValueError as exc:  # an algebraic loop, named by its members: a loop to fix
@@ -173,7 +184,7 @@ def parameters_of(loop: Loop) -> dict[str, dict]:
 def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0, engine: str = "fmu",
              fmus: dict[str, Path] | None = None, every: int = 1, sink=None,
-             keep: bool = True, progress=None) -> Result:
+             keep: bool = True, progress=None, watchdog: float | None = None) -> Result:
     """Co-simulate ``loop`` from ``t0`` to ``stop_time``.
 
     Parameters
@@ -199,6 +210,11 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
         stays flat however long the run).
     progress : callable, optional
         ``progress(ticks_done)`` called about every 1 % of the run.
+    watchdog : float, optional
+        seconds of wall time an FMU file's instance (another tool's FMU, run in a child
+        process) may take per call before the run is stopped; default
+        :func:`~delaycomp.orchestrator.isolated.default_watchdog` (10 s, or 100 base
+        steps if longer).
 
     Returns
     -------
@@ -208,7 +224,7 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
     """
     ticks = loop.timing.ticks(stop_time - t0)
     return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
-                progress)
+                progress, watchdog)
 
 
 def single_threaded_blas():
@@ -226,13 +242,13 @@ def single_threaded_blas():
 
 def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
          engine: str, fmus: dict[str, Path] | None, every: int = 1, sink=None,
-         keep: bool = True, progress=None) -> Result:
+         keep: bool = True, progress=None, watchdog: float | None = None) -> Result:
     # In-process, the slaves' floating-point guard is set once for the run, not per step
     # (the FMUs keep their own: their host's numpy settings are not ours to assume).
     guard = engine == "inprocess"
     master, recorder = make_master(spec, fmu_dir, t0, every, engine=engine,
                                    fp_guarded=guard, fmus=fmus, sink=sink, keep=keep,
-                                   final=ticks)
+                                   final=ticks, watchdog=watchdog)
     components = list(master.components.values())
     success, message, culprit = True, "", None
     with contextlib.ExitStack() as stack:

@@ -87,6 +87,52 @@ def platform_folder() -> str:
     return f"linux{bits}"
 
 
+def check_declarations(path: Path, variables: Sequence[tuple[str, str, str, object]]
+                       ) -> None:
+    """Refuse (:class:`BadFileError`, one line) a modelDescription that declares a variable
+    name twice, a value reference that is not an integer from 0 to 2^32 - 1, or an input
+    that shares its value reference with another variable of its type (an output that is
+    an input's alias: setting the input would change what the FMU declares as its own
+    output behind the master's back). ``variables``: ``(name, type, causality,
+    valueReference)`` in the description's order. Aliases among outputs, locals and
+    parameters are FMI 2.0's own and pass (2.2.7: an alias set holds at most one input).
+
+    Examples
+    --------
+    >>> check_declarations(Path("ok.fmu"), [("x", "Real", "output", "0"),
+    ...                                     ("x_alias", "Real", "local", "0")])
+    >>> check_declarations(Path("p.fmu"), [("y", "Real", "output", "4"),
+    ...                                    ("u", "Real", "input", "4")])
+    ... # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.BadFileError: p.fmu: declares output 'y' with the value reference 4 ...
+    """
+    seen: dict[str, int] = {}
+    by_ref: dict[tuple[str, int], list[tuple[str, str]]] = {}
+    for i, (name, type_, causality, ref) in enumerate(variables, start=1):
+        if name in seen:
+            raise BadFileError(path, f"declares the variable {name!r} twice (ScalarVariables "
+                                     f"{seen[name]} and {i}): names must be unique")
+        seen[name] = i
+        try:
+            vr = int(str(ref))
+        except ValueError:
+            vr = -1
+        if not 0 <= vr < 2**32:
+            raise BadFileError(path, f"declares {name!r} with valueReference = {ref!r}: "
+                                     "must be an integer from 0 to 4294967295")
+        by_ref.setdefault((type_, vr), []).append((name, causality))
+    for (type_, vr), names in by_ref.items():
+        inputs = [n for n, c in names if c == "input"]
+        if inputs and len(names) > 1:
+            other, causality = next((n, c) for n, c in names if n != inputs[0])
+            raise BadFileError(path, f"declares {causality} {other!r} with the value "
+                                     f"reference {vr} of input {inputs[0]!r} ({type_}): an "
+                                     "input may share its value reference with no other "
+                                     "variable")
+
+
 def read_interface(path: str | Path) -> FmuInterface:
     """The :class:`FmuInterface` of the FMU file ``path``; a file that is not an FMI 2.0
     FMU raises :class:`BadFileError` (one line)."""
@@ -119,6 +165,8 @@ def read_interface(path: str | Path) -> FmuInterface:
                        typed.get("start") if typed is not None else None)
         variables[var.name] = var
         ordered.append(var)
+    check_declarations(path, [(v.name, v.type, v.causality, sv.get("valueReference"))
+                              for v, sv in zip(ordered, root.iter("ScalarVariable"))])
     states, ders = [], []
     structure = root.find("ModelStructure")
     derivatives = structure.find("Derivatives") if structure is not None else None

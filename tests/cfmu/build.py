@@ -21,11 +21,19 @@ class CompilerMissing(RuntimeError):
     """No C compiler on PATH (the tests that need this FMU fail with this message)."""
 
 
+#: how ``build_oscillator``'s plant may misbehave (``oscillator.c``'s MISBEHAVE)
+MISBEHAVIOURS = {"hang": 1, "exit": 2, "crash": 3}
+
+
 def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
-                     broken_after: float | None = None) -> Path:
+                     broken_after: float | None = None, misbehave: str | None = None,
+                     after: float = 0.0) -> Path:
     """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path.
     ``broken_after``: a plant that breaks down, its ``position`` NaN from that time on
-    (its state and every FMI status as before: only its output is broken)."""
+    (its state and every FMI status as before: only its output is broken).
+    ``misbehave`` (:data:`MISBEHAVIOURS`): at its first ``fmi2DoStep`` from ``after`` on,
+    the plant never returns (``hang``), calls ``exit(0)`` (``exit``) or raises SIGSEGV
+    (``crash``)."""
     import fmpy
 
     if not sys.platform.startswith("linux"):
@@ -41,6 +49,9 @@ def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
     proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
                            "-fPIC", f"-I{headers}", "-o", str(lib),
                            *([] if broken_after is None else [f"-DBROKEN_AFTER={broken_after!r}"]),
+                           *([] if misbehave is None else [
+                               f"-DMISBEHAVE={MISBEHAVIOURS[misbehave]}",
+                               f"-DMISBEHAVE_AFTER={float(after)!r}"]),
                            str(HERE / "oscillator.c"), "-lm"], capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")

@@ -8,6 +8,7 @@
  * direct feedthrough from `force`. See README.md beside this file.
  */
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -249,6 +250,18 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real H, fmi2Boolean noPri
         logmsg(m, fmi2Error, "logStatusError", "communication step size must be > 0");
         return fmi2Error;
     }
+#ifdef MISBEHAVE_AFTER  /* a plant that misbehaves (tests) at its first step from then on */
+    if (t >= MISBEHAVE_AFTER) {
+#if MISBEHAVE == 1      /* never returns */
+        volatile unsigned long spin = 0;
+        for (;;) spin++;
+#elif MISBEHAVE == 2    /* ends the host's process, status 0 */
+        exit(0);
+#else                   /* crashes the host's process */
+        raise(SIGSEGV);
+#endif
+    }
+#endif
     n = ceil(H / m->v[VR_SUBSTEP] * (1.0 - 1e-12));
     steps = n < 1 ? 1 : (long)n;
     for (i = 0; i < steps; i++) rk4(m, H / (double)steps);
