@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import fmpy
-from fmpy import extract, read_model_description
+from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -27,6 +27,7 @@ from fmpy.fmi2 import (
 from delaycomp.errors import DelaycompError
 from delaycomp.orchestrator.master import ComponentBase
 from delaycomp.tmpfiles import mkdtemp
+from delaycomp.unpack import extract
 
 if TYPE_CHECKING:
     from fmpy.model_description import ModelDescription
@@ -88,10 +89,11 @@ def _unpacked(path: Path) -> tuple[ModelDescription, str]:
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
     hit = _UNPACKED.get(key)
     if hit is None or not Path(hit[1]).is_dir():
-        md = read_model_description(str(path))
-        # named after this process: a later process removes it if this one was killed
-        hit = _UNPACKED[key] = (md, extract(str(path), mkdtemp("delaycomp-fmu-"),
-                                            include=needed_to_run))
+        # named after this process: a later process removes it if this one was killed;
+        # within the limits of delaycomp.unpack (a zip bomb is refused before writing,
+        # its modelDescription.xml included)
+        folder = str(extract(path, mkdtemp("delaycomp-fmu-"), include=needed_to_run))
+        hit = _UNPACKED[key] = (read_model_description(folder), folder)
     return hit
 
 

@@ -709,11 +709,11 @@ def _host_path(path: Path, platform: str | None) -> str:
 
 def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
     """Unpack each FMU of ``fmus`` (instance -> file) into ``into/<instance>``."""
+    from delaycomp.unpack import extract
+
     dirs = {}
     for name, path in fmus.items():
-        dirs[name] = Path(into) / name
-        with zipfile.ZipFile(path) as zf:
-            zf.extractall(dirs[name])
+        dirs[name] = extract(path, Path(into) / name)  # within delaycomp.unpack's limits
     return dirs
 
 

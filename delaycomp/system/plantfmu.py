@@ -42,6 +42,7 @@ from delaycomp.system.loop import (
     matrix_params,
     vector_params,
 )
+from delaycomp.unpack import Budget, measure
 
 
 @dataclass(frozen=True)
@@ -140,6 +141,9 @@ def read_interface(path: str | Path) -> FmuInterface:
     if not path.is_file():
         raise BadFileError(path, "no such FMU file")
     try:
+        # within the limits of delaycomp.unpack, as it will be unpacked to run (a zip
+        # bomb, its modelDescription.xml included, is refused before anything is read)
+        measure(path, Budget(path))
         with zipfile.ZipFile(path) as zf:
             names = zf.namelist()
             if "modelDescription.xml" not in names:

@@ -146,6 +146,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
     gives the FMU file of some instances (e.g. the native ones of
     :func:`delaycomp.fmu.native.native_fmus`); the others come from their sources."""
     from delaycomp.fmu.cache import source_fmu
+    from delaycomp.unpack import Budget, measure
 
     Assembly = _toolbox()
     out = Path(out)
@@ -155,6 +156,8 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
         files = {}
         for inst in _ordered(spec):
             src = Path((fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir))
+            # the container's tool unpacks it, with no limit of its own: ours first
+            measure(src, Budget(src))
             if not (work / src.name).exists():
                 shutil.copy2(src, work / src.name)
             files[inst.name] = src.name

@@ -341,10 +341,13 @@ def simulate_kept(fmu_file: Path, **kwargs):
     corruption, "corrupted double-linked list", in about one run in fifty). The child keeps
     the instance and leaves with ``os._exit`` once it has printed its result.
     """
-    from fmpy import extract, read_model_description, simulate_fmu
+    from fmpy import read_model_description, simulate_fmu
     from fmpy.simulation import instantiate_fmu
 
-    unzipdir = extract(str(fmu_file))
+    from delaycomp.tmpfiles import mkdtemp
+    from delaycomp.unpack import extract
+
+    unzipdir = str(extract(fmu_file, mkdtemp("delaycomp-fmu-")))  # within the limits
     md = read_model_description(unzipdir)
     instance = instantiate_fmu(unzipdir, md, "CoSimulation")
     return simulate_fmu(unzipdir, model_description=md, fmu_instance=instance, **kwargs)

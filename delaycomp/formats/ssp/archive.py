@@ -13,11 +13,11 @@ from delaycomp.formats.ssp.common import (
     SSD_NAME,
 )
 from delaycomp.formats.ssp.read import Foreign, System, read_system
+from delaycomp.unpack import MAX_BYTES, MAX_MEMBERS, Budget, TooLarge, extract, measure
 
-#: what an archive may unpack to: members and bytes (the sizes the zip declares, which
-#: zipfile enforces while extracting); our archives hold a few FMUs of about 0.5 MB
-MAX_MEMBERS = 1000
-MAX_UNPACKED = 512 * 2**20
+#: what an archive may unpack to, with the FMUs inside it: members and bytes (the sizes
+#: the zips declare, which zipfile enforces while extracting; :mod:`delaycomp.unpack`)
+MAX_UNPACKED = MAX_BYTES
 
 
 def _check_member_fmu(path: Path, where: str) -> None:
@@ -56,19 +56,13 @@ class Archive:
             raise SspError(f"{self.path.name}: no such file")
         self._tmp = tempfile.TemporaryDirectory(prefix="delaycomp-ssp-")
         self.folder = Path(self._tmp.name)
+        # one budget for the archive and the FMUs inside it, each unpacked in turn
+        self.budget = Budget(self.path.name, MAX_MEMBERS, MAX_UNPACKED)
         try:
-            with zipfile.ZipFile(self.path) as zf:
-                infos = zf.infolist()
-                total = sum(i.file_size for i in infos)
-                if len(infos) > MAX_MEMBERS or total > MAX_UNPACKED:
-                    raise SspError(f"{self.path.name}: unpacks to {len(infos)} files of "
-                                   f"{total} bytes: at most {MAX_MEMBERS} files and "
-                                   f"{MAX_UNPACKED} bytes are allowed")
-                for member in zf.namelist():
-                    target = (self.folder / member).resolve()
-                    if not target.is_relative_to(self.folder.resolve()):
-                        raise SspError(f"{self.path.name}: member {member!r} leaves the archive")
-                zf.extractall(self.folder)
+            extract(self.path, self.folder, self.budget)
+        except TooLarge as exc:
+            self.close()
+            raise SspError(f"{self.path.name}: {exc.reason}") from None
         except zipfile.BadZipFile:
             self.close()
             raise SspError(f"{self.path.name}: not an SSP archive (not a zip file)") from None
@@ -83,8 +77,12 @@ class Archive:
             for inst, source in self.system.sources.items():
                 if not (self.folder / source).is_file():
                     raise SspError(f"{self.path.name}: component {inst}: {source} is missing")
-                _check_member_fmu(self.folder / source, f"{self.path.name}: component "
-                                  f"{inst}: {source}")
+                where = f"{self.path.name}: component {inst}: {source}"
+                _check_member_fmu(self.folder / source, where)
+                try:  # counted in full: the run unpacks it in turn
+                    measure(self.folder / source, self.budget, f"component {inst}: {source}")
+                except TooLarge as exc:
+                    raise SspError(f"{self.path.name}: {exc.reason}") from None
         except SspError:
             self.close()
             raise
