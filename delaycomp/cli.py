@@ -515,6 +515,7 @@ def _cmd_ssp(args) -> int:
         return 0
     if args.out.suffix != ".ssp":
         raise UsageError(f"--out {args.out}: a packed scenario goes into a FILE.ssp")
+    _outputs(args)
     _, _, loop = _loop(args)
     from delaycomp.api import to_ssp  # the arguments are checked: now the SSP writer (lxml)
     from delaycomp.fmu.native import NativeBuildError
@@ -888,6 +889,7 @@ def _cmd_export_loop(args) -> int:
 
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
+    _outputs(args)
     _, _, loop = _loop(args)
     fmus = _chosen_fmus(args, loop)
     path = export_loop(loop, args.out, args.fmu_dir, fmus)

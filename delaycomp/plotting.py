@@ -189,15 +189,12 @@ def _mark_timing(ax, timing: Marks, t_end: float, legend: bool) -> None:
 
 def save(fig, path: str | Path) -> None:
     """Write ``fig`` to ``path`` through a temporary file (no half-written image)."""
+    from delaycomp.tmpfiles import replacing
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".part" + path.suffix)
-    try:
-        fig.savefig(tmp, dpi=110)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(path)
+    with replacing(path, binary=True) as fh:  # never through a link
+        fig.savefig(fh, dpi=110, format=path.suffix.lstrip(".").lower() or "png")
 
 
 def plot_result(result, path: str | Path, title: str, timing: Marks | None = None,

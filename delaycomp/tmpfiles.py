@@ -104,3 +104,78 @@ def zip_folder(folder: Path, target: Path) -> Path:
     finally:
         part.unlink(missing_ok=True)
     return target
+
+
+# -- outputs: written whole, never through a link ------------------------------------------
+
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # POSIX: open() refuses a link in the last place
+
+
+def new_file(path: Path, binary: bool = False):
+    """Open ``path`` as a new, empty file for writing: whatever file or link was at that
+    name is removed first (a link's target is never opened), the file is created with
+    ``O_EXCL`` (and ``O_NOFOLLOW``), with the permissions the umask allows. Text mode
+    writes UTF-8 with no newline translation (what :mod:`csv` needs)."""
+    path = Path(path)
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW
+                 | getattr(os, "O_BINARY", 0), 0o666)
+    if binary:
+        return os.fdopen(fd, "wb")
+    return os.fdopen(fd, "w", newline="", encoding="utf-8")
+
+
+def _part_name(path: Path) -> Path:
+    """A working name beside ``path`` that no one else uses (this process, random)."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}.part"
+                          f"{path.suffix}")
+
+
+@contextlib.contextmanager
+def replacing(path: str | Path, binary: bool = False) -> Iterator:
+    """Write the file ``path`` as a whole: a new working file beside it (:func:`new_file`)
+    that is renamed over ``path`` when the block ends without error, and removed
+    otherwise. A link at ``path`` is replaced by the file, its target left alone; a reader
+    never sees half a file.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> (folder / "target.txt").write_text("keep")
+    4
+    >>> (folder / "out.txt").symlink_to(folder / "target.txt")
+    >>> with replacing(folder / "out.txt") as fh:
+    ...     _ = fh.write("new")
+    >>> (folder / "out.txt").read_text(), (folder / "out.txt").is_symlink()
+    ('new', False)
+    >>> (folder / "target.txt").read_text()
+    'keep'
+    """
+    path = Path(path)
+    with replacing_path(path) as part:
+        with new_file(part, binary) as fh:
+            yield fh
+
+
+@contextlib.contextmanager
+def replacing_path(path: str | Path) -> Iterator[Path]:
+    """A working path beside ``path`` (same suffix, for writers that go by it: a plot, a
+    zip) for the block to write; renamed over ``path`` when the block ends without error,
+    removed otherwise (see :func:`replacing`)."""
+    path = Path(path)
+    part = _part_name(path)
+    try:
+        yield part
+        os.replace(part, path)
+    finally:
+        with contextlib.suppress(OSError):
+            part.unlink()
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8, newlines as given) to ``path`` through :func:`replacing`."""
+    with replacing(path) as fh:
+        fh.write(text)
+    return Path(path)

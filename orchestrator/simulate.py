@@ -92,14 +92,13 @@ class Result:
     def write_csv(self, path: str | Path) -> None:
         """Write a CSV file: a ``time`` column and one column per signal, every value as
         ``repr`` of its float (exact round trip); written whole or not at all."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".part")
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        from delaycomp.tmpfiles import replacing
+
+        with replacing(path) as fh:  # no half-written file, never through a link
             w = csv.writer(fh)
             w.writerow(["time", *self.names])
             for t, row in zip(self.times, self.data):
                 w.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
-        tmp.replace(path)  # no half-written file that looks like a result
 
 
 def stop_ticks(stop_time: float, T: float, N: int) -> int:

@@ -32,6 +32,7 @@ from delaycomp.maths.grid import GRID_RTOL
 from delaycomp.maths.model import ModelError
 from delaycomp.maths.nlcontrol import PREDICTORS as _PREDICTOR_NAMES
 from delaycomp.maths.predictors import MAX_ODE_STEPS
+from delaycomp.tmpfiles import write_text
 
 __all__ = ["EXPORT_CODES", "check_prefix", "closed_loop_io", "export_c"]
 
@@ -434,5 +435,5 @@ def export_c(loop, out_dir: str | Path, prefix: str) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"{prefix}.h", out_dir / f"{prefix}.c"]
     for path, text in zip(paths, (header, source)):
-        path.write_text(text, encoding="utf-8")
+        write_text(path, text)  # whole, never through a link
     return paths

@@ -38,6 +38,7 @@ import delaycomp
 from delaycomp.errors import ParameterError
 from delaycomp.names import FMU_KINDS, LOOP_GROUPS
 from delaycomp.system.loop import ROLES, FmuFile, Instance, Loop, ModelFmu, Role
+from delaycomp.tmpfiles import write_text
 
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
@@ -141,8 +142,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     wiring = out_dir / f"{name}_wiring.txt"
     others: dict[str, Path | None] = {i.role: None for i in loop.instances
                                       if i.role not in files}
-    wiring.write_text(wiring_sheet(loop, {**others, **files}, roles, native, name),
-                      encoding="utf-8")
+    write_text(wiring, wiring_sheet(loop, {**others, **files}, roles, native, name))
     return LoopBuild(name, written, wiring, native, given, tuple(notes))
 
 

@@ -65,8 +65,9 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
     Raises
     ------
     OutputError
-        the path is a folder, names a folder (ends in ``/``), lies under a file, or (for
-        a plot) has a suffix matplotlib cannot write.
+        the path is a folder, a FIFO, a device or a socket, names a folder (ends in
+        ``/``), lies under a file, or (for a plot) has a suffix matplotlib cannot write.
+        (A link there is allowed: the result replaces it, its target is left alone.)
 
     Examples
     --------
@@ -90,6 +91,11 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
     if text.endswith(("/", os.sep)) or p.is_dir():
         raise OutputError(f"{option} {text!r} is a folder: give a file name such as "
                           f"{p / example}")
+    kind_of = _special(p)
+    if kind_of:
+        raise OutputError(f"{option} {text!r} is not allowed: it is {kind_of}, not a "
+                          "regular file (results are written to a new file and renamed "
+                          "into place)")
     parent = p.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
@@ -104,6 +110,25 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
             raise OutputError(f"{option} {text!r}: the suffix must name a plot format, one "
                               f"of {', '.join(sorted(formats))}")
     return p
+
+
+def _special(path: Path) -> str | None:
+    """What ``path`` is when it exists as something other than a regular file, a folder
+    or a link (a link is replaced by the result, its target left alone): a FIFO, a
+    device, a socket."""
+    import stat
+
+    try:
+        mode = path.lstat().st_mode
+    except OSError:
+        return None
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return None
 
 
 def partial_path(path: Path) -> Path:
@@ -163,8 +188,10 @@ class CsvStream:
         self.rows = 0
 
     def _open(self) -> None:
+        from delaycomp.tmpfiles import new_file
+
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.tmp, "w", newline="", encoding="utf-8")
+        self._fh = new_file(self.tmp)  # a new file: never through a link at FILE.part
         self._writer = csv.writer(self._fh)
         self._writer.writerow(["time", *self.names])
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from delaycomp.errors import DelaycompError
 from delaycomp.maths import grid
 from delaycomp.maths.delayline import DelayLine
 from delaycomp.maths.grid import check_steps
@@ -49,7 +50,7 @@ def padded_delay(tau: float, T: float) -> float:
     return tau if rest == 0.0 else (q + 1) * T
 
 
-class StateNotFinite(ValueError):
+class StateNotFinite(DelaycompError, ValueError):
     """A plant step from a finite state and input ended in a state that is not finite
     (the loop diverged: overflow, or a finite-time escape)."""
 

@@ -192,15 +192,15 @@ def critical_delay_table(source, sets: list[str], grid: str,
     if out:
         import csv
 
+        from delaycomp.tmpfiles import replacing
+
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".part")
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        with replacing(out) as fh:  # whole or not at all, never through a link
             w = csv.writer(fh)
             w.writerow([axis.name, "r_c_uncompensated", "r_c_compensated"])
             for value, uncomp, comp, _ in table:
                 w.writerow([repr(value), *(repr(v) if isinstance(v, float) else v
                                            for v in (uncomp, comp))])
-        tmp.replace(out)
     if plot:
         _plot_table(table, axis.name, plot, source.name + " " + " ".join(sets))
     return lines
@@ -231,11 +231,12 @@ def _plot_table(table, name: str, path: Path, title: str) -> None:
     ax.legend(fontsize=8, loc="upper right")
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".part" + path.suffix)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+    from delaycomp.plotting import save
+
+    try:
+        save(fig, path)
+    finally:
+        plt.close(fig)
 
 
 #: the most values of the other grid axis at which :func:`critical_curve` solves for r_c

@@ -146,6 +146,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
     gives the FMU file of some instances (e.g. the native ones of
     :func:`delaycomp.fmu.native.native_fmus`); the others come from their sources."""
     from delaycomp.fmu.cache import source_fmu
+    from delaycomp.tmpfiles import replacing_path
     from delaycomp.unpack import Budget, measure
 
     Assembly = _toolbox()
@@ -178,7 +179,8 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
         if not built.exists():
             raise ContainerError("fmu-manipulation-toolbox wrote no container")
         out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(built, out)
+        with replacing_path(out) as part:  # whole, never through a link
+            shutil.copyfile(built, part)
     return out
 
 

@@ -63,6 +63,7 @@ import numpy as np
 import delaycomp
 from delaycomp.child import module_argv
 from delaycomp.names import CONFIG_NAME
+from delaycomp.tmpfiles import write_text
 from delaycomp.verify.cases import EXACT_TOL, CheckRow, RefCase
 
 #: tool folder of the cross-check tree
@@ -294,8 +295,8 @@ def write_model(c: RefCase, trace: Trace, folder: Path, fmu_src: Path | None) ->
         variant_fmu(fmu_src, trace.parameters, model / f"{name}.fmu")
     files = {"_in.csv": input_csv(trace), "_ref.csv": ref_csv(trace), "_ref.opt": ref_opt(trace)}
     for suffix, text in files.items():
-        (model / f"{name}{suffix}").write_text(text, encoding="utf-8", newline="\n")
-    (model / "README.md").write_text(readme(c, trace, ident), encoding="utf-8", newline="\n")
+        write_text(model / f"{name}{suffix}", text)  # whole, never through a link
+    write_text(model / "README.md", readme(c, trace, ident))
     return model
 
 
