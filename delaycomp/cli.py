@@ -44,6 +44,7 @@ List the scenarios and their parameters::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
@@ -60,6 +61,56 @@ from delaycomp.paper.scenarios import ParameterError
 
 class UsageError(DelaycompError):
     """Bad command-line input: reported as one line, exit status 2."""
+
+
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP (the terminal closing) during a sweep (:func:`_ending_signals`),
+    raised in the main thread as Ctrl-C raises ``KeyboardInterrupt``: the sweep stops the
+    same way, its worker processes ended (:func:`delaycomp.studies.pool.on_processes`), and
+    :func:`main` reports it in one line, with exit status ``128 + signum``."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _ending_signals():
+    """SIGTERM and SIGHUP raise :class:`Terminated` while the block runs, where they have
+    their default action (under ``nohup`` SIGHUP stays ignored) and in the main thread only
+    (where Python runs signal handlers); the previous handlers come back afterwards."""
+    import signal
+    import threading
+
+    saved = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):  # no SIGHUP on Windows
+            signum = getattr(signal, name, None)
+            if signum is not None and signal.getsignal(signum) is signal.SIG_DFL:
+                saved[signum] = signal.signal(signum, _raise_terminated)
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+
+
+def _stopped(exc: KeyboardInterrupt | Terminated) -> int:
+    """Ctrl-C, SIGTERM or SIGHUP: one line on standard error, and the exit status a shell
+    gives a process that the signal ended, ``128 + signum`` (130 for Ctrl-C)."""
+    import signal
+
+    if isinstance(exc, Terminated):
+        signum, line = exc.signum, f"terminated ({signal.Signals(exc.signum).name})"
+    else:
+        signum, line = signal.SIGINT, "interrupted"
+    with contextlib.suppress(OSError):  # the terminal may be gone (SIGHUP)
+        print(f"delaycomp: {line}", file=sys.stderr, flush=True)
+    return 128 + int(signum)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -764,6 +815,13 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
 
 
 def _cmd_sweep(args) -> int:
+    """``delaycomp sweep``; SIGTERM and SIGHUP stop it as Ctrl-C does (issue 30, item 4:
+    the workers end with it, none is left)."""
+    with _ending_signals():
+        return _sweep(args)
+
+
+def _sweep(args) -> int:
     from delaycomp.formats.outputs import clear_previous
     from delaycomp.plotting import loop_title
     from delaycomp.progress import info
@@ -996,7 +1054,8 @@ def _platform_notes(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """The command line: parse ``argv`` (default: ``sys.argv[1:]``), run the command, return the
-    exit status (2 for bad input, 1 for a failed run, with one line on stderr)."""
+    exit status (2 for bad input, 1 for a failed run, with one line on stderr; Ctrl-C, and
+    SIGTERM or SIGHUP during a sweep, give ``128 + signal``: :func:`_stopped`)."""
     try:
         sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
         args = _parser().parse_args(rest)
@@ -1016,9 +1075,8 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, ParameterError, ModelError, BadFileError, SspError) as exc:
         print(f"delaycomp: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("delaycomp: interrupted", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, Terminated) as exc:
+        return _stopped(exc)
     except BrokenPipeError:  # `delaycomp list | head`: the reader left; stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141  # as a shell reports a process ended by SIGPIPE

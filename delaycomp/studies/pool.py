@@ -1,13 +1,32 @@
 """The worker pool of the studies, written once: jobs run on spawned worker processes
 (:func:`on_processes`, one BLAS thread each) or on a Dask cluster (:func:`on_dask`), their
 results in the jobs' order, a progress bar (:class:`Progress`) ticking as each finishes.
+
+No worker outlives the process that started it (issue 30, item 4). When the pool is left
+by an exception (Ctrl-C's ``KeyboardInterrupt``, the command line's SIGTERM and SIGHUP, a
+job's error) the jobs not started are cancelled and the workers are terminated at once,
+not waited for. When the main process dies without a word (SIGKILL, a crash) each worker
+ends by itself (:func:`worker_init`): the kernel kills it (Linux), or a thread of its own
+sees the parent gone (everywhere). Multiprocessing's resource tracker, the only other
+process the pool starts (:func:`start_resource_tracker`), ends when the main process and
+the workers have.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 
-__all__ = ["Progress", "on_dask", "on_processes", "worker_init"]
+__all__ = ["Progress", "end_with_parent", "end_workers", "on_dask", "on_processes",
+           "start_resource_tracker", "watch_parent", "worker_init"]
+
+#: seconds the terminated workers get to end before they are killed
+END_GRACE = 1.0
 
 
 class Progress:
@@ -32,7 +51,11 @@ def on_processes(fn: Callable, jobs: Sequence, workers: int, progress,
                  sizes: Sequence[int] | None = None, chunksize: int = 1) -> list:
     """``fn(job)`` of every job on at most ``workers`` spawned processes, in order;
     ``progress.tick(sizes[i])`` (default 1) as job ``i``'s result comes back. ``fn`` and
-    the jobs must be picklable (a top-level function, frozen dataclasses)."""
+    the jobs must be picklable (a top-level function, frozen dataclasses).
+
+    An exception here (``KeyboardInterrupt`` included) or in a job cancels the jobs not
+    started and ends the workers at once (:func:`end_workers`) before it propagates.
+    """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
@@ -40,25 +63,149 @@ def on_processes(fn: Callable, jobs: Sequence, workers: int, progress,
     # spawn: a forked child would inherit the parent's FMU runtime threads and locks
     ctx = multiprocessing.get_context("spawn")
     results = []
-    with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
-                             initializer=worker_init) as pool:
+    start_resource_tracker()
+    pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=ctx,
+                               initializer=worker_init, initargs=(os.getpid(),))
+    try:
         for res, size in zip(pool.map(fn, jobs, chunksize=chunksize), sizes):
             results.append(res)
             progress.tick(size)
+    except BaseException:
+        end_workers(pool)
+        raise
+    pool.shutdown(wait=True)
     return results
 
 
-def worker_init() -> None:
-    """Worker processes run small matrices: one BLAS thread each (no oversubscription)."""
+def start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (POSIX), deaf to SIGHUP as it is to SIGINT
+    and SIGTERM.
+
+    The pool's queues register their semaphores with this process, which removes what is
+    left once the main process and the workers have ended. It ignores SIGINT and SIGTERM
+    but not SIGHUP: a terminal closing killed it, and the main process, stopping cleanly,
+    relaunched it with a warning and tracebacks. Started here with SIGHUP blocked, a mask
+    it inherits and keeps, it ends only as it should. One already running is kept.
+    """
+    if os.name != "posix" or not hasattr(signal, "pthread_sigmask"):
+        return
+    from multiprocessing import resource_tracker
+
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        resource_tracker.ensure_running()
+    finally:  # a SIGHUP that came meanwhile is delivered here
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
+def end_workers(pool, grace: float = END_GRACE) -> None:
+    """Shut ``pool`` (a ``ProcessPoolExecutor``) down without waiting for its running
+    jobs: cancel those not started, terminate the workers (SIGTERM on POSIX), kill those
+    still there after ``grace`` seconds, and reap them (no zombies).
+
+    The pool's manager thread, which then finds its workers gone and closes the pool's
+    pipes, is given ``grace`` seconds to finish: an interpreter leaving meanwhile wrote to
+    a pipe it was closing ("Exception ignored ... Bad file descriptor", a traceback after
+    the one line of SIGTERM in 1 of 4 sweeps of the batch engine).
+    """
+    # the workers and the thread before shutdown() drops them
+    # (ProcessPoolExecutor.terminate_workers of Python 3.14 does the same)
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        with contextlib.suppress(OSError, ValueError):  # already gone, or closed
+            proc.terminate()
+    deadline = time.monotonic() + grace
+    for proc in processes:
+        with contextlib.suppress(OSError, ValueError):
+            proc.join(max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()
+                proc.join(grace)
+    if manager is not None:
+        manager.join(grace)
+
+
+def worker_init(parent: int | None = None) -> None:
+    """Set a worker process up: it ends with its parent (:func:`end_with_parent`), leaves
+    Ctrl-C to it, and runs small matrices on one BLAS thread (no oversubscription).
+
+    Ctrl-C in a terminal sends SIGINT to every process of the job: a worker ignores it
+    (instead of a ``KeyboardInterrupt`` traceback each), and the parent, interrupted,
+    terminates the workers (:func:`on_processes`). A program a worker started would
+    inherit the ignored SIGINT; no worker starts one.
+    """
     from threadpoolctl import threadpool_limits
 
+    end_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(limits=1, user_api="blas")
+
+
+def end_with_parent(parent: int | None = None) -> None:
+    """End this process, a worker, when its parent (pid ``parent``) dies, by any means.
+
+    On Linux the kernel sends it SIGKILL then (``prctl(PR_SET_PDEATHSIG)``); a parent that
+    died before that call is seen by the pid of the parent, which has changed. Everywhere,
+    in a process multiprocessing started, a daemon thread waits on the parent's sentinel
+    (a pipe that closes when the parent dies; its process handle on Windows) and ends the
+    process when it fires, within milliseconds where the thread gets to run
+    (:func:`watch_parent`). (Linux's signal comes when the parent's thread that started
+    the worker ends: :func:`on_processes` starts them from the thread that waits for them.)
+    """
+    if sys.platform.startswith("linux") and _parent_death_signal(signal.SIGKILL):
+        if parent is not None and os.getppid() != parent:
+            os._exit(1)  # the parent is gone already
+    watch_parent()
+
+
+def watch_parent() -> bool:
+    """In a process multiprocessing started, a daemon thread that ends the process at once
+    (``os._exit``) when its parent dies; whether there is one (False in a process that
+    multiprocessing did not start)."""
+    import multiprocessing
+
+    watched = multiprocessing.parent_process()
+    if watched is None:
+        return False
+    threading.Thread(target=_exit_with, args=(watched.sentinel,), daemon=True,
+                     name="delaycomp-parent-watch").start()
+    return True
+
+
+#: ``prctl`` option: the signal this process gets when its parent dies (linux/prctl.h)
+PR_SET_PDEATHSIG = 1
+
+
+def _parent_death_signal(signum: int) -> bool:
+    """Ask Linux to send ``signum`` to this process when its parent dies; whether it
+    took (a libc without ``prctl``, or a refusal, is no error: the thread watches)."""
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return False
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
+                      ctypes.c_ulong]
+    prctl.restype = ctypes.c_int
+    return prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0) == 0
+
+
+def _exit_with(sentinel) -> None:
+    """Wait until ``sentinel`` (the parent's) fires, then end this process at once."""
+    from multiprocessing.connection import wait
+
+    wait([sentinel])
+    os._exit(1)
 
 
 def on_dask(fn: Callable, jobs: Sequence, address: str, progress,
             sizes: Sequence[int] | None = None) -> list:
     """``fn(job)`` of every job on the Dask cluster at ``address``, in order;
-    ``progress.tick(sizes[i])`` (default 1) as job ``i`` finishes, in any order."""
+    ``progress.tick(sizes[i])`` (default 1) as job ``i`` finishes, in any order. An
+    exception here (``KeyboardInterrupt`` included) cancels the jobs on the cluster."""
     try:
         from distributed import Client
     except ImportError:
@@ -71,8 +218,13 @@ def on_dask(fn: Callable, jobs: Sequence, address: str, progress,
         futures = client.map(fn, jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         results: list = [None] * len(jobs)
-        for future in as_completed(futures):  # the bar moves as each job finishes
-            i = index[future.key]
-            results[i] = future.result()
-            progress.tick(sizes[i])
+        try:
+            for future in as_completed(futures):  # the bar moves as each job finishes
+                i = index[future.key]
+                results[i] = future.result()
+                progress.tick(sizes[i])
+        except BaseException:
+            with contextlib.suppress(Exception):  # the cluster's, not ours: best effort
+                client.cancel(futures)
+            raise
     return results

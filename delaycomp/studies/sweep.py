@@ -426,16 +426,22 @@ def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
 
 def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
     """Write the sweep's rows to ``path`` as CSV: the grid columns ``names``, then
-    :data:`METRICS` (written to a ``.part`` file first, then moved into place)."""
+    :data:`METRICS` (written to a ``.part`` file first, then moved into place; removed if
+    the writing is interrupted or fails)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow([*names, *METRICS])
-        for row in rows:  # grid values as written (15 digits), metrics to the bit
-            w.writerow([*(format_value(row[k]) for k in names), *(_cell(row[k]) for k in METRICS)])
-    tmp.replace(path)
+    try:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow([*names, *METRICS])
+            for row in rows:  # grid values as written (15 digits), metrics to the bit
+                w.writerow([*(format_value(row[k]) for k in names),
+                            *(_cell(row[k]) for k in METRICS)])
+        tmp.replace(path)
+    except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-written file is left
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _cell(value) -> str:
