@@ -44,18 +44,21 @@ __all__ = ["IsolatedFmu", "default_watchdog"]
 WATCHDOG_FLOOR = 10.0
 #: the default watchdog in base steps of the loop (a call may take 100 times real time)
 WATCHDOG_STEPS = 100.0
+#: the longest default watchdog, seconds (a day: the longest run delaycomp starts)
+WATCHDOG_CEILING = 86400.0
 #: instantiation, initialization, termination: this many times the watchdog
 SLOW_CALLS = 6.0
 
 
 def default_watchdog(h: float) -> float:
     """The default watchdog of a loop of base step ``h`` (seconds of simulated time), in
-    seconds of wall time per FMI call.
+    seconds of wall time per FMI call: 100 steps of real time, at least 10 s and at most a
+    day (the longest run delaycomp starts).
 
-    >>> default_watchdog(0.01), default_watchdog(1.0)
-    (10.0, 100.0)
+    >>> default_watchdog(0.01), default_watchdog(1.0), default_watchdog(1e308)
+    (10.0, 100.0, 86400.0)
     """
-    return max(WATCHDOG_FLOOR, WATCHDOG_STEPS * h)
+    return min(WATCHDOG_CEILING, max(WATCHDOG_FLOOR, WATCHDOG_STEPS * h))
 
 
 def check_watchdog(seconds: float) -> float:

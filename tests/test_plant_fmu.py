@@ -357,6 +357,9 @@ def test_foreign_ssp_runs_with_master_settings_and_roles_from_the_connections(
     (["--period", "0.5"], "--period and --steps go together"),
     (["--period", "0.5", "--steps", "50", "--role", "Mass=plant", "--master", "ecos"],
      "in our master only"),
+    # issue 30, item 8: a period whose base step leaves no step before the stop time
+    (["--period", "1e308", "--steps", "1", "--role", "Mass=plant"],
+     "--stop-time 1.0 is not allowed: it is less than one base step h = T/N = 1e+308"),
 ])
 def test_foreign_ssp_without_what_it_needs_is_refused_with_the_reason(foreign_ssp, capsys,
                                                                       args, message):

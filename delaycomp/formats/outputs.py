@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 from delaycomp.errors import ParameterError
-from delaycomp.maths.grid import on_grid
+from delaycomp.maths.grid import nearest_multiple
 
 if TYPE_CHECKING:
     from _csv import Writer  # the type csv.writer() returns (not exported by csv)
@@ -163,10 +163,14 @@ def output_every(interval: float | None, T: float, N: int) -> int:
     if not (math.isfinite(interval) and interval > 0):
         raise OutputError(f"--output-interval {interval!r} is not allowed: must be a finite "
                           "number > 0")
-    if not on_grid(interval, h):
+    k = nearest_multiple(interval, h)
+    if k == 0:  # rounds to no step: never silently one
+        raise OutputError(f"--output-interval {interval!r} is not allowed: it is less than "
+                          f"one base step h = T/N = {h!r}")
+    if k is None:
         raise OutputError(f"--output-interval {interval!r} is not allowed: must be a "
                           f"multiple of the base step h = T/N = {h!r}")
-    return max(1, round(interval / h))
+    return k
 
 
 class CsvStream:

@@ -203,11 +203,25 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
 
 
 def ticks(duration: float, T: float, N: int, name: str = "--stop-time") -> int:
-    """Base steps ``k`` with ``duration = k h``, ``h = T / N``, for a duration > 0."""
+    """Base steps ``k >= 1`` with ``duration = k h``, ``h = T / N``, for a duration > 0; a
+    duration that rounds to no step at all (shorter than ``h``, or ``h`` itself beyond
+    what a float divides: ``1e-320`` against ``h = 0.01``, ``1`` against ``h = 1e10``) is
+    refused, never run as zero steps.
+
+    >>> ticks(2.0, 1.0, 100)
+    200
+    >>> ticks(1e-320, 1.0, 100)
+    Traceback (most recent call last):
+    ...
+    ValueError: --stop-time 1e-320 is not allowed: it is less than one base step h = T/N = 0.01
+    """
     h = T / N
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"{name} {duration!r} is not allowed: must be a finite number > 0")
     k = nearest_multiple(duration, h)
+    if k == 0:
+        raise ValueError(f"{name} {duration!r} is not allowed: it is less than one base "
+                         f"step h = T/N = {h!r}")
     if k is None:
         raise ValueError(f"{name} {duration!r} is not allowed: must be a multiple of the "
                          f"base step h = T/N = {h!r}")
