@@ -63,11 +63,12 @@ class UsageError(DelaycompError):
     """Bad command-line input: reported as one line, exit status 2."""
 
 
-class Terminated(BaseException):
+class Terminated(KeyboardInterrupt):
     """SIGTERM or SIGHUP (the terminal closing) during a sweep (:func:`_ending_signals`),
-    raised in the main thread as Ctrl-C raises ``KeyboardInterrupt``: the sweep stops the
-    same way, its worker processes ended (:func:`delaycomp.studies.pool.on_processes`), and
-    :func:`main` reports it in one line, with exit status ``128 + signum``."""
+    raised in the main thread as Ctrl-C raises ``KeyboardInterrupt`` (an interrupt, not an
+    error: whatever handles Ctrl-C handles it): the sweep stops the same way, its worker
+    processes ended (:func:`delaycomp.studies.pool.on_processes`), and :func:`main`
+    reports it in one line, with exit status ``128 + signum``."""
 
     def __init__(self, signum: int):
         super().__init__(signum)

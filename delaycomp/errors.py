@@ -19,6 +19,19 @@ from pathlib import Path
 DIVERGED = "diverged"
 
 
+def shown(text: str, limit: int = 60) -> str:
+    """``text`` as a message quotes a user's input: whole up to ``limit`` characters, else
+    its start and end around ``...`` (an error message stays one readable line).
+
+    >>> shown("0.4"), shown("[" * 100 + "1" + "]" * 100, 20)
+    ('0.4', '[[[[[[[[...]]]]]]]]')
+    """
+    if len(text) <= limit:
+        return text
+    half = (limit - 3) // 2
+    return f"{text[:half]}...{text[-half:]}"
+
+
 def is_divergence(reason: str, ours: bool = True) -> bool:
     """Whether a failure's ``reason`` is the loop's own divergence, as reported by one of
     delaycomp's own components (``ours``; another tool's FMU may use the same word for

@@ -251,6 +251,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
     components = list(master.components.values())
     success, message, culprit = True, "", None
     with contextlib.ExitStack() as stack:
+        interrupted = stack.enter_context(_interrupts_seen())
         # BLAS on one thread where Python maths runs in this process (the in-process
         # slaves, pythonfmu FMUs); a loop of native FMUs does not pay for threadpoolctl
         if any(getattr(c, "runs_python", True) for c in components):
@@ -264,6 +265,8 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
             else:
                 _run_until(master, ticks, progress)
         except SimulationError as exc:
+            if interrupted:  # Ctrl-C inside a component's code, which reported it as a
+                raise KeyboardInterrupt from None  # failure: it is the user's interrupt
             success, message, culprit = False, str(exc), exc.instance
         finally:
             master.terminate()
@@ -272,6 +275,33 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
              for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
                   recorder.count, culprit)
+
+
+@contextlib.contextmanager
+def _interrupts_seen():
+    """A list that gets an entry when SIGINT arrives while the block runs (the previous
+    handler then runs as before: Python's raises KeyboardInterrupt). A component that runs
+    Python code (a model's ``f``, a pythonfmu slave) catches every exception and reports
+    it as its own failure; with this the run knows that it was the user's Ctrl-C. Only in
+    the main thread, and only over Python's own handler."""
+    import signal
+    import threading
+
+    seen: list[bool] = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield seen
+        return
+
+    def handler(signum, frame):
+        seen.append(True)
+        signal.default_int_handler(signum, frame)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _run_until(master: Master, ticks: int, progress) -> None:

@@ -66,13 +66,20 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
     ------
     OutputError
         the path is a folder, a FIFO, a device or a socket, names a folder (ends in
-        ``/``), lies under a file, or (for a plot) has a suffix matplotlib cannot write.
+        ``/``), lies under a file or in a folder that does not exist or where no file can
+        be made, or (for a plot) has a suffix matplotlib cannot write.
         (A link there is allowed: the result replaces it, its target is left alone.)
 
     Examples
     --------
-    >>> check_output("out/run.csv", "--out")
-    PosixPath('out/run.csv')
+    >>> import tempfile
+    >>> folder = tempfile.mkdtemp()
+    >>> check_output(f"{folder}/run.csv", "--out").name
+    'run.csv'
+    >>> check_output(f"{folder}/missing/run.csv", "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.formats.outputs.OutputError: --out '.../missing/run.csv': folder ... does not ...
     >>> check_output("out/", "--plot", "plot")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
@@ -97,12 +104,17 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
                           "regular file (results are written to a new file and renamed "
                           "into place)")
     parent = p.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if parent.exists() and not parent.is_dir():
-        raise OutputError(f"{option} {text!r}: {parent} is a file, not a folder")
-    if parent.exists() and not os.access(parent, os.W_OK):
-        raise OutputError(f"{option} {text!r}: folder {parent} is not writable")
+    missing = parent
+    while not missing.exists() and missing != missing.parent:
+        missing = missing.parent
+    if missing.exists() and not missing.is_dir():
+        raise OutputError(f"{option} {text!r}: {missing} is a file, not a folder")
+    if not parent.is_dir():  # created by us, silently, before: the user's typo kept
+        raise OutputError(f"{option} {text!r}: folder {parent} does not exist (create it "
+                          "first)")
+    why = _unwritable(parent)
+    if why:
+        raise OutputError(f"{option} {text!r}: folder {parent} is not writable ({why})")
     if kind == "plot":
         suffix = p.suffix.lower().lstrip(".")
         formats = plot_formats()
@@ -110,6 +122,19 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
             raise OutputError(f"{option} {text!r}: the suffix must name a plot format, one "
                               f"of {', '.join(sorted(formats))}")
     return p
+
+
+def _unwritable(folder: Path) -> str | None:
+    """Why a new file cannot be made in ``folder`` (tried: permissions alone say nothing
+    for root, or on a read-only file system), or ``None``."""
+    probe = folder / f".delaycomp-probe-{os.getpid()}-{os.urandom(4).hex()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    os.close(fd)
+    os.unlink(probe)
+    return None
 
 
 def _special(path: Path) -> str | None:

@@ -10,6 +10,7 @@ Notation follows Karafyllis & Krstic: plant ``x' = A x + B u(t - tau)``, measure
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -63,10 +64,19 @@ def discretize(A, B, h: float) -> tuple[np.ndarray, np.ndarray]:
 
 def sampled_radius(A, B, K, T: float) -> float:
     """Spectral radius of the delay-free sampled loop ``x_{i+1} = (Ad + Bd K) x_i`` (the
-    plant under ``u = K x`` held over each period ``T``, no delay)."""
-    Ad, Bd = discretize(A, B, T)
-    K = np.atleast_2d(np.asarray(K, dtype=float))
-    return float(np.max(np.abs(np.linalg.eigvals(Ad + Bd @ K))))
+    plant under ``u = K x`` held over each period ``T``, no delay); NaN where that matrix
+    is not finite (``e^(A T)`` overflowed: no radius to speak of).
+
+    >>> sampled_radius([[1e308]], [[1.0]], [[-1.0]], 1.0)
+    nan
+    """
+    with np.errstate(all="ignore"):  # an overflow is the answer NaN, not a warning
+        Ad, Bd = discretize(A, B, T)
+        K = np.atleast_2d(np.asarray(K, dtype=float))
+        M = Ad + Bd @ K
+    if not np.all(np.isfinite(M)):
+        return math.nan
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from delaycomp.errors import ParameterError
+from delaycomp.errors import ParameterError, shown
 from delaycomp.maths.grid import on_grid
 from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_loop, model_loop
 from delaycomp.system import loopfile as lf
@@ -226,9 +226,10 @@ class Scenario:
                 return p.check(value) if p.check else value
             value = self._check_key(p.key, p.to_file(value) if p.to_file else value)
             value = p.from_file(value) if p.from_file else value
-        except (ParameterError, ValueError, TypeError):
+        except (ParameterError, ValueError, TypeError, RecursionError):
+            quoted = repr(shown(text)) if isinstance(text, str) else repr(text)
             raise ParameterError(
-                f"parameter {name} = {text!r} is not allowed: must be {p.allowed}") from None
+                f"parameter {name} = {quoted} is not allowed: must be {p.allowed}") from None
         if isinstance(value, np.ndarray):  # as the reader keeps it, as a tuple here
             return _vector(value)
         return value

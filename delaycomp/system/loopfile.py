@@ -55,7 +55,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli package
     import tomli as tomllib
 
-from delaycomp.errors import BadFileError, ParameterError
+from delaycomp.errors import BadFileError, ParameterError, shown
 from delaycomp.names import MODES
 from delaycomp.system.loop import (
     Loop,
@@ -84,6 +84,11 @@ class SignError(ParameterError):
 
 # -- values ---------------------------------------------------------------------------------
 
+#: why a value or file nested beyond what the parser can read is refused
+NESTED = ("its arrays or tables are nested too deeply to read (a loop needs at most a "
+          "matrix: two levels)")
+
+
 def parse_value(text: str) -> Any:
     """A ``--set`` value: an ASCII decimal number, ``a,b,c`` (a list), ``a,b;c,d`` (rows),
     a TOML array ``[[a, b], [c, d]]``, a TOML inline table ``{name = value}``,
@@ -106,6 +111,8 @@ def parse_value(text: str) -> Any:
             return tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"not a TOML inline table: {exc}") from None
+        except RecursionError:
+            raise ValueError(NESTED) from None
     if text.startswith("["):
         if "_" in text:
             raise ValueError("plain decimal numbers only (no '_')")
@@ -113,6 +120,8 @@ def parse_value(text: str) -> Any:
             return tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"not a TOML array: {exc}") from None
+        except RecursionError:
+            raise ValueError(NESTED) from None
     if "," in text or ";" in text:
         rows = [[_number(part) for part in row.split(",")] for row in text.split(";")]
         return rows if ";" in text else rows[0]
@@ -279,6 +288,11 @@ def check_sign(A, B, K, T: float) -> float:
     """
     A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
     rho = _radius(A.shape, A.tobytes(), B.shape, B.tobytes(), K.shape, K.tobytes(), T)
+    if math.isnan(rho):  # e^(A T) overflowed: there is no sampled loop to judge
+        raise SignError(
+            f"plant A = {A.tolist()} with T = {T!r} is not allowed: the sampled plant "
+            "e^(A T) overflows (it is not finite), so the delay-free sampled loop cannot be "
+            "judged; set allow_unstable = true (--allow-unstable) to run it anyway")
     if not rho < 1.0:
         raise SignError(
             f"controller K: the delay-free sampled loop is unstable (spectral radius of "
@@ -341,6 +355,8 @@ class LoopFile:
             self.data = tomllib.loads(self.path.read_text(encoding="utf-8"))
         except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
             raise BadFileError(self.path, f"is not a TOML loop file: {exc}") from None
+        except RecursionError:
+            raise BadFileError(self.path, f"is not allowed: {NESTED}") from None
         except OSError as exc:
             raise BadFileError(self.path, f"cannot be read: {exc.strerror}") from None
         self.name = str(self.data.get("name") or self.path.stem)
@@ -372,7 +388,7 @@ class LoopFile:
             try:
                 value = parse_value(text) if isinstance(text, str) else text
             except ValueError as exc:
-                raise ParameterError(f"--set {key}={text}: {exc}") from None
+                raise ParameterError(f"--set {key}={shown(text)}: {exc}") from None
             if section == "":
                 _check_keys(self.path.name, {name: 0}, TOP_KEYS)
                 data[name] = value

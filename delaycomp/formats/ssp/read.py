@@ -261,9 +261,9 @@ def _role_and_choices(where: str, name: str, fmu: etree._Element | None,
     try:
         choices = {k: tuple(v)
                    for k, v in json.loads(fmu.get("choices", "{}")).items()}
-    except (json.JSONDecodeError, AttributeError, TypeError):
+    except (json.JSONDecodeError, AttributeError, TypeError, RecursionError):
         raise SspError(f"{where}: component {name}: choices is not a JSON object of "
-                       "lists") from None
+                       "lists (or is nested too deeply)") from None
     # archives before roles named instances by role
     role = given_roles.get(name) or fmu.get("role") or name
     if role not in ROLES:
@@ -281,9 +281,9 @@ def _component_source(ssd_path: Path, name: str, fmu: etree._Element | None,
     try:
         config = config_in(json.loads(required_attr(fmu, "config",
                                                     f"{ssd_path.name}: {name}")))
-    except json.JSONDecodeError:
-        raise SspError(f"{ssd_path.name}: component {name}: dc:Fmu config is not JSON"
-                       ) from None
+    except (json.JSONDecodeError, RecursionError):
+        raise SspError(f"{ssd_path.name}: component {name}: dc:Fmu config is not JSON "
+                       "(or is nested too deeply)") from None
     return (ModelFmu(kind, Path(config["model"])) if "model" in config
             else BuiltinFmu(kind, config))
 
