@@ -8,12 +8,22 @@ run failed cleanly with the reason; anything else (a signal, status 0 with no re
 crash. Usage::
 
     python scripts/crash_rate.py --runs 100
+
+With ``--fmi-sequences`` it counts instead the exits of fresh plain-fmpy hosts that run FMI
+call sequences, legal and illegal, on the Python FMUs of the default loop (plant, delay,
+controller, built from these sources unless ``--fmu-dir`` names a folder of them) and leave
+through normal interpreter exit (``scripts/fmi_sequence_child.py``; issue 30, item 10:
+the teardown heap corruption). ``--runs`` runs per sequence; a crash is any exit but 0
+with ``DONE`` printed::
+
+    python scripts/crash_rate.py --fmi-sequences --runs 300
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import concurrent.futures
 import subprocess
 import sys
 import tempfile
@@ -45,15 +55,12 @@ sys.exit(3 if not result.success and "k gave up" in result.message else 4)
 '''
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--runs", type=int, default=100)
-    ap.add_argument("--raise", dest="exc", default="SystemExit")
-    args = ap.parse_args()
+def raising_model(args: argparse.Namespace) -> None:
+    """Count the exits of hosts whose user model raises ``args.exc`` (module docstring)."""
     folder = Path(tempfile.mkdtemp(prefix="delaycomp-crash-"))
     model = folder / "raising_model.py"
     model.write_text(MODEL.format(exc=args.exc), encoding="utf-8")
-    statuses = collections.Counter()
+    statuses: collections.Counter[int] = collections.Counter()
     last = ""
     for i in range(args.runs):
         proc = subprocess.run([sys.executable, "-c", CHILD, str(model), str(folder / "fmus")],
@@ -65,6 +72,69 @@ def main() -> None:
                   flush=True)
     print(f"{args.exc}: {args.runs} runs, exit statuses {dict(statuses)}; "
           f"crashes (not 3): {args.runs - statuses[3]}; last message: {last}")
+
+
+SEQUENCE_CHILD = Path(__file__).resolve().parent / "fmi_sequence_child.py"
+
+
+def run_sequence(sequence: str, fmus: list[str]) -> tuple[int, str]:
+    """One fresh host running ``sequence`` on ``fmus``: its exit status (-1: it exited 0
+    without ``DONE``) and the end of its stderr."""
+    proc = subprocess.run([sys.executable, str(SEQUENCE_CHILD), sequence, *fmus],
+                          capture_output=True, text=True, timeout=300)
+    status = proc.returncode
+    if status == 0 and f"DONE {sequence}" not in proc.stdout:
+        status = -1
+    return status, proc.stderr.strip()[-300:]
+
+
+def default_fmus(fmu_dir: str | None) -> list[str]:
+    """The plant, delay and controller FMUs in ``fmu_dir``, else built from these sources
+    into a new temporary folder."""
+    if fmu_dir is None:
+        from delaycomp.fmu.build import build_all
+
+        return [str(p) for p in build_all(Path(tempfile.mkdtemp(prefix="delaycomp-heap-")))]
+    names = ("DelaycompPlantLTI.fmu", "DelaycompDelay.fmu", "DelaycompControllerLTI.fmu")
+    return [str(Path(fmu_dir) / n) for n in names]
+
+
+def fmi_sequences(args: argparse.Namespace) -> None:
+    """Count, per call sequence, the crashed exits of ``args.runs`` fresh hosts."""
+    sys.path.insert(0, str(SEQUENCE_CHILD.parent))
+    from fmi_sequence_child import SEQUENCES
+
+    fmus = default_fmus(args.fmu_dir)
+    total: collections.Counter[str] = collections.Counter()
+    with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
+        for sequence in args.sequence or list(SEQUENCES):
+            results = list(pool.map(run_sequence, [sequence] * args.runs,
+                                    [fmus] * args.runs))
+            statuses = collections.Counter(status for status, _ in results)
+            crashes = args.runs - statuses[0]
+            total.update(runs=args.runs, crashes=crashes)
+            example = next((err.splitlines()[-1] for status, err in results
+                            if status != 0 and err), "")
+            print(f"{sequence}: {crashes} crashes of {args.runs} runs, exit statuses "
+                  f"{dict(statuses)} {example}".rstrip(), flush=True)
+    print(f"all sequences: {total['crashes']} crashes of {total['runs']} runs")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=100)
+    ap.add_argument("--raise", dest="exc", default="SystemExit")
+    ap.add_argument("--fmi-sequences", action="store_true",
+                    help="count the exits of hosts running FMI call sequences instead")
+    ap.add_argument("--sequence", action="append",
+                    help="with --fmi-sequences: this sequence only (repeatable)")
+    ap.add_argument("--fmu-dir", help="with --fmi-sequences: the FMUs to run")
+    ap.add_argument("--jobs", type=int, default=1, help="hosts running at once")
+    args = ap.parse_args()
+    if args.fmi_sequences:
+        fmi_sequences(args)
+    else:
+        raising_model(args)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from xml.sax.saxutils import escape
 
 import delaycomp
 from delaycomp.child import module_argv
+from delaycomp.fmu.runtime import is_runtime, patch_runtime
 from delaycomp.maths.model import model_id
 from delaycomp.names import CONFIG_NAME
 from delaycomp.tmpfiles import temp_dir
@@ -148,8 +149,7 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
         doc.mkdir()
         shutil.copy2(spec.folder / "README.md", doc / "README.md")
         built = _run_pythonfmu(kind, spec, tmp_path, script, project, doc, target.name)
-        if config.get("start"):
-            _exact_starts(built, config["start"])
+        _finish(built, config.get("start") or {})
         publish(built, target)
     return target
 
@@ -246,19 +246,22 @@ def set_start(xml: str, name: str, value,
     return xml[:match.start(3)] + text + xml[match.end(3):]
 
 
-def _exact_starts(fmu: Path, start: Mapping) -> None:
-    """Rewrite the modelDescription of the pythonfmu FMU ``fmu`` (built with a ``start``
-    table) so that each start value of the table reads back as the very value the slave
-    holds (:func:`start_text`)."""
-    part = fmu.with_name(fmu.name + ".exact")
+def _finish(fmu: Path, start: Mapping) -> None:
+    """Rewrite the pythonfmu FMU ``fmu`` as we ship it: its linux64 runtime library with
+    the fix of :mod:`delaycomp.fmu.runtime` (a heap corruption at exit), and, for a build
+    with a ``start`` table, a modelDescription whose start values read back as the very
+    values the slave holds (:func:`start_text`)."""
+    part = fmu.with_name(fmu.name + ".finished")
     with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
         for info in zin.infolist():
             data = zin.read(info)
-            if info.filename == "modelDescription.xml":
+            if info.filename == "modelDescription.xml" and start:
                 xml = data.decode("utf-8")
                 for name, value in start.items():
                     xml = set_start(xml, name, value)
                 data = xml.encode("utf-8")
+            elif is_runtime(info.filename):
+                data = patch_runtime(data)
             zout.writestr(info, data)
     os.replace(part, fmu)
 

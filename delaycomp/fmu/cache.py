@@ -35,7 +35,8 @@ __all__ = ["check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_
 def _source_digest() -> str:
     """Digest of everything that goes into an FMU, naming the build cache."""
     h = hashlib.sha256(delaycomp.__version__.encode())
-    files = [PACKAGE_DIR / m for m in BUNDLED_MODULES]
+    # the fix of pythonfmu's runtime library (delaycomp.fmu.runtime) goes into every FMU too
+    files = [PACKAGE_DIR / m for m in BUNDLED_MODULES] + [PACKAGE_DIR / "fmu" / "runtime.py"]
     for spec in FMUS.values():
         files += [spec.script_path, spec.folder / "README.md"]
     for f in files:

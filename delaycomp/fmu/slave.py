@@ -44,8 +44,10 @@ module only declares its variable table and calls the maths:
    state would free it twice and crash the host. Each handle is pinned (32 references
    held here), so repeated frees only lower the pin count; the state's data is dropped
    once no one but the pins holds the handle, and a freed handle restored later is a
-   named refusal. Each saved state leaves its handle and pins (about 350 bytes); a state
-   blob that is not ours (not JSON, another model, no data) is a named refusal too;
+   named refusal. Each saved state leaves its handle and pins (about 350 bytes), kept
+   even through the interpreter's teardown (which freed a handle freed twice one pin
+   early, and then wrote into it); a state blob that is not ours (not JSON, another
+   model, no data) is a named refusal too;
 9. a String parameter with a fixed set of choices (``mode``, ``predictor``, a model's
    ``CHOICES``) has an Integer twin ``<name>_index`` for importers that cannot set String
    parameters (OMSimulator's command line, many SSP tools): ``0`` (its start) leaves the
@@ -59,6 +61,7 @@ Subclasses implement ``_setup()`` (check parameters, build the maths objects) an
 
 from __future__ import annotations
 
+import ctypes
 import json
 import math
 import os
@@ -163,7 +166,9 @@ class _StateHandle:
         cls._sweep()
         cls._serial += 1
         token = (1 << 62) + cls._serial  # computed: a new int object, never a cached one
-        cls._registry[id(token)] = (token, [token] * cls.PINS, state)
+        pins = [token] * cls.PINS
+        _never_freed(pins)
+        cls._registry[id(token)] = (token, pins, state)
         return token
 
     @classmethod
@@ -172,7 +177,7 @@ class _StateHandle:
             token = entry[0]
             del entry
             if sys.getrefcount(token) <= cls._UNOWNED:
-                _FREED_PINS.append(cls._registry.pop(key)[1])  # keep the pins: point 8
+                del cls._registry[key]  # its pins stay: point 8
 
     @classmethod
     def data_of(cls, token) -> dict:
@@ -183,8 +188,14 @@ class _StateHandle:
         return entry[2]
 
 
-#: pins of tokens whose data was dropped: a further free of one cannot reach zero
-_FREED_PINS: list[list] = []
+def _never_freed(pins: list) -> None:
+    """Hold one reference to ``pins`` that nothing drops, not even the interpreter's
+    teardown (issue 30, item 10): a pin list is never freed, so a token the host freed more
+    than once never reaches zero. Before, the pins lay in a module variable, which the
+    teardown frees: a token freed twice by the host then reached zero one pin early, and
+    freeing the rest read and wrote the freed token (valgrind: "Invalid read of size 8 ...
+    list_dealloc", 0 bytes inside a block of 40 freed by the same ``list_dealloc``)."""
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(pins))
 
 
 class TableSlave(Fmi2Slave):
