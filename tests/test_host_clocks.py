@@ -172,3 +172,55 @@ def test_omsimulator_command_line_runs_example_3_6_for_long(oms, tmp_path, flag,
     assert times[-1] == stop
     np.testing.assert_allclose(times, ours.times, rtol=0, atol=1e-9 * stop)
     assert np.all(np.abs(data - ours.data) <= 1e-11 * np.abs(ours.data) + 1e-12)
+
+
+# -- the error paths: terminate and free after an error, in any order ----------------------
+
+_SEQUENCE = r'''
+import sys, shutil, tempfile
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi1 import FMICallException
+
+path, seq = sys.argv[1], sys.argv[2]
+md = read_model_description(path)
+unzip = extract(path, tempfile.mkdtemp())
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=
+                md.coSimulation.modelIdentifier, instanceName="plant_after_error")
+fmu.instantiate()
+fmu.setupExperiment(startTime=0.0)
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+fmu.doStep(0.0, 0.01)
+def call(f, *a):
+    try:
+        f(*a)
+    except FMICallException as exc:
+        print("refused", f.__name__, exc.status)
+call(fmu.doStep, 0.01, 0.01 * 1.5)    # off the grid (the delay, the controller) or a step
+call(fmu.doStep, 0.5, 0.01)           # a jump: refused by every FMU, in the error state
+for op in seq.split(","):
+    call({"terminate": fmu.terminate, "free": fmu.freeInstance,
+          "step": lambda: fmu.doStep(0.02, 0.01), "reset": fmu.reset}[op])
+print("done")
+'''
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("kind", ["delay", "plant", "controller"])
+@pytest.mark.parametrize("seq", ["terminate,free", "free", "terminate,terminate,free",
+                                 "step,terminate,free", "reset,free", "step,free"])
+def test_native_fmus_survive_every_call_after_an_error(native_dir, tmp_path, kind, seq):
+    """A host ends a failed run in its own order (OMSimulator: fmi2Terminate then
+    fmi2FreeInstance on every instance); no order may crash the process or log a freed
+    instance name."""
+    script = tmp_path / "seq.py"
+    script.write_text(_SEQUENCE)
+    import sys
+
+    proc = subprocess.run([sys.executable, str(script),
+                           str(native_dir / f"{FMUS[kind].model_identifier}.fmu"), seq],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.rstrip().endswith("done")
+    assert "refused doStep" in proc.stdout
