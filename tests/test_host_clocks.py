@@ -107,6 +107,44 @@ def test_fmus_run_on_a_drifting_clock_to_its_stop_time(native_dir, how, kind, pa
         comp.terminate()
 
 
+MODEL = {"T": 1.0, "N": 100, "r": 0.5, "tau": 1.0}
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("how", ["python", "native"])
+@pytest.mark.parametrize("kind", ["delay", "controller", "model_controller"])
+def test_fmus_run_on_a_drifting_clock_far_from_zero(native_dir, how, kind):
+    """From t0 = 1e5 a clock ``t += h`` drifts by half an ulp of 1e5 a step: 2000 steps
+    put it 1e-6 h off the grid, beyond ``GRID_RTOL h + 8 eps |t|`` (before: every FMU
+    refused the last step ``stop - t``, the LTI controller the step to ``t0 + 1``)."""
+    from delaycomp.fmu.native import build_native_fmu
+    from delaycomp.maths.model import load_model
+    from delaycomp.paper.models import path
+
+    t0, k = 1e5, 2000
+    times = _drifting(k - 1, H, t0)
+    stop = t0 + k * H
+    if kind == "model_controller":
+        config = {"model": str(path("example_3_8"))}
+        comp = (SlaveComponent("x", kind, config) if how == "python" else FmuComponent(
+            "x", build_native_fmu(kind, native_dir / "model", config)))
+        params, inputs = MODEL, [f"y_{s}" for s in load_model(path("example_3_8")).states]
+    else:
+        _, params, inputs = next(c for c in CASES if c[0] == kind)
+        comp = _make(how, kind, native_dir)
+    assert abs(times[-1] - (stop - H)) > 1e-7 * H
+    try:
+        comp.setup(t0, stop, params)
+        write = comp.writer(inputs)
+        comp.initialize()
+        for t in times[:-1]:
+            write([0.1] * len(inputs))
+            comp.do_step(t, H)
+        comp.do_step(times[-1], stop - times[-1])
+    finally:
+        comp.terminate()
+
+
 @pytest.mark.fmu
 @pytest.mark.parametrize("how", ["python", "native"])
 @pytest.mark.parametrize(("kind", "params", "inputs"), CASES, ids=[c[0] for c in CASES])
