@@ -230,7 +230,8 @@ int model_step(Instance *c, double t, double h) {
     double T = c->d.real[VR_T];
     double t_end = t + h;
     double t_sample = c->d.t0 + (double)m->next * T;
-    double tol = 1e-9 * T + EPS4 * fabs(t_end);
+    /* the grid's tolerance and the drift of a host's clock (t += h: drift) */
+    double tol = GRID_RTOL * T + fmax(EPS4 * fabs(t_end), drift(t_end, h, c->d.t0));
     if (t_end > t_sample + tol) {
         log_error(c, "step [%s, %s] is not allowed: it passes over the sampling instant %s; "
                   "steps must end on t0 + iT", num(t).s, num(t_end).s, num(t_sample).s);

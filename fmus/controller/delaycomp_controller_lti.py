@@ -9,7 +9,7 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.fmu.slave import HeldSampleMixin, TableSlave, check_finite, check_inputs
-from delaycomp.maths.grid import periods
+from delaycomp.maths.grid import GRID_RTOL, drift, periods
 from delaycomp.maths.lti import MODES, check_steps
 from delaycomp.maths.zoh import ZOHController
 from delaycomp.names import indexed
@@ -159,7 +159,8 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
             self._proposal = None
         t_end = current_time + step_size
         t_sample = self.t0 + self._next * self.T
-        tol = 1e-9 * self.T + _EPS4 * abs(t_end)
+        # the grid's tolerance and the drift of a host's clock (t += h: grid.drift)
+        tol = GRID_RTOL * self.T + max(_EPS4 * abs(t_end), drift(t_end, step_size, self.t0))
         if t_end > t_sample + tol:
             self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
                       f"sampling instant {t_sample!r}; steps must end on t0 + iT")

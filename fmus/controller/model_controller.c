@@ -447,8 +447,10 @@ int model_step(Instance *c, double t, double hs) {
     double slack = 1e-9 * fmax(T, fabs(t));
     /* the master's round-off (delaycomp.fmu.slave.ROUNDOFF_STEP_FRACTION): nothing moves */
     if (hs <= ROUNDOFF_STEP_FRACTION * m->h && fabs(t + hs - expected) <= slack) return 0;
-    /* the step is h up to the round-off of the host's times (same_step) */
-    if (!same_step(hs, m->h, t) || fabs(t - expected) > slack) {
+    /* the step is h up to the round-off of the host's times (same_step) or ends on the grid
+     * up to a host's drift (t += h: grid_step); it starts where this controller stands */
+    int one_step = same_step(hs, m->h, t) || grid_step(t, hs, m->h, c->d.t0);
+    if (!one_step || fabs(t - expected) > slack) {
         log_error(c, "step (%s, %s) is not allowed: this controller steps from %s by exactly "
                   "T/N = %s", num(t).s, num(hs).s, num(expected).s, num(m->h).s);
         return -1;

@@ -9,7 +9,7 @@ import math
 
 from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, is_roundoff_step
 from delaycomp.maths.delayline import DelayLine, steps_of
-from delaycomp.maths.grid import same_step
+from delaycomp.maths.grid import grid_step, same_step
 from delaycomp.names import indexed
 
 
@@ -95,9 +95,10 @@ class DelaycompDelay(TableSlave):
             self._h = step_size
         elif is_roundoff_step(step_size, self._h):
             return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
-        elif not same_step(step_size, self._h, t):
+        elif not (same_step(step_size, self._h, t) or grid_step(t, step_size, self._h, self.t0)):
             # round-off is not another step size: libcosim keeps time in integer
-            # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s
+            # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s; a host
+            # whose clock drifts (t += h) ends its last step on the stop time (grid_step)
             self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
                       f"communication step, {self._h!r}")
         check_inputs(self.input_names, self.u, t)

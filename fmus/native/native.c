@@ -117,6 +117,18 @@ int same_step(double step, double h, double t) {
     return fabs(step - h) <= GRID_RTOL * h + 8 * DBL_EPSILON * fmax(fabs(t), fabs(t + step));
 }
 
+double drift(double t, double h, double t0) {
+    double scale = fmax(fabs(t), fabs(t0));
+    return fmin((fabs(t - t0) / h + 8) * DBL_EPSILON * scale, DRIFT_RTOL * h);
+}
+
+int grid_step(double t, double step, double h, double t0) {
+    if (!(isfinite(t) && isfinite(step) && h > 0 && isfinite(t0))) return 0;
+    double k = nearbyint((t - t0) / h), end = t + step;
+    return fabs(t - (t0 + k * h)) <= GRID_RTOL * h + drift(t, h, t0) &&
+           fabs(end - (t0 + (k + 1) * h)) <= GRID_RTOL * h + drift(end, h, t0);
+}
+
 int alloc_buf(Instance *c, size_t n) {
     free(c->buf);
     c->buf = NULL;

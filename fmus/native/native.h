@@ -23,6 +23,7 @@
 #define GRID_RTOL 1e-9       /* delaycomp.maths.grid.GRID_RTOL */
 #define MAX_STEPS 1000000.0  /* delaycomp.maths.grid.MAX_STEPS */
 #define ROUNDOFF_STEP_FRACTION 1e-6  /* delaycomp.fmu.slave.ROUNDOFF_STEP_FRACTION */
+#define DRIFT_RTOL 1e-4      /* delaycomp.maths.grid.DRIFT_RTOL */
 
 /* The FMI 2.0 co-simulation states (FMI 2.0.4, 4.2.4), as bits for the call masks. */
 typedef enum {
@@ -96,6 +97,14 @@ int check_step(Instance *c, double t, double h);
  * passes steps t_{k+1} - t_k that differ from h by a few ulps of t: far from 0 more than
  * GRID_RTOL h (from t = 1e5 with h = 0.005, 3e-9 h), never more than this. */
 int same_step(double step, double h, double t);
+/* How far a host's time t may lie from the point t0 + k h of the grid it means: the
+ * round-off of a clock kept as t += h, min((|t - t0| / h + 8) eps max(|t|, |t0|),
+ * DRIFT_RTOL h) (delaycomp.maths.grid.drift, the same arithmetic). */
+double drift(double t, double h, double t0);
+/* Is [t, t + step] one step of the grid t0 + k h, each end within GRID_RTOL h + drift of
+ * consecutive grid points (delaycomp.maths.grid.grid_step)? A host whose clock drifts
+ * (t += h) ends its last step on the stop time, h less the drift. */
+int grid_step(double t, double step, double h, double t0);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
 
