@@ -93,7 +93,7 @@ def linalg(tmp_path_factory):
         "int model_output(Instance *c, fmi2ValueReference vr, double *v) { (void)c; "
         "(void)vr; *v = 0; return 0; }\n"
         "void model_input_set(Instance *c) { (void)c; }\n"
-        "int model_state_ok(const Data *d, size_t nbuf) { (void)d; return nbuf == 0; }\n")
+        "int model_state_ok(const StateView *v) { return v->nbuf == 0; }\n")
     lib = tmp / "liblinalg.so"
     flags = [f for f in CFLAGS if f != "-fvisibility=hidden"]
     subprocess.run([*compiler(), *flags, "-I", str(tmp), "-I", str(SOURCE_DIR), "-I",

@@ -135,6 +135,80 @@ def check_model_parameters(model, values: dict) -> None:
             check_finite(name, float(value))
 
 
+# -- a restored FMU state, checked field by field (the native FMUs' form, item 7) ----------
+def state_refused(field: str, value, expected: str) -> ParameterError:
+    """The refusal of a field of a restored FMU state: ``FMU state is not allowed: <field> =
+    <value>: must be <expected>`` (the value's ``repr``, cut at 80 characters)."""
+    text = repr(value)
+    if len(text) > 80:
+        text = text[:77] + "..."
+    return ParameterError(f"FMU state is not allowed: {field} = {text}: must be {expected}")
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def state_number(field: str, value, positive: bool = False) -> float:
+    """A finite number (> 0 with ``positive``) of a restored state."""
+    if not (_is_number(value) and math.isfinite(value) and (value > 0 or not positive)):
+        raise state_refused(field, value, "a finite number" + (" > 0" if positive else ""))
+    return float(value)
+
+
+def state_count(field: str, value, expected: int | None = None) -> int:
+    """An integer >= 0 of a restored state (``expected`` when given)."""
+    if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0
+            and (expected is None or value == expected)):
+        raise state_refused(field, value, "an integer >= 0" if expected is None
+                            else f"{expected}")
+    return value
+
+
+def state_flag(field: str, value) -> bool:
+    """A boolean of a restored state (true or false, not a number)."""
+    if not isinstance(value, bool):
+        raise state_refused(field, value, "true or false")
+    return value
+
+
+def _numbers(value, width: int, finite: bool) -> bool:
+    return (isinstance(value, list) and len(value) == width
+            and all(_is_number(v) and (math.isfinite(v) or not finite) for v in value))
+
+
+def state_vector(field: str, value, width: int, finite: bool = True) -> list:
+    """A list of ``width`` numbers (finite where the model needs them) of a restored state."""
+    if not _numbers(value, width, finite):
+        raise state_refused(field, value, f"a list of {width} {'finite ' * finite}numbers")
+    return value
+
+
+def state_rows(field: str, value, rows: int, width: int, finite: bool = True) -> list:
+    """A list of ``rows`` lists of ``width`` numbers (finite where the model needs them) of
+    a restored state."""
+    if not (isinstance(value, list) and len(value) == rows
+            and all(_numbers(row, width, finite) for row in value)):
+        raise state_refused(field, value, f"a list of {rows} lists of {width} "
+                            f"{'finite ' * finite}numbers")
+    return value
+
+
+#: the JSON type of each variable type's values in a state
+_VALUE_TYPES = {Real: "a number", Integer: "an integer", Boolean: "true or false",
+                String: "a string"}
+
+
+def _value_ok(var, value) -> bool:
+    if isinstance(var, Real):
+        return _is_number(value)
+    if isinstance(var, Integer):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(var, Boolean):
+        return isinstance(value, bool)
+    return isinstance(value, str)
+
+
 def pinned_guid(class_name: str, config: dict) -> uuid.UUID:
     """The GUID of the slave class ``class_name`` built with ``config`` (see item 3)."""
     key = json.dumps({"model": class_name, "config": config}, sort_keys=True)
@@ -580,21 +654,28 @@ class TableSlave(Fmi2Slave):
     def _restore_hidden(self, hidden: dict) -> None:
         """Inverse of :meth:`_hidden_state`, called after ``_setup`` rebuilt the maths."""
 
+    def _state_data(self) -> dict:
+        """The state as plain data (every settable variable, the times, the flags and the
+        hidden state), a deep copy: later steps do not change it."""
+        values = {v.name: v.getter() for v in self.vars.values() if v.setter is not None}
+        state = {"model": type(self).__name__, "values": values, "t0": self.t0,
+                 "t_next": self.t_next, "initialized": self.initialized, "error": self.error,
+                 "hidden": self._hidden_state() if self.initialized else None}
+        return json.loads(json.dumps(state, default=_plain))
+
     def _get_fmu_state(self) -> int:
         try:
-            values = {v.name: v.getter() for v in self.vars.values() if v.setter is not None}
-            state = {"model": type(self).__name__, "values": values, "t0": self.t0,
-                     "t_next": self.t_next, "initialized": self.initialized,
-                     "error": self.error,
-                     "hidden": self._hidden_state() if self.initialized else None}
-            # a deep copy: later steps must not change a saved state
-            return _StateHandle.new(json.loads(json.dumps(state, default=_plain)))
+            return _StateHandle.new(self._state_data())
         except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             message = f"saving the FMU state failed: {type(exc).__name__}: {exc}"
             self.log(message, Fmi2Status.error)
             return _StateHandle.new({"model": None, "invalid": message})
 
     def _set_fmu_state(self, handle) -> None:
+        """fmi2SetFMUstate: the state checked field by field (:meth:`_check_state`, then
+        :meth:`_restore_hidden` against the maths its parameters rebuild); a state that
+        fails is refused (logged, the instance then refuses to step) and the instance's
+        own state is put back."""
         try:
             if self.phase == "terminated":
                 raise ParameterError("fmi2SetFMUstate is not allowed: the instance is "
@@ -605,26 +686,75 @@ class TableSlave(Fmi2Slave):
             if state.get("model") != type(self).__name__:
                 raise ParameterError(f"FMU state of model {state.get('model')!r} is not "
                                      f"allowed: this FMU is {type(self).__name__}")
-            by_name = {v.name: v for v in self.vars.values()}
-            unknown = sorted(set(state["values"]) - set(by_name))
-            if unknown:
-                raise ParameterError(f"FMU state with variables {unknown} is not allowed: "
-                                     "this FMU has no such variables (another build)")
-            for name, value in state["values"].items():
-                by_name[name].setter(value)
-            self.t0 = float(state["t0"])
-            t_next = state.get("t_next")
-            self.t_next = None if t_next is None else float(t_next)
-            self.initialized = False
-            if state["initialized"]:
-                self._quiet_setup()
-                self._restore_hidden(state["hidden"])
-                self.initialized = True
-            self.error = state["error"]
+            self._check_state(state)
+            saved = self._state_data()
+            try:
+                self._apply_state(state)
+            except BaseException:
+                self._roll_back(saved)
+                raise
         except ParameterError as exc:
             self._refuse(str(exc))
         except BaseException as exc:  # noqa: BLE001 - never let it reach pythonfmu
             self._refuse(f"restoring the FMU state failed: {type(exc).__name__}: {exc}")
+
+    def _check_state(self, state: dict) -> None:
+        """The fields every slave's state has: each variable of this FMU with a value of
+        its type, the times finite, the flags true or false, the error a message, the
+        hidden state present exactly when the instance was initialized."""
+        by_name = {v.name: v for v in self.vars.values() if v.setter is not None}
+        values = state.get("values")
+        if not isinstance(values, dict):
+            raise state_refused("values", values, "an object of the variables' values")
+        unknown = sorted(set(values) - set(by_name))
+        if unknown:
+            raise ParameterError(f"FMU state with variables {unknown} is not allowed: "
+                                 "this FMU has no such variables (another build)")
+        missing = sorted(set(by_name) - set(values))
+        if missing:
+            raise state_refused("values", sorted(values), f"every variable of this FMU "
+                                f"(missing {missing})")
+        for name, value in values.items():
+            if not _value_ok(by_name[name], value):
+                raise state_refused(name, value, _VALUE_TYPES[type(by_name[name])])
+        state_number("t0", state.get("t0"))
+        if state.get("t_next") is not None:
+            state_number("t_next", state["t_next"])
+        initialized = state_flag("initialized", state.get("initialized"))
+        error = state.get("error")
+        if not (error is None or isinstance(error, str)):
+            raise state_refused("error", error, "null or a message")
+        hidden = state.get("hidden")
+        if initialized != isinstance(hidden, dict) or not (initialized or hidden is None):
+            raise state_refused("hidden", hidden, "an object exactly when initialized = true"
+                                f" (initialized = {initialized})")
+
+    def _apply_state(self, state: dict) -> None:
+        by_name = {v.name: v for v in self.vars.values()}
+        for name, value in state["values"].items():
+            by_name[name].setter(value)
+        self.t0 = float(state["t0"])
+        t_next = state.get("t_next")
+        self.t_next = None if t_next is None else float(t_next)
+        self.initialized = False
+        self.error = None
+        if state["initialized"]:
+            try:
+                self._quiet_setup()
+            except ParameterError as exc:
+                raise ParameterError(f"FMU state is not allowed: {exc} (initialized = true: "
+                                     "its parameters must pass initialization's checks)"
+                                     ) from None
+            self._restore_hidden(state["hidden"])
+            self.initialized = True
+        self.error = state["error"]
+
+    def _roll_back(self, saved: dict) -> None:
+        """After a refused state: the instance's own state again (as far as it goes)."""
+        try:
+            self._apply_state(saved)
+        except BaseException:  # noqa: BLE001 - the refusal is what the host sees
+            pass
 
     @staticmethod
     def _fmu_state_to_bytes(handle) -> bytes:
@@ -681,6 +811,7 @@ class HeldSampleMixin:
 
     # what the TableSlave it is mixed into provides (annotations for the type checker only)
     y: np.ndarray
+    held_sample: bool
     register_variable: Callable[..., None]
 
     def register_held_sample(self) -> None:
@@ -711,6 +842,14 @@ class HeldSampleMixin:
 
     def _held_state(self) -> list | None:
         return None if self._y_held is None else self._y_held.tolist()
+
+    def _checked_held(self, held) -> list | None:
+        """The held input of a restored state: null, or (held_sample) n finite numbers."""
+        if held is None:
+            return None
+        if not self.held_sample:
+            raise state_refused("hidden.y_held", held, "null with held_sample = false")
+        return state_vector("hidden.y_held", held, len(self.y))
 
     def _restore_held(self, held: list | None) -> None:
         self._y_held = None if held is None else np.array(held, dtype=float)

@@ -203,9 +203,11 @@ class ZOHModelController(_Base):
         self.tau_effective = tau_eff
         self.padding = tau_eff - tau
         self.pad_line = DelayLine(model.m, grid_steps(self.padding, self.h, "padding"), self.u0)
-        W = grid_steps(r, self.h, "r") + round(tau_eff / self.h)
+        # rounded half to even as round() (and the native twin's nearbyint), but a huge
+        # tau stays a float (inf) that check_steps refuses, not an OverflowError
+        W = grid_steps(r, self.h, "r") + float(np.rint(tau_eff / self.h))
         check_steps("r + tau", r + tau_eff, W, f"base steps of h = {self.h!r}")
-        self.history = InputHistory(W, self.h, self.u0)
+        self.history = InputHistory(int(W), self.h, self.u0)
         self.held = self.u0.copy()
         self._cache: tuple | None = None
 

@@ -10,6 +10,7 @@
  * delaycomp.maths.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
  * included. Matrices are computed once, at fmi2ExitInitializationMode. */
 #include <float.h>
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <stdio.h>
@@ -45,14 +46,19 @@ static int resolve_mode_index(Instance *c) {
     return resolve_choice_index(c, "mode", VR_MODE, VR_MODE_INDEX, choices, 2);
 }
 
-int model_setup(Instance *c) {
-    Data *d = &c->d;
-    ModelData *m = &d->m;
+/* What initialization derives from the parameters: tau = l T, q = [r/T], L = l + q + 1. */
+typedef struct {
+    long l, q, L;
+    double r_tilde;
+} Sizes;
+
+/* The checks of fmi2ExitInitializationMode (the Python FMU's order) and the sizes they give
+ * (*out, a Sizes): 0, or -1 with the refusal logged. */
+static int configure(Instance *c, void *out) {
+    Sizes *z = out;
+    const Data *d = &c->d;
     double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
-    m->built = 0;
-    if (resolve_mode_index(c) != 0) return -1;
-    if (alloc_buf(c, 0) != 0) return -1;
-    if (check_real_parameters_finite(c) != 0) return -1;
+    if (resolve_mode_index(c) != 0 || check_real_parameters_finite(c) != 0) return -1;
     if (!(T > 0)) {
         log_error(c, "T = %s is not allowed: must be > 0", num(T).s);
         return -1;
@@ -67,9 +73,9 @@ int model_setup(Instance *c) {
                   "T = %s (it needs %.6g)", num(r + tau).s, MAX_STEPS, num(T).s, steps);
         return -1;
     }
-    long l = 0;
     double tau_rest = 0.0;
-    if (tau >= 0) split_delay(tau, T, &l, &tau_rest);
+    z->l = 0;
+    if (tau >= 0) split_delay(tau, T, &z->l, &tau_rest);
     if (tau < 0 || tau_rest != 0.0) {
         log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T (l >= 0) "
                   "of T = %s", num(tau).s, num(T).s);  /* delaycomp.maths.grid.periods */
@@ -80,13 +86,24 @@ int model_setup(Instance *c) {
                   mode_of(c));
         return -1;
     }
-    long q;
-    double rt;
-    split_delay(r, T, &q, &rt);
-    long L = l + q + 1;
-    size_t nE = (size_t)NX * NX, nQ = (size_t)NX * NU * (size_t)L;
-    if (alloc_buf(c, nE + nQ + (size_t)L * NU) != 0) return -1;
-    double *E = c->buf, *QB = c->buf + nE, *hist = QB + nQ;
+    split_delay(r, T, &z->q, &z->r_tilde);
+    z->L = z->l + z->q + 1;
+    return 0;
+}
+
+/* The model buffer: E (NX x NX), [Q_1 B .. Q_L B] (NX x NU L), the input history (L x NU) */
+static size_t buffer_size(long L) {
+    return (size_t)NX * NX + (size_t)NX * NU * (size_t)L + (size_t)L * NU;
+}
+
+/* E = e^{A(r+tau)} and the Q_p B into the buffer (sized for z->L). 0, or -1 (logged) when
+ * out of memory. */
+static int predictor_matrices(Instance *c, const Sizes *z) {
+    const Data *d = &c->d;
+    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
+    long L = z->L;
+    size_t nE = (size_t)NX * NX;
+    double *E = c->buf, *QB = c->buf + nE;
     const double *A = &d->real[VR_A], *B = &d->real[VR_B];
     /* initialization's own work memory, freed below (nothing is allocated while stepping) */
     size_t nwork = flow_work_size(NX, NU);
@@ -105,7 +122,7 @@ int model_setup(Instance *c) {
         for (size_t j = 0; j < NX; j++) power[i * NX + j] = i == j ? 1.0 : 0.0;
     size_t stride = (size_t)NU * (size_t)L;  /* QB is NX x (NU L), [Q_1 B, Q_2 B, ...] */
     for (long p = 0; p < L; p++) {
-        if (p == L - 1) flow(A, B, NX, NU, rt, tmp, G, scratch);  /* tmp: e^{A r~}, unused */
+        if (p == L - 1) flow(A, B, NX, NU, z->r_tilde, tmp, G, scratch);  /* tmp: unused */
         const double *Gp = p == L - 1 ? G : GT;
         for (size_t i = 0; i < NX; i++) {
             for (size_t j = 0; j < NU; j++) {
@@ -120,25 +137,43 @@ int model_setup(Instance *c) {
         }
     }
     free(work);
+    return 0;
+}
+
+int model_setup(Instance *c) {
+    Data *d = &c->d;
+    ModelData *m = &d->m;
+    m->built = 0;
+    Sizes z;
+    if (alloc_buf(c, 0) != 0 || configure(c, &z) != 0) return -1;
+    if (alloc_buf(c, buffer_size(z.L)) != 0) return -1;
+    if (predictor_matrices(c, &z) != 0) {
+        alloc_buf(c, 0);
+        return -1;
+    }
+    size_t nEQ = (size_t)NX * NX + (size_t)NX * NU * (size_t)z.L;
     if (compensated(c)) {
         int finite = 1;
-        for (size_t k = 0; k < nE + nQ; k++) finite &= isfinite(c->buf[k]) != 0;
+        for (size_t k = 0; k < nEQ; k++) finite &= isfinite(c->buf[k]) != 0;
         if (!finite) {
+            const double *A = &d->real[VR_A];
             char *text = matrix_text(A, NX, NX);
             log_error(c, "A = %s is not allowed: must keep the predictor e^(A (r + tau)) "
                       "finite for r + tau = %s (it overflows)", text ? text : "[...]",
-                      num(r + tau).s);
+                      num(d->real[VR_R] + d->real[VR_TAU]).s);
             free(text);
+            alloc_buf(c, 0);  /* refused: no predictor, no buffer (an unbuilt controller) */
             return -1;
         }
     }
-    for (long p = 0; p < L; p++)
+    double *hist = c->buf + nEQ;
+    for (long p = 0; p < z.L; p++)
         memcpy(hist + (size_t)p * NU, &d->real[VR_U0], NU * sizeof(double));
     memcpy(m->held, &d->real[VR_U0], NU * sizeof(double));
-    m->l = l;
-    m->q = q;
-    m->L = L;
-    m->r_tilde = rt;
+    m->l = z.l;
+    m->q = z.q;
+    m->L = z.L;
+    m->r_tilde = z.r_tilde;
     m->hist_head = 0;
     m->next = 0;
     m->at_sample = 1;
@@ -204,11 +239,98 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { c->d.m.proposal_valid = 0; }
 
-int model_state_ok(const Data *d, size_t nbuf) {
-    if (!d->m.built) return nbuf == 0;
-    return d->m.L >= 1 && d->m.L <= (long)MAX_STEPS + 1 &&
-           nbuf == (size_t)NX * NX + (size_t)NX * NU * d->m.L + (size_t)d->m.L * NU &&
-           d->m.hist_head >= 0 && d->m.hist_head < d->m.L;
+/* An unbuilt controller (before initialization, or refused there) holds nothing: no
+ * buffer, every field 0. */
+static int unbuilt_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    const char *why = "an unbuilt controller: built = 0";
+    if (state_in(v, StateStepComplete))
+        return state_refuse(v, "built = 0: must be 1 in state 'step complete' (the predictor "
+                            "is built at fmi2ExitInitializationMode)");
+    return state_nbuf(v, 0, "no predictor and no input history: built = 0") &&
+           state_long_is(v, "l", m->l, 0, why) && state_long_is(v, "q", m->q, 0, why) &&
+           state_long_is(v, "L", m->L, 0, why) && state_long_is(v, "next", m->next, 0, why) &&
+           state_long_is(v, "hist_head", m->hist_head, 0, why) &&
+           state_long_is(v, "at_sample", m->at_sample, 0, why) &&
+           state_long_is(v, "proposal_valid", m->proposal_valid, 0, why) &&
+           state_long_is(v, "y_held_valid", m->y_held_valid, 0, why) &&
+           state_double_is(v, "r_tilde", m->r_tilde, 0.0, why) &&
+           state_zeros(v, "proposal", m->proposal, NU, why) &&
+           state_zeros(v, "y_held", m->y_held, NX, why) && state_zeros(v, "held", m->held, NU, why);
+}
+
+/* proposal_valid = 1: the proposal is u_i of the current sample (recomputed: the same
+ * arithmetic gives the same bits). */
+static int proposal_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    if (!m->proposal_valid) return 1;
+    Instance *s = state_scratch(v, 1);
+    if (s == NULL) return 0;
+    const double *sample = s->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? s->d.m.y_held
+                                                                           : &s->d.real[VR_Y];
+    double u[NU];
+    propose(s, sample, u);
+    state_scratch_free(s);
+    if (memcmp(u, m->proposal, sizeof u) == 0) return 1;
+    return state_refuse(v, "proposal = %s: must be %s, u_i of the current sample "
+                        "(proposal_valid = 1)", vector_text(m->proposal, NU).s,
+                        vector_text(u, NU).s);
+}
+
+/* In state 'step complete' the time is where the last step left the sample counter: at the
+ * sampling instant t0 + next T (at_sample), or before it (model_step's own test). */
+static int sample_time_ok(const StateView *v) {
+    const Data *d = v->d;
+    double T = d->real[VR_T], t_sample = d->t0 + (double)d->m.next * T;
+    double tol = 1e-9 * T + EPS4 * fabs(d->time);
+    int at = fabs(d->time - t_sample) <= tol;
+    /* between instants: after t_{next-1}, up to the host's round-off of its start */
+    double slack = 1e-6 * fmax(fmax(T, fabs(d->time)), 1.0);
+    if (at == d->m.at_sample && (at || (d->time < t_sample && d->time > t_sample - T - slack)))
+        return 1;
+    return state_refuse(v, "next = %ld: must put the sampling instant t0 + next T = %s %s the "
+                        "time %s (at_sample = %d)", d->m.next, num(t_sample).s,
+                        d->m.at_sample ? "at" : "within one period after", num(d->time).s,
+                        d->m.at_sample);
+}
+
+/* A built controller: its sizes those of its parameters (which initialization accepted),
+ * its buffer of that size, the flags consistent, the numbers it steps with finite. */
+static int built_ok(const StateView *v) {
+    const Data *d = v->d;
+    const ModelData *m = &d->m;
+    Sizes z = {0, 0, 0, 0.0};
+    if (!state_parameters(v, configure, &z, "built = 1") ||
+        !state_long_is(v, "l", m->l, z.l, "tau / T") ||
+        !state_long_is(v, "q", m->q, z.q, "[r / T]") ||
+        !state_long_is(v, "L", m->L, z.L, "l + q + 1") ||
+        !state_double_is(v, "r_tilde", m->r_tilde, z.r_tilde, "r - q T") ||
+        !state_nbuf(v, buffer_size(m->L), "E, Q_1 B .. Q_L B and L inputs: built = 1") ||
+        !state_index(v, "hist_head", m->hist_head, m->L) ||
+        !state_range(v, "next", m->next, 0, LONG_MAX - 1))
+        return 0;
+    if (m->proposal_valid && !m->at_sample)
+        return state_refuse(v, "proposal_valid = 1: must be 0 between sampling instants "
+                            "(at_sample = 0)");
+    if (m->y_held_valid && !d->boolean[VR_HELD_SAMPLE])
+        return state_refuse(v, "y_held_valid = 1: must be 0 with held_sample = false");
+    size_t nEQ = (size_t)NX * NX + (size_t)NX * NU * (size_t)m->L;
+    int compensated_mode = strcmp(d->string[STRING_SLOT[VR_MODE]], "compensated") == 0;
+    return (m->y_held_valid ? state_finite(v, "y_held", m->y_held, NX)
+                            : state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0")) &&
+           state_finite(v, "held", m->held, NU) && proposal_ok(v) &&
+           state_finite(v, "history", v->buf + nEQ, (size_t)m->L * NU) &&
+           (!compensated_mode || state_finite(v, "predictor", v->buf, nEQ)) &&
+           (!state_in(v, StateStepComplete) || sample_time_ok(v));
+}
+
+int model_state_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    if (!state_flag(v, "built", m->built) || !state_flag(v, "at_sample", m->at_sample) ||
+        !state_flag(v, "proposal_valid", m->proposal_valid) ||
+        !state_flag(v, "y_held_valid", m->y_held_valid))
+        return 0;
+    return m->built ? built_ok(v) : unbuilt_ok(v);
 }
 
 int model_step(Instance *c, double t, double h) {

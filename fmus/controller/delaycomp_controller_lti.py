@@ -8,7 +8,17 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu import Fmi2Variability
 
-from delaycomp.fmu.slave import HeldSampleMixin, TableSlave, check_finite, check_inputs
+from delaycomp.fmu.slave import (
+    HeldSampleMixin,
+    TableSlave,
+    check_finite,
+    check_inputs,
+    state_count,
+    state_flag,
+    state_refused,
+    state_rows,
+    state_vector,
+)
 from delaycomp.maths.grid import GRID_RTOL, drift, periods
 from delaycomp.maths.lti import MODES, check_steps
 from delaycomp.maths.zoh import ZOHController
@@ -128,10 +138,20 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
 
     def _restore_hidden(self, hidden: dict) -> None:
         assert self.ctrl is not None  # called after _setup() built it
-        self.ctrl.set_state(hidden["ctrl"])
-        self._next = int(hidden["next"])
-        self._at_sample = bool(hidden["at_sample"])
-        self._restore_held(hidden.get("y_held"))
+        ctrl = hidden.get("ctrl")
+        if not isinstance(ctrl, dict):
+            raise state_refused("hidden.ctrl", ctrl, "an object (held, history)")
+        L = self.ctrl.predictor.L
+        ctrl = {"held": state_vector("hidden.ctrl.held", ctrl.get("held"), self.m, False),
+                "history": state_rows("hidden.ctrl.history", ctrl.get("history"), L, self.m,
+                                      False)}
+        next_ = state_count("hidden.next", hidden.get("next"))
+        at_sample = state_flag("hidden.at_sample", hidden.get("at_sample"))
+        y_held = self._checked_held(hidden.get("y_held"))
+        self.ctrl.set_state(ctrl)
+        self._next = next_
+        self._at_sample = at_sample
+        self._restore_held(y_held)
         self._proposal = None  # a cache: recomputed from the restored state
 
     def _output(self) -> np.ndarray:

@@ -18,6 +18,11 @@ from delaycomp.fmu.slave import (
     check_inputs,
     check_model_parameters,
     is_roundoff_step,
+    state_count,
+    state_number,
+    state_refused,
+    state_rows,
+    state_vector,
 )
 from delaycomp.maths.grid import grid_step, same_step
 from delaycomp.maths.model import CONTROLS, from_module
@@ -135,8 +140,23 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
                 "y_held": self._held_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
-        self.ctrl.set_state(hidden["ctrl"])
-        self._restore_held(hidden.get("y_held"))
+        ctrl = hidden.get("ctrl")
+        if not isinstance(ctrl, dict):
+            raise state_refused("hidden.ctrl", ctrl, "an object (k_tick, history, ...)")
+        n, m = self.model.n, self.model.m
+        checked = {"k_tick": state_count("hidden.ctrl.k_tick", ctrl.get("k_tick")),
+                   "history": state_rows("hidden.ctrl.history", ctrl.get("history"),
+                                         self.ctrl.history.W, m, False)}
+        if hasattr(self.ctrl, "pad_line"):  # zero-order hold
+            checked["held"] = state_vector("hidden.ctrl.held", ctrl.get("held"), m, False)
+            checked["pad_line"] = state_rows("hidden.ctrl.pad_line", ctrl.get("pad_line"),
+                                             self.ctrl.pad_line.D, m, False)
+        else:  # continuous input: the controller's own copy of the plant
+            checked["z"] = state_vector("hidden.ctrl.z", ctrl.get("z"), n, False)
+            checked["t0"] = state_number("hidden.ctrl.t0", ctrl.get("t0"))
+        y_held = self._checked_held(hidden.get("y_held"))
+        self.ctrl.set_state(checked)
+        self._restore_held(y_held)
 
     def _output(self):
         if self.ctrl is None:

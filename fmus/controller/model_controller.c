@@ -14,6 +14,7 @@
  * segment, numerical solves each segment with ode.c (DOP853, rtol = atol = tolerance), none
  * is the sample itself. The twin of fmus/controller/delaycomp_model_controller.py: same
  * variables, checks, messages and timing, held_sample included. */
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -103,17 +104,6 @@ static size_t buffer_size(long W, long D) {
     return (size_t)(W + D) * NU + ode_work_size(NX) + 2 * (size_t)NX;
 }
 
-int model_state_ok(const Data *d, size_t nbuf) {
-    const ModelData *m = &d->m;
-    if (!m->built) return nbuf == 0;
-    return m->branch >= 0 && m->branch < MODEL_NBRANCH && m->predictor >= 0 &&
-           m->predictor <= PREDICT_NONE && m->N >= 1 && m->W >= 0 && m->W <= MAX_STEPS &&
-           m->D >= 0 && m->D <= MAX_STEPS && m->k_tick >= 0 &&
-           (m->W == 0 || (m->hist_head >= 0 && m->hist_head < m->W)) &&
-           (m->D == 0 || (m->pad_head >= 0 && m->pad_head < m->D)) &&
-           nbuf == buffer_size(m->W, m->D);
-}
-
 static int check_finite(Instance *c, fmi2ValueReference vr) {
     double v = c->d.real[vr];
     if (isfinite(v)) return 0;
@@ -121,12 +111,17 @@ static int check_finite(Instance *c, fmi2ValueReference vr) {
     return -1;
 }
 
-int model_setup(Instance *c) {
-    Data *d = &c->d;
-    ModelData *m = &d->m;
-    m->built = 0;
-    if (alloc_buf(c, 0) != 0) return -1;
-    /* the order of the Python FMU: the Integer twins, then _setup, then make_controller */
+/* What initialization derives from the parameters (ModelData's configuration). */
+typedef struct {
+    int branch, zoh, predictor;
+    long N, W, D;
+    double h, tau_eff;
+} Config;
+
+/* The checks of fmi2ExitInitializationMode in the Python FMU's order (the Integer twins,
+ * then _setup, then make_controller), part one: the Strings, the numbers, the branch. */
+static int check_choices(Instance *c, Config *g) {
+    const Data *d = &c->d;
     if (resolve_choice_index(c, "mode", VR_MODE, VR_MODE_INDEX, MODE_CHOICES, 2) != 0 ||
         resolve_choice_index(c, "predictor", VR_PREDICTOR, VR_PREDICTOR_INDEX,
                              PREDICTOR_CHOICES, 3) != 0 ||
@@ -140,29 +135,35 @@ int model_setup(Instance *c) {
     for (size_t i = 0; i < NX; i++)
         if (check_finite(c, VR_Z0 + i)) return -1;
     const char *mode = string_of(c, VR_MODE), *predictor = string_of(c, VR_PREDICTOR);
-    int zoh = index_of(mode, MODE_CHOICES, 2);
-    if (zoh < 0) {
+    g->zoh = index_of(mode, MODE_CHOICES, 2);
+    if (g->zoh < 0) {
         log_error(c, "mode = '%s' is not allowed: must be one of continuous, zoh", mode);
         return -1;
     }
-    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
     double tol = d->real[VR_TOL];
     if (!(tol > 0 && tol < 1)) {
         log_error(c, "tolerance = %s is not allowed: must be in (0, 1)", num(tol).s);
         return -1;
     }
-    if (model_check_numbers(c) != 0 || model_branch(c, &m->branch) != 0) return -1;
-    int kind = index_of(predictor, PREDICTOR_CHOICES, 3);
-    if (kind < 0) {
+    if (model_check_numbers(c) != 0 || model_branch(c, &g->branch) != 0) return -1;
+    g->predictor = index_of(predictor, PREDICTOR_CHOICES, 3);
+    if (g->predictor < 0) {
         log_error(c, "predictor = '%s' is not allowed: must be one of closed, numerical, "
                   "none", predictor);
         return -1;
     }
-    if (zoh != MODEL_ZOH) {
+    if (g->zoh != MODEL_ZOH) {
         log_error(c, "mode = '%s' is not allowed: model %s gives a %s feedback", mode,
                   MODEL_NAME, MODE_CHOICES[MODEL_ZOH]);
         return -1;
     }
+    return 0;
+}
+
+/* Part two: T, r, tau, N, the predictor; N and the base step h. */
+static int check_timing(Instance *c, Config *g) {
+    const Data *d = &c->d;
+    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
     if (!(T > 0)) {
         log_error(c, "T = %s is not allowed: must be > 0", num(T).s);
         return -1;
@@ -180,50 +181,72 @@ int model_setup(Instance *c) {
         log_error(c, "N = %d is not allowed: must be a positive integer", N);
         return -1;
     }
-    if (kind == PREDICT_CLOSED && !MODEL_HAS_PREDICTOR) {
+    if (g->predictor == PREDICT_CLOSED && !MODEL_HAS_PREDICTOR) {
         log_error(c, "predictor = 'closed' is not allowed: model %s has no closed-form "
                   "predictor (use 'numerical')", MODEL_NAME);
         return -1;
     }
-    double h = T / N;
-    long W, D = 0;
-    double tau_eff = tau;
-    if (zoh) {
-        tau_eff = padded_delay(tau, T);
-        if (tau_eff != tau && !d->boolean[VR_PAD]) {
-            log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T "
-                      "(l >= 0) of T = %s; pad = true pads it up to %s (Remark 3.3(b))",
-                      num(tau).s, num(T).s, num(tau_eff).s);  /* delaycomp.maths.grid.periods */
-            return -1;
-        }
-        long q;
-        if (steps_of(c, tau_eff - tau, h, "padding", &D) != 0 ||
-            steps_of(c, r, h, "r", &q) != 0)
-            return -1;
-        double w = (double)q + nearbyint(tau_eff / h);
-        if (!(w <= MAX_STEPS)) {
-            log_error(c, "r + tau = %s is not allowed: must be at most %.0f base steps of "
-                      "h = %s (it needs %.6g)", num(r + tau_eff).s, MAX_STEPS, num(h).s, w);
-            return -1;
-        }
-        W = (long)w;
-        if (D > 0)
-            log_info(c, "input delay padded from tau = %s to %s: the controller delays its "
-                     "output by %s s", num(tau).s, num(tau_eff).s, num(tau_eff - tau).s);
-    } else if (steps_of(c, r + tau, h, "r + tau", &W) != 0) {
+    g->N = N;
+    g->h = T / N;
+    return 0;
+}
+
+/* Part three: the window W and the padding D in base steps (tau_eff: tau padded). */
+static int check_window(Instance *c, Config *g) {
+    const Data *d = &c->d;
+    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU], h = g->h;
+    g->D = 0;
+    g->tau_eff = tau;
+    if (!g->zoh) return steps_of(c, r + tau, h, "r + tau", &g->W);
+    g->tau_eff = padded_delay(tau, T);
+    if (g->tau_eff != tau && !d->boolean[VR_PAD]) {
+        log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T "
+                  "(l >= 0) of T = %s; pad = true pads it up to %s (Remark 3.3(b))",
+                  num(tau).s, num(T).s, num(g->tau_eff).s);  /* delaycomp.maths.grid.periods */
         return -1;
     }
-    m->zoh = zoh;
-    m->predictor = kind;
-    m->N = N;
-    m->h = h;
-    m->tau_eff = tau_eff;
-    m->W = W;
-    m->D = D;
-    if (alloc_buf(c, buffer_size(W, D)) != 0) return -1;
+    long q;
+    if (steps_of(c, g->tau_eff - tau, h, "padding", &g->D) != 0 ||
+        steps_of(c, r, h, "r", &q) != 0)
+        return -1;
+    double w = (double)q + nearbyint(g->tau_eff / h);
+    if (!(w <= MAX_STEPS)) {
+        log_error(c, "r + tau = %s is not allowed: must be at most %.0f base steps of "
+                  "h = %s (it needs %.6g)", num(r + g->tau_eff).s, MAX_STEPS, num(h).s, w);
+        return -1;
+    }
+    g->W = (long)w;
+    if (g->D > 0)
+        log_info(c, "input delay padded from tau = %s to %s: the controller delays its "
+                 "output by %s s", num(tau).s, num(g->tau_eff).s, num(g->tau_eff - tau).s);
+    return 0;
+}
+
+/* Every check of fmi2ExitInitializationMode; *out (a Config) what they give. */
+static int configure(Instance *c, void *out) {
+    Config *g = out;
+    return check_choices(c, g) != 0 || check_timing(c, g) != 0 || check_window(c, g) != 0
+               ? -1 : 0;
+}
+
+int model_setup(Instance *c) {
+    Data *d = &c->d;
+    ModelData *m = &d->m;
+    Config g;
+    m->built = 0;
+    if (alloc_buf(c, 0) != 0 || configure(c, &g) != 0) return -1;
+    if (alloc_buf(c, buffer_size(g.W, g.D)) != 0) return -1;
+    m->branch = g.branch;
+    m->zoh = g.zoh;
+    m->predictor = g.predictor;
+    m->N = g.N;
+    m->h = g.h;
+    m->tau_eff = g.tau_eff;
+    m->W = g.W;
+    m->D = g.D;
     const double *u0 = &d->real[VR_U0];
-    for (long k = 0; k < W; k++) memcpy(history(c) + (size_t)k * NU, u0, NU * sizeof(double));
-    for (long k = 0; k < D; k++) memcpy(pad_line(c) + (size_t)k * NU, u0, NU * sizeof(double));
+    for (long k = 0; k < g.W; k++) memcpy(history(c) + (size_t)k * NU, u0, NU * sizeof(double));
+    for (long k = 0; k < g.D; k++) memcpy(pad_line(c) + (size_t)k * NU, u0, NU * sizeof(double));
     memcpy(m->z, &d->real[VR_Z0], NX * sizeof(double));
     memcpy(m->held, u0, NU * sizeof(double));
     m->k_tick = 0;
@@ -462,4 +485,112 @@ int model_step(Instance *c, double t, double hs) {
         m->y_held_valid = 1;
     }
     return 0;
+}
+
+/* ---- a restored FMU state ------------------------------------------------------------ */
+/* An unbuilt controller (before initialization, or refused there) holds nothing: no
+ * buffer, every field 0 (the branch in range: an older build kept it from a refusal). */
+static int unbuilt_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    const char *why = "an unbuilt controller: built = 0";
+    if (state_in(v, StateStepComplete))
+        return state_refuse(v, "built = 0: must be 1 in state 'step complete' (the controller "
+                            "is built at fmi2ExitInitializationMode)");
+    return state_nbuf(v, 0, "no input history and no padding line: built = 0") &&
+           state_range(v, "branch", m->branch, 0, MODEL_NBRANCH - 1) &&
+           state_long_is(v, "zoh", m->zoh, 0, why) &&
+           state_long_is(v, "predictor", m->predictor, 0, why) &&
+           state_long_is(v, "N", m->N, 0, why) && state_long_is(v, "W", m->W, 0, why) &&
+           state_long_is(v, "D", m->D, 0, why) && state_long_is(v, "k_tick", m->k_tick, 0, why) &&
+           state_long_is(v, "hist_head", m->hist_head, 0, why) &&
+           state_long_is(v, "pad_head", m->pad_head, 0, why) &&
+           state_long_is(v, "cache_valid", m->cache_valid, 0, why) &&
+           state_long_is(v, "y_held_valid", m->y_held_valid, 0, why) &&
+           state_double_is(v, "h", m->h, 0.0, why) &&
+           state_double_is(v, "tau_eff", m->tau_eff, 0.0, why) &&
+           state_zeros(v, "z", m->z, NX, why) && state_zeros(v, "held", m->held, NU, why) &&
+           state_zeros(v, "cache_z", m->cache_z, NX, why) &&
+           state_zeros(v, "cache_u", m->cache_u, NU, why) &&
+           state_zeros(v, "y_held", m->y_held, NX, why);
+}
+
+/* cache_valid = 1: the cache is the evaluation of the current tick (recomputed: the same
+ * arithmetic gives the same bits; cache_z is left as it was where zero-order hold holds
+ * its output between sampling instants). */
+static int cache_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    if (!m->cache_valid) return 1;
+    Instance *s = state_scratch(v, 1);
+    if (s == NULL) return 0;
+    s->d.m.cache_valid = 0;
+    SolveFailure fail;
+    int failed = evaluate(s, &fail) != 0, z_kept = m->zoh && m->k_tick % m->N != 0;
+    double u[NU], z[NX];
+    memcpy(u, s->d.m.cache_u, sizeof u);
+    memcpy(z, s->d.m.cache_z, sizeof z);
+    state_scratch_free(s);
+    if (failed)
+        return state_refuse(v, "cache_valid = 1: must be 0 (evaluating the current tick fails: "
+                            FAILURE_FORMAT ")", FAILURE_ARGS(&fail));
+    if (memcmp(u, m->cache_u, sizeof u) != 0)
+        return state_refuse(v, "cache_u = %s: must be %s, the evaluation of the current tick "
+                            "(cache_valid = 1)", vector_text(m->cache_u, NU).s,
+                            vector_text(u, NU).s);
+    if (!z_kept && memcmp(z, m->cache_z, sizeof z) != 0)
+        return state_refuse(v, "cache_z = %s: must be %s, the evaluation of the current tick "
+                            "(cache_valid = 1)", vector_text(m->cache_z, NX).s,
+                            vector_text(z, NX).s);
+    return 1;
+}
+
+/* A built controller's configuration: what its parameters (which initialization accepted)
+ * give, and its buffer of that size. */
+static int configuration_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    Config g = {0, 0, 0, 0, 0, 0, 0.0, 0.0};
+    return state_parameters(v, configure, &g, "built = 1") &&
+           state_long_is(v, "branch", m->branch, g.branch, "its String parameters' branch") &&
+           state_long_is(v, "zoh", m->zoh, g.zoh, "mode") &&
+           state_long_is(v, "predictor", m->predictor, g.predictor, "predictor") &&
+           state_long_is(v, "N", m->N, g.N, "the parameter N") &&
+           state_double_is(v, "h", m->h, g.h, "T / N") &&
+           state_double_is(v, "tau_eff", m->tau_eff, g.tau_eff, "tau, padded") &&
+           state_long_is(v, "W", m->W, g.W, "the window r + tau in base steps") &&
+           state_long_is(v, "D", m->D, g.D, "the padding in base steps") &&
+           state_nbuf(v, buffer_size(m->W, m->D), "W + D inputs, the ODE solver's work "
+                      "memory and two states: built = 1");
+}
+
+/* A built controller: its configuration, the ring positions, the tick counter at the
+ * time (state 'step complete'), the held input. */
+static int built_ok(const StateView *v) {
+    const Data *d = v->d;
+    const ModelData *m = &d->m;
+    if (!configuration_ok(v) || !state_index(v, "hist_head", m->hist_head, m->W) ||
+        !state_index(v, "pad_head", m->pad_head, m->D) ||
+        !state_range(v, "k_tick", m->k_tick, 0, LONG_MAX - 1))
+        return 0;
+    double T = d->real[VR_T], t_tick = d->t0 + (double)m->k_tick * m->h;
+    double tol = 1e-8 * fmax(fmax(T, fabs(d->time)), fabs(d->t0));
+    if (state_in(v, StateStepComplete) && !(fabs(d->time - t_tick) <= tol))
+        return state_refuse(v, "k_tick = %ld: must give t0 + k_tick h = %s, the time %s",
+                            m->k_tick, num(t_tick).s, num(d->time).s);
+    if (m->y_held_valid && !d->boolean[VR_HELD_SAMPLE])
+        return state_refuse(v, "y_held_valid = 1: must be 0 with held_sample = false");
+    const char *u0 = "u0: continuous input holds no control", *z0 = "z0: zero-order hold "
+                     "keeps no copy of the plant";
+    return (m->y_held_valid ? state_finite(v, "y_held", m->y_held, NX)
+                            : state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0")) &&
+           (m->zoh ? state_same(v, "z", m->z, &d->real[VR_Z0], NX, z0)
+                   : state_same(v, "held", m->held, &d->real[VR_U0], NU, u0)) &&
+           cache_ok(v);
+}
+
+int model_state_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    if (!state_flag(v, "built", m->built) || !state_flag(v, "zoh", m->zoh) ||
+        !state_flag(v, "cache_valid", m->cache_valid) ||
+        !state_flag(v, "y_held_valid", m->y_held_valid))
+        return 0;
+    return m->built ? built_ok(v) : unbuilt_ok(v);
 }

@@ -6,7 +6,8 @@
 
 #include "native.h"
 
-int model_setup(Instance *c) {
+/* The checks of fmi2ExitInitializationMode: 0, or -1 with the refusal logged. */
+static int parameters_ok(Instance *c) {
     double delay = c->d.real[VR_DELAY];  /* checked in the Python slave's order */
     if (!isfinite(delay)) {
         log_error(c, "delay = %s is not allowed: must be a finite number", num(delay).s);
@@ -16,7 +17,11 @@ int model_setup(Instance *c) {
         log_error(c, "delay = %s is not allowed: must be >= 0", num(delay).s);
         return -1;
     }
-    if (check_real_parameters_finite(c) != 0) return -1;  /* u0 */
+    return check_real_parameters_finite(c);  /* u0 */
+}
+
+int model_setup(Instance *c) {
+    if (parameters_ok(c) != 0) return -1;
     c->d.m.has_line = 0;
     c->d.m.D = 0;
     c->d.m.h = 0.0;
@@ -36,10 +41,41 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
-int model_state_ok(const Data *d, size_t nbuf) {
-    if (!d->m.has_line) return nbuf == 0;
-    return d->m.D >= 0 && (size_t)d->m.D * NX == nbuf &&
-           (d->m.D == 0 || (d->m.head >= 0 && d->m.head < d->m.D));
+static long steps_of(Instance *c, double delay, double h);
+
+/* A restored line's checks: the parameters', then D = steps_of(delay, h) (*D, a long). */
+static int line_of(Instance *c, void *D) {
+    if (parameters_ok(c) != 0) return -1;
+    *(long *)D = steps_of(c, c->d.real[VR_DELAY], c->d.m.h);
+    return *(long *)D < 0 ? -1 : 0;
+}
+
+static int no_line_ok(Instance *c, void *out) {
+    (void)out;
+    return parameters_ok(c);
+}
+
+/* The line (D values per channel, a ring from head) exists from the first step on
+ * (has_line), its length D = delay / h of that step's h. */
+int model_state_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    if (!state_flag(v, "has_line", m->has_line)) return 0;
+    if (!m->has_line) {
+        const char *why = "no delay line before the first step: has_line = 0";
+        return state_long_is(v, "D", m->D, 0, why) && state_long_is(v, "head", m->head, 0, why) &&
+               state_double_is(v, "h", m->h, 0.0, why) && state_nbuf(v, 0, why) &&
+               (!state_in(v, StateStepComplete) ||
+                state_parameters(v, no_line_ok, NULL, "state 'step complete'"));
+    }
+    if (state_in(v, StateInstantiated | StateInitializationMode))
+        return state_refuse(v, "has_line = 1: must be 0 before fmi2ExitInitializationMode");
+    if (!state_positive(v, "h", m->h) || !state_range(v, "D", m->D, 0, (long)MAX_STEPS))
+        return 0;
+    long D = -1;
+    return state_nbuf(v, (size_t)m->D * NX, "D values of each channel") &&
+           state_index(v, "head", m->head, m->D) &&
+           state_parameters(v, line_of, &D, "has_line = 1") &&
+           state_long_is(v, "D", m->D, D, "delay / h");
 }
 
 /* delaycomp.maths.delayline.steps_of (delaycomp.maths.grid.steps_of): D with delay = D h, or -1

@@ -7,7 +7,16 @@ from __future__ import annotations
 
 import math
 
-from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, is_roundoff_step
+from delaycomp.fmu.slave import (
+    TableSlave,
+    check_finite,
+    check_inputs,
+    is_roundoff_step,
+    state_count,
+    state_number,
+    state_refused,
+    state_rows,
+)
 from delaycomp.maths.delayline import DelayLine, steps_of
 from delaycomp.maths.grid import grid_step, same_step
 from delaycomp.names import indexed
@@ -68,10 +77,21 @@ class DelaycompDelay(TableSlave):
         return {"h": self._h, "D": self.line.D, "buffer": self.line.get_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
-        if hidden["h"] is not None:
-            self.line = DelayLine(self.n, int(hidden["D"]), self.u0)
-            self.line.set_state(hidden["buffer"])
-            self._h = float(hidden["h"])
+        if hidden == {"h": None}:
+            return  # no line yet: before the first step
+        h = state_number("hidden.h", hidden.get("h"), positive=True)
+        try:
+            D = steps_of(self.delay, h)
+        except ValueError as exc:
+            raise state_refused("hidden.h", h, f"a step of this delay ({exc})") from None
+        if D == 0 and not self.feedthrough:
+            raise state_refused("hidden.h", h, f"at most delay = {self.delay!r} (this delay "
+                                "FMU is built without direct feedthrough)")
+        state_count("hidden.D", hidden.get("D"), D)
+        buffer = state_rows("hidden.buffer", hidden.get("buffer"), D, self.n)
+        self.line = DelayLine(self.n, D, self.u0)
+        self.line.set_state(buffer)
+        self._h = h
 
     def _output(self):
         if self.line is not None:

@@ -369,16 +369,24 @@ fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
     return fmi2OK;
 }
 
-static int state_ok(const Data *d, size_t nbuf);
+static int data_ok(const StateView *v);
 
+/* A snapshot to install: this FMU's (magic, GUID, sizeof(Data)), and its data and buffer
+ * checked in full (data_ok, model_state_ok); else 0 and the refusal logged. */
 static int snapshot_valid(Instance *c, const Snapshot *s, const char *fn) {
-    if (memcmp(s->h.magic, MAGIC, 8) != 0 || strcmp(s->h.token, INSTANTIATION_TOKEN) != 0 ||
-        s->h.data_size != sizeof(Data) || !state_ok(&s->d, (size_t)s->h.nbuf)) {
+    if (memcmp(s->h.magic, MAGIC, 8) != 0 || strcmp(s->h.token, INSTANTIATION_TOKEN) != 0) {
         log_error(c, "%s: FMU state is not allowed: it is not a consistent state of this FMU "
                   "(%s)", fn, INSTANTIATION_TOKEN);
         return 0;
     }
-    return 1;
+    if (s->h.data_size != sizeof(Data)) {
+        log_error(c, "%s: FMU state is not allowed: data_size = %lu: must be %lu (it is not a "
+                  "state of this FMU's build)", fn, (unsigned long)s->h.data_size,
+                  (unsigned long)sizeof(Data));
+        return 0;
+    }
+    StateView v = {c, fn, &s->d, s->h.nbuf ? s->buf : NULL, (size_t)s->h.nbuf};
+    return data_ok(&v) && model_state_ok(&v);
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
@@ -566,12 +574,53 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     return no_status(c, "fmi2GetStringStatus");
 }
 
-/* A restored state: a state of the state machine, and the model's own check of its data
- * and buffer size (model_state_ok). */
-static int state_ok(const Data *d, size_t nbuf) {
+/* ---- a restored state's data, what every model shares --------------------------------- */
+static int variables_ok(const StateView *v) {
+    const Data *d = v->d;
+    for (size_t vr = 0; vr < NVR; vr++) {
+        double x = d->real[vr];
+        if (VAR_TYPE[vr] != 'r' && (x != 0.0 || signbit(x)))
+            return state_refuse(v, "real[%lu] = %s: must be 0.0 (value reference %lu is not "
+                                "a Real variable)", (unsigned long)vr, num(x).s,
+                                (unsigned long)vr);
+        if (VAR_TYPE[vr] == 'r' && VAR_CAUSALITY[vr] == 'o' && !isfinite(x))
+            return state_refuse(v, "%s = %s: must be a finite number (an output)",
+                                VAR_NAME[vr], num(x).s);
+        int b = d->boolean[vr], i = d->integer[vr];
+        if (VAR_TYPE[vr] == 'b' ? !(b == 0 || b == 1) : b != 0)
+            return state_refuse(v, "boolean[%lu] = %d: must be %s", (unsigned long)vr, b,
+                                VAR_TYPE[vr] == 'b' ? "0 or 1" : "0 (not a Boolean variable)");
+        if (VAR_TYPE[vr] != 'i' && i != 0)
+            return state_refuse(v, "integer[%lu] = %d: must be 0 (not an Integer variable)",
+                                (unsigned long)vr, i);
+    }
+#if NSTRING > 0
+    for (size_t k = 0; k < NSTRING; k++)
+        if (memchr(d->string[k], '\0', STRING_MAX) == NULL)
+            return state_refuse(v, "string[%lu] = (%d characters, not terminated): must be a "
+                                "string of at most %d characters", (unsigned long)k,
+                                STRING_MAX, STRING_MAX - 1);
+#endif
+    return 1;
+}
+
+/* The state machine's state, the times, the variables; before initialization ends, no
+ * model buffer and the time at t0. */
+static int data_ok(const StateView *v) {
+    const Data *d = v->d;
     int st = d->state;
     if (st != StateInstantiated && st != StateInitializationMode && st != StateStepComplete &&
         st != StateTerminated && st != StateError)
-        return 0;
-    return model_state_ok(d, nbuf);
+        return state_refuse(v, "state = %d: must be one of 1 (instantiated), 2 "
+                            "(initialization mode), 4 (step complete), 8 (terminated), 16 "
+                            "(error)", st);
+    if (!isfinite(d->t0) || !isfinite(d->time))
+        return state_refuse(v, "%s = %s: must be a finite number", isfinite(d->t0) ? "time"
+                            : "t0", num(isfinite(d->t0) ? d->time : d->t0).s);
+    if (st & (StateInstantiated | StateInitializationMode)) {
+        if (!state_nbuf(v, 0, "no model buffer before fmi2ExitInitializationMode")) return 0;
+        if (!state_double_is(v, "time", d->time, d->t0, "t0, before fmi2ExitInitializationMode"))
+            return 0;
+    }
+    return variables_ok(v);
 }

@@ -143,3 +143,156 @@ int alloc_buf(Instance *c, size_t n) {
     return 0;
 }
 
+
+/* ---- restored FMU states (StateView, native.h) ------------------------------------- */
+int state_refuse(const StateView *v, const char *fmt, ...) {
+    char text[TEXT_MAX];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    log_error(v->c, "%s: FMU state is not allowed: %s", v->fn, text);
+    return 0;
+}
+
+int state_in(const StateView *v, int mask) { return (v->d->state & mask) != 0; }
+
+int state_flag(const StateView *v, const char *name, int value) {
+    return value == 0 || value == 1 || state_refuse(v, "%s = %d: must be 0 or 1", name, value);
+}
+
+int state_range(const StateView *v, const char *name, long value, long lo, long hi) {
+    return (value >= lo && value <= hi) ||
+           state_refuse(v, "%s = %ld: must be in %ld .. %ld", name, value, lo, hi);
+}
+
+int state_index(const StateView *v, const char *name, long value, long n) {
+    if (n == 0)
+        return value == 0 || state_refuse(v, "%s = %ld: must be 0 (an empty ring)", name, value);
+    return (value >= 0 && value < n) ||
+           state_refuse(v, "%s = %ld: must be in 0 .. %ld (a position in a ring of %ld)", name,
+                        value, n - 1, n);
+}
+
+int state_long_is(const StateView *v, const char *name, long value, long expected,
+                  const char *why) {
+    return value == expected ||
+           state_refuse(v, "%s = %ld: must be %ld (%s)", name, value, expected, why);
+}
+
+int state_double_is(const StateView *v, const char *name, double value, double expected,
+                    const char *why) {
+    if (value == expected && signbit(value) == signbit(expected)) return 1;
+    return state_refuse(v, "%s = %s: must be %s (%s)", name, num(value).s, num(expected).s, why);
+}
+
+int state_positive(const StateView *v, const char *name, double value) {
+    return (isfinite(value) && value > 0) ||
+           state_refuse(v, "%s = %s: must be a finite number > 0", name, num(value).s);
+}
+
+int state_finite(const StateView *v, const char *name, const double *x, size_t n) {
+    for (size_t k = 0; k < n; k++)
+        if (!isfinite(x[k]))
+            return state_refuse(v, "%s[%lu] = %s: must be a finite number", name,
+                                (unsigned long)k, num(x[k]).s);
+    return 1;
+}
+
+int state_zeros(const StateView *v, const char *name, const double *x, size_t n,
+                const char *why) {
+    for (size_t k = 0; k < n; k++)
+        if (x[k] != 0.0 || signbit(x[k]))
+            return state_refuse(v, "%s[%lu] = %s: must be 0.0 (%s)", name, (unsigned long)k,
+                                num(x[k]).s, why);
+    return 1;
+}
+
+int state_same(const StateView *v, const char *name, const double *x, const double *expected,
+               size_t n, const char *why) {
+    for (size_t k = 0; k < n; k++)
+        if (memcmp(&x[k], &expected[k], sizeof(double)) != 0)
+            return state_refuse(v, "%s[%lu] = %s: must be %s (%s)", name, (unsigned long)k,
+                                num(x[k]).s, num(expected[k]).s, why);
+    return 1;
+}
+
+int state_nbuf(const StateView *v, size_t need, const char *why) {
+    return v->nbuf == need || state_refuse(v, "nbuf = %lu: must be %lu (%s)",
+                                           (unsigned long)v->nbuf, (unsigned long)need, why);
+}
+
+/* The first message a check logs, kept (state_parameters). */
+typedef struct {
+    char text[TEXT_MAX];
+} Captured;
+
+static void capture(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
+                    fmi2String category, fmi2String message, ...) {
+    Captured *cap = env;
+    (void)name;
+    (void)status;
+    (void)category;
+    if (cap->text[0] != '\0') return;
+    va_list ap;
+    va_start(ap, message);
+    vsnprintf(cap->text, sizeof cap->text, message, ap);
+    va_end(ap);
+}
+
+/* A String that initialization would set from its _index twin, not set in the state. */
+static int string_unresolved(const StateView *v, size_t slot) {
+#if NSTRING > 0
+    const char *name = "?";
+    for (size_t vr = 0; vr < NVR; vr++)
+        if (VAR_TYPE[vr] == 's' && STRING_SLOT[vr] == (int)slot) name = VAR_NAME[vr];
+    return state_refuse(v, "%s = '%s': must be what its %s_index selects (initialization set "
+                        "it)", name, v->d->string[slot], name);
+#else
+    (void)v;
+    (void)slot;
+    return 0;
+#endif
+}
+
+Instance *state_scratch(const StateView *v, int with_buffer) {
+    Instance *s = calloc(1, sizeof *s);  /* Data may be large: not on the stack */
+    double *buf = with_buffer && v->nbuf ? malloc(v->nbuf * sizeof(double)) : NULL;
+    if (s == NULL || (with_buffer && v->nbuf && buf == NULL)) {
+        free(s);
+        free(buf);
+        log_error(v->c, "%s: out of memory", v->fn);
+        return NULL;
+    }
+    s->d = *v->d;
+    if (buf != NULL) memcpy(buf, v->buf, v->nbuf * sizeof(double));
+    s->buf = buf;
+    s->nbuf = buf != NULL ? v->nbuf : 0;
+    s->instance_name = v->c->instance_name;  /* cb.logger NULL: nothing is logged */
+    return s;
+}
+
+void state_scratch_free(Instance *s) {
+    if (s == NULL) return;
+    free(s->buf);
+    free(s);
+}
+
+int state_parameters(const StateView *v, int (*check)(Instance *c, void *out), void *out,
+                     const char *why) {
+    Instance *scratch = state_scratch(v, 0);
+    if (scratch == NULL) return 0;
+    Captured cap = {{0}};
+    scratch->cb.logger = capture;
+    scratch->cb.componentEnvironment = &cap;
+    int rc = check(scratch, out), changed = -1;
+#if NSTRING > 0
+    for (size_t k = 0; k < NSTRING && rc == 0 && changed < 0; k++)
+        if (strcmp(scratch->d.string[k], v->d->string[k]) != 0) changed = (int)k;
+#endif
+    state_scratch_free(scratch);
+    if (rc != 0)
+        return state_refuse(v, "%s (%s: its parameters must pass initialization's checks)",
+                            cap.text[0] ? cap.text : "(no message)", why);
+    return changed < 0 || string_unresolved(v, (size_t)changed);
+}

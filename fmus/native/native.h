@@ -108,14 +108,66 @@ int grid_step(double t, double step, double h, double t0);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);
 
+/* An FMU state being restored (fmi2SetFMUstate, fmi2DeSerializeFMUstate), checked in full
+ * before it is installed: its Data and its model buffer (nbuf doubles, NULL when none). A
+ * refusal is logged on the instance c as "<fn>: FMU state is not allowed: <field> = <value>:
+ * must be ..." and the instance is left as it was. */
+typedef struct {
+    Instance *c;
+    const char *fn;
+    const Data *d;
+    const double *buf;
+    size_t nbuf;
+} StateView;
+
+/* Each returns 1 where the state passes, else 0 with the refusal logged. */
+int state_refuse(const StateView *v, const char *fmt, ...)  /* always 0 */
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+int state_in(const StateView *v, int mask);  /* the state machine's state is in mask */
+int state_flag(const StateView *v, const char *name, int value);  /* 0 or 1 */
+int state_range(const StateView *v, const char *name, long value, long lo, long hi);
+/* an index into a ring of n entries: 0 .. n - 1, or 0 when n = 0 */
+int state_index(const StateView *v, const char *name, long value, long n);
+int state_long_is(const StateView *v, const char *name, long value, long expected,
+                  const char *why);
+int state_double_is(const StateView *v, const char *name, double value, double expected,
+                    const char *why);  /* the same number (0.0 and -0.0 apart) */
+int state_positive(const StateView *v, const char *name, double value);  /* finite > 0 */
+int state_finite(const StateView *v, const char *name, const double *x, size_t n);
+int state_zeros(const StateView *v, const char *name, const double *x, size_t n,
+                const char *why);  /* each 0.0 (not -0.0) */
+int state_same(const StateView *v, const char *name, const double *x, const double *expected,
+               size_t n, const char *why);  /* the same bits */
+int state_nbuf(const StateView *v, size_t need, const char *why);  /* nbuf == need */
+/* The model's checks of initialization (check, logging as model_setup does; out receives
+ * what it derives) run on a copy of the state's data: 1 if they pass and leave its Strings
+ * as they are (resolved from their _index twins), else 0 and the refusal "<the check's
+ * message> (<why>: its parameters must pass initialization's checks)". */
+int state_parameters(const StateView *v, int (*check)(Instance *c, void *out), void *out,
+                     const char *why);
+
+/* A copy of the state as an instance, which logs nothing (its data, and a copy of its
+ * buffer when with_buffer): what a check may run the model's own code on, to compare what
+ * it computes with what the state holds. NULL (logged) when out of memory. */
+Instance *state_scratch(const StateView *v, int with_buffer);
+void state_scratch_free(Instance *s);
+
 /* The model (fmus/<kind>/<name>.c), what fmi2.c calls. Each returns 0, or -1 with a
  * logged error, except model_input_set and model_state_ok. */
 int model_setup(Instance *c);                      /* at fmi2ExitInitializationMode */
 int model_step(Instance *c, double t, double h);   /* fmi2DoStep */
 int model_output(Instance *c, fmi2ValueReference vr, double *value);  /* an output's value */
 void model_input_set(Instance *c);                 /* after fmi2SetReal of inputs */
-/* A restored FMU state (fmi2SetFMUstate, fmi2DeSerializeFMUstate): 1 if its ModelData
- * and its buffer of nbuf doubles are consistent (sizes, ring positions in range), else 0. */
-int model_state_ok(const Data *d, size_t nbuf);
+/* A restored FMU state (fmi2SetFMUstate, fmi2DeSerializeFMUstate), after fmi2.c checked
+ * what every model shares (the state machine's state, the times, the variables' slots,
+ * the Strings terminated, no buffer before initialization ends): 1 if its ModelData and
+ * its buffer are what the rest of the state implies (flags, sizes and ring positions, the
+ * buffer present exactly when the model is built, a built model's parameters passing
+ * initialization's checks again and giving its sizes), else 0 with the refusal logged
+ * (state_refuse). Never reads outside the state. */
+int model_state_ok(const StateView *v);
 
 #endif

@@ -11,7 +11,13 @@ import math
 
 import numpy as np
 
-from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, check_model_parameters
+from delaycomp.fmu.slave import (
+    TableSlave,
+    check_finite,
+    check_inputs,
+    check_model_parameters,
+    state_vector,
+)
 from delaycomp.maths.model import from_module
 from delaycomp.maths.nlcontrol import ModelPlant, StateNotFinite
 from delaycomp.maths.predictors import DEFAULT_TOL, IntegrationError
@@ -66,7 +72,8 @@ class ModelPlantSlave(TableSlave):
 
     def _restore_hidden(self, hidden: dict) -> None:
         assert self.plant is not None  # called after _setup() built it
-        self.plant.x = np.array(hidden["x"], dtype=float).reshape(self.model.n)
+        self.plant.x = np.array(state_vector("hidden.x", hidden.get("x"), self.model.n),
+                                dtype=float)
 
     def _step(self, t, h):
         if not (math.isfinite(h) and h > 0):

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs
+from delaycomp.fmu.slave import TableSlave, check_finite, check_inputs, state_vector
 from delaycomp.maths.grid import same_step
 from delaycomp.maths.lti import discretize
 from delaycomp.names import indexed
@@ -67,7 +67,7 @@ class DelaycompPlantLTI(TableSlave):
         return {"x": self.x.tolist()}
 
     def _restore_hidden(self, hidden: dict) -> None:
-        self.x = np.array(hidden["x"], dtype=float).reshape(self.n)
+        self.x = np.array(state_vector("hidden.x", hidden.get("x"), self.n), dtype=float)
 
     def _parameter_values(self):
         for v in self.vars.values():

@@ -13,10 +13,12 @@
 #include "ode.h"
 #include "model_common.h"
 
-int model_setup(Instance *c) {
+/* The checks of fmi2ExitInitializationMode (the Python FMU's order: the _index twins, x0,
+ * tolerance, then the model's parameters); *branch (an int) the String parameters' branch
+ * of model.c. 0, or -1 with the refusal logged. */
+static int configure(Instance *c, void *branch) {
     Data *d = &c->d;
     if (model_resolve_choices(c) != 0) return -1;
-    /* the Python FMU's order: x0, tolerance, then the model's parameters */
     for (size_t i = 0; i < NX; i++) {
         double v = d->real[VR_X0 + i];
         if (!isfinite(v)) {
@@ -35,9 +37,18 @@ int model_setup(Instance *c) {
         return -1;
     }
     if (model_check_numbers(c) != 0) return -1;
-    if (model_branch(c, &d->m.branch) != 0) return -1;
-    memcpy(&d->real[VR_X], &d->real[VR_X0], NX * sizeof(double));
-    return alloc_buf(c, ode_work_size(NX) + NX);
+    return model_branch(c, branch);
+}
+
+/* The model buffer: ode.c's work memory and the new state */
+static size_t buffer_size(void) { return ode_work_size(NX) + NX; }
+
+int model_setup(Instance *c) {
+    int branch;
+    if (configure(c, &branch) != 0) return -1;
+    c->d.m.branch = branch;
+    memcpy(&c->d.real[VR_X], &c->d.real[VR_X0], NX * sizeof(double));
+    return alloc_buf(c, buffer_size());
 }
 
 int model_output(Instance *c, fmi2ValueReference vr, double *value) {
@@ -47,9 +58,19 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
-int model_state_ok(const Data *d, size_t nbuf) {
-    return nbuf == 0 || (nbuf == ode_work_size(NX) + NX && d->m.branch >= 0 &&
-                         d->m.branch < MODEL_NBRANCH);
+/* The buffer exists from fmi2ExitInitializationMode on (none after a refused one), with
+ * the branch of the String parameters. */
+int model_state_ok(const StateView *v) {
+    int branch = v->d->m.branch;
+    if (!state_range(v, "branch", branch, 0, MODEL_NBRANCH - 1)) return 0;
+    if ((v->nbuf != 0 || state_in(v, StateStepComplete)) &&
+        !state_nbuf(v, buffer_size(), "the work memory of the ODE solver, from "
+                    "fmi2ExitInitializationMode on"))
+        return 0;
+    if (v->nbuf == 0) return 1;
+    int expected = 0;
+    return state_parameters(v, configure, &expected, "the model buffer present") &&
+           state_long_is(v, "branch", branch, expected, "the branch of its String parameters");
 }
 
 int model_step(Instance *c, double t, double h) {

@@ -10,13 +10,18 @@
 #include "native.h"
 #include "linalg.h"  /* flow: the exact discretization, with the caller's work memory */
 
+/* The model buffer: Ad, Bd and the work memory of flow() */
+static size_t buffer_size(void) {
+    return (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU);
+}
+
 int model_setup(Instance *c) {
     if (check_real_parameters_finite(c) != 0) return -1;
     memcpy(&c->d.real[VR_X], &c->d.real[VR_X0], NX * sizeof(double));
     c->d.m.has_h = 0;
     c->d.m.h = 0.0;
-    /* Ad, Bd and the work memory of flow(): allocated here, once (nothing while stepping) */
-    return alloc_buf(c, (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU));
+    /* allocated here, once (nothing while stepping) */
+    return alloc_buf(c, buffer_size());
 }
 
 int model_output(Instance *c, fmi2ValueReference vr, double *value) {
@@ -26,9 +31,24 @@ int model_output(Instance *c, fmi2ValueReference vr, double *value) {
 
 void model_input_set(Instance *c) { (void)c; }
 
-int model_state_ok(const Data *d, size_t nbuf) {
-    (void)d;
-    return nbuf == 0 || nbuf == (size_t)NX * NX + (size_t)NX * NU + flow_work_size(NX, NU);
+static int parameters_ok(Instance *c, void *out) {
+    (void)out;
+    return check_real_parameters_finite(c);
+}
+
+/* The buffer exists from fmi2ExitInitializationMode on (none after a refused one); Ad, Bd
+ * are computed (has_h) for the step h at the first step. */
+int model_state_ok(const StateView *v) {
+    const ModelData *m = &v->d->m;
+    const char *built = "Ad, Bd and the work memory of flow, from fmi2ExitInitializationMode on";
+    if (!state_flag(v, "has_h", m->has_h)) return 0;
+    if ((v->nbuf != 0 || state_in(v, StateStepComplete) || m->has_h) &&
+        !state_nbuf(v, buffer_size(), built))
+        return 0;
+    if (m->has_h ? !state_positive(v, "h", m->h)
+                 : !state_double_is(v, "h", m->h, 0.0, "no step yet: has_h = 0"))
+        return 0;
+    return v->nbuf == 0 || state_parameters(v, parameters_ok, NULL, "the model buffer present");
 }
 
 int model_step(Instance *c, double t, double h) {
