@@ -65,3 +65,19 @@ def pytest_unconfigure(config):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(_EXIT_STATUS[-1])
+
+
+@pytest.fixture(scope="module")
+def oms():
+    """OMSimulator's install; skipped with the hint when it is absent and not required (a
+    ``DELAYCOMP_OMSIMULATOR`` that names no install is an error, not a skip)."""
+    import os
+
+    from delaycomp.verify import omsimulator
+
+    try:
+        return omsimulator.locate()
+    except omsimulator.NotInstalled as exc:
+        if os.environ.get(omsimulator.ENV):
+            raise
+        pytest.skip(f"OMSimulator not found: {exc}")

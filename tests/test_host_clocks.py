@@ -167,18 +167,6 @@ def test_fmus_refuse_a_step_off_their_grid(native_dir, how, kind, params, inputs
 
 # -- OMSimulator's command line -----------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def oms():
-    import os
-
-    try:
-        return omsimulator.locate()
-    except omsimulator.NotInstalled as exc:
-        if os.environ.get(omsimulator.ENV):
-            raise
-        pytest.skip(f"OMSimulator not found: {exc}")
-
-
 @pytest.mark.fmu
 @pytest.mark.parametrize(("flag", "stop"), [("--native", 400.0), ("--native", 4000.0),
                                             ("--python", 400.0)])

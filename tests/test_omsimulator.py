@@ -189,18 +189,6 @@ def test_bad_or_contradicting_mode_index_is_refused(params, message):
 
 # -- OMSimulator ------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def oms():
-    """OMSimulator's install; skipped with the hint when it is absent and not required (a
-    ``DELAYCOMP_OMSIMULATOR`` that names no install is an error, not a skip)."""
-    import os
-
-    try:
-        return omsimulator.locate()
-    except omsimulator.NotInstalled as exc:
-        if os.environ.get(omsimulator.ENV):
-            raise
-        pytest.skip(f"OMSimulator not found: {exc}")
 
 
 @pytest.fixture(scope="module")
