@@ -12,7 +12,8 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
   values (ready to instantiate with no parameter set), and a wiring sheet: your
   controller (``only=["controller"]``) to take into your own tool chain;
 - :func:`to_ssp` packs an SSP archive (``jacobi=True`` for libcosim and Ecos);
-- :func:`sweep` runs a grid and returns one row of metrics per point;
+- :func:`sweep` runs a grid and returns one row of metrics per point (:func:`iter_sweep`
+  hands them on one at a time, in memory bounded at any grid size);
 - :func:`critical_delay` gives the largest measurement delay the uncompensated loop
   survives (LTI).
 
@@ -50,7 +51,7 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -71,7 +72,8 @@ from delaycomp.system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
            "Result", "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
-           "export_c", "load", "lti", "model", "plot", "run", "sweep", "to_ssp"]
+           "export_c", "iter_sweep", "load", "lti", "model", "plot", "run", "sweep",
+           "to_ssp"]
 
 
 def load(path: str | Path, **overrides) -> Loop:
@@ -408,6 +410,10 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     cupy, jax, auto) and ``chunk`` (points per batch) tune the batch engine; what it did is
     appended to ``notes``. See :func:`delaycomp.studies.sweep.run_sweep`.
 
+    The rows are held together: a grid whose rows would not fit in half of the memory is
+    refused before anything runs (a :class:`ParameterError` naming the points and the
+    estimate); :func:`iter_sweep` hands them on one at a time instead.
+
     Examples
     --------
     Without compensation Example 3.6 loses stability between ``r = 0`` and ``r = 0.5``
@@ -423,12 +429,43 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     >>> notes
     ['batch engine (numpy, cpu): 4 of 4 points in 1 chunk']
     """
-    from delaycomp.studies.axes import Axis
     from delaycomp.studies.sweep import run_sweep
 
-    axes = [Axis(name, tuple(float(v) for v in values)) for name, values in grid.items()]
-    return run_sweep(str(source), axes, list(sets), stop_time, engine, workers, scheduler,
-                     None, exact, array_backend, chunk, notes, verbosity=0)
+    return run_sweep(str(source), _axes(grid), list(sets), stop_time, engine, workers,
+                     scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+
+
+def iter_sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = (),
+               stop_time: float | None = None, engine: str = "batch", workers: int = 1,
+               exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
+               scheduler: str | None = None,
+               notes: list[str] | None = None) -> Iterator[dict]:
+    """:func:`sweep`'s rows one at a time, in grid order, in memory bounded at any grid
+    size (:func:`sweep` holds them all, and refuses a grid whose rows would not fit in half
+    of the memory): the points run a stream chunk at a time as the rows are taken. Every
+    point is validated before this returns (a refusal raises here); ``notes`` are appended
+    once the last row is taken. See :func:`delaycomp.studies.sweep.iter_sweep`.
+
+    Examples
+    --------
+    Count the stable points of a map without holding its rows:
+
+    >>> rows = iter_sweep("example-3.6", {"k": [1.5, 2.0], "r": [0.0, 0.5]},
+    ...                   sets=["mode=uncompensated"], stop_time=10.0)
+    >>> sum(row["stable"] for row in rows)
+    2
+    """
+    from delaycomp.studies.sweep import iter_sweep as stream
+
+    return stream(str(source), _axes(grid), list(sets), stop_time, engine, workers,
+                  scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+
+
+def _axes(grid: Mapping[str, Sequence[float]]) -> list:
+    """The :class:`~delaycomp.studies.axes.Axis` of each grid parameter."""
+    from delaycomp.studies.axes import Axis
+
+    return [Axis(name, tuple(float(v) for v in values)) for name, values in grid.items()]
 
 
 def critical_delay(loop: Loop) -> float:

@@ -823,54 +823,64 @@ def _cmd_sweep(args) -> int:
 
 
 def _sweep(args) -> int:
+    import numpy as np
+
     from delaycomp.formats.outputs import clear_previous
-    from delaycomp.plotting import loop_title
     from delaycomp.progress import info
     from delaycomp.studies import sweep
-    from delaycomp.studies.axes import format_value, parse_grid, snap_axes
+    from delaycomp.studies.axes import parse_grid, snap_axes
 
     _outputs(args)
     source, sets = _source(args)
     axes = [parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
-    sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
-                           1 if args.scheduler else args.workers, args.exact)
+    # the rows are written as they come (held: the plot's rho alone)
+    count, _ = sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
+                                      1 if args.scheduler else args.workers, args.exact,
+                                      held=False, plot=bool(args.plot))
     axes, notes = snap_axes(args.scenario, axes, sets)
     for note in notes:
         info(f"note: {note}", args.verbosity)
     clear_previous(args.out, args.plot)
     started = time.perf_counter()
     notes = []
-    rows = sweep.run_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
-                           args.workers, args.scheduler,
-                           str(args.fmu_dir) if args.fmu_dir else None, args.exact,
-                           args.array_backend, args.chunk, notes, verbosity=args.verbosity)
+    rows = sweep.iter_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
+                            args.workers, args.scheduler,
+                            str(args.fmu_dir) if args.fmu_dir else None, args.exact,
+                            args.array_backend, args.chunk, notes, verbosity=args.verbosity)
+    tally = sweep.Tally(rho=np.empty(count) if args.plot else None)
+    sweep.write_csv(tally.count(rows), [a.name for a in axes], args.out)
     for note in notes:  # what the batch engine did: part of the result (tests/test_batch.py)
         print(note)
-    sweep.write_csv(rows, [a.name for a in axes], args.out)
     if args.plot:
-        from delaycomp.studies.critical import critical_curve
-
-        first = source.loop([*sets, *(f"{a.name}={format_value(a.values[0])}" for a in axes)])
-        ctrl = first.by_role("controller")
-        fixed = {**(ctrl.parameters if ctrl is not None else {}), "T": first.T}
-        for a in axes:  # the title gives what the grid holds fixed
-            fixed.pop(a.name, None)
-        curve = critical_curve(source, sets, [a.name for a in axes],
-                               [a.values for a in axes])
-        sweep.plot_sweep(rows, axes, args.plot, loop_title(source.name, source.title, fixed),
-                         curve)
-    stable = sum(1 for r in rows if r["stable"] == 1)
-    failed = [r for r in rows if r["failed"] and r["stable"] is None]
-    print(f"{args.scenario}: {len(rows)} points in {time.perf_counter() - started:.1f} s, "
-          f"{stable} stable" + (f", {len(failed)} failed" if failed else "")
+        _sweep_plot(args, source, sets, axes, tally.rho)
+    print(f"{args.scenario}: {tally.points} points in {time.perf_counter() - started:.1f} s, "
+          f"{tally.stable} stable" + (f", {tally.failed} failed" if tally.failed else "")
           + f"; wrote {args.out}")
-    if failed:  # neither stable nor unstable: the run broke down (the column says why)
-        print(f"delaycomp: error: {len(failed)} of {len(rows)} points failed (column "
-              f"failed of {args.out}); the first: {failed[0]['failed']}", file=sys.stderr)
+    if tally.failed:  # neither stable nor unstable: the run broke down (the column says why)
+        print(f"delaycomp: error: {tally.failed} of {tally.points} points failed (column "
+              f"failed of {args.out}); the first: {tally.first_failed}", file=sys.stderr)
         return 1
     return 0
+
+
+def _sweep_plot(args, source, sets: list[str], axes: list, rho) -> None:
+    """``--plot`` of a sweep: its ``rho``, the critical delays over it, a title giving what
+    the grid holds fixed."""
+    from delaycomp.plotting import loop_title
+    from delaycomp.studies import sweep
+    from delaycomp.studies.axes import format_value
+    from delaycomp.studies.critical import critical_curve
+
+    first = source.loop([*sets, *(f"{a.name}={format_value(a.values[0])}" for a in axes)])
+    ctrl = first.by_role("controller")
+    fixed = {**(ctrl.parameters if ctrl is not None else {}), "T": first.T}
+    for a in axes:  # the title gives what the grid holds fixed
+        fixed.pop(a.name, None)
+    curve = critical_curve(source, sets, [a.name for a in axes], [a.values for a in axes])
+    sweep.plot_sweep(rho, axes, args.plot, loop_title(source.name, source.title, fixed),
+                     curve)
 
 
 def _cmd_critical_delay(args) -> int:

@@ -29,6 +29,13 @@ they are distributed. With ``engine="batch"`` the points are advanced together, 
 (:mod:`delaycomp.studies.batch`, :mod:`delaycomp.studies.sweep_batch`), in chunks spread
 the same way; points it cannot take run on the per-point in-process engine, and ``notes``
 says which.
+
+Memory stays bounded at any grid size: every point is validated, a piece
+(:data:`PIECE_POINTS`) at a time, before any runs; then the points are resolved, run and
+handed on a stream chunk (:data:`STREAM_POINTS`) at a time (:func:`iter_sweep`), and
+``delaycomp sweep`` writes their rows to its CSV as they come. :func:`run_sweep` returns
+the rows together: a grid whose rows would not fit in half of the memory is refused
+before anything runs, with the estimate (:func:`check_sweep_size`, :func:`sweep_memory`).
 """
 
 from __future__ import annotations
@@ -39,17 +46,18 @@ import dataclasses
 import gc
 import itertools
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 
 from delaycomp.errors import ParameterError, is_divergence
 from delaycomp.paper.scenarios import open_source
-from delaycomp.studies.axes import Axis, base_loop, format_value, points
+from delaycomp.studies.axes import Axis, base_loop, format_value
 from delaycomp.studies.pool import Progress, on_dask, on_processes
 from delaycomp.system import FmuFile, LtiBatch, Timing
+from delaycomp.tmpfiles import new_file
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
 ZERO = 1e-9
@@ -167,28 +175,124 @@ def _prebuild(jobs: list[Job]) -> None:
 #: Lower bound of the cost of one point of ``--exact`` (a lifted-model eigenvalue
 #: problem), in seconds.
 SECONDS_PER_EXACT_POINT = 50e-6
-#: Bytes of one result row in memory (a dict of about ten floats).
-BYTES_PER_ROW = 1000
+#: Lower bound of resolving and validating one point, in seconds: done in this process,
+#: whatever the workers (10.7 us measured end to end on the development machine, less the
+#: batch engine's share: README, Sweeps; 14 us on a busy machine).
+SECONDS_PER_POINT = 8e-6
+#: Lower bound of the batch engine's cost per point and base step, in seconds, shared by
+#: the workers (3.5 ns measured: 7.0 s for 10^6 points of 2000 steps on one core).
+SECONDS_PER_BATCH_TICK = 3e-9
+
+# -- memory: a sweep streams its grid ------------------------------------------------------
+#
+# No stage holds the whole grid. The points are resolved and validated a piece at a time
+# (PIECE_POINTS), every piece before any point runs (the validation pass); then a stream
+# chunk at a time (STREAM_POINTS) they are resolved again, or taken from the validation
+# pass (up to KEEP_BYTES of it), run, and handed on as rows. What grows with the grid is
+# only what the caller keeps: run_sweep's list of rows; `delaycomp sweep` writes the rows
+# to its CSV as they come. The byte constants below were measured with tracemalloc
+# (Python 3.11, numpy 2; /proc VmHWM agrees): the bytes a stage holds, or its peak over
+# what was held before it, divided by its points, on Example 3.6 (an LTI scenario, one
+# state, 5 s) and Example 2.4 (a model scenario, 1 s), the larger, rounded up.
+
+#: Points resolved and validated together (a piece): the batch engine's chunk on numpy
+#: (:data:`~delaycomp.studies.sweep_batch.CHUNK_MAX`).
+PIECE_POINTS = 16384
+#: Points run together (a stream chunk, 16 pieces): their chunks go to the workers at once
+#: (one pool of worker processes, or one Dask client, per stream chunk), and their rows are
+#: handed on before the next stream chunk is resolved.
+STREAM_POINTS = 1 << 18
+#: Bytes of validated points kept from the validation pass for the run, so that they are
+#: not resolved twice (at most: beyond it, the points are resolved again as they run).
+KEEP_BYTES = 1 << 29
+#: Bytes per point at the peak of resolving a piece: the loop-file data (a dict per point,
+#: freed with the piece) and the point's design (LTI: 1.8 kB measured) or loop (a model
+#: scenario's: 6.9 kB).
+BYTES_PER_RESOLVED = 7000
+#: Bytes per point of a batch chunk run in this process (one at a time; on workers, in
+#: theirs): 2.5 kB (Example 3.6) and 3.9 kB (Example 2.4) measured; more for long runs at
+#: large N, where the batch engine cuts smaller chunks (at most a quarter of the available
+#: memory: :data:`~delaycomp.studies.sweep_batch.MEMORY_SHARE`).
+BYTES_PER_RUN = 4000
+#: Bytes per point of a stream chunk in flight: its points' assignments and values, their
+#: batches or per-point jobs, their metrics as they come back and their rows (batch
+#: engine: 640 measured; per-point engines: about 1 kB).
+BYTES_PER_STREAMED = 1000
+#: Bytes of a point kept from the validation pass, grouped as the batch engine takes it
+#: (:class:`_Piece`): an LTI design with one state and one input (144 measured; 8 more per
+#: further matrix entry), a model loop's timing and histories (178 measured).
+BYTES_PER_KEPT_LTI = 144
+BYTES_PER_KEPT_MODEL = 180
+#: Bytes of one held result row (:func:`run_sweep`, ``api.sweep``): a dict of the grid
+#: values and the six metrics, its four floats and its slot in the list (356 measured with
+#: 2, 3 or 4 grid parameters); a dict of 11 to 21 keys is 192 bytes larger.
+BYTES_PER_ROW = 360
+BYTES_PER_ROW_WIDE = 560
+#: The most points ``--plot`` draws: its figure has 770 x 495 pixels, a map of more cells
+#: than this draws several per pixel (and matplotlib needs about 250 bytes a cell).
+PLOT_MAX_POINTS = 1_000_000
+
+
+def sweep_memory(count: int, axes: int, held: bool = True, kept: int = 0) -> tuple[int, int]:
+    """An estimate of the bytes a sweep of ``count`` points over ``axes`` grid parameters
+    holds at its peak, and of those its rows' (``held``: :func:`run_sweep` returns them
+    together; else they are handed on as they come, :func:`iter_sweep`). ``kept``: bytes
+    per point kept from the validation pass (a batch sweep's).
+
+    Examples
+    --------
+    >>> total, rows = sweep_memory(10**7, 2)
+    >>> rows, total - rows
+    (3600000000, 442368000)
+    >>> sweep_memory(10**7, 2, held=False) == sweep_memory(10**8, 2, held=False)
+    True
+    """
+    from delaycomp.studies.sweep_batch import CHUNK_MAX
+
+    row = BYTES_PER_ROW if axes <= 4 else BYTES_PER_ROW_WIDE + 400 * (axes > 15)
+    rows = count * row if held else 0
+    working = (min(count, PIECE_POINTS) * BYTES_PER_RESOLVED
+               + min(count, CHUNK_MAX) * BYTES_PER_RUN
+               + min(count, STREAM_POINTS) * BYTES_PER_STREAMED
+               + min(count * kept, KEEP_BYTES))
+    return rows + working, rows
 
 
 def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
                      stop: float | None = None, engine: str = "inprocess", workers: int = 1,
-                     exact: bool = False) -> tuple[int, float]:
+                     exact: bool = False, held: bool = True,
+                     plot: bool = False) -> tuple[int, float]:
     """Refuse, in one line with the estimate, a grid that cannot finish or fit in memory.
 
-    Returns the number of points and the estimated seconds (a lower bound).
+    ``held``: the rows are returned together (:func:`run_sweep`), else streamed
+    (:func:`iter_sweep`, ``delaycomp sweep``); ``plot``: ``--plot`` draws them (at most
+    :data:`PLOT_MAX_POINTS`). Returns the number of points and the estimated seconds (a
+    lower bound).
     """
-    from delaycomp.formats.outputs import (
-        MAX_RUN_SECONDS,
-        SECONDS_PER_TICK,
-        format_bytes,
-        format_duration,
-        physical_memory,
-    )
-
     count = math.prod(len(a.values) for a in axes)
-    per_point = SECONDS_PER_EXACT_POINT
+    if plot and count > PLOT_MAX_POINTS:
+        raise ParameterError(
+            f"--plot: {count:.4g} points are more than a map can draw ({PLOT_MAX_POINTS:.4g} "
+            "at most, more than its pixels); drop --plot or use fewer points")
     base = None if exact else base_loop(scenario, sets)
+    seconds = _check_time(scenario, axes, count, base, stop, engine, workers, exact)
+    kept = 0
+    if engine == "batch" and not exact:
+        kept = BYTES_PER_KEPT_MODEL if base is None or base.lti is None else \
+            BYTES_PER_KEPT_LTI + 8 * (base.lti.A.size + base.lti.B.size + base.lti.K.size - 3)
+    _check_memory(count, len(axes), held, kept)
+    return count, seconds
+
+
+def _check_time(scenario: str, axes: list[Axis], count: int, base, stop: float | None,
+                engine: str, workers: int, exact: bool) -> float:
+    """Refuse, in one line with the estimate, a sweep that cannot finish in
+    :data:`~delaycomp.formats.outputs.MAX_RUN_SECONDS`; return its estimated seconds (a lower
+    bound): every point resolved here, then run on the workers (``base``: the loop at
+    ``r = 0``, for its timing; ``None`` where unknown or not needed)."""
+    from delaycomp.formats.outputs import MAX_RUN_SECONDS, SECONDS_PER_TICK, format_duration
+
+    run = SECONDS_PER_EXACT_POINT
     if base is not None:
         T, N = base.T, base.N
         for a in axes:  # the most expensive point when T or N is swept
@@ -198,22 +302,35 @@ def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
                 N = max(a.values)
         source = open_source(scenario)
         stop_time = stop if stop is not None else (source.default_stop_time or base.stop_time)
-        if stop_time:
-            per_point = (stop_time / T) * N * SECONDS_PER_TICK.get(engine, 10e-6)
-    if engine == "batch" and not exact:
-        per_point = 0.0  # vectorized over the points: no per-point bound known; memory only
-    seconds = count * per_point / max(1, workers)
+        ticks = (stop_time / T) * N if stop_time else 0.0
+        run = ticks * (SECONDS_PER_BATCH_TICK if engine == "batch"
+                       else SECONDS_PER_TICK.get(engine, 10e-6))
+    elif engine == "batch" and not exact:
+        run = 0.0  # no timing known: the resolution alone
+    workers = max(1, workers)
+    seconds = count * (SECONDS_PER_POINT + run / workers)
     if seconds > MAX_RUN_SECONDS:
         raise ParameterError(
-            f"--grid: {count:.4g} points at least {per_point * 1e3:.3g} ms each on "
-            f"{max(1, workers)} workers take at least {format_duration(seconds)}, over the limit "
-            f"of {format_duration(MAX_RUN_SECONDS)}; use fewer points or a shorter --stop-time")
+            f"--grid: {count:.4g} points at least {seconds / count * workers * 1e3:.3g} ms each "
+            f"on {workers} workers take at least {format_duration(seconds)}, over the limit of "
+            f"{format_duration(MAX_RUN_SECONDS)}; use fewer points or a shorter --stop-time")
+    return seconds
+
+
+def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
+    """Refuse, in one line with the estimate (:func:`sweep_memory`), a sweep that would
+    not fit in half of this machine's memory."""
+    from delaycomp.formats.outputs import format_bytes, physical_memory
+
+    need, rows = sweep_memory(count, axes, held, kept)
     ram = physical_memory()
-    if ram is not None and count * BYTES_PER_ROW > ram / 2:
+    if ram is not None and need > ram / 2:
+        what = (f"{format_bytes(rows)} of it for the rows returned together; stream them "
+                "(delaycomp sweep --out, api.iter_sweep) or use fewer points") if held \
+            else "use fewer points"
         raise ParameterError(
-            f"--grid: {count:.4g} points need at least {format_bytes(count * BYTES_PER_ROW)} for "
-            f"their results, over half of this machine's {format_bytes(ram)}; use fewer points")
-    return count, seconds
+            f"--grid: {count:.4g} points need about {format_bytes(need)} of memory, over half "
+            f"of this machine's {format_bytes(ram)} ({what})")
 
 
 #: engines of :func:`run_sweep`: ``batch`` advances all points together (vectorized);
@@ -234,46 +351,106 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     from the available memory); what it did, and which points fell back to the per-point
     in-process engine and why, is appended to ``notes``. ``verbosity`` 0 hides the progress
     bar (shown on a terminal otherwise).
+
+    The rows are held together: a grid whose rows would not fit in half of the memory is
+    refused before anything runs (:func:`check_sweep_size`); :func:`iter_sweep` hands them
+    on as they come instead.
     """
+    plan = _plan(scenario, axes, sets, stop, engine, workers, scheduler, fmu_dir, exact,
+                 array_backend, chunk, held=True)
+    rows: list[dict] = []
+    for part in _stream(plan, notes if notes is not None else [], verbosity):
+        rows.extend(part)
+    return rows
+
+
+def iter_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
+               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
+               fmu_dir: str | None = None, exact: bool = False,
+               array_backend: str = "numpy", chunk: int | None = None,
+               notes: list[str] | None = None, verbosity: int = 1) -> Iterator[dict]:
+    """:func:`run_sweep`'s rows, one at a time, in grid order, in memory bounded at any
+    grid size: the points are resolved, run and handed on a stream chunk
+    (:data:`STREAM_POINTS`) at a time.
+
+    Every point is validated before this returns (a refusal raises here, before anything
+    runs); the points run as the rows are taken. ``notes`` are appended once the last row
+    is taken.
+
+    Examples
+    --------
+    >>> from delaycomp.studies.axes import parse_grid
+    >>> rows = iter_sweep("example-3.6", [parse_grid("k=1.5:2:2")], ["r=0"], stop=10.0,
+    ...                   engine="batch")
+    >>> [(row["k"], row["stable"]) for row in rows]
+    [(1.5, 1), (2.0, 1)]
+    """
+    plan = _plan(scenario, axes, sets, stop, engine, workers, scheduler, fmu_dir, exact,
+                 array_backend, chunk, held=False)
+    return itertools.chain.from_iterable(
+        _stream(plan, notes if notes is not None else [], verbosity))
+
+
+@dataclass
+class _SweepPlan:
+    """A checked, validated sweep: what its run needs (:func:`_plan`)."""
+
+    sc: object  # the opened source
+    axes: list[Axis]
+    sets: list[str]
+    stop: float
+    job: Job  # every point's job, less the point's own assignments
+    batched: bool
+    backend: str  # the batch engine's array library (its name)
+    workers: int
+    scheduler: str | None
+    chunk: int | None
+    piece: int  # points resolved together
+    stream: int  # points run together: a multiple of ``piece``
+    kept: dict[int, _Piece] = dataclasses.field(default_factory=dict)  # by piece number
+
+    @property
+    def names(self) -> list[str]:
+        """The grid parameters' names."""
+        return [a.name for a in self.axes]
+
+
+def _plan(scenario: str, axes: list[Axis], sets: list[str], stop: float | None,
+          engine: str, workers: int, scheduler: str | None, fmu_dir: str | None,
+          exact: bool, backend: str, chunk: int | None, held: bool) -> _SweepPlan:
+    """The sweep's arguments checked, and every point validated (a piece at a time), before
+    anything runs; the validated points of the first pieces kept (:data:`KEEP_BYTES`)."""
     names = [a.name for a in axes]
     sc, stop = _checked(scenario, axes, names, sets, stop, engine, workers, scheduler,
-                        exact, chunk)
+                        exact, chunk, held)
     source = (str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
               else scenario)
-    job_engine = "inprocess" if engine == "batch" else engine
-    texts = [[f"{a.name}={format_value(v)}" for v in a.values] for a in axes]
-    grid_texts = list(itertools.product(*texts))
-
-    def job(i: int) -> Job:
-        return Job(source, (*sets, *grid_texts[i]), float(stop), job_engine, fmu_dir, exact)
-
     batched = engine == "batch" and not exact
-    with _gc_paused():
-        loops = _grid_loops(sc, sets, grid_texts, batched)
-        rows = [dict(zip(names, values)) for values in points(axes)]
-    if not exact:  # --exact takes rho from the lifted model: no run, no stop time
-        _check_stop(loops, grid_texts, float(stop))
+    # a stream chunk holds whole pieces and whole chunks of --chunk points, so that its
+    # chunks are cut as from the whole grid (a larger --chunk makes pieces that large)
+    piece = chunk * max(1, PIECE_POINTS // chunk) if chunk else PIECE_POINTS
+    plan = _SweepPlan(sc, list(axes), list(sets), float(stop),
+                 Job(source, tuple(sets), float(stop), "inprocess" if batched else engine,
+                     fmu_dir, exact),
+                 batched, backend, workers, scheduler, chunk, piece,
+                 piece * max(1, STREAM_POINTS // piece))
+    _validate(plan)
     if batched:
-        results = _run_batch(job, loops, float(stop), workers, scheduler, array_backend,
-                             chunk, notes if notes is not None else [], verbosity)
-    else:
-        jobs = [job(i) for i in range(len(grid_texts))]
-        if not exact and engine == "fmu":
-            _prebuild(jobs)
-        results = _run_jobs(jobs, workers, scheduler, Progress(len(jobs), verbosity))
-    with _gc_paused():
-        for row, res in zip(rows, results):
-            row.update(res)
-    return rows
+        from delaycomp.studies import batch
+        try:
+            plan.backend = batch.get_backend(backend).name
+        except batch.BatchError as exc:
+            raise ParameterError(f"--array-backend: {exc}") from None
+    return plan
 
 
 def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
              stop: float | None, engine: str, workers: int, scheduler: str | None,
-             exact: bool, chunk: int | None):
+             exact: bool, chunk: int | None, held: bool = True):
     """The sweep's arguments checked (in one line each, before anything runs): the opened
     source and the stop time (the source's default where ``stop`` is ``None``)."""
     check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
-                     exact)
+                     exact, held)
     sc = open_source(scenario)
     if exact and sc.loop(list(sets)).lti is None:
         raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
@@ -292,12 +469,81 @@ def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
     return sc, stop
 
 
-def _grid_loops(sc, sets: list[str], grid_texts: list[tuple[str, ...]], batched: bool):
+def _pieces(axes: list[Axis], size: int, values: bool = False) -> Iterator[tuple]:
+    """The grid in pieces of ``size`` points, in grid order: each point's assignments
+    (``NAME=VALUE`` texts) and, with ``values``, its values."""
+    texts = itertools.product(*([f"{a.name}={format_value(v)}" for v in a.values]
+                                for a in axes))
+    nums = itertools.product(*(a.values for a in axes)) if values else None
+    while True:
+        part = list(itertools.islice(texts, size))
+        if not part:
+            return
+        yield (part, list(itertools.islice(nums, size))) if nums is not None else (part,)
+
+
+def _validate(plan: _SweepPlan) -> None:
+    """Every point validated, a piece at a time, before any runs (a refusal names the
+    point); for a batch sweep, the validated points of the first pieces kept in
+    ``plan.kept`` as the batch engine takes them while they take at most
+    :data:`KEEP_BYTES` (a grid of one piece: all of it)."""
+    seen: set = set()
+    kept_bytes = 0
+    for k, (texts,) in enumerate(_pieces(plan.axes, plan.piece)):
+        with _gc_paused():
+            loops = _grid_loops(plan.sc, plan.sets, texts, plan.batched,
+                                timings=not plan.batched)
+        if not plan.job.exact:  # --exact takes rho from the lifted model: no stop time
+            _check_stop(loops, texts, plan.stop, seen)
+        if plan.batched and (k == 0 or kept_bytes < KEEP_BYTES):
+            piece = _Piece.of(loops)
+            if k == 0 or kept_bytes + piece.nbytes() <= KEEP_BYTES:
+                plan.kept[k] = piece
+            kept_bytes += piece.nbytes()
+            del piece
+        del loops  # before the next piece is resolved
+
+
+@dataclass
+class _Piece:
+    """A piece's validated points as the batch engine takes them: in groups that share a
+    batch (:func:`delaycomp.studies.sweep_batch.groups`: indices in the piece, points
+    stacked), each model group's model, and the points it cannot take, each with its
+    reason and its per-point engine: in-process, or ``fmu`` where the loop holds an FMU
+    file (the in-process engine runs delaycomp's own slaves only)."""
+
+    groups: dict
+    models: dict
+    fallback: list[tuple[int, str, str]]
+
+    @classmethod
+    def of(cls, loops) -> _Piece:
+        """The piece of validated points ``loops`` (:func:`_grid_loops`)."""
+        from delaycomp.studies import sweep_batch
+
+        found, others, models = sweep_batch.groups(loops)
+        fallback = []
+        for i, why in others:
+            files = any(isinstance(inst.source, FmuFile) for inst in loops[i].instances)
+            fallback.append((i, why, "fmu" if files else "inprocess"))
+        return cls(found, models, fallback)
+
+    def nbytes(self) -> int:
+        """Bytes it holds: its arrays, and an index (a Python int and its list slot) and
+        a pointer per point."""
+        arrays = sum(getattr(points, f.name).nbytes for _, points in self.groups.values()
+                     for f in dataclasses.fields(points))
+        return arrays + 48 * sum(len(idx) for idx, _ in self.groups.values())
+
+
+def _grid_loops(sc, sets: list[str], grid_texts: list[tuple[str, ...]], batched: bool,
+                timings: bool = False):
     """Every grid point validated before any runs: all at once where the source can
     (``Scenario.resolve_grid``), else (or to name a refused point) one by one. Returns
-    the points' loops; for a batch sweep of an LTI source, their designs instead (what
-    the batch engine reads): one :class:`delaycomp.system.LtiBatch` where the source
-    validates them all at once (``Scenario.designs``, ``LoopFile.designs``), else one
+    the points' loops (with ``timings``, only their :class:`delaycomp.system.Timing`); for a
+    batch sweep of an LTI source, their designs instead (what the batch engine reads): one
+    :class:`delaycomp.system.LtiBatch` where the source validates them all at once
+    (``Scenario.designs``, ``LoopFile.designs``), else one
     :class:`delaycomp.system.LtiPoint` (or, where a point has none, its loop) each."""
     params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
               else None)
@@ -317,20 +563,24 @@ def _grid_loops(sc, sets: list[str], grid_texts: list[tuple[str, ...]], batched:
     loops = []
     for p, point_texts in zip(params, grid_texts):
         item = _named(point_texts, design, p) if design is not None else None
-        loops.append(item if item is not None else _named(point_texts, sc.make, p))
+        item = item if item is not None else _named(point_texts, sc.make, p)
+        loops.append(item.timing if timings else item)
     return loops
 
 
-def _check_stop(loops, grid_texts: list[tuple[str, ...]], stop: float) -> None:
+def _check_stop(loops, grid_texts: list[tuple[str, ...]], stop: float,
+                seen: set | None = None) -> None:
     """Refuse a stop time that is not a whole number of some point's base step, naming the
-    first such point (before anything runs, for every engine)."""
+    first such point (before anything runs, for every engine); ``seen`` holds the timings
+    already checked (of earlier pieces)."""
     if not (math.isfinite(stop) and stop > 0):
         raise ParameterError(f"--stop-time {stop!r} is not allowed: must be a finite number > 0")
     if isinstance(loops, LtiBatch):
         pairs = list(zip(loops.T.tolist(), loops.N.tolist()))
     else:
-        pairs = [(loop.timing.T, loop.timing.N) for loop in loops]
-    seen = set()
+        pairs = [(t.T, t.N) for t in (x if isinstance(x, Timing) else x.timing
+                                      for x in loops)]
+    seen = set() if seen is None else seen
     for i, (T, N) in enumerate(pairs):
         if (T, N) not in seen:
             seen.add((T, N))
@@ -360,48 +610,126 @@ def _named(point_texts: tuple[str, ...], fn, arg):
         raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
 
 
-def _run_batch(job, loops, stop: float, workers: int, scheduler: str | None,
-               backend: str, chunk: int | None, notes: list[str],
-               verbosity: int = 1) -> list[dict]:
-    """The batch engine for the points it takes, the per-point engine for the others
-    (``job(i)`` is point ``i``'s :class:`Job`)."""
+def _stream(plan: _SweepPlan, notes: list[str], verbosity: int) -> Iterator[list[dict]]:
+    """The rows of the validated sweep ``plan``, a stream chunk at a time; the notes of the
+    batch engine appended after the last."""
+    names = plan.names
+    progress = Progress(math.prod(len(a.values) for a in plan.axes), verbosity)
+    tally = _BatchNotes()
+    for k, (texts, values) in enumerate(_pieces(plan.axes, plan.stream, values=True)):
+        if plan.batched:
+            results = _run_batch(plan, k * (plan.stream // plan.piece), texts, tally,
+                                 progress)
+        else:
+            jobs = [_job(plan.job, t) for t in texts]
+            if not plan.job.exact and plan.job.engine == "fmu":
+                _prebuild(jobs)
+            results = _run_jobs(jobs, plan.workers, plan.scheduler, progress)
+        with _gc_paused():
+            rows = []
+            for j, point in enumerate(values):
+                row = dict(zip(names, point))
+                row.update(results[j])
+                results[j] = {}  # freed as its row is made
+                rows.append(row)
+        yield rows
+    if plan.batched:
+        notes.extend(tally.notes())
+
+
+def _job(job: Job, point_texts: tuple[str, ...]) -> Job:
+    """The job of one grid point: ``job`` with the point's assignments."""
+    return dataclasses.replace(job, sets=(*job.sets, *point_texts))
+
+
+@dataclass
+class _BatchNotes:
+    """What the batch engine did over a sweep's stream chunks, for its notes."""
+
+    backend: str = ""
+    total: int = 0
+    done: int = 0
+    chunks: int = 0
+    others: list[str] = dataclasses.field(default_factory=list)  # prepare's, in order
+    fallback: dict[str, tuple[int, set]] = dataclasses.field(default_factory=dict)
+
+    def notes(self) -> list[str]:
+        """The notes: prepare's, the batch engine's, then one per per-point engine."""
+        out = [*self.others,
+               f"batch engine ({self.backend}): {self.done} of {self.total} points in "
+               f"{self.chunks} chunk{'s' if self.chunks != 1 else ''}"]
+        for name, (count, reasons) in self.fallback.items():
+            out.append(f"per-point engine ({name}): {count} points, because "
+                       + "; ".join(sorted(reasons)))
+        return out
+
+
+def _run_batch(plan: _SweepPlan, first: int, texts: list[tuple[str, ...]], tally: _BatchNotes,
+               progress: Progress) -> list[dict]:
+    """One stream chunk (the points ``texts``, from piece number ``first`` on) on the batch
+    engine, the points it cannot take on the per-point engine; their metrics in order."""
     from delaycomp.studies import batch, sweep_batch
+
+    be = batch.get_backend(plan.backend)
+    tally.backend = f"{be.name}, {be.device}"
+    chunks, fallback = _prepared(plan, first, texts, be.name, tally)
+    results: list[dict] = [{}] * len(texts)
     try:
-        be = batch.get_backend(backend)
-    except batch.BatchError as exc:
-        raise ParameterError(f"--array-backend: {exc}") from None
-    chunks, fallback, msgs = sweep_batch.prepare(loops, stop, be.name, workers, chunk)
-    notes.extend(msgs)
-    total = len(loops)
-    progress = Progress(total, verbosity)
-    results: list[dict | None] = [None] * total
-    try:
-        for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(chunks, workers, scheduler,
-                                                                 progress)):
+        for (idx, _), rows in zip(chunks, sweep_batch.run_chunks(
+                chunks, plan.workers, plan.scheduler, progress)):
             for i, row in zip(idx, rows):
                 results[i] = row
     except batch.BatchError as exc:
         raise ParameterError(str(exc)) from None
-    done = sum(len(idx) for idx, _ in chunks)
-    notes.append(f"batch engine ({be.name}, {be.device}): {done} of {total} points in "
-                 f"{len(chunks)} chunk{'s' if len(chunks) != 1 else ''}")
-    # the others point by point: in-process, or as FMUs where the loop holds an FMU file
-    # (the in-process engine runs delaycomp's own slaves only)
-    by_engine: dict[str, list[tuple[int, str]]] = {}
-    for i, why in fallback:
-        files = any(isinstance(inst.source, FmuFile) for inst in loops[i].instances)
-        by_engine.setdefault("fmu" if files else "inprocess", []).append((i, why))
-    for name, items in by_engine.items():
-        reasons = sorted({why for _, why in items})
-        notes.append(f"per-point engine ({name}): {len(items)} points, because "
-                     + "; ".join(reasons))
-        jobs = [dataclasses.replace(job(i), engine=name) for i, _ in items]
+    tally.total += len(texts)
+    tally.done += sum(len(idx) for idx, _ in chunks)
+    tally.chunks += len(chunks)
+    for name, items in fallback.items():
+        count, reasons = tally.fallback.get(name, (0, set()))
+        tally.fallback[name] = (count + len(items), reasons | {why for _, why in items})
+        jobs = [dataclasses.replace(_job(plan.job, texts[i]), engine=name) for i, _ in items]
         if name == "fmu":
             _prebuild(jobs)
-        for (i, _), row in zip(items, _run_jobs(jobs, workers, scheduler, progress)):
+        for (i, _), row in zip(items, _run_jobs(jobs, plan.workers, plan.scheduler,
+                                                progress)):
             results[i] = row
-    # every point is filled: by its chunk, or by the per-point engine (the fallback)
-    return cast("list[dict]", results)
+    return results
+
+
+def _prepared(plan: _SweepPlan, first: int, texts: list[tuple[str, ...]], backend: str,
+              tally: _BatchNotes) -> tuple[list, dict[str, list[tuple[int, str]]]]:
+    """The batch chunks of one stream chunk (each with the indices it covers in it) and
+    its points for the per-point engine (by engine: ``(index, reason)``). Each piece is
+    grouped as it is resolved (its loops are not held); the groups of all pieces are
+    joined, so that the chunks are cut as from the whole stream chunk."""
+    from delaycomp.studies import sweep_batch
+
+    merged: dict[tuple, tuple[list[int], list]] = {}
+    models: dict = {}
+    fallback: dict[str, list[tuple[int, str]]] = {}
+    for s in range(0, len(texts), plan.piece):
+        piece = plan.kept.pop(first + s // plan.piece, None)
+        if piece is None:  # not kept from the validation pass: resolved again
+            with _gc_paused():
+                piece = _Piece.of(_grid_loops(plan.sc, plan.sets, texts[s:s + plan.piece],
+                                              True))
+        for key, (idx, points) in piece.groups.items():
+            into = merged.setdefault(key, ([], []))
+            into[0].extend(s + i for i in idx)
+            into[1].append(points)
+        models.update(piece.models)
+        for i, why, engine in piece.fallback:
+            fallback.setdefault(engine, []).append((s + i, why))
+        del piece
+    found = {}
+    while merged:  # each group's parts freed as it is joined
+        key, (idx, parts) = next(iter(merged.items()))
+        del merged[key]
+        found[key] = (idx, sweep_batch.join(parts))
+    chunks, msgs = sweep_batch.cut(found, models, plan.stop, backend, plan.workers,
+                                   plan.chunk)
+    tally.others.extend(m for m in msgs if m not in tally.others)
+    return chunks, fallback
 
 
 def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
@@ -424,24 +752,65 @@ def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
     return results
 
 
-def write_csv(rows: list[dict], names: list[str], path: str | Path) -> None:
+@dataclass
+class Tally:
+    """What the end of a streamed sweep needs of its rows, counted as they pass
+    (:meth:`count`): the points, the stable ones, the failed ones (neither stable nor
+    unstable) and the first failure's reason; with ``rho`` (an array of one float per
+    point), each point's ``rho`` (``nan`` where empty), for ``--plot``.
+
+    Examples
+    --------
+    >>> tally = Tally(rho=np.empty(2))
+    >>> rows = [{"rho": 0.5, "stable": 1, "failed": ""},
+    ...         {"rho": None, "stable": None, "failed": "plant failed at t = 1"}]
+    >>> len(list(tally.count(rows))), tally.points, tally.stable, tally.failed
+    (2, 2, 1, 1)
+    >>> tally.first_failed, tally.rho.tolist()[1]
+    ('plant failed at t = 1', nan)
+    """
+
+    points: int = 0
+    stable: int = 0
+    failed: int = 0
+    first_failed: str = ""
+    rho: np.ndarray | None = None
+
+    def count(self, rows: Iterable[dict]) -> Iterator[dict]:
+        """``rows`` passed on, one at a time, counted."""
+        for row in rows:
+            if self.rho is not None:
+                self.rho[self.points] = math.nan if row["rho"] is None else row["rho"]
+            self.points += 1
+            if row["stable"] == 1:
+                self.stable += 1
+            elif row["failed"] and row["stable"] is None:
+                self.failed += 1
+                self.first_failed = self.first_failed or row["failed"]
+            yield row
+
+
+def write_csv(rows: Iterable[dict], names: list[str], path: str | Path) -> None:
     """Write the sweep's rows to ``path`` as CSV: the grid columns ``names``, then
-    :data:`METRICS` (written to a ``.part`` file first, then moved into place; removed if
-    the writing is interrupted or fails)."""
+    :data:`METRICS`. ``rows`` may be an iterator (:func:`iter_sweep`): each row is written
+    as it comes, to a ``.part`` file (a new file: never through a link) moved into place
+    once the last is written (and removed if the rows stop with an error, Ctrl-C or
+    SIGTERM included: no half-written file looks like a result).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
     try:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        with new_file(tmp) as fh:
             w = csv.writer(fh)
             w.writerow([*names, *METRICS])
             for row in rows:  # grid values as written (15 digits), metrics to the bit
                 w.writerow([*(format_value(row[k]) for k in names),
                             *(_cell(row[k]) for k in METRICS)])
-        tmp.replace(path)
     except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-written file is left
         tmp.unlink(missing_ok=True)
         raise
+    tmp.replace(path)
 
 
 def _cell(value) -> str:
@@ -454,11 +823,13 @@ def _cell(value) -> str:
     return repr(float(value))
 
 
-def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str,
+def plot_sweep(rows: list[dict] | np.ndarray, axes: list[Axis], path: str | Path, title: str,
                critical: np.ndarray | None = None) -> None:
     """A curve of ``rho`` for one grid parameter, a heat map of it for two.
 
-    ``critical``: rows ``(a, r)`` where the exact lifted model has ``rho = 1``
+    ``rows``: the sweep's rows, or their ``rho`` alone as an array in grid order
+    (:attr:`Tally.rho`); at most :data:`PLOT_MAX_POINTS`. ``critical``: rows ``(a, r)``
+    where the exact lifted model has ``rho = 1``
     (:func:`delaycomp.studies.critical.critical_curve`), drawn over the map and labelled.
     """
     import matplotlib
@@ -466,7 +837,10 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rho = np.array([r["rho"] for r in rows], dtype=float)
+    if len(rows) > PLOT_MAX_POINTS:
+        raise ParameterError(f"--plot draws at most {PLOT_MAX_POINTS:.4g} points")
+    rho = (np.asarray(rows, dtype=float) if isinstance(rows, np.ndarray)
+           else np.array([r["rho"] for r in rows], dtype=float))
     fig, ax = plt.subplots(figsize=(7, 4.5))
     if len(axes) == 1:
         ax.plot(axes[0].values, rho, "o-", ms=3)
@@ -490,12 +864,12 @@ def plot_sweep(rows: list[dict], axes: list[Axis], path: str | Path, title: str,
         _draw_critical(ax, axes, critical)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".part" + path.suffix)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+    from delaycomp.plotting import save
+
+    try:
+        save(fig, path)  # whole, never through a link
+    finally:
+        plt.close(fig)
 
 
 def _draw_critical(ax, axes: list[Axis], points: np.ndarray) -> None:

@@ -17,6 +17,7 @@ FMU file or ``held_sample``) is returned with the reason, for the per-point engi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -183,21 +184,58 @@ def prepare(loops: list | LtiBatch, stop: float, backend: str, workers: int,
     :class:`delaycomp.system.LtiPoint` each), or all of them as one
     :class:`delaycomp.system.LtiBatch` (one group, cut into chunks as it is). Returns
     ``(chunks, fallback, notes)`` where each chunk comes with the point indices it covers:
-    ``[(indices, Chunk), ...]``.
+    ``[(indices, Chunk), ...]``. :func:`groups` then :func:`cut`.
     """
-    fallback: list[tuple[int, str]] = []
-    models: dict[tuple, Model] = {}
+    found, fallback, models = groups(loops)
+    chunks, notes = cut(found, models, stop, backend, workers, limit)
+    return chunks, fallback, notes
+
+
+Groups = dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]]
+
+
+def groups(loops: list | LtiBatch) -> tuple[Groups, list[tuple[int, str]], dict[tuple, Model]]:
+    """The batchable points of ``loops`` (as :func:`prepare` takes them) in groups that
+    share a batch, each group's indices and points stacked (an LTI group keyed by its
+    dimensions, a model's by its model file, string parameters and padding); ``(index,
+    reason)`` for the others; each model group's model. Groups of several parts of a grid
+    may be joined (:func:`join`) before they are cut into chunks (:func:`cut`).
+
+    Examples
+    --------
+    >>> from delaycomp.paper.scenarios import get
+    >>> sc = get("example-3.6")
+    >>> pts = sc.resolve_grid([], [("r=0",), ("r=0.5",)]).designs
+    >>> found, fallback, models = groups(pts)
+    >>> [(key, idx, len(points)) for key, (idx, points) in found.items()], fallback
+    ([(('lti', (1, 1), (1, 1)), [0, 1], 2)], [])
+    """
     if isinstance(loops, LtiBatch):  # all points in one group, already arrays
-        groups: dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]] = {
-            ("lti",): (list(range(len(loops))), loops)}
-    else:
-        groups, fallback, models = _groups(loops)
+        key = ("lti", loops.A.shape[1:], loops.B.shape[1:])
+        return {key: (list(range(len(loops))), loops)}, [], {}
+    return _groups(loops)
+
+
+def join(parts: list[LtiBatch | batch.ModelBatch]) -> LtiBatch | batch.ModelBatch:
+    """The points of a group's ``parts`` (of one type, one key of :func:`groups`) in one
+    batch, in order."""
+    if len(parts) == 1:
+        return parts[0]
+    kind = type(parts[0])
+    return kind(*(np.concatenate([getattr(p, f.name) for p in parts])
+                  for f in dataclasses.fields(kind)))
+
+
+def cut(found: Groups, models: dict[tuple, Model], stop: float, backend: str, workers: int,
+        limit: int | None) -> tuple[list, list[str]]:
+    """The groups ``found`` (:func:`groups`) cut into chunks: ``[(indices, Chunk), ...]``
+    and notes (model loops on numpy where ``backend`` is another library)."""
     notes: list[str] = []
-    if backend != "numpy" and any(k[0] == "model" for k in groups):
+    if backend != "numpy" and any(k[0] == "model" for k in found):
         notes.append(f"array backend {backend}: model loops run on numpy (their f, k and "
                      "step are numpy code)")
     chunks = []
-    for key, (idx, points) in groups.items():
+    for key, (idx, points) in found.items():
         if isinstance(points, LtiBatch):
             per = _lti_batch_bytes(points, stop)
             cap = CHUNK_MAX if backend == "numpy" else CHUNK_MAX_GPU
@@ -212,7 +250,7 @@ def prepare(loops: list | LtiBatch, stop: float, backend: str, workers: int,
                 chunks.append((idx[sel], Chunk(part, stop, backend)))
             else:
                 chunks.append((idx[sel], Chunk(part, stop, "numpy", key[1], key[2], key[3])))
-    return chunks, fallback, notes
+    return chunks, notes
 
 
 def _groups(loops: list) -> tuple[dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]],
