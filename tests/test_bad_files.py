@@ -87,13 +87,14 @@ def test_bad_fmu_in_fmu_dir_is_one_line_exit_2(fmu_dir, tmp_path, case):
     shutil.copytree(fmu_dir, folder)
     make(folder / PLANT, fmu_dir)
     out = tmp_path / "out" / "result.csv"
+    out.parent.mkdir()  # an output's folder must exist (issue 30, item 9)
     proc = cli("run", "example-3.6", "--python", "--fmu-dir", str(folder), "--out", str(out),
                "--plot", str(tmp_path / "out" / "result.png"))
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert lines[0].startswith(f"delaycomp: error: {folder / PLANT}: {message}")
-    assert not (tmp_path / "out").exists()
+    assert not any((tmp_path / "out").iterdir())  # nothing written
 
 
 @pytest.mark.parametrize("fmus", [[], ["--python"], ["--native"]], ids=str)

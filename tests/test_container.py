@@ -59,6 +59,7 @@ def test_export_loop_cli_writes_an_fmu_that_fmpy_validates(tmp_path):
     from fmpy import read_model_description
 
     out = tmp_path / "sub" / "example-3.6.fmu"
+    out.parent.mkdir()  # an output's folder must exist (issue 30, item 9)
     proc = cli("export-loop", "example-3.6", "--set", "u0=4", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == str(out)
