@@ -63,3 +63,50 @@ def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
         zf.write(HERE / "README.md", "documentation/README.md")
     shutil.rmtree(work)
     return target
+
+
+DRIVE = "Drive"
+
+
+def build_drive(out_dir: Path, name: str = f"{DRIVE}.fmu", directional: bool = True,
+                co_simulation: bool = True, model_exchange: bool = True) -> Path:
+    """Compile ``drive.c`` (a plant FMU that behaves like a Modelica tool's export: hidden
+    continuous states, sensor outputs, its own variable-step solver; README.md) and pack
+    it into ``out_dir``; return its path. ``directional = False``: an FMU that provides no
+    directional derivatives (its modelDescription says so and the call fails).
+    ``co_simulation`` / ``model_exchange``: which interfaces its modelDescription declares.
+    """
+    import fmpy
+
+    if not sys.platform.startswith("linux"):
+        raise CompilerMissing(f"the C test FMU is built for linux64 only, not {sys.platform}")
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        raise CompilerMissing("no C compiler (gcc or cc) on PATH: the C test FMU needs one")
+    headers = Path(fmpy.__file__).resolve().parent / "c-code"
+    out_dir = Path(out_dir)
+    work = out_dir / f"{Path(name).stem}-build"
+    (work / "binaries" / "linux64").mkdir(parents=True, exist_ok=True)
+    lib = work / "binaries" / "linux64" / f"{DRIVE}.so"
+    proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
+                           "-fPIC", f"-I{headers}", "-o", str(lib),
+                           *([] if directional else ["-DNO_DIRECTIONAL"]),
+                           str(HERE / "drive.c"), "-lm"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")
+    xml = (HERE / "drive.xml").read_text(encoding="utf-8")
+    if not directional:
+        xml = xml.replace('providesDirectionalDerivative="true"',
+                          'providesDirectionalDerivative="false"')
+    for keep, tag in ((co_simulation, "CoSimulation"), (model_exchange, "ModelExchange")):
+        if not keep:
+            start = xml.index(f"<{tag} ")
+            xml = xml[:start] + xml[xml.index("/>", start) + 2:]
+    target = out_dir / name
+    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("modelDescription.xml", xml)
+        zf.write(lib, f"binaries/linux64/{DRIVE}.so")
+        zf.write(HERE / "drive.c", "sources/drive.c")
+        zf.write(HERE / "README.md", "documentation/README.md")
+    shutil.rmtree(work)
+    return target
