@@ -259,6 +259,8 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
         try:
             master.setup(stop_time, spec.parameters())
             master.initialize()
+            if t0 == 0.0:  # a run that starts where the loop's history ends
+                check_initial(spec, master)
             if guard:
                 with np.errstate(all="ignore"):
                     _run_until(master, ticks, progress)
@@ -275,6 +277,36 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
              for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
                   recorder.count, culprit)
+
+
+#: how far an output may be from its value in :attr:`Loop.initial` once initialized,
+#: relative to 1 + the largest |value| (inf-norm): round-off, and the residual a tool's
+#: initialization solver leaves (its tolerance, typically 1e-6 to 1e-10 relative); a wrong
+#: x0 is off by the size of the state
+INITIAL_RTOL = 1e-6
+
+
+def check_initial(spec: Loop, master: Master) -> None:
+    """Refuse (:class:`SimulationError`, one line naming both vectors) a loop whose outputs
+    in :attr:`Loop.initial` (a plant FMU's measured outputs) are not the values the loop
+    assumes (``x0``, the measured history) once the master has initialized it."""
+    if not spec.initial:
+        return
+    by_instance: dict[str, list[tuple[str, float]]] = {}
+    for port, value in spec.initial:
+        by_instance.setdefault(port.instance, []).append((port.variable, value))
+    for name, pairs in by_instance.items():
+        names = [v for v, _ in pairs]
+        want = np.array([x for _, x in pairs])
+        got = np.array(master.components[name].get_outputs(names), dtype=float)
+        tol = INITIAL_RTOL * (1.0 + float(np.max(np.abs(want))))
+        if not (np.all(np.isfinite(got)) and np.all(np.abs(got - want) <= tol)):
+            raise SimulationError(
+                f"{name} starts elsewhere: its outputs after initialization, "
+                f"({', '.join(names)}) = {np.round(got, 12).tolist()}, are not x0 = "
+                f"{want.tolist()}, the measured history the loop assumes: set the FMU's "
+                f"initial state (plant.start or plant.parameters) to give x0, or change "
+                "x0", instance=name)
 
 
 @contextlib.contextmanager

@@ -231,9 +231,14 @@ class Loop:
     title: str = field(default="", compare=False)
     stop_time: float | None = field(default=None, compare=False)
     lti: LtiDesign | None = field(default=None, compare=False)
+    #: the values some outputs must have once the instances are initialized, each a
+    #: ``(port, value)``: a plant FMU's measured outputs and ``x0``, the history the loop
+    #: assumes (the master refuses to run a loop whose plant starts elsewhere)
+    initial: tuple[tuple[Port, float], ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "instances", tuple(self.instances))
+        object.__setattr__(self, "initial", tuple((p, float(v)) for p, v in self.initial))
         object.__setattr__(self, "connections", tuple(self.connections))
         object.__setattr__(self, "recorded", tuple(self.recorded))
         names = [i.name for i in self.instances]
@@ -248,7 +253,7 @@ class Loop:
             if roles.count(role) > 1:
                 raise ParameterError(f"loop {self.name}: more than one {role}")
         for port in [p for c in self.connections for p in (c.src, c.dst)] + list(
-                self.recorded):
+                self.recorded) + [p for p, _ in self.initial]:
             if port.instance not in names:
                 raise ParameterError(f"loop {self.name}: {port} names no instance: "
                                      f"allowed are {', '.join(names)}")

@@ -28,6 +28,12 @@ Extensions (optional keys): top-level ``name`` and ``title``; ``[plant] state`` 
 (``closed`` or ``numerical``, for models), ``pad`` (pad ``tau`` up to a multiple of T,
 Remark 3.3(b)), ``tolerance`` and ``allow_unstable``.
 
+A plant FMU from another tool (:mod:`.plantfmu`): ``[plant] fmu``, ``states`` (its
+outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start there),
+``parameters`` and ``start`` (tables of values set before its initialization); the
+predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predictor =
+"plant-fmu"`` with ``K`` (the FMU's own Model Exchange derivatives, :mod:`.fmumodel`).
+
 Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
 the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
 ``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``.
@@ -636,7 +642,8 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (:mod:`.plantfmu`)."""
     from delaycomp.system.plantfmu import fmu_plant_loop
 
-    _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "x0"))
+    _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "start",
+                                            "x0"))
     for key in ("states", "inputs", "x0"):
         if key not in plant:
             raise ParameterError(f"{where}: plant.{key} is required with plant.fmu ("
@@ -665,7 +672,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
         loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
                               plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
-                              mode=mode, **common)
+                              mode=mode, start=plant.get("start"), **common)
         if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
             check_sign(A, B, K, T)
         return loop
@@ -690,15 +697,22 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     return fmu_plant_loop(fmu, plant["states"], plant["inputs"], plant.get("parameters"),
                           T, r, tau, N, x0, u0, model=model_path,
-                          controller_parameters=params, **common)
+                          controller_parameters=params, start=plant.get("start"), **common)
 
 
 def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r, tau,
                          x0, common: dict) -> Loop:
     """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
-    predictor's model (:mod:`.fmumodel`), with ``u = K x``."""
-    from delaycomp.system.fmumodel import write_model
-    from delaycomp.system.plantfmu import check_mapping, fmu_plant_loop, read_interface
+    predictor's model (:mod:`.fmumodel`), its state found from the measured outputs, with
+    ``u = K y``."""
+    from delaycomp.maths.predictors import DEFAULT_TOL
+    from delaycomp.system.fmumodel import start_from_outputs, write_model
+    from delaycomp.system.plantfmu import (
+        check_mapping,
+        check_output_map,
+        fmu_plant_loop,
+        read_interface,
+    )
 
     _check_keys(f"{where} [controller]", ctrl, ("predictor", "K", "u0", "mode", "tolerance"))
     if "K" not in ctrl:
@@ -710,17 +724,32 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
                              f"{fmu.name} has no Model Exchange interface (give A and B, or "
                              "model)")
     states, inputs, values = check_mapping(iface, plant["states"], plant["inputs"],
-                                           plant.get("parameters"))
+                                           plant.get("parameters"), start=plant.get("start"))
+    check_output_map(iface, states)
     K = _array("controller.K", ctrl["K"], 2)
-    model = write_model(fmu, states, inputs, iface.states, K, values)
-    mode = ctrl.get("mode", "compensated")
-    params: dict = {"predictor": "none" if mode == "uncompensated" else "numerical"}
+    tol = DEFAULT_TOL
     if "tolerance" in ctrl:
-        params["tolerance"] = _real("controller.tolerance", ctrl["tolerance"], positive=True)
+        tol = _real("controller.tolerance", ctrl["tolerance"], positive=True)
+        if not tol < 1:
+            raise ParameterError(f"controller.tolerance = {tol!r} is not allowed: must be in "
+                                 "(0, 1)")
+    model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
+    start = plant.get("start")
+    if np.size(x0) != len(states):
+        raise ParameterError(f"parameter x0 has {np.size(x0)} values: must have one per state "
+                             f"({', '.join(states)})")
+    if start is None and all(iface.variables[x].initial == "exact" for x in iface.states):
+        # x0 applied through the start values of the FMU's states, found from the outputs'
+        # map (the model module makes the FMI calls)
+        start = start_from_outputs(model, fmu.name, x0)
+        values = {**values, **start}
+        model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
+    mode = ctrl.get("mode", "compensated")
+    params: dict = {"predictor": "none" if mode == "uncompensated" else "closed"}
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     check_zoh_delay(tau, T)  # u = K x held over each period; no padding here
-    return fmu_plant_loop(fmu, states, inputs, values, T, r, tau, N, x0, u0, model=model,
-                          controller_parameters=params, **common)
+    return fmu_plant_loop(fmu, states, inputs, plant.get("parameters"), T, r, tau, N, x0, u0,
+                          model=model, controller_parameters=params, start=start, **common)
 
 
 def _ident(where: str, value) -> str:

@@ -54,6 +54,8 @@ class Variable:
     causality: str
     variability: str
     start: str | None = None
+    #: the ``initial`` attribute as declared (``None`` where absent)
+    initial: str | None = None
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,11 @@ class FmuInterface:
     states: tuple[str, ...] = ()
     derivatives: tuple[str, ...] = ()
     platforms: tuple[str, ...] = ()
+    #: each output's dependencies (ModelStructure): the names of the knowns it depends on,
+    #: ``None`` where the FMU does not say (then, by FMI 2.0, on every known)
+    dependencies: Mapping[str, tuple[str, ...] | None] = field(default_factory=dict)
+    #: Model Exchange's ``providesDirectionalDerivative``
+    directional: bool = False
 
     def of(self, causality: str, type_: str = "Real") -> list[str]:
         """The names of the variables of this causality and type, in the modelDescription's
@@ -166,7 +173,7 @@ def read_interface(path: str | Path) -> FmuInterface:
                                                  "Enumeration")), None)
         var = Variable(sv.get("name", ""), typed.tag if typed is not None else "?",
                        sv.get("causality", "local"), sv.get("variability", "continuous"),
-                       typed.get("start") if typed is not None else None)
+                       typed.get("start") if typed is not None else None, sv.get("initial"))
         variables[var.name] = var
         ordered.append(var)
     check_declarations(path, [(v.name, v.type, v.causality, sv.get("valueReference"))
@@ -184,10 +191,23 @@ def read_interface(path: str | Path) -> FmuInterface:
     platforms = tuple(sorted({n.split("/")[1] for n in names
                               if n.startswith("binaries/") and n.count("/") >= 2
                               and not n.endswith("/")}))
+    deps: dict[str, tuple[str, ...] | None] = {}
+    outputs = structure.find("Outputs") if structure is not None else None
+    for unknown in outputs if outputs is not None else ():
+        try:
+            var = ordered[int(cast(str, unknown.get("index"))) - 1]
+            listed = unknown.get("dependencies")
+            deps[var.name] = None if listed is None else tuple(
+                ordered[int(i) - 1].name for i in listed.split())
+        except (ValueError, IndexError):
+            raise BadFileError(path, "has a ModelStructure/Outputs entry whose index or "
+                                     "dependencies name no ScalarVariable") from None
     return FmuInterface(path, root.get("modelName", ""), version,
                         cs.get("modelIdentifier") if cs is not None else None,
                         me.get("modelIdentifier") if me is not None else None,
-                        variables, tuple(states), tuple(ders), platforms)
+                        variables, tuple(states), tuple(ders), platforms, deps,
+                        me is not None and me.get("providesDirectionalDerivative") in (
+                            "true", "1"))
 
 
 def _names(where: str, value) -> list[str]:
@@ -204,9 +224,12 @@ def _names(where: str, value) -> list[str]:
 
 
 def check_mapping(fmu: FmuInterface, states, inputs, parameters: Mapping | None,
-                  where: str = "plant") -> tuple[list[str], list[str], dict]:
-    """Check ``states``, ``inputs`` and ``parameters`` against the FMU; return them
-    (names as lists, parameter values as numbers, booleans or strings)."""
+                  where: str = "plant", start: Mapping | None = None
+                  ) -> tuple[list[str], list[str], dict]:
+    """Check ``states``, ``inputs``, ``parameters`` and the ``start`` values (of variables
+    that are not parameters: :func:`start_variables`) against the FMU; return the names as
+    lists and the values to set before initialization, parameters and start values in one
+    table (numbers, booleans or strings)."""
     name = fmu.path.name
     if fmu.co_simulation is None:
         raise ParameterError(f"{where}.fmu = {name!r} is not allowed: it has no "
@@ -237,27 +260,104 @@ def check_mapping(fmu: FmuInterface, states, inputs, parameters: Mapping | None,
         if var is None or pname not in settable:
             raise ParameterError(f"{where}.parameters: {pname!r} is not a settable parameter "
                                  f"of {name}: allowed are {', '.join(settable) or 'none'}")
-        if var.type == "Real":
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                    math.isfinite(value)):
-                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
-                                     "allowed: must be a finite number (Real)")
-            value = float(value)
-        elif var.type in ("Integer", "Enumeration"):
-            if isinstance(value, bool) or not (isinstance(value, int) or (
-                    isinstance(value, float) and value.is_integer())):
-                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
-                                     "allowed: must be an integer")
-            value = int(value)
-        elif var.type == "Boolean":
-            if not isinstance(value, bool):
-                raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not "
-                                     "allowed: must be true or false")
-        elif not isinstance(value, str):
-            raise ParameterError(f"{where}.parameters: {pname} = {value!r} is not allowed: "
-                                 "must be a string")
-        values[pname] = value
+        values[pname] = _value(f"{where}.parameters", pname, var, value)
+    if start is not None and not isinstance(start, Mapping):
+        raise ParameterError(f"{where}.start is not allowed: must be a table {{name = value}}")
+    startable = start_variables(fmu, inputs)
+    for vname, value in (start or {}).items():
+        var = fmu.variables.get(vname)
+        if var is None or vname not in startable:
+            why = ""
+            if var is not None and var.causality == "parameter":
+                why = f" ({vname!r} is a parameter: give it in {where}.parameters)"
+            elif var is not None and vname in inputs:
+                why = f" ({vname!r} is driven by the loop: it is in {where}.inputs)"
+            elif var is not None and var.initial == "approx":
+                why = (f" ({vname!r} has initial = \"approx\": a guess the FMU's own "
+                       "initialization may change, not a value a master sets)")
+            raise ParameterError(f"{where}.start: {vname!r} is not a start value that the "
+                                 f"master may set in {name}{why}: allowed are "
+                                 f"{', '.join(startable) or 'none'}")
+        values[vname] = _value(f"{where}.start", vname, var, value)
     return states, inputs, values
+
+
+def start_variables(fmu: FmuInterface, inputs: Sequence[str] = ()) -> list[str]:
+    """The variables besides parameters whose start value a master sets before the FMU's
+    initialization (FMI 2.0, 4.2.4: ``initial = "exact"`` and not constant, e.g. the
+    continuous states a Modelica tool exports as locals; and the inputs), less ``inputs``
+    (those the loop drives)."""
+    return [v.name for v in fmu.variables.values()
+            if v.causality not in ("parameter", "calculatedParameter", "independent")
+            and v.variability != "constant" and v.name not in inputs
+            and (v.initial == "exact" or v.causality == "input")]
+
+
+def _value(where: str, vname: str, var: Variable, value):
+    """``value`` for the FMU variable ``var``, checked against its type."""
+    if var.type == "Real":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value)):
+            raise ParameterError(f"{where}: {vname} = {value!r} is not allowed: must be a "
+                                 "finite number (Real)")
+        return float(value)
+    if var.type in ("Integer", "Enumeration"):
+        if isinstance(value, bool) or not (isinstance(value, int) or (
+                isinstance(value, float) and value.is_integer())):
+            raise ParameterError(f"{where}: {vname} = {value!r} is not allowed: must be an "
+                                 "integer")
+        return int(value)
+    if var.type == "Boolean":
+        if not isinstance(value, bool):
+            raise ParameterError(f"{where}: {vname} = {value!r} is not allowed: must be true "
+                                 "or false")
+        return value
+    if not isinstance(value, str):
+        raise ParameterError(f"{where}: {vname} = {value!r} is not allowed: must be a string")
+    return value
+
+
+def check_output_map(fmu: FmuInterface, states: Sequence[str],
+                     where: str = "controller.predictor") -> None:
+    """``predictor = "plant-fmu"``: refuse (one line, saying what to give instead) outputs
+    ``states`` that cannot determine the FMU's continuous states, as far as the
+    modelDescription tells: fewer outputs than states, an output with direct feedthrough
+    from an input, or a state no named output depends on (ModelStructure). Whether the map
+    is invertible where the loop runs is checked by the controller on its Jacobian
+    (:func:`delaycomp.maths.outputmap.check_rank`)."""
+    name, xs = fmu.path.name, list(fmu.states)
+    head = f'{where} = "plant-fmu" is not allowed'
+    instead = "or give A and B (or model) for the predictor"
+    if not xs:
+        raise ParameterError(f"{head}: {name} declares no continuous states "
+                             f"(ModelStructure/Derivatives): nothing to predict; {instead}")
+    if len(states) < len(xs):
+        raise ParameterError(
+            f"{head}: plant.states names {len(states)} output(s) ({', '.join(states)}) for "
+            f"the {len(xs)} continuous states of {name} ({', '.join(xs)}): the outputs "
+            f"cannot determine the states; name at least {len(xs)} outputs that do, "
+            f"{instead}")
+    covered: set[str] | None = set()
+    for s in states:
+        deps = fmu.dependencies.get(s)
+        if deps is None:  # not declared: it may depend on anything (FMI 2.0, 3.2.2)
+            covered = None
+            continue
+        fed = [d for d in deps if fmu.variables[d].causality == "input"]
+        if fed:
+            raise ParameterError(
+                f"{head}: output {s!r} of {name} depends on the input {fed[0]!r} at the "
+                "same instant (direct feedthrough, ModelStructure): each output in "
+                f"plant.states must be a function of the FMU's states alone; name another "
+                f"output, {instead}")
+        if covered is not None:
+            covered |= set(deps) & set(xs)
+    missing = [x for x in xs if covered is not None and x not in covered]
+    if missing:
+        raise ParameterError(
+            f"{head}: no output in plant.states ({', '.join(states)}) depends on the state "
+            f"{missing[0]!r} of {name} (ModelStructure), so the outputs cannot determine it; "
+            f"name an output that does, {instead}")
 
 
 def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
@@ -275,7 +375,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                    controller_parameters: Mapping | None = None,
                    r_true: float | None = None, tau_true: float | None = None,
                    name: str = "loop", title: str = "",
-                   stop_time: float | None = None) -> Loop:
+                   stop_time: float | None = None, start: Mapping | None = None) -> Loop:
     """The loop plant FMU (as it is) -> measurement delay -> controller -> input delay.
 
     The controller is delaycomp's LTI controller with the model ``A``, ``B`` and gain
@@ -283,10 +383,13 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     ``model`` (with ``controller_parameters``: its parameters and settings, as
     :func:`~delaycomp.system.model_loop` takes them). ``x0`` is the history of the measured
     state on ``[-r, 0]`` (the measurement delay's initial output); the FMU's own initial
-    state is set by its parameters. Recorded: the states and the controller's outputs.
+    state is set by its parameters and the ``start`` values of its other variables (its
+    hidden continuous states, say: :func:`start_variables`); the master checks that the
+    FMU's outputs ``states`` equal ``x0`` once it is initialized (:attr:`Loop.initial`).
+    Recorded: the states and the controller's outputs.
     """
     fmu = read_interface(fmu_path)
-    states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters)
+    states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters, start=start)
     n, m = len(states), len(inputs)
     x0, u0 = _histories(x0, u0, states, inputs)
     timing = Timing(T, N)
@@ -308,7 +411,9 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     connections = _plant_connections(states, inputs, ctrl_in, ctrl_out)
     recorded = tuple([Port("plant", s) for s in states]
                      + [Port("controller", u) for u in ctrl_out])
-    return Loop(instances, connections, timing, recorded, name, title, stop_time)
+    initial = tuple((Port("plant", s), float(v)) for s, v in zip(states, x0))
+    return Loop(instances, connections, timing, recorded, name, title, stop_time,
+                initial=initial)
 
 
 def _histories(x0, u0, states: list[str], inputs: list[str]

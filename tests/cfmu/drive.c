@@ -289,6 +289,7 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *n
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n) { (void)c; (void)s; (void)b; (void)n; return fmi2Error; }
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *s) { (void)c; (void)b; (void)n; (void)s; return fmi2Error; }
 
+#ifndef NO_DIRECTIONAL
 /* d(unknown)/d(known) of the linearization at the current point */
 static int partial(const Model *m, fmi2ValueReference y, fmi2ValueReference k, double *d) {
     double phi = m->v[VR_PHI], J = m->v[VR_BODY_J];
@@ -308,6 +309,7 @@ static int partial(const Model *m, fmi2ValueReference y, fmi2ValueReference k, d
     default: return 0;
     }
 }
+#endif
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference unknowns[], size_t nu,
                                         const fmi2ValueReference knowns[], size_t nk,
