@@ -770,6 +770,8 @@ def _run_ssp(args) -> int:
             if absent is not None:
                 raise UsageError(f"--master {args.master}: {absent}")
 
+            _tolerance_note(args, spec)
+
             def runner(stop, master=args.master, path=args.scenario):
                 if master == "omsimulator":
                     from delaycomp.verify.omsimulator import run_ssp as run_oms
@@ -787,6 +789,22 @@ def _run_ssp(args) -> int:
         loop = spec.replace(name=name, title=system.info.description or system.info.name)
         return _execute(args, loop, stop, name, title_of_loop(loop), Marks.of_loop(loop),
                         None, fmus=archive.fmus(), runner=runner)
+
+
+def _tolerance_note(args, spec) -> None:
+    """Say that ``--master`` (libcosim, Ecos, OMSimulator) cannot hand an archive's plant
+    tolerance to the plant FMU: SSP 1.0 has no component tolerance, libcosim's and Ecos's
+    Python APIs take none, OMSimulator's Python API sets its own solvers' (measured: not a
+    co-simulation FMU's; its command line's ``--tolerance`` does reach one)."""
+    from delaycomp.progress import info
+    from delaycomp.system import FmuFile
+
+    plant = spec.by_role("plant")
+    if (plant is not None and isinstance(plant.source, FmuFile)
+            and plant.source.tolerance is not None):
+        info(f"note: --master {args.master} cannot hand plant.tolerance = "
+             f"{plant.source.tolerance!r} to the plant FMU (no component tolerance in SSP "
+             "or its API): the FMU uses its own default", args.verbosity)
 
 
 def _report_run(args, result, elapsed: float, name: str, title: str, where=None,

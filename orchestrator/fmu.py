@@ -132,9 +132,11 @@ class FmuComponent(ComponentBase):
     the inputs at the same instant.
     """
 
-    def __init__(self, name: str, path: str | Path):
+    def __init__(self, name: str, path: str | Path, tolerance: float | None = None):
         self.name = name
         self.path = Path(path)
+        #: the relative tolerance given to fmi2SetupExperiment (None: not defined)
+        self.tolerance = tolerance
         self.md, self._unzipdir = _unpacked(self.path)
         (self.input_names, self.output_names, self.feedthrough_outputs,
          self.runs_python) = interface(self.md, self.path)
@@ -181,8 +183,9 @@ class FmuComponent(ComponentBase):
         return vrs
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
-        """Instantiate the FMU, set up the experiment from ``start_time`` to ``stop_time``,
-        enter initialization mode and set the ``parameters`` (by variable name)."""
+        """Instantiate the FMU, set up the experiment from ``start_time`` to ``stop_time``
+        (with :attr:`tolerance` where one is given: ``toleranceDefined = true``), enter
+        initialization mode and set the ``parameters`` (by variable name)."""
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                         instanceName=self.name)
@@ -195,7 +198,8 @@ class FmuComponent(ComponentBase):
         self.fmu = fmu
         self._do_step_fn = None
         try:
-            fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+            fmu.setupExperiment(tolerance=self.tolerance, startTime=start_time,
+                                stopTime=stop_time)
             fmu.enterInitializationMode()
             for pname, value in parameters.items():
                 self._set_parameter(pname, value)

@@ -86,12 +86,15 @@ class IsolatedFmu(ComponentBase):
     """One instance of the FMU file ``path``, run in a child process, with a watchdog of
     ``watchdog`` seconds on every call (see the module's docstring)."""
 
-    def __init__(self, name: str, path: str | Path, watchdog: float):
+    def __init__(self, name: str, path: str | Path, watchdog: float,
+                 tolerance: float | None = None):
         from fmpy import read_model_description
 
         self.name = name
         self.path = Path(path)
         self.watchdog = check_watchdog(watchdog)
+        #: the relative tolerance given to fmi2SetupExperiment in the child (None: none)
+        self.tolerance = tolerance
         md = read_model_description(str(self.path), validate=False)
         check_declarations(self.path, [(v.name, v.type, v.causality, v.valueReference)
                                        for v in md.modelVariables])
@@ -186,10 +189,12 @@ class IsolatedFmu(ComponentBase):
 
     # -- Component protocol --------------------------------------------------------------
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
-        """Start the child and there instantiate, set up and enter initialization."""
+        """Start the child and there instantiate, set up (with :attr:`tolerance`) and enter
+        initialization."""
         self._start()
         self._call("fmi2Instantiate", ("setup", start_time, stop_time, parameters,
-                                       *self._news()), SLOW_CALLS * self.watchdog)
+                                       *self._news(), self.tolerance),
+                   SLOW_CALLS * self.watchdog)
 
     def initialize(self) -> None:
         """Leave initialization mode (after sending the inputs set)."""
@@ -296,7 +301,7 @@ class _Child:
         op = message[0]
         comp = self.comp
         if op == "setup":
-            _, start, stop, parameters, reads, writes = message
+            _, start, stop, parameters, reads, writes, comp.tolerance = message
             self.register(reads, writes)
             comp.setup(start, stop, parameters)
             return None

@@ -126,7 +126,11 @@ def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None
 
         fmus = fmus or {}
         limit = default_watchdog(loop.h) if watchdog is None else watchdog
-        return [IsolatedFmu(i.name, fmus.get(i.name) or i.source.path, limit)
+        # the tolerance only where one is given (a stand-in component that takes none
+        # keeps working for the loops that give none)
+        return [IsolatedFmu(i.name, fmus.get(i.name) or i.source.path, limit,
+                            **({} if i.source.tolerance is None
+                               else {"tolerance": i.source.tolerance}))
                 if isinstance(i.source, FmuFile)
                 else FmuComponent(i.name, fmus.get(i.name) or source_fmu(i.source, fmu_dir))
                 for i in loop.instances]

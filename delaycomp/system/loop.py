@@ -88,9 +88,16 @@ class ModelFmu:
 
 @dataclass(frozen=True)
 class FmuFile:
-    """An FMU file taken as it is (from an SSP archive, or a user's own FMU)."""
+    """An FMU file taken as it is (from an SSP archive, or a user's own FMU).
+
+    ``tolerance``: the relative tolerance handed to the FMU's ``fmi2SetupExperiment``
+    (``toleranceDefined = true``), for an FMU that integrates with its own variable-step
+    solver (a Modelica tool's export); ``None``: none is defined, the FMU uses its own
+    default.
+    """
 
     path: Path
+    tolerance: float | None = None
 
     def build_key(self) -> None:
         """``None``: a user's FMU file is used as it is, never built."""

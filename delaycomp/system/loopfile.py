@@ -24,7 +24,8 @@ renamed)::
 
 Extensions (optional keys): top-level ``name`` and ``title``; ``[plant] state`` and
 ``input`` (base names of the LTI signals, default ``x`` and ``u``), ``[plant] tolerance``
-(a model plant without exact ``step``: its ODE tolerance); ``[controller] predictor``
+(a model plant without exact ``step``: its ODE tolerance; a plant FMU: the relative
+tolerance of its ``fmi2SetupExperiment``, in (0, 1)); ``[controller] predictor``
 (``closed`` or ``numerical``, for models), ``pad`` (pad ``tau`` up to a multiple of T,
 Remark 3.3(b)), ``tolerance`` and ``allow_unstable``.
 
@@ -556,7 +557,8 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     common = dict(r_true=top["r_true"], tau_true=top["tau_true"], name=name, title=title,
                   stop_time=stop)
     if "fmu" in plant:
-        return _fmu_plant(plant, ctrl, base, where, T, N, r, tau, mode, common)
+        return _fmu_tolerance(plant, lambda: _fmu_plant(plant, ctrl, base, where, T, N, r,
+                                                        tau, mode, common))
     if "A" in plant:
         point, state, inp = _lti(top, where)
         return design_loop(point, state, inp, name=name, title=title, stop_time=stop)
@@ -643,7 +645,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     from delaycomp.system.plantfmu import fmu_plant_loop
 
     _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "start",
-                                            "x0"))
+                                            "x0", "tolerance"))
     for key in ("states", "inputs", "x0"):
         if key not in plant:
             raise ParameterError(f"{where}: plant.{key} is required with plant.fmu ("
@@ -750,6 +752,16 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
     check_zoh_delay(tau, T)  # u = K x held over each period; no padding here
     return fmu_plant_loop(fmu, states, inputs, plant.get("parameters"), T, r, tau, N, x0, u0,
                           model=model, controller_parameters=params, start=start, **common)
+
+
+def _fmu_tolerance(plant: dict, make: Callable[[], Loop]) -> Loop:
+    """The loop of a plant FMU (``make()``) with ``[plant] tolerance``, checked first, for
+    its ``fmi2SetupExperiment`` (:func:`~delaycomp.system.plantfmu.with_tolerance`)."""
+    from delaycomp.system.plantfmu import check_tolerance, with_tolerance
+
+    tol = plant.get("tolerance")
+    tol = None if tol is None else check_tolerance(tol)
+    return with_tolerance(make(), tol)
 
 
 def _ident(where: str, value) -> str:

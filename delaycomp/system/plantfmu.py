@@ -19,7 +19,7 @@ import math
 import sys
 import zipfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import cast
 from xml.etree import ElementTree
@@ -493,3 +493,41 @@ def _plant_connections(states: list[str], inputs: list[str], ctrl_in: list[str],
         + [c("meas_delay", o, "controller", i) for o, i in zip(ys_out, ctrl_in)]
         + [c("controller", u, "input_delay", i) for u, i in zip(ctrl_out, dl_in)]
         + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, inputs)])
+
+
+def check_tolerance(value, where: str = "plant.tolerance") -> float:
+    """``[plant] tolerance`` of a plant FMU checked: a finite number in (0, 1) (what FMI's
+    ``fmi2SetupExperiment`` takes as a relative tolerance), else a one-line
+    :class:`ParameterError` naming ``where``.
+
+    Examples
+    --------
+    >>> check_tolerance(1e-8)
+    1e-08
+    >>> check_tolerance(1.0)   # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: plant.tolerance = 1.0 is not allowed: must be a ...
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            math.isfinite(value) and 0 < value < 1):
+        raise ParameterError(f"{where} = {value!r} is not allowed: must be a finite number "
+                             "in (0, 1)")
+    return float(value)
+
+
+def with_tolerance(loop: Loop, tolerance: float | None) -> Loop:
+    """``loop`` whose plant FMU file gets the relative ``tolerance`` at
+    ``fmi2SetupExperiment`` (``toleranceDefined = true``; checked by
+    :func:`check_tolerance`); ``None``: the loop as it is (no tolerance defined, the FMU's
+    own default)."""
+    if tolerance is None:
+        return loop
+    tolerance = check_tolerance(tolerance)
+    plant = loop.by_role("plant")
+    if plant is None or not isinstance(plant.source, FmuFile):
+        raise ParameterError("plant.tolerance is not allowed here: the plant is not an FMU "
+                             "file")
+    source = FmuFile(plant.source.path, tolerance)
+    return loop.with_instances(replace(i, source=source) if i is plant else i
+                               for i in loop.instances)

@@ -186,15 +186,21 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
 
 def simulate_loop(path: Path, spec: Loop, stop_time: float):
     """``fmpy.simulate_fmu`` on the container at ``output_interval = T``: the times and
-    the columns ``plant.x ...`` at the sampling instants."""
+    the columns ``plant.x ...`` at the sampling instants. A plant FMU file's
+    ``tolerance`` goes to the container's ``fmi2SetupExperiment``, which hands it on to
+    the FMUs inside (delaycomp's own ignore it)."""
     import numpy as np
 
     from delaycomp.orchestrator.simulate import Result
+    from delaycomp.system import FmuFile
     from delaycomp.verify.crosscheck import simulate_kept
 
     names = output_names(spec)
+    plant = spec.by_role("plant")
+    tol = (plant.source.tolerance if plant is not None and isinstance(plant.source, FmuFile)
+           else None)
     res = simulate_kept(path, stop_time=stop_time, output_interval=spec.T,
-                        output=list(names))
+                        output=list(names), relative_tolerance=tol)
     data = np.column_stack([np.asarray(res[n], dtype=float) for n in names])
     times = np.asarray(res["time"], dtype=float)
     # fmpy runs on through a plant's breakdown: held to our master's rule

@@ -274,10 +274,23 @@ def _role_and_choices(where: str, name: str, fmu: etree._Element | None,
 
 def _component_source(ssd_path: Path, name: str, fmu: etree._Element | None,
                       rel: str) -> Source:
-    """What a component runs: its dc:Fmu's kind and config, else its FMU file ``rel``."""
+    """What a component runs: its dc:Fmu's kind and config, else its FMU file ``rel``
+    (with the ``tolerance`` of its dc:Component, where it has one)."""
     kind = fmu.get("kind") if fmu is not None else None
     if kind is None:
-        return FmuFile(ssd_path.parent / rel)
+        tol = fmu.get("tolerance") if fmu is not None else None
+        if tol is not None:
+            from delaycomp.system.plantfmu import check_tolerance
+
+            try:
+                value = float(tol)
+            except ValueError:
+                value = tol
+            try:
+                tol = check_tolerance(value, f"component {name} tolerance")
+            except ParameterError as exc:
+                raise SspError(f"{ssd_path.name}: {exc}") from None
+        return FmuFile(ssd_path.parent / rel, tol)
     try:
         config = config_in(json.loads(required_attr(fmu, "config",
                                                     f"{ssd_path.name}: {name}")))

@@ -114,12 +114,15 @@ def ssd_document(spec: Loop, info: SystemInfo,
 def _component_annotation(master: etree._Element, inst: Instance,
                           choices: dict[str, tuple[str, ...]]) -> None:
     """``<dc:Component element= role= kind= config= choices=>``: which FMU an instance is
-    (no kind and config for a user's FMU file) and its String choices."""
+    (no kind and config for a user's FMU file, but its ``tolerance`` where one is given:
+    SSP 1.0 has no place for a component's tolerance) and its String choices."""
     comp = etree.SubElement(master, tag("dc:Component"), element=inst.name, role=inst.role)
     key = inst.source.build_key()
     if key is not None:
         comp.set("kind", key[0])
         comp.set("config", json.dumps(config_out(key[1]), sort_keys=True))
+    elif isinstance(inst.source, FmuFile) and inst.source.tolerance is not None:
+        comp.set("tolerance", format_value(float(inst.source.tolerance)))
     comp.set("choices", json.dumps(choices, sort_keys=True))
 
 
