@@ -128,14 +128,22 @@ def test_nonlinear_sensor_prediction_is_the_future(folder):
     the exact derivatives; the plant in the loop integrates with its own Heun-Euler 2(1)
     at the default tolerance 1e-4 (h = 0.01 accepted: the error estimate h^2/2 |x''| is
     below it), whose local error h^3/6 |x'''| <= 3e-7 over the 80 steps of r + tau leaves
-    y within ~3e-5 (|dh/dx| <= 1.5 here), u within |K| times that: bound 5e-4 (1 + |y|).
-    The uncompensated controller misses by more than 1e-2: the check can tell."""
+    y within ~3e-5 (|dh/dx| <= 1.5 here), u within |K| times that: bound 5e-4 (1 + |y|);
+    measured 2.9e-5. The uncompensated controller misses by more than 1e-2: the check can
+    tell."""
     cubic = 0.5
     params = f'"sensor.mix" = {MIX}, "sensor.cubic" = {cubic}'
     text = _loop_text("Drive.fmu", 'predictor = "plant-fmu"', _x0(cubic), parameters=params)
     res = run_loop(read_loop(_write(folder, "cubic.toml", text)), STOP)
     assert res.success, res.message
     assert _prediction_error(res, K) <= 5e-4
+    # the plant's solver to 1e-10 ([plant] tolerance, item 3): its error falls to ~1e-10
+    # (Heun's local error, controlled to the tolerance, over the window), and what is left
+    # is the predictor's own, DOP853 at 1e-10: bound 1e-8 (1 + |y|) as above
+    tight = run_loop(read_loop(_write(folder, "cubic-tight.toml", text.replace(
+        "[controller]", "tolerance = 1e-10\n[controller]"))), STOP)
+    assert tight.success, tight.message
+    assert _prediction_error(tight, K) <= 1e-8
     unc = run_loop(read_loop(_write(folder, "cubic-unc.toml", text.replace(
         'predictor = "plant-fmu"', 'predictor = "plant-fmu"\nmode = "uncompensated"'))),
         STOP)
