@@ -25,15 +25,11 @@ class CompilerMissing(RuntimeError):
 MISBEHAVIOURS = {"hang": 1, "exit": 2, "crash": 3}
 
 
-def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
-                     broken_after: float | None = None, misbehave: str | None = None,
-                     after: float = 0.0) -> Path:
-    """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path.
-    ``broken_after``: a plant that breaks down, its ``position`` NaN from that time on
-    (its state and every FMI status as before: only its output is broken).
-    ``misbehave`` (:data:`MISBEHAVIOURS`): at its first ``fmi2DoStep`` from ``after`` on,
-    the plant never returns (``hang``), calls ``exit(0)`` (``exit``) or raises SIGSEGV
-    (``crash``)."""
+def _pack(out_dir: Path, name: str, model: str, source: str, description: str,
+          flags: list[str]) -> Path:
+    """Compile ``source`` (beside this file) with ``flags`` into ``binaries/linux64/
+    <model>.so`` and pack it with the modelDescription text ``description``, the source and
+    README.md into ``out_dir/name``; return its path."""
     import fmpy
 
     if not sys.platform.startswith("linux"):
@@ -43,26 +39,38 @@ def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
         raise CompilerMissing("no C compiler (gcc or cc) on PATH: the C test FMU needs one")
     headers = Path(fmpy.__file__).resolve().parent / "c-code"
     out_dir = Path(out_dir)
-    work = out_dir / f"{MODEL}-build"
+    work = out_dir / f"{Path(name).stem}-build"
     (work / "binaries" / "linux64").mkdir(parents=True, exist_ok=True)
-    lib = work / "binaries" / "linux64" / f"{MODEL}.so"
+    lib = work / "binaries" / "linux64" / f"{model}.so"
     proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
-                           "-fPIC", f"-I{headers}", "-o", str(lib),
-                           *([] if broken_after is None else [f"-DBROKEN_AFTER={broken_after!r}"]),
-                           *([] if misbehave is None else [
-                               f"-DMISBEHAVE={MISBEHAVIOURS[misbehave]}",
-                               f"-DMISBEHAVE_AFTER={float(after)!r}"]),
-                           str(HERE / "oscillator.c"), "-lm"], capture_output=True, text=True)
+                           "-fPIC", f"-I{headers}", "-o", str(lib), *flags,
+                           str(HERE / source), "-lm"], capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")
     target = out_dir / name
     with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
-        zf.write(HERE / "modelDescription.xml", "modelDescription.xml")
-        zf.write(lib, f"binaries/linux64/{MODEL}.so")
-        zf.write(HERE / "oscillator.c", "sources/oscillator.c")
+        zf.writestr("modelDescription.xml", description)
+        zf.write(lib, f"binaries/linux64/{model}.so")
+        zf.write(HERE / source, f"sources/{source}")
         zf.write(HERE / "README.md", "documentation/README.md")
     shutil.rmtree(work)
     return target
+
+
+def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
+                     broken_after: float | None = None, misbehave: str | None = None,
+                     after: float = 0.0) -> Path:
+    """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path.
+    ``broken_after``: a plant that breaks down, its ``position`` NaN from that time on
+    (its state and every FMI status as before: only its output is broken).
+    ``misbehave`` (:data:`MISBEHAVIOURS`): at its first ``fmi2DoStep`` from ``after`` on,
+    the plant never returns (``hang``), calls ``exit(0)`` (``exit``) or raises SIGSEGV
+    (``crash``)."""
+    flags = [*([] if broken_after is None else [f"-DBROKEN_AFTER={broken_after!r}"]),
+             *([] if misbehave is None else [f"-DMISBEHAVE={MISBEHAVIOURS[misbehave]}",
+                                             f"-DMISBEHAVE_AFTER={float(after)!r}"])]
+    return _pack(out_dir, name, MODEL, "oscillator.c",
+                 (HERE / "modelDescription.xml").read_text(encoding="utf-8"), flags)
 
 
 DRIVE = "Drive"
@@ -76,24 +84,6 @@ def build_drive(out_dir: Path, name: str = f"{DRIVE}.fmu", directional: bool = T
     directional derivatives (its modelDescription says so and the call fails).
     ``co_simulation`` / ``model_exchange``: which interfaces its modelDescription declares.
     """
-    import fmpy
-
-    if not sys.platform.startswith("linux"):
-        raise CompilerMissing(f"the C test FMU is built for linux64 only, not {sys.platform}")
-    cc = shutil.which("gcc") or shutil.which("cc")
-    if cc is None:
-        raise CompilerMissing("no C compiler (gcc or cc) on PATH: the C test FMU needs one")
-    headers = Path(fmpy.__file__).resolve().parent / "c-code"
-    out_dir = Path(out_dir)
-    work = out_dir / f"{Path(name).stem}-build"
-    (work / "binaries" / "linux64").mkdir(parents=True, exist_ok=True)
-    lib = work / "binaries" / "linux64" / f"{DRIVE}.so"
-    proc = subprocess.run([cc, "-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
-                           "-fPIC", f"-I{headers}", "-o", str(lib),
-                           *([] if directional else ["-DNO_DIRECTIONAL"]),
-                           str(HERE / "drive.c"), "-lm"], capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"compiling the C test FMU failed:\n{proc.stderr.strip()}")
     xml = (HERE / "drive.xml").read_text(encoding="utf-8")
     if not directional:
         xml = xml.replace('providesDirectionalDerivative="true"',
@@ -102,11 +92,5 @@ def build_drive(out_dir: Path, name: str = f"{DRIVE}.fmu", directional: bool = T
         if not keep:
             start = xml.index(f"<{tag} ")
             xml = xml[:start] + xml[xml.index("/>", start) + 2:]
-    target = out_dir / name
-    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("modelDescription.xml", xml)
-        zf.write(lib, f"binaries/linux64/{DRIVE}.so")
-        zf.write(HERE / "drive.c", "sources/drive.c")
-        zf.write(HERE / "README.md", "documentation/README.md")
-    shutil.rmtree(work)
-    return target
+    return _pack(out_dir, name, DRIVE, "drive.c", xml,
+                 [] if directional else ["-DNO_DIRECTIONAL"])
