@@ -179,9 +179,11 @@ def _parser() -> argparse.ArgumentParser:
     for command in sub.choices.values():
         loud = command.add_mutually_exclusive_group()
         loud.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=0,
-                          default=1, help="errors and results only (no progress, no notes)")
+                          default=1, help="errors, an FMU's warnings and results only (no "
+                                               "progress, no notes)")
         loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
-                          const=2, help="also say what is run (steps, estimates, snapping)")
+                          const=2, help="also say what is run (steps, estimates, snapping) "
+                                           "and show the FMUs' information messages")
     return p
 
 
@@ -676,6 +678,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
 
     ticks = loop.timing.ticks(stop)
     every = output_every(args.output_interval, loop.T, loop.N)
+    _undriven_note(loop, args.verbosity)
     keep = bool(args.plot)
     seconds, memory = check_budget(loop, ticks * (1 + len(others or {})),
                                    args.engine, every, keep)
@@ -791,6 +794,35 @@ def _run_ssp(args) -> int:
                         None, fmus=archive.fmus(), runner=runner)
 
 
+def _undriven_note(loop, verbosity: int) -> None:
+    """The note (once, unless ``-q``) naming the inputs of a user's FMU that the loop does
+    not drive, with the start values they keep
+    (:func:`delaycomp.system.plantfmu.undriven_notes`)."""
+    from delaycomp.progress import info
+    from delaycomp.system.plantfmu import undriven_notes
+
+    for note in undriven_notes(loop):
+        info(f"note: {note}", verbosity)
+
+
+def show_notes(result, verbosity: int) -> None:
+    """A run's notes on standard error: an FMU's information (its messages of status OK)
+    with ``-v`` only, as ``instance: text``; its warnings always (``-q`` too), as
+    ``instance: warning: text``; delaycomp's own notes unless ``-q``, as ``note: ...``."""
+    from delaycomp.progress import QUIET, VERBOSE, info
+
+    logged = {f"{name}: {text}": (name, status, text)
+              for name, status, text in getattr(result, "logged", ())}
+    for note in result.notes:
+        name, status, text = logged.get(note, ("", "", note))
+        if status == "warning":
+            print(f"{name}: warning: {text}", file=sys.stderr)
+        elif status == "ok":
+            info(note, verbosity, VERBOSE)
+        elif verbosity > QUIET:
+            info(f"note: {note}", verbosity)
+
+
 def _tolerance_note(args, spec) -> None:
     """Say that ``--master`` (libcosim, Ecos, OMSimulator) cannot hand an archive's plant
     tolerance to the plant FMU: SSP 1.0 has no component tolerance, libcosim's and Ecos's
@@ -811,11 +843,7 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
                 timing=None, units=None, runs=None) -> int:
     """Plot a successful run and print its summary; on failure nothing that looks like a
     result (no FILE.csv, no plot): the rows recorded before it are in FILE.csv.partial."""
-    from delaycomp.progress import QUIET, info
-
-    if args.verbosity > QUIET:
-        for note in result.notes:
-            info(f"note: {note}", args.verbosity)
+    show_notes(result, args.verbosity)
     if not result.success:
         kept = ""
         if where is not None and result.row_count:
@@ -860,6 +888,8 @@ def _sweep(args) -> int:
     axes, notes = snap_axes(args.scenario, axes, sets)
     for note in notes:
         info(f"note: {note}", args.verbosity)
+    if str(args.scenario).endswith(".toml"):  # a plant FMU's free inputs, said once
+        _undriven_note(source.loop(sets), args.verbosity)
     clear_previous(args.out, args.plot)
     started = time.perf_counter()
     notes = []
@@ -979,6 +1009,7 @@ def _cmd_export_loop(args) -> int:
     _outputs(args)
     _, _, loop = _loop(args)
     fmus = _chosen_fmus(args, loop)
+    _undriven_note(loop, args.verbosity)
     path = export_loop(loop, args.out, args.fmu_dir, fmus)
     print(path)
     return 0

@@ -39,6 +39,10 @@ class Result:
     rows: int | None = None
     #: the instance that failed the run (``None`` where it completed or no one is to blame)
     failed_by: str | None = None
+    #: the components' logged messages of :attr:`notes`, each ``(instance, status,
+    #: text)`` with status ``"ok"`` (information: the command line shows it with ``-v``)
+    #: or ``"warning"`` (always shown)
+    logged: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def row_count(self) -> int:
@@ -277,10 +281,12 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
         finally:
             master.terminate()
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
-    notes = [f"{c.name}: {m.split('] ', 1)[1]}" for c in components
-             for m in getattr(c, "messages", ()) if m.startswith(("[ok]", "[warning]"))]
+    logged = [(c.name, *cast("tuple[str, str]", tuple(m[1:].split("] ", 1))))
+              for c in components for m in getattr(c, "messages", ())
+              if m.startswith(("[ok]", "[warning]"))]
+    notes = [f"{name}: {text}" for name, _, text in logged]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
-                  recorder.count, culprit)
+                  recorder.count, culprit, logged)
 
 
 #: how far an output may be from its value in :attr:`Loop.initial` once initialized,

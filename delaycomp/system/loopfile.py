@@ -37,7 +37,10 @@ predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predicto
 
 Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
 the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
-``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``.
+``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``; and
+one value of a plant FMU's ``parameters`` table: ``plant.parameters.NAME=VALUE``, where all
+after ``parameters.`` is the FMU's variable name (``plant.parameters.fixed.phi0=0``, or
+quoted as a TOML key: ``plant.parameters."fixed.phi0"=0``).
 
 **The sign, guarded.** For an LTI loop, a ``K`` with which the delay-free sampled loop is
 unstable (spectral radius of ``Ad + Bd K`` at least 1) is refused: the controller applies
@@ -404,6 +407,16 @@ class LoopFile:
                 if not isinstance(table, dict):
                     raise ParameterError(f"--set {key}: {section} in {self.path.name} is "
                                          "not a table")
+                sub, dot, var = name.partition(".")
+                if section == "plant" and sub == "parameters" and dot:
+                    # plant.parameters.NAME: all after the first dot is the FMU's own
+                    # variable name (dotted, or quoted as in TOML: "fixed.phi0")
+                    params = table.get("parameters") or {}
+                    if not isinstance(params, dict):
+                        raise ParameterError(f"--set {key}: plant.parameters in "
+                                             f"{self.path.name} is not a table")
+                    table["parameters"] = {**params, _fmu_name(key, var): value}
+                    continue
                 table[name] = value
             else:
                 raise ParameterError(f"--set {key}: unknown section {section!r}: allowed "
@@ -427,6 +440,28 @@ class LoopFile:
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         """The loop for ``NAME=VALUE`` assignments over the file's values."""
         return self.make(self.resolve(assignments))
+
+
+def _fmu_name(key: str, name: str) -> str:
+    """The FMU variable name of ``--set plant.parameters.NAME``: ``NAME`` as it is
+    (``fixed.phi0``, ``der(x)``), or inside one pair of quotes (``"fixed.phi0"`` or
+    ``'fixed.phi0'``, as a TOML key quotes it).
+
+    Examples
+    --------
+    >>> _fmu_name("k", "fixed.phi0"), _fmu_name("k", '"fixed.phi0"'), _fmu_name("k", "'a b'")
+    ('fixed.phi0', 'fixed.phi0', 'a b')
+    """
+    name = name.strip()
+    if name[:1] in ('"', "'"):
+        if len(name) < 3 or name[-1] != name[0] or name[0] in name[1:-1]:
+            raise ParameterError(f"--set {key}: the variable name {name} is not allowed: "
+                                 "must be one name, in one pair of quotes or none")
+        name = name[1:-1]
+    if not name:
+        raise ParameterError(f"--set {key}: expected plant.parameters.NAME (NAME: the FMU's "
+                             "variable)")
+    return name
 
 
 def _split(assignment: str) -> tuple[str, str]:

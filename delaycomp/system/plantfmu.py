@@ -531,3 +531,30 @@ def with_tolerance(loop: Loop, tolerance: float | None) -> Loop:
     source = FmuFile(plant.source.path, tolerance)
     return loop.with_instances(replace(i, source=source) if i is plant else i
                                for i in loop.instances)
+
+
+def undriven_inputs(loop: Loop) -> dict[str, list[Variable]]:
+    """The inputs of each FMU file of ``loop`` (another tool's FMU) that no connection
+    drives, by instance name, in the modelDescription's order (instances with none are
+    left out): they keep their start values for the whole run (a load torque, a brake
+    flag the loop does not touch)."""
+    driven = {(c.dst.instance, c.dst.variable) for c in loop.connections}
+    found: dict[str, list[Variable]] = {}
+    for inst in loop.instances:
+        if not isinstance(inst.source, FmuFile):
+            continue
+        free = [v for v in read_interface(inst.source.path).variables.values()
+                if v.causality == "input" and (inst.name, v.name) not in driven]
+        if free:
+            found[inst.name] = free
+    return found
+
+
+def undriven_notes(loop: Loop) -> list[str]:
+    """One note per FMU file of ``loop`` with inputs no connection drives, naming them
+    with their start values (what they keep): ``plant inputs not driven by the loop keep
+    their start values: load.tau = 0, brake.engaged = false``."""
+    return [f"{name} inputs not driven by the loop keep their start values: "
+            + ", ".join(f"{v.name} = {v.start}" if v.start is not None
+                        else f"{v.name} (no start value)" for v in free)
+            for name, free in undriven_inputs(loop).items()]

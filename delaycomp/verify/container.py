@@ -140,6 +140,23 @@ def _identifier(path: Path) -> str:
     return ident if ident and not ident[0].isdigit() else f"loop_{ident}"
 
 
+class _UndrivenInputs(logging.Filter):
+    """Drops fmu-manipulation-toolbox's error ``Input 'Port plant.fmu/load.tau' is not
+    connected`` for the inputs of a user's FMU that the loop leaves at their start values
+    on purpose (:func:`delaycomp.system.plantfmu.undriven_inputs`: the command says so
+    once, as a note); any other such error passes."""
+
+    def __init__(self, spec: Loop):
+        super().__init__()
+        from delaycomp.system.plantfmu import undriven_inputs
+
+        self.messages = {f"Input 'Port {name}.fmu/{v.name}' is not connected"
+                         for name, free in undriven_inputs(spec).items() for v in free}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.getMessage() not in self.messages
+
+
 def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
                 fmus: dict[str, Path] | None = None) -> Path:
     """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
@@ -168,11 +185,14 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
         level, propagate = log.level, log.propagate
         log.setLevel(logging.ERROR)  # its notes ("loop of links ...") are expected here
         log.propagate = False
+        undriven = _UndrivenInputs(spec)
+        log.addFilter(undriven)
         try:
             Assembly("loop.json", fmu_directory=work).make_fmu()
         except Exception as exc:
             raise ContainerError(f"fmu-manipulation-toolbox: {exc}") from exc
         finally:
+            log.removeFilter(undriven)
             log.setLevel(level)
             log.propagate = propagate
         built = work / f"{ident}.fmu"
