@@ -685,7 +685,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
     info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
          f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
     clear_previous(args.out, args.plot)
-    names = [f"{p.instance}.{p.variable}" for p in loop.recorded]
+    names = loop.columns
     stream = CsvStream(args.out, names) if args.out else None
     started = time.perf_counter()
     try:

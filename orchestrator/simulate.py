@@ -178,6 +178,7 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
         raise ParameterError(f"loop {loop.name}: {exc}") from None
     recorder = Recorder(master, [(p.instance, p.variable) for p in loop.recorded], every,
                         sink, keep, final)
+    recorder.names = loop.columns  # a labelled port's column (Loop.labels)
     master.add_observer(recorder)
     return master, recorder
 

@@ -24,6 +24,7 @@ the solver error visible (above 1e-11, so the comparison can tell the solvers ap
 from __future__ import annotations
 
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -131,7 +132,11 @@ def test_loop_has_delays_without_feedthrough_and_the_users_fmu(folder):
 def test_matches_the_exact_lti_loop_within_the_plants_solver_error(ours):
     exact = _exact(A, B)
     modified = _exact(*_modified())
-    assert ours.names == ["plant.position", "plant.velocity", "controller.u"]
+    assert ours.names == ["plant.position", "plant.velocity", "controller.u", "plant.force"]
+    # the last column is what the plant receives: u, tau later (issue 25, item 4)
+    shift = round(TAU * N / T)
+    assert np.array_equal(ours.data[shift:, 3], ours.data[:-shift, 2])
+    ours = replace(ours, names=ours.names[:3], data=ours.data[:, :3])
     scale = 1 + np.abs(exact)
     # the C plant is exactly the modified equation: agreement to round-off
     assert np.all(np.abs(ours.data - modified) <= ROUNDOFF * scale), \
@@ -200,7 +205,8 @@ def test_cli_runs_it_and_refuses_bad_input_with_exit_2(folder, tmp_path, capsys)
 
     out = tmp_path / "run.csv"
     assert main(["run", str(folder / "osc.toml"), "--stop-time", "1.0", "--out", str(out)]) == 0
-    assert out.read_text().splitlines()[0] == "time,plant.position,plant.velocity,controller.u"
+    assert out.read_text().splitlines()[0] == ("time,plant.position,plant.velocity,controller.u,"
+                                                   "plant.force")
     assert main(["run", str(folder / "osc.toml"), "--set", 'plant.inputs=["nope"]']) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].count("plant.inputs: 'nope'") == 1 and "Traceback" not in "".join(err)
@@ -240,7 +246,10 @@ def test_container_reproduces_our_master(folder, ours, tmp_path):
     loop = read_loop(folder / "osc.toml")
     path = container.export_loop(loop, tmp_path / "osc-loop.fmu")
     names, times, data = container.simulate_loop(path, loop, 3.0)
-    assert names == ours.names
+    # every column but what the plant receives (a delay's output, a step off in the
+    # container's order: container.exposed)
+    assert names == ours.names[:3]
+    ours = replace(ours, names=ours.names[:3], data=ours.data[:, :3])
     idx = np.rint(times / loop.h).astype(int)
     assert np.all(np.abs(data - ours.data[idx]) <= 1e-12 * (1 + np.abs(ours.data[idx])))
 
@@ -342,7 +351,8 @@ def test_foreign_ssp_runs_with_master_settings_and_roles_from_the_connections(
     rows = np.loadtxt(out, delimiter=",", skiprows=1)
     header = out.read_text().splitlines()[0]
     assert header == "time,Mass.position,Mass.velocity,Ctrl.u"
-    assert_columns_close(rows[:, 1:], ours.data[:len(rows)], SAME_ARITHMETIC_ULPS, "foreign")
+    assert_columns_close(rows[:, 1:], ours.data[:len(rows), :3], SAME_ARITHMETIC_ULPS,
+                         "foreign")
 
 
 @pytest.mark.parametrize("args,message", [
@@ -393,7 +403,7 @@ def test_plant_fmu_as_the_predictors_model_within_the_ode_tolerance(folder, ours
     assert b"Oscillator" in Path(ctrl.source.model).read_bytes()  # the FMU travels inside
     res = run_loop(loop, STOP)
     assert res.success, res.message
-    assert res.names == ["plant.position", "plant.velocity", "controller.force"]
+    assert res.names == ["plant.position", "plant.velocity", "controller.force", "plant.force"]
     diff = np.abs(res.data - ours.data)
     assert np.all(diff <= 1e-8 * (1 + np.abs(ours.data))), diff.max()
 

@@ -135,3 +135,30 @@ def test_bad_parameter_sets_are_one_line_exit_2(loop_file, assignment, message, 
         assert message in err[0], err
     else:  # refused by the FMU itself at initialization: a failed run naming it
         assert "body.J" in err[0], err
+
+
+def test_columns_name_what_the_plant_receives_by_its_own_input_names(loop_file, tmp_path):
+    """The CSV keeps its columns (the outputs measured, the controller's ``u``) and adds
+    what the plant receives, named by the FMU's own input (``plant.motor.tau``): the
+    controller's output tau = 0.4 s earlier (u0 = 1 before), exactly (the input delay is a
+    shift on the grid). The column travels through the SSP (dc:Record name=) and back."""
+    from delaycomp.formats import ssp
+    from delaycomp.orchestrator.simulate import run_loop
+    from delaycomp.system.loopfile import read_loop
+
+    out = tmp_path / "cols.csv"
+    assert main(["run", str(loop_file), "--out", str(out), "-q"]) == 0
+    data = np.genfromtxt(out, delimiter=",", names=True, deletechars="")
+    assert list(data.dtype.names) == ["time", "plant.sensor.phi", "plant.sensor.w",
+                                      "controller.u", "plant.motor.tau"]
+    shift = 40  # tau / h = 0.4 / 0.01 base steps
+    received, sent = data["plant.motor.tau"], data["controller.u"]
+    assert np.array_equal(received[shift:], sent[:-shift])
+    assert np.all(received[:shift] == 1.0) and np.max(np.abs(sent)) > 0.1
+    loop = read_loop(loop_file)
+    path = ssp.pack(loop, ssp.SystemInfo("drive", "Drive", 1.0), tmp_path / "cols.ssp")
+    with ssp.Archive(path) as archive:
+        back = archive.system.spec
+        assert back.columns == loop.columns
+        res = run_loop(back, 1.0, fmus=archive.fmus())
+    assert res.names == loop.columns and np.array_equal(res.data[:, -1], received)

@@ -41,9 +41,11 @@ _TEMPLATE = '''"""Model of plant FMU {fmu_name} for predictor = "plant-fmu" (gen
 the FMU's Model Exchange derivatives in its own state coordinates, the measured outputs
 inverted for the state at each sample, u = K y). Do not edit."""
 
+import atexit
 import base64
 import ctypes
 import os
+import shutil
 import tempfile
 
 import numpy as np
@@ -105,6 +107,7 @@ def _model():
     from fmpy.fmi2 import FMU2Model
 
     folder = tempfile.mkdtemp(prefix="delaycomp-plantfmu-")
+    atexit.register(shutil.rmtree, folder, True)  # the unpacked FMU goes with the process
     path = os.path.join(folder, _FMU_NAME)
     with open(path, "wb") as fh:
         fh.write(base64.b64decode(_FMU))

@@ -75,8 +75,13 @@ def jacobi_variant(loop: Loop) -> Loop:
                  for i in loop.instances]
     bypass = {i.name for i in instances if i.role in DELAY_ROLES
               and grid.nearest_multiple(float(i.parameters["delay"]), h) == 0}
-    if any(p.instance in bypass for p in loop.recorded):
+    labelled = {p for p, _ in loop.labels}
+    if any(p.instance in bypass and p not in labelled for p in loop.recorded):
         raise CompensationError("a recorded signal belongs to a delay that is bypassed")
+    # a plant FMU's input column (a labelled delay output) of a bypassed delay is its
+    # source's signal, recorded already: it is left out of the variant
+    recorded = tuple(p for p in loop.recorded if p.instance not in bypass)
+    labels = tuple((p, n) for p, n in loop.labels if p.instance not in bypass)
     connections = []
     for con in loop.connections:
         if con.dst.instance in bypass:
@@ -88,4 +93,4 @@ def jacobi_variant(loop: Loop) -> Loop:
                        if c.dst.instance == src.instance and c.dst.variable == port)
         connections.append(Connection(src, con.dst))
     return loop.replace(instances=tuple(i for i in instances if i.name not in bypass),
-                        connections=tuple(connections))
+                        connections=tuple(connections), recorded=recorded, labels=labels)

@@ -242,15 +242,28 @@ class Loop:
     #: ``(port, value)``: a plant FMU's measured outputs and ``x0``, the history the loop
     #: assumes (the master refuses to run a loop whose plant starts elsewhere)
     initial: tuple[tuple[Port, float], ...] = ()
+    #: the column names of some recorded ports, each a ``(port, name)``, where the port's
+    #: own ``instance.variable`` is not what the column shows (a plant FMU's input, recorded
+    #: as the input delay's output that drives it, is ``plant.<the FMU's input name>``)
+    labels: tuple[tuple[Port, str], ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "instances", tuple(self.instances))
         object.__setattr__(self, "initial", tuple((p, float(v)) for p, v in self.initial))
+        object.__setattr__(self, "labels", tuple((p, str(n)) for p, n in self.labels))
         object.__setattr__(self, "connections", tuple(self.connections))
         object.__setattr__(self, "recorded", tuple(self.recorded))
         names = [i.name for i in self.instances]
         if len(set(names)) != len(names):
             raise ParameterError(f"loop {self.name}: instance names must be distinct: {names}")
+        for port, label in self.labels:
+            if port not in self.recorded:
+                raise ParameterError(f"loop {self.name}: label {label!r} names {port}, which "
+                                     "is not recorded")
+        columns = self.columns if self.labels else []
+        if len(set(columns)) != len(columns):
+            dup = next(c for c in columns if columns.count(c) > 1)
+            raise ParameterError(f"loop {self.name}: two recorded columns are named {dup!r}")
         for inst in self.instances:
             if inst.role not in ROLES:
                 raise ParameterError(f"loop {self.name}: instance {inst.name} has role "
@@ -292,6 +305,16 @@ class Loop:
             if inst.name == name:
                 return inst
         raise KeyError(f"loop {self.name}: no instance {name!r}")
+
+    def column(self, port: Port) -> str:
+        """The column name of the recorded ``port``: its label (:attr:`labels`), else
+        ``instance.variable``."""
+        return dict(self.labels).get(port, str(port))
+
+    @property
+    def columns(self) -> list[str]:
+        """The column names of the recorded ports, in order (:meth:`column`)."""
+        return [self.column(p) for p in self.recorded]
 
     def by_role(self, role: Role) -> Instance | None:
         """The instance with ``role``, or ``None``."""

@@ -386,7 +386,8 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     state is set by its parameters and the ``start`` values of its other variables (its
     hidden continuous states, say: :func:`start_variables`); the master checks that the
     FMU's outputs ``states`` equal ``x0`` once it is initialized (:attr:`Loop.initial`).
-    Recorded: the states and the controller's outputs.
+    Recorded: the states, the controller's outputs and what the plant receives (the input
+    delay's outputs, in columns named by the FMU's own inputs: ``plant.force``).
     """
     fmu = read_interface(fmu_path)
     states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters, start=start)
@@ -409,11 +410,14 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                  {"delay": tau_loop, **vector_params("u0", u0)}),
     )
     connections = _plant_connections(states, inputs, ctrl_in, ctrl_out)
+    # what the plant receives, under the FMU's own input names: the input delay's outputs
+    received = [Port("input_delay", o) for o in indexed("y", m)]
     recorded = tuple([Port("plant", s) for s in states]
-                     + [Port("controller", u) for u in ctrl_out])
+                     + [Port("controller", u) for u in ctrl_out] + received)
     initial = tuple((Port("plant", s), float(v)) for s, v in zip(states, x0))
+    labels = tuple((p, f"plant.{u}") for p, u in zip(received, inputs))
     return Loop(instances, connections, timing, recorded, name, title, stop_time,
-                initial=initial)
+                initial=initial, labels=labels)
 
 
 def _histories(x0, u0, states: list[str], inputs: list[str]

@@ -78,13 +78,24 @@ def _toolbox():
     return Assembly
 
 
+def exposed(spec: Loop) -> list:
+    """The recorded ports the container exposes: all but the delays' outputs (a plant
+    FMU's input columns, :attr:`Loop.labels`), which the container's order shifts by the
+    step it adds to each delay (:data:`ADDED_STEPS`): there they are not what the plant
+    receives at that instant."""
+    delays = {i.name for i in spec.instances if i.role in ADDED_STEPS}
+    return [p for p in spec.recorded if p.instance not in delays]
+
+
 def output_names(spec: Loop) -> dict[str, str]:
-    """Container output name -> the loop's column (``plant.x``): the variable's own name,
-    or ``instance_variable`` where two recorded signals share a variable name."""
-    names = [p.variable for p in spec.recorded]
+    """Container output name -> the loop's column (``plant.x``), in the recorded order of
+    the ports it exposes (:func:`exposed`): the variable's own name, or
+    ``instance_variable`` where two of them share a variable name."""
+    ports = exposed(spec)
+    names = [p.variable for p in ports]
     unique = len(set(names)) == len(names)
-    return {(p.variable if unique else f"{p.instance}_{p.variable}"): str(p)
-            for p in spec.recorded}
+    return {(p.variable if unique else f"{p.instance}_{p.variable}"): spec.column(p)
+            for p in ports}
 
 
 def _ordered(spec: Loop) -> list:
@@ -123,8 +134,8 @@ def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
         start += [[f"{inst.name}.fmu", key, _text(value)] for key, value in params.items()]
     links = [[f"{c.src.instance}.fmu", c.src.variable, f"{c.dst.instance}.fmu",
               c.dst.variable] for c in spec.connections]
-    outputs = [[f"{col.split('.', 1)[0]}.fmu", col.split(".", 1)[1], out]
-               for out, col in output_names(spec).items()]
+    outputs = [[f"{port.instance}.fmu", port.variable, out]
+               for port, out in zip(exposed(spec), output_names(spec))]
     return {
         "name": name, "step_size": h, "sequential": True, "mt": False,
         "auto_link": False, "auto_input": False, "auto_output": False,
@@ -206,7 +217,8 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
 
 def simulate_loop(path: Path, spec: Loop, stop_time: float):
     """``fmpy.simulate_fmu`` on the container at ``output_interval = T``: the times and
-    the columns ``plant.x ...`` at the sampling instants. A plant FMU file's
+    the columns ``plant.x ...`` at the sampling instants (those it exposes: not a plant
+    FMU's input columns, :func:`exposed`). A plant FMU file's
     ``tolerance`` goes to the container's ``fmi2SetupExperiment``, which hands it on to
     the FMUs inside (delaycomp's own ignore it)."""
     import numpy as np

@@ -189,7 +189,7 @@ def _worker(ssp_path: str, stop_time: float, out: str, package_dir: str) -> None
     except RuntimeError as exc:  # the Python API raises on a non-ok status
         message = f"omsimulator: {exc}: {_logged_error(log) or 'no error logged'}"
     data = np.array(rows, dtype=float).reshape(len(rows), len(refs))
-    np.savez(out, names=json.dumps([str(port) for port in spec.recorded]),
+    np.savez(out, names=json.dumps(spec.columns),
              times=grid[:len(rows)], data=data, success=not message, message=message)
 
 

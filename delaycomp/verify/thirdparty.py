@@ -179,7 +179,7 @@ def _worker(master: str, ssp_path: str, stop_time: float, out: str) -> None:
         data, message = _run_ecos(Path(ssp_path), spec, ticks, set_name)
     k = np.arange(len(data))
     times = (k // spec.N) * spec.T + (k % spec.N) * (spec.T / spec.N)  # as our master
-    np.savez(out, names=json.dumps([str(p) for p in spec.recorded]), times=times,
+    np.savez(out, names=json.dumps(spec.columns), times=times,
              data=data, success=not message, message=message)
 
 

@@ -181,11 +181,14 @@ def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
     instances = [Instance(name, found[name], source, params)
                  for name, source, params in components]
     recorded = _recorded(master, found, connections, where)
+    labels = [] if master is None else [
+        (Port(r.get("element", ""), r.get("connector", "")), r.get("name", ""))
+        for r in master.iterfind("dc:Record", NSMAP) if r.get("name")]
     T, N = _master_timing(master, foreign, where)
     info = _system_info(root, system, master, set_names, where)
     try:
         loop = Loop(tuple(instances), tuple(connections), Timing(T, N), tuple(recorded),
-                    info.name, info.description)
+                    info.name, info.description, labels=tuple(labels))
     except ParameterError as exc:
         raise SspError(f"{where}: {exc}") from None
     return System(loop, info, sources)

@@ -104,8 +104,10 @@ def ssd_document(spec: Loop, info: SystemInfo,
                               h=format_value(h), parameterSet=info.parameter_set,
                               name=info.name)
     for port in spec.recorded:
-        etree.SubElement(master, tag("dc:Record"), element=port.instance,
-                         connector=port.variable)
+        record = etree.SubElement(master, tag("dc:Record"), element=port.instance,
+                                  connector=port.variable)
+        if spec.column(port) != str(port):  # a labelled column (Loop.labels)
+            record.set("name", spec.column(port))
     for inst in spec.instances:
         _component_annotation(master, inst, choices[inst.name])
     return etree.ElementTree(root)
