@@ -162,3 +162,19 @@ def test_columns_name_what_the_plant_receives_by_its_own_input_names(loop_file, 
         assert back.columns == loop.columns
         res = run_loop(back, 1.0, fmus=archive.fmus())
     assert res.names == loop.columns and np.array_equal(res.data[:, -1], received)
+
+
+def test_a_label_must_name_a_recorded_port_and_a_new_column(loop_file):
+    """``Loop.labels`` is checked when the loop is built: a label of a port that is not
+    recorded, or one that repeats another column, is refused naming it."""
+    from delaycomp.errors import ParameterError
+    from delaycomp.system import Port
+    from delaycomp.system.loopfile import read_loop
+
+    loop = read_loop(loop_file)
+    with pytest.raises(ParameterError, match=r"label 'x' names meas_delay\.y, which is not "
+                                             r"recorded"):
+        loop.replace(labels=((Port("meas_delay", "y"), "x"),))
+    with pytest.raises(ParameterError, match=r"two recorded columns are named "
+                                             r"'plant\.sensor\.phi'"):
+        loop.replace(labels=((Port("input_delay", "y"), "plant.sensor.phi"),))
