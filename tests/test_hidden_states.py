@@ -280,3 +280,19 @@ def test_without_start_x0_is_applied_through_the_outputs_map(folder, cubic):
     assert res.success and ref.success, (res.message, ref.message)
     np.testing.assert_allclose(res.data[0, :2], x0, rtol=0, atol=1e-12)
     np.testing.assert_allclose(res.data, ref.data, rtol=0, atol=1e-9)
+
+
+def test_set_a_start_value_by_its_fmu_name(folder):
+    """``--set plant.start.NAME=VALUE`` (the FMU's dotted name as it is, or quoted) replaces
+    one start value and keeps the others: here the hidden angle, with x0 to match (a sweep
+    over the hidden initial state)."""
+    path = _write(folder, "set-start.toml", _loop_text(
+        "Drive.fmu", 'predictor = "plant-fmu"', _x0()).replace(
+        f'start = {{ "body.phi" = {PHI0} }}', f'start = {{ "body.phi" = {PHI0}, "load.tau" = 0 }}'))
+    for name in ("body.phi", '"body.phi"'):
+        loop = read_loop(path, [f"plant.start.{name}=-0.7", "plant.x0=[0.7, 0.35]"])
+        params = loop.instance("plant").parameters
+        assert params["body.phi"] == -0.7 and params["load.tau"] == 0.0
+        res = run_loop(loop, 0.5)
+        assert res.success, res.message
+        np.testing.assert_allclose(res.data[0, :2], [0.7, 0.35], rtol=0, atol=1e-15)

@@ -38,9 +38,9 @@ predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predicto
 Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
 the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
 ``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``; and
-one value of a plant FMU's ``parameters`` table: ``plant.parameters.NAME=VALUE``, where all
-after ``parameters.`` is the FMU's variable name (``plant.parameters.fixed.phi0=0``, or
-quoted as a TOML key: ``plant.parameters."fixed.phi0"=0``).
+one value of a plant FMU's ``parameters`` or ``start`` table: ``plant.parameters.NAME=VALUE``,
+where all after ``parameters.`` is the FMU's variable name (``plant.parameters.fixed.phi0=0``,
+or quoted as a TOML key: ``plant.parameters."fixed.phi0"=0``; ``plant.start.body.phi=0.4``).
 
 **The sign, guarded.** For an LTI loop, a ``K`` with which the delay-free sampled loop is
 unstable (spectral radius of ``Ad + Bd K`` at least 1) is refused: the controller applies
@@ -408,14 +408,14 @@ class LoopFile:
                     raise ParameterError(f"--set {key}: {section} in {self.path.name} is "
                                          "not a table")
                 sub, dot, var = name.partition(".")
-                if section == "plant" and sub == "parameters" and dot:
-                    # plant.parameters.NAME: all after the first dot is the FMU's own
-                    # variable name (dotted, or quoted as in TOML: "fixed.phi0")
-                    params = table.get("parameters") or {}
+                if section == "plant" and sub in ("parameters", "start") and dot:
+                    # plant.parameters.NAME, plant.start.NAME: all after the first dot is
+                    # the FMU's own variable name (dotted, or quoted as in TOML)
+                    params = table.get(sub) or {}
                     if not isinstance(params, dict):
-                        raise ParameterError(f"--set {key}: plant.parameters in "
+                        raise ParameterError(f"--set {key}: plant.{sub} in "
                                              f"{self.path.name} is not a table")
-                    table["parameters"] = {**params, _fmu_name(key, var): value}
+                    table[sub] = {**params, _fmu_name(key, var, sub): value}
                     continue
                 table[name] = value
             else:
@@ -442,8 +442,9 @@ class LoopFile:
         return self.make(self.resolve(assignments))
 
 
-def _fmu_name(key: str, name: str) -> str:
-    """The FMU variable name of ``--set plant.parameters.NAME``: ``NAME`` as it is
+def _fmu_name(key: str, name: str, table: str = "parameters") -> str:
+    """The FMU variable name of ``--set plant.parameters.NAME`` (or ``plant.start.NAME``,
+    ``table``): ``NAME`` as it is
     (``fixed.phi0``, ``der(x)``), or inside one pair of quotes (``"fixed.phi0"`` or
     ``'fixed.phi0'``, as a TOML key quotes it).
 
@@ -459,7 +460,7 @@ def _fmu_name(key: str, name: str) -> str:
                                  "must be one name, in one pair of quotes or none")
         name = name[1:-1]
     if not name:
-        raise ParameterError(f"--set {key}: expected plant.parameters.NAME (NAME: the FMU's "
+        raise ParameterError(f"--set {key}: expected plant.{table}.NAME (NAME: the FMU's "
                              "variable)")
     return name
 
