@@ -144,7 +144,7 @@ def _model():
         x_vrs=[by_name[s].valueReference for s in FMU_STATES],
         directional=bool(md.modelExchange.providesDirectionalDerivative))
     fmu.getContinuousStates(_STATE["px"], n)
-    _STATE["last"] = x.copy()  # the FMU's initial state: the first guess of invert
+    _STATE["start"] = x.copy()  # the FMU's initial state: where invert starts, every time
     try:
         check_rank(_jacobian(x.copy()), OUTPUT_NAMES, FMU_STATES, str(x.tolist()))
     except Exception as exc:
@@ -194,11 +194,11 @@ def _derivatives(x, u, p):
 
 
 def _state_of(y):
-    """The FMU's state whose outputs are the measurement y."""
+    """The FMU's state whose outputs are the measurement y: Newton's method from the FMU's
+    initial state, the same guess at every sample, so the state found depends on y alone
+    (no hidden history: a restored FMU state predicts as the original did)."""
     s = _model()
-    x = invert(_outputs, _jacobian, np.asarray(y, dtype=float), s["last"])
-    s["last"] = x
-    return x
+    return invert(_outputs, _jacobian, np.asarray(y, dtype=float), s["start"])
 
 
 def start_values(y0):

@@ -749,6 +749,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
         check_mapping,
         check_output_map,
         fmu_plant_loop,
+        histories,
         read_interface,
     )
 
@@ -773,9 +774,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
                                  "(0, 1)")
     model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
     start = plant.get("start")
-    if np.size(x0) != len(states):
-        raise ParameterError(f"parameter x0 has {np.size(x0)} values: must have one per state "
-                             f"({', '.join(states)})")
+    x0, _ = histories(x0, None, states, inputs)  # x0 checked before it is inverted
     if start is None and all(iface.variables[x].initial == "exact" for x in iface.states):
         # x0 applied through the start values of the FMU's states, found from the outputs'
         # map (the model module makes the FMI calls)

@@ -392,7 +392,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     fmu = read_interface(fmu_path)
     states, inputs, values = check_mapping(fmu, states, inputs, fmu_parameters, start=start)
     n, m = len(states), len(inputs)
-    x0, u0 = _histories(x0, u0, states, inputs)
+    x0, u0 = histories(x0, u0, states, inputs)
     timing = Timing(T, N)
     r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
     if model is None:
@@ -420,9 +420,10 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                 initial=initial, labels=labels)
 
 
-def _histories(x0, u0, states: list[str], inputs: list[str]
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """The initial histories x0 (one value per state) and u0 (per input; default 0)."""
+def histories(x0, u0, states: list[str], inputs: list[str]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The initial histories x0 (one value per state) and u0 (per input; default 0),
+    checked: a wrong length is refused naming the states or inputs."""
     x0 = np.asarray(x0, dtype=float).ravel()
     u0 = np.zeros(len(inputs)) if u0 is None else np.asarray(u0, dtype=float).ravel()
     if x0.shape != (len(states),):
