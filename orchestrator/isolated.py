@@ -34,6 +34,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from delaycomp.child import parent_death_signal
 from delaycomp.orchestrator.fmu import FATAL, FmuComponent, FmuRefused, interface
 from delaycomp.orchestrator.master import ComponentBase
 from delaycomp.system.plantfmu import check_declarations
@@ -270,20 +271,6 @@ class IsolatedFmu(ComponentBase):
 
 # -- the child's side ----------------------------------------------------------------------
 
-def _die_with_parent() -> None:
-    """Linux: this process gets SIGKILL when its parent dies (a parent killed by SIGKILL
-    cannot stop it otherwise while a call hangs)."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):
-        pass
-
-
 class _Child:
     """The FMU in the child process and its registered readers and writers."""
 
@@ -339,7 +326,7 @@ def serve(name: str, path: str) -> None:
     import os
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    _die_with_parent()
+    parent_death_signal(signal.SIGKILL)  # Linux: a killed parent takes the child along
     conn = _Pipe(os.dup(0), os.dup(1))
     os.dup2(os.open(os.devnull, os.O_RDONLY), 0)
     os.dup2(2, 1)  # the FMU's own prints: standard error, not the requests' pipe

@@ -17,10 +17,11 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+
+from delaycomp.child import parent_death_signal
 
 __all__ = ["Progress", "end_with_parent", "end_workers", "on_dask", "on_processes",
            "start_resource_tracker", "watch_parent", "worker_init"]
@@ -154,7 +155,7 @@ def end_with_parent(parent: int | None = None) -> None:
     (:func:`watch_parent`). (Linux's signal comes when the parent's thread that started
     the worker ends: :func:`on_processes` starts them from the thread that waits for them.)
     """
-    if sys.platform.startswith("linux") and _parent_death_signal(signal.SIGKILL):
+    if parent_death_signal(signal.SIGKILL):
         if parent is not None and os.getppid() != parent:
             os._exit(1)  # the parent is gone already
     watch_parent()
@@ -172,25 +173,6 @@ def watch_parent() -> bool:
     threading.Thread(target=_exit_with, args=(watched.sentinel,), daemon=True,
                      name="delaycomp-parent-watch").start()
     return True
-
-
-#: ``prctl`` option: the signal this process gets when its parent dies (linux/prctl.h)
-PR_SET_PDEATHSIG = 1
-
-
-def _parent_death_signal(signum: int) -> bool:
-    """Ask Linux to send ``signum`` to this process when its parent dies; whether it
-    took (a libc without ``prctl``, or a refusal, is no error: the thread watches)."""
-    import ctypes
-
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return False
-    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
-                      ctypes.c_ulong]
-    prctl.restype = ctypes.c_int
-    return prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0) == 0
 
 
 def _exit_with(sentinel) -> None:
