@@ -1,7 +1,7 @@
 """Where delaycomp's modules live, and the names they had before the layers became folders.
 
-The package stands in layers, each a folder, imports only downward (README, "Where things
-live"). Two things keep older scripts and a plain checkout working:
+The package stands in layers, each a folder, imports only downward (docs/development.md,
+"Where things live"). Two things keep older scripts and a plain checkout working:
 
 - **Earlier names.** Each module's name before 0.2 (``delaycomp.lti``,
   ``delaycomp.simulate``, ``delaycomp.models.unicycle``, ...) still imports, as the very

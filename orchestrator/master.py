@@ -476,7 +476,7 @@ class Master:
 class Recorder:
     """Observer that keeps selected outputs at every ``every``-th tick, for CSV and plots.
 
-    The components themselves keep bounded state only (README, "Reliability"); with
+    The components themselves keep bounded state only (docs/explanation/reliability.md); with
     ``keep=False`` so does the recorder.
 
     Parameters

@@ -1,4 +1,5 @@
-"""One-off measurement: does a host survive a user model that raises? (README, "Reliability")
+"""One-off measurement: does a host survive a user model that raises?
+(docs/explanation/reliability.md)
 
 Runs, ``--runs`` times, a fresh Python process that co-simulates a model whose ``k`` raises
 ``SystemExit`` (or ``--raise KeyboardInterrupt``, ``RuntimeError``) at t = 0.5 through the

@@ -1,4 +1,4 @@
-"""One-off measurement: memory over a long co-simulation (README, "Reliability").
+"""One-off measurement: memory over a long co-simulation (docs/explanation/reliability.md).
 
 Runs a scenario for many base steps through the FMUs and the master, recording one row in
 ``--every`` ticks, and prints the process's resident set size (VmRSS) and the length of

@@ -2,16 +2,26 @@
 
 ``<!-- delaycomp:cli -->`` in a page becomes the ``--help`` of ``delaycomp`` and of every
 subcommand (from :func:`delaycomp.cli._parser`, the parser the command runs);
-``<!-- delaycomp:scenarios -->`` becomes the output of ``delaycomp list``.
+``<!-- delaycomp:scenarios -->`` becomes the output of ``delaycomp list``;
+``<!-- delaycomp:include FILE.md -->`` becomes that file of the repository (the benchmark
+reports the scripts in ``bench/`` write), without its title and with its links to
+``docs/`` made relative to the page; ``<!-- delaycomp:readme SECTION -->`` becomes the
+README's section of that title (its commands, so that the site and the README cannot give
+different ones).
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import re
+from pathlib import Path
 
 CLI_MARK = "<!-- delaycomp:cli -->"
 SCENARIOS_MARK = "<!-- delaycomp:scenarios -->"
+INCLUDE = re.compile(r"<!-- delaycomp:include ([\w./-]+\.md) -->")
+README_SECTION = re.compile(r"<!-- delaycomp:readme ([^>]+?) -->")
+REPO = Path(__file__).resolve().parent.parent
 
 
 def _help(parser) -> str:
@@ -43,9 +53,38 @@ def scenario_list() -> str:
     return "```text\n" + buf.getvalue().rstrip() + "\n```\n"
 
 
+def _relative(text: str, page_path: str) -> str:
+    """Links into ``docs/`` (as the repository's root files write them) made relative to
+    the page at ``page_path``; links to other files of the repository are left alone."""
+    up = "../" * page_path.count("/")
+    return re.sub(r"\]\(docs/", "](" + up, text)
+
+
+def readme_section(title: str, page_path: str) -> str:
+    """The body of the README's ``## title`` section (without its heading)."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
+    if match is None:
+        raise ValueError(f"README.md has no section '## {title}'")
+    return _relative(match.group(1).strip(), page_path) + "\n"
+
+
+def include(name: str, page_path: str) -> str:
+    """The repository's markdown file ``name`` as part of the page at ``page_path``
+    (relative to ``docs/``): its ``# title`` dropped, links into ``docs/`` rewritten."""
+    text = (REPO / name).read_text(encoding="utf-8")
+    lines = text.splitlines()
+    if lines and lines[0].startswith("# "):
+        lines = lines[1:]
+    return _relative("\n".join(lines), page_path).strip() + "\n"
+
+
 def on_page_markdown(markdown: str, page, config, files) -> str:
     if CLI_MARK in markdown:
         markdown = markdown.replace(CLI_MARK, cli_reference())
     if SCENARIOS_MARK in markdown:
         markdown = markdown.replace(SCENARIOS_MARK, scenario_list())
+    markdown = README_SECTION.sub(
+        lambda m: readme_section(m.group(1), page.file.src_uri), markdown)
+    markdown = INCLUDE.sub(lambda m: include(m.group(1), page.file.src_uri), markdown)
     return markdown

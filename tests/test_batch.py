@@ -323,8 +323,8 @@ def test_cli_array_backend_without_its_library_is_a_usage_error(tmp_path):
 # -- the exact critical delays over a map ------------------------------------------------
 
 def test_critical_curve_is_the_lifted_models_critical_delay():
-    """k = 2, T = 1: r_c = 0.203267055 (README, critical-delay --grid; (3.20)); k = 2.5 is
-    unstable at r = 0 (2.5 > 1 + 2/(e - 1)) and a band of delays stabilizes it: two
+    """k = 2, T = 1: r_c = 0.203267055 (docs/reference/sweeps.md, critical-delay --grid; (3.20));
+    k = 2.5 is unstable at r = 0 (2.5 > 1 + 2/(e - 1)) and a band of delays stabilizes it: two
     crossings around the band the simulated map shows."""
     from delaycomp.studies.critical import critical_curve
 

@@ -55,22 +55,19 @@ def test_stability_map_page_code_prints_what_its_comment_says(capsys):
 README = REPO / "README.md"
 
 
-def test_readme_states_the_grid_rule_of_r_and_tau_as_list_does():
-    """The README's Example 3.6 table and its ``list`` bullet give the allowed ranges of
-    ``r`` and ``tau`` in the words ``delaycomp list`` prints (:mod:`delaycomp.paper.scenarios`)."""
+def test_commands_page_states_the_grid_rule_of_r_and_tau_as_list_does():
+    """The commands page's ``list`` bullet gives the allowed ranges of ``r`` and ``tau`` in
+    the words ``delaycomp list`` prints (:mod:`delaycomp.paper.scenarios`; the Scenarios page
+    is ``list`` itself, generated when the site is built)."""
     from delaycomp.paper import scenarios
-    text = README.read_text(encoding="utf-8")
+    text = (REPO / "docs" / "reference" / "commands.md").read_text(encoding="utf-8")
     plain = " ".join(text.replace("`", "").split())
     sc = scenarios.get("example-3.6")
-    for name in ("r", "tau"):
-        p = sc.param(name)
-        row = f"| {name} | {p.default:g} | {p.help} ({p.allowed}) |"
-        assert row in plain, row
     assert sc.param("r").allowed == scenarios.ON_BASE_GRID
     assert f'is "{scenarios.ON_BASE_GRID}", as list says' in plain
     assert f'zero-order hold tau is "{scenarios.ZOH_TAU}"' in plain
-    # the old, too weak wording of the README's rows is gone
-    assert "measurement delay (>= 0, a multiple" not in plain
+    assert "<!-- delaycomp:scenarios -->" in (REPO / "docs" / "reference" / "scenarios.md"
+                                              ).read_text(encoding="utf-8")
 
 
 def test_readme_python_example_installs_what_it_imports():
@@ -110,3 +107,63 @@ def test_readme_python_example_installs_what_it_imports():
     assert "control" in third_party
     assert third_party <= installed, third_party - installed
     assert "control" not in names(project["dependencies"])
+
+
+def test_readme_is_short_and_its_links_lead_somewhere():
+    """The README is the front page: a few hundred lines at most (the rest lives on the
+    documentation site), and every relative link and image in it names a file or folder of
+    the repository (GitHub renders them; the site includes README sections through
+    ``scripts/mkdocs_hooks.py``)."""
+    text = README.read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 300
+    targets = re.findall(r"\]\(([^)\s]+)\)", text)
+    local = [t.split("#")[0] for t in targets if not re.match(r"[a-z]+://", t) and t[0] != "#"]
+    assert len(local) > 20
+    missing = [t for t in local if not (REPO / t).exists()]
+    assert missing == []
+    for section in ("The two commands", "Your controller as an FMU", "Your own plant",
+                    "The masters it runs in", "Documentation", "Install and extras",
+                    "Contributing"):
+        assert f"\n## {section}\n" in text, section
+
+
+def test_readme_extras_table_lists_every_extra():
+    """Every optional dependency group of pyproject.toml has a row in the README's table,
+    and each row names the distributions the extra brings."""
+    import tomllib
+
+    text = README.read_text(encoding="utf-8")
+    project = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")] if line.startswith("| `") else []
+        for name in re.findall(r"`(\w+)`", cells[0]) if cells else ():
+            rows[name] = cells[1].lower()
+    extras = project["optional-dependencies"]
+    assert set(extras) <= set(rows), set(extras) - set(rows)
+    for name, specs in extras.items():
+        for spec in specs:
+            dist = re.match(r"[A-Za-z0-9_.-]+", spec).group(0).lower()
+            if dist == "delaycomp":
+                continue
+            assert dist.split("-")[0].replace("py", "") in rows[name].replace("py", "") \
+                or dist in rows[name], (name, dist, rows[name])
+
+
+def test_site_commands_are_the_readmes():
+    """The site's front page takes the two commands and the documentation command from the
+    README when it is built (no second copy that could drift)."""
+    index = (REPO / "docs" / "index.md").read_text(encoding="utf-8")
+    assert "<!-- delaycomp:readme The two commands -->" in index
+    assert "<!-- delaycomp:readme Documentation -->" in index
+    assert "```sh" not in index
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("hooks", REPO / "scripts" / "mkdocs_hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    body = hooks.readme_section("The two commands", "index.md")
+    first = re.search(r"```sh\n(.*)\n```", README.read_text(encoding="utf-8")).group(1)
+    assert first in body
+    # links into docs/ become relative to the page that includes them
+    assert "](docs/" not in hooks.readme_section("Documentation", "howto/page.md")
+    assert "](../tutorial.md)" in hooks.readme_section("Documentation", "howto/page.md")

@@ -41,7 +41,7 @@ from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import ParameterError
 
-#: the forms of every message a slave logs with status error (README, "Reliability")
+#: the forms of every message a slave logs with status error (docs/explanation/reliability.md)
 NAMED = re.compile(
     r"^(?:"
     r"(?:\S+|r \+ tau) = .+ is not allowed: (?:must|zero-order hold needs|model \S+ gives)"

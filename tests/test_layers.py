@@ -441,8 +441,8 @@ def test_every_error_is_a_delaycomp_error_and_each_name_is_one_class():
 
 
 # -- public names documented (item 4) ----------------------------------------------------
-#: the paper's model files are in the model-file format of the README, and their text names
-#: their FMUs (a digest): they document themselves in their module docstrings
+#: the paper's model files are in the model-file format of docs/reference/model-files.md,
+#: and their text names their FMUs (a digest): they document themselves in their module docstrings
 UNDOCUMENTED_OK = ("delaycomp.paper.models.",)
 
 

@@ -1,8 +1,8 @@
 """Long runs: hidden buffers stay bounded by the delay window, memory stays flat, and a
 long run agrees with a shorter one where they overlap (to the last bits).
 
-The CI test runs 20 000 base steps; ``scripts/long_run_memory.py`` measured 10^6 (README,
-"Reliability").
+The CI test runs 20 000 base steps; ``scripts/long_run_memory.py`` measured 10^6
+(docs/explanation/reliability.md).
 """
 
 from __future__ import annotations

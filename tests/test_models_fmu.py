@@ -131,13 +131,12 @@ def test_repeated_instantiation_keeps_the_slave_module_intact(tmp_path):
         assert sys.getrefcount(vars(module)) >= 3  # the module, the pins, the call
 
 
-def test_readme_model_example_builds_and_is_deadbeat(tmp_path):
-    """The model module shown in the README works as documented."""
+def test_documented_model_example_builds_and_is_deadbeat(tmp_path):
+    """The model module shown on the model-file page works as documented."""
     from .conftest import REPO
 
-    text = (REPO / "README.md").read_text(encoding="utf-8")
-    section = text.split("## Model interface", 1)[1]
-    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    text = (REPO / "docs" / "reference" / "model-files.md").read_text(encoding="utf-8")
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
     path = tmp_path / "readme_model.py"
     path.write_text(code, encoding="utf-8")
     T, N = 1.0, 10

@@ -2,7 +2,7 @@
 zero states integrate.
 
 The 10^6-step resident-memory measurement per predictor kind is in
-``scripts/long_run_memory.py`` (README, "Reliability"), not here.
+``scripts/long_run_memory.py`` (docs/explanation/reliability.md), not here.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ the measured 2.7 %) would catch the first defect in about half of the CI runs. T
 under valgrind finds each on every run (the first in 4 of 4 runs before, the second in 2
 of 2), so the test fails reliably where valgrind is installed.
 ``scripts/crash_rate.py --fmi-sequences --runs 200`` counts hundreds of hosts per sequence
-(README, "Reliability").
+(docs/explanation/reliability.md).
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Bad parameters, bad inputs and faults during a run, through fmpy, for every FMU.
 
-What each case gets (README, "Reliability"): a bad parameter is logged with status error
+What each case gets (docs/explanation/reliability.md): a bad parameter is logged with status error
 when initialization ends (the message names the variable, its value and the allowed
 range) and every later ``doStep`` returns fmi2Discard; a bad input or a fault during a
 step ends that step with fmi2Discard and a logged reason. Never fmi2Fatal, and the host
-frees the instance afterwards. (pythonfmu 0.7 cannot return fmi2Error: README, "Known
-limitations".)
+frees the instance afterwards. (pythonfmu 0.7 cannot return fmi2Error:
+docs/explanation/reliability.md, "Known limitations".)
 """
 
 from __future__ import annotations

@@ -82,7 +82,7 @@ def test_second_fmu_with_another_bundled_version_is_refused(fmu_dir, tmp_path):
     out = proc.stdout
     assert "REFUSED: version clash: this FMU bundles delaycomp '0.0.1-other', but " \
            "delaycomp '0.1.0'" in out, out
-    assert "STEP STATUS: 2" in out  # fmi2Discard: see README, Known limitations
+    assert "STEP STATUS: 2" in out  # fmi2Discard: docs/explanation/reliability.md
     assert "PLANT STILL STEPS" in out
     assert out.strip().endswith("FREED")
 

@@ -177,7 +177,7 @@ def _prebuild(jobs: list[Job]) -> None:
 SECONDS_PER_EXACT_POINT = 50e-6
 #: Lower bound of resolving and validating one point, in seconds: done in this process,
 #: whatever the workers (10.7 us measured end to end on the development machine, less the
-#: batch engine's share: README, Sweeps; 14 us on a busy machine).
+#: batch engine's share: docs/reference/sweeps.md; 14 us on a busy machine).
 SECONDS_PER_POINT = 8e-6
 #: Lower bound of the batch engine's cost per point and base step, in seconds, shared by
 #: the workers (3.5 ns measured: 7.0 s for 10^6 points of 2000 steps on one core).

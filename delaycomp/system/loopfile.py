@@ -212,7 +212,7 @@ def _predictor(where: str, value) -> str:
 #: the model predictors a loop file names (``[controller] predictor``)
 PREDICTORS = ("closed", "numerical")
 #: the allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
-#: ``tau`` under continuous input), as ``delaycomp list`` and the README say it
+#: ``tau`` under continuous input), as ``delaycomp list`` and docs/reference/commands.md say it
 ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
 #: ``tau`` under zero-order hold (Theorem 3.2); :data:`ZOH_TAU_PAD` where ``pad`` is offered
 ZOH_TAU = "a finite multiple l*T of T, l >= 0"

@@ -6,7 +6,7 @@ controller of a :class:`~delaycomp.system.Loop` into one FMI 2.0 co-simulation F
 ``h = T/N`` inside each of its own communication steps, so an importer runs it with
 ``output_interval = T`` and gets the loop at the sampling instants.
 
-Timing (measured, see README "Cross-check and the loop as one FMU"). The container does
+Timing (measured, see docs/explanation/verification.md). The container does
 not set inputs and read outputs at the same instant as our master does: for each FMU in
 turn it sets the inputs from the latest outputs it holds, calls ``doStep`` and reads the
 outputs (sequential mode; the default parallel mode sets all, steps all, reads all, i.e.
