@@ -3,6 +3,8 @@
 ``<!-- delaycomp:cli -->`` in a page becomes the ``--help`` of ``delaycomp`` and of every
 subcommand (from :func:`delaycomp.cli._parser`, the parser the command runs);
 ``<!-- delaycomp:scenarios -->`` becomes the output of ``delaycomp list``;
+``<!-- delaycomp:loop-keys -->`` the loop-file reader's key table
+(:func:`delaycomp.system.loopkeys.markdown`);
 ``<!-- delaycomp:include FILE.md -->`` becomes that file of the repository (the benchmark
 reports the scripts in ``bench/`` write), without its title and with its links to
 ``docs/`` made relative to the page; ``<!-- delaycomp:readme SECTION -->`` becomes the
@@ -19,6 +21,7 @@ from pathlib import Path
 
 CLI_MARK = "<!-- delaycomp:cli -->"
 SCENARIOS_MARK = "<!-- delaycomp:scenarios -->"
+LOOP_KEYS_MARK = "<!-- delaycomp:loop-keys -->"
 INCLUDE = re.compile(r"<!-- delaycomp:include ([\w./-]+\.md) -->")
 README_SECTION = re.compile(r"<!-- delaycomp:readme ([^>]+?) -->")
 REPO = Path(__file__).resolve().parent.parent
@@ -53,6 +56,14 @@ def scenario_list() -> str:
     return "```text\n" + buf.getvalue().rstrip() + "\n```\n"
 
 
+def loop_keys() -> str:
+    """The tables of every loop-file key, from the reader's own table."""
+    from delaycomp.system.loopfile import KEYS
+    from delaycomp.system.loopkeys import markdown
+
+    return markdown({key: spec.allowed for key, spec in KEYS.items()})
+
+
 def _relative(text: str, page_path: str) -> str:
     """Links into ``docs/`` (as the repository's root files write them) made relative to
     the page at ``page_path``; links to other files of the repository are left alone."""
@@ -84,6 +95,8 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         markdown = markdown.replace(CLI_MARK, cli_reference())
     if SCENARIOS_MARK in markdown:
         markdown = markdown.replace(SCENARIOS_MARK, scenario_list())
+    if LOOP_KEYS_MARK in markdown:
+        markdown = markdown.replace(LOOP_KEYS_MARK, loop_keys())
     markdown = README_SECTION.sub(
         lambda m: readme_section(m.group(1), page.file.src_uri), markdown)
     markdown = INCLUDE.sub(lambda m: include(m.group(1), page.file.src_uri), markdown)

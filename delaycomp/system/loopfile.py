@@ -78,12 +78,14 @@ from delaycomp.system.loop import (
     lti_designs,
     model_loop,
 )
+from delaycomp.system.loopkeys import DEFAULTS, allowed
 
-TOP_KEYS = ("T", "N", "r", "tau", "r_true", "tau_true", "stop_time", "name", "title")
+#: the keys of each table, required or not, and the defaults: :mod:`.loopkeys`
+TOP_KEYS = allowed("", "lti")
 SECTIONS = ("plant", "controller")
 #: tables that describe something besides the loop (``[reference]``: for ``check``)
 OTHER_TABLES = ("reference",)
-DEFAULT_N = 100
+DEFAULT_N: int = int(DEFAULTS["N"])  # type: ignore[call-overload]
 
 _DECIMAL = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
 
@@ -483,18 +485,19 @@ def _top(data: dict, where: str) -> dict:
         raise ParameterError(f"{where}: T (the sampling period) is required")
     ctrl = dict(data.get("controller") or {})
     top = dict(plant=plant, ctrl=ctrl, T=check_value("T", data["T"]),
-               N=check_value("N", data.get("N", DEFAULT_N)),
-               r=check_value("r", data.get("r", 0.0)),
-               tau=check_value("tau", data.get("tau", 0.0)))
+               N=check_value("N", data.get("N", DEFAULTS["N"])),
+               r=check_value("r", data.get("r", DEFAULTS["r"])),
+               tau=check_value("tau", data.get("tau", DEFAULTS["tau"])))
     for key in ("r_true", "tau_true"):
         top[key] = None if data.get(key) is None else check_value(key, data[key])
     top["stop"] = None if data.get("stop_time") is None else check_value(
         "stop_time", data["stop_time"])
-    top["mode"] = check_value("controller.mode", ctrl.get("mode", "compensated"))
+    top["mode"] = check_value("controller.mode", ctrl.get("mode",
+                                                          DEFAULTS["controller.mode"]))
     if "fmu" not in plant:
         if ("A" in plant) == ("model" in plant):
-            raise ParameterError(f"{where}: [plant] needs either A and B (LTI) or model = "
-                                 "\"file.py\", not both")
+            raise ParameterError(f"{where}: [plant] needs one of A and B (LTI), model = "
+                                 "\"file.py\" or fmu = \"Plant.fmu\"")
         if "x0" not in plant:
             raise ParameterError(f"{where}: plant.x0 (the initial state) is required")
     return top
@@ -506,17 +509,18 @@ def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str
     the keys and values checked as :func:`build` checks them (``array`` parses a list)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = array("plant.x0", plant["x0"], 1)
-    _check_keys(f"{where} [plant]", plant, ("A", "B", "x0", "state", "input"))
-    _check_keys(f"{where} [controller]", ctrl, ("mode", "K", "u0", "allow_unstable"))
+    _check_keys(f"{where} [plant]", plant, allowed("plant", "lti"))
+    _check_keys(f"{where} [controller]", ctrl, allowed("controller", "lti"))
     if "B" not in plant or "K" not in ctrl:
         raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
     A = array("plant.A", plant["A"], 2)
     B = array("plant.B", plant["B"], 2)
     K = array("controller.K", ctrl["K"], 2)
     u0 = array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
-    names = (_ident("plant.state", plant.get("state", "x")),
-             _ident("plant.input", plant.get("input", "u")))
-    guard = not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False))
+    names = (_ident("plant.state", plant.get("state", DEFAULTS["plant.state"])),
+             _ident("plant.input", plant.get("input", DEFAULTS["plant.input"])))
+    guard = not _flag("controller.allow_unstable",
+                      ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"]))
     args = dict(A=A, B=B, K=K, T=top["T"], r=top["r"], tau=top["tau"], N=top["N"],
                 mode=top["mode"], x0=x0, u0=u0, r_true=top["r_true"],
                 tau_true=top["tau_true"])
@@ -630,18 +634,17 @@ def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, An
     file, its keys and values checked (``model``: the file's model, already loaded)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = check_value("plant.x0", plant["x0"])
-    _check_keys(f"{where} [plant]", plant, ("model", "x0", "tolerance"))
+    _check_keys(f"{where} [plant]", plant, allowed("plant", "model"))
     path = model_path(plant, base)
     from delaycomp.maths.model import load_model
 
     model = model if model is not None else load_model(path)
-    known = {"mode", "u0", "predictor", "pad", "tolerance", "allow_unstable"}
+    known = allowed("controller", "model")
     params = {k: v for k, v in ctrl.items() if k not in known}
     for key, value in params.items():
         if key not in model.parameters:
-            allowed = ", ".join([*known, *model.parameters])
             raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
-                                 f"{allowed}")
+                                 f"{', '.join([*known, *model.parameters])}")
         params[key] = model_value(model, key, value)
     u0 = check_value("controller.u0", ctrl["u0"]) if "u0" in ctrl else np.zeros(model.m)
     predictor = ctrl.get("predictor")
@@ -651,7 +654,7 @@ def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, An
         predictor = "none"
     tol = ctrl.get("tolerance", plant.get("tolerance"))
     tol = None if tol is None else _real("tolerance", tol, positive=True)
-    pad = check_value("controller.pad", ctrl.get("pad", False))
+    pad = check_value("controller.pad", ctrl.get("pad", DEFAULTS["controller.pad"]))
     return path, model, dict(x0=x0, u0=u0, params=params, predictor=predictor,
                              tolerance=tol, pad=pad)
 
@@ -680,8 +683,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (:mod:`.plantfmu`)."""
     from delaycomp.system.plantfmu import fmu_plant_loop
 
-    _check_keys(f"{where} [plant]", plant, ("fmu", "states", "inputs", "parameters", "start",
-                                            "x0", "tolerance"))
+    _check_keys(f"{where} [plant]", plant, allowed("plant", "fmu-lti"))
     for key in ("states", "inputs", "x0"):
         if key not in plant:
             raise ParameterError(f"{where}: plant.{key} is required with plant.fmu ("
@@ -699,8 +701,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         raise ParameterError(f"{where}: with plant.fmu the predictor's model comes from "
                              "[controller]: A and B (LTI, with K) or model = \"file.py\"")
     if "A" in ctrl:
-        _check_keys(f"{where} [controller]", ctrl,
-                    ("A", "B", "K", "mode", "u0", "allow_unstable"))
+        _check_keys(f"{where} [controller]", ctrl, allowed("controller", "fmu-lti"))
         if "B" not in ctrl or "K" not in ctrl:
             raise ParameterError(f"{where}: an LTI predictor needs controller.A, "
                                  "controller.B and controller.K")
@@ -711,7 +712,8 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
                               plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
                               mode=mode, start=plant.get("start"), **common)
-        if not _flag("controller.allow_unstable", ctrl.get("allow_unstable", False)):
+        if not _flag("controller.allow_unstable",
+                     ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"])):
             check_sign(A, B, K, T)
         return loop
     model_path = Path(str(ctrl["model"]))
@@ -720,16 +722,20 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
     from delaycomp.maths.model import load_model
 
     model = load_model(model_path)
-    settings = {"mode", "predictor", "pad", "tolerance"}
+    keys = allowed("controller", "fmu-model")
     params = {}
     for key, value in ctrl.items():
-        if key in ("model", "u0"):
+        if key in ("model", "u0", "mode"):
+            # mode (compensated or not) is the loop's, applied below as predictor = none;
+            # the model controller FMU's own "mode" parameter is its model's CONTROL
             continue
-        if key not in settings and key not in model.parameters:
-            allowed = ", ".join(["model", "u0", *sorted(settings), *model.parameters])
+        if key not in keys and key not in model.parameters:
             raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
-                                 f"{allowed}")
-        params[key] = value
+                                 f"{', '.join([*keys, *model.parameters])}")
+        params[key] = (model_value(model, key, value) if key in model.parameters
+                       else _real("controller.tolerance", value, positive=True)
+                       if key == "tolerance" else check_value(f"controller.{key}", value))
+    params.setdefault("pad", DEFAULTS["controller.pad"])
     if mode == "uncompensated":
         params["predictor"] = "none"
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
@@ -753,7 +759,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
         read_interface,
     )
 
-    _check_keys(f"{where} [controller]", ctrl, ("predictor", "K", "u0", "mode", "tolerance"))
+    _check_keys(f"{where} [controller]", ctrl, allowed("controller", "fmu-plant-fmu"))
     if "K" not in ctrl:
         raise ParameterError(f"{where}: controller.predictor = \"plant-fmu\" needs "
                              "controller.K (u = K x)")
@@ -781,7 +787,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
         start = start_from_outputs(model, fmu.name, x0)
         values = {**values, **start}
         model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
-    mode = ctrl.get("mode", "compensated")
+    mode = ctrl.get("mode", DEFAULTS["controller.mode"])
     params: dict = {"predictor": "none" if mode == "uncompensated" else "closed"}
     u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
     check_zoh_delay(tau, T)  # u = K x held over each period; no padding here

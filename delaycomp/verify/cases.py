@@ -189,11 +189,14 @@ def loop_case(path: str | Path, sets: list[str] | tuple[str, ...] = ()) -> RefCa
     if not isinstance(ref, dict) or not isinstance(ref.get("csv"), str):
         raise ParameterError(f"{lf.path.name}: check needs [reference] csv = \"FILE.csv\" "
                              "(the trajectory to compare with)")
-    unknown = [k for k in ref if k not in ("csv", "tolerance")]
+    from delaycomp.system.loopkeys import DEFAULTS, allowed
+
+    keys = allowed("reference", "lti")
+    unknown = [k for k in ref if k not in keys]
     if unknown:
         raise ParameterError(f"{lf.path.name} [reference]: unknown key {unknown[0]!r}: "
-                             "allowed are csv, tolerance")
-    tol = ref.get("tolerance", EXACT_TOL)
+                             f"allowed are {', '.join(keys)}")
+    tol = ref.get("tolerance", DEFAULTS["reference.tolerance"])
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (
             math.isfinite(tol) and tol > 0):
         raise ParameterError(f"reference.tolerance = {tol!r} is not allowed: must be a "
