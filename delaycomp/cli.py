@@ -245,11 +245,12 @@ def _run_parser(sub) -> None:
                         "instants and the first sample's delay window")
     r.add_argument("--compare", action="store_true",
                    help="also run the other controller mode (compensated / uncompensated) "
-                        "of a scenario or a loop file whose controller has a mode: --plot "
-                        "draws both (on a symmetric log scale, said on the plot, where one "
-                        "diverges), --out FILE.csv keeps this run's columns and the other "
-                        "run goes beside it into FILE.<other mode>.csv (FILE.uncompensated"
-                        ".csv), same columns and row times; needs --out or --plot")
+                        "of a scenario or loop file whose controller has a mode: --out "
+                        "FILE.csv gets this run, as without --compare, and FILE.MODE.csv "
+                        "beside it the other (FILE.uncompensated.csv: the same columns and "
+                        "row times); --plot draws both, on a symmetric log scale (said on "
+                        "the plot) where one run's largest value exceeds 4 times the "
+                        "other's; needs --out or --plot")
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")

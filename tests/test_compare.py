@@ -246,3 +246,13 @@ def test_a_figure_reads_one_way_throughout():
     assert [s.kind for s in scales] == ["symlog", "symlog"]
     assert [s.linthresh for s in scales] == [10.0, 20.0]
     assert panel_scales([[[1, -1.1], [1, 0.6]]]) == [Scale()]
+
+
+def test_run_help_says_where_the_other_run_goes_and_how_it_is_drawn(capsys):
+    with pytest.raises(SystemExit):
+        run_cli(capsys, "run", "--help")
+    text = " ".join(capsys.readouterr().out.split())
+    assert ("--out FILE.csv gets this run, as without --compare, and FILE.MODE.csv beside "
+            "it the other (FILE.uncompensated.csv: the same columns and row times)") in text
+    assert f"exceeds {LINEAR_RATIO:g} times the other's" in text
+    assert "symmetric log scale (said on the plot)" in text
