@@ -819,8 +819,9 @@ def _run_ssp(args) -> int:
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
                          "FMUs")
     if args.compare:
-        raise UsageError("--compare runs a scenario by name (set controller.mode for a "
-                         "FILE.ssp)")
+        raise UsageError("--compare runs a scenario or a loop file (a FILE.ssp: run it "
+                         "twice, with --set controller.mode=compensated and "
+                         "=uncompensated)")
     with Archive(Path(args.scenario), _foreign(args)) as archive:
         system = archive.system
         assert system is not None  # read by Archive.__enter__

@@ -256,3 +256,11 @@ def test_run_help_says_where_the_other_run_goes_and_how_it_is_drawn(capsys):
             "it the other (FILE.uncompensated.csv: the same columns and row times)") in text
     assert f"exceeds {LINEAR_RATIO:g} times the other's" in text
     assert "symmetric log scale (said on the plot)" in text
+
+
+def test_compare_of_an_ssp_says_how_to_get_both(capsys, tmp_path):
+    code, _, err = run_cli(capsys, "run", str(tmp_path / "loop.ssp"), "--compare", "--out",
+                           str(tmp_path / "x.csv"))
+    one_line_error(code, err, "--compare runs a scenario or a loop file (a FILE.ssp: run it "
+                              "twice, with --set controller.mode=compensated and "
+                              "=uncompensated)")
