@@ -153,7 +153,8 @@ BUILD_EXAMPLES = """examples:
 RUN_EXAMPLES = """examples:
   delaycomp run example-3.6 --set r=0.3 --set u0=4 --out fig3.csv --plot fig3.png
   delaycomp run example-3.6 --stop-time 2000 --output-interval 1 --out long.csv
-  delaycomp run example-3.6 --set r=0.5 --compare --plot both.png
+  delaycomp run example-3.6 --set r=0.3 --compare --out a.csv --plot both.png
+                                 # a.csv, a.uncompensated.csv and both runs in both.png
   delaycomp run my-loop.toml --set r=0.4 --out loop.csv --plot loop.png
   delaycomp run build/fmus/example-3.6.ssp --set controller.mode=uncompensated
 """
@@ -243,8 +244,13 @@ def _run_parser(sub) -> None:
                    help="draw the run (png, pdf, svg, ...): every signal, the sampling "
                         "instants and the first sample's delay window")
     r.add_argument("--compare", action="store_true",
-                   help="also run the other controller mode (compensated / "
-                        "uncompensated) and draw both in --plot")
+                   help="also run the other controller mode (compensated / uncompensated) "
+                        "of a scenario or loop file whose controller has a mode: --out "
+                        "FILE.csv gets this run, as without --compare, and FILE.MODE.csv "
+                        "beside it the other (FILE.uncompensated.csv: the same columns and "
+                        "row times); --plot draws both, on a symmetric log scale (said on "
+                        "the plot) where one run's largest value exceeds 4 times the "
+                        "other's; needs --out or --plot")
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
@@ -601,12 +607,28 @@ def _outputs(args) -> None:
     check_output(getattr(args, "plot", None), "--plot", "plot")
 
 
+def compare_path(out: Path, mode: str) -> Path:
+    """Where ``run --compare --out FILE.csv`` writes the run of the other controller
+    ``mode``: beside ``FILE.csv``, as ``FILE.<mode>.csv``.
+
+    Examples
+    --------
+    >>> compare_path(Path("out/example-3.6.csv"), "uncompensated").as_posix()
+    'out/example-3.6.uncompensated.csv'
+    >>> compare_path(Path("run"), "compensated").as_posix()
+    'run.compensated'
+    """
+    return out.with_name(f"{out.stem}.{mode}{out.suffix}")
+
+
 def _cmd_run(args) -> int:
     from delaycomp.plotting import Marks, title_of_loop
 
     _outputs(args)
-    if args.compare and not args.plot:
-        raise UsageError("--compare draws both runs into --plot FILE.png: give --plot")
+    if args.compare and not (args.plot or args.out):
+        raise UsageError("--compare writes both runs: give --out FILE.csv (this run there, "
+                         "the other mode's beside it as FILE.<mode>.csv) and/or --plot "
+                         "FILE.png (both drawn)")
     if args.scenario.endswith(".ssp"):
         if args.native or args.python:
             flag = "--native" if args.native else "--python"
@@ -634,17 +656,26 @@ def _cmd_run(args) -> int:
             raise UsageError(f"--compare needs a loop whose controller has a mode "
                              f"(compensated or uncompensated); {source.name} has none"
                              ) from None
+        if args.out is not None:  # checked, as --out, before anything runs
+            from delaycomp.formats.outputs import check_output
+
+            check_output(compare_path(args.out, other), "--out (--compare)")
     from delaycomp.plotting import UNITS_BY_LOOP
 
     if args.engine != "fmu":  # the Python FMUs' slaves, called in this process
         if args.native:
             raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
         fmus = None
+        other_fmus = {}
     else:
         fmus = _chosen_fmus(args, loop)
+        # the other mode with FMUs of the same kind (native where this run's are)
+        quiet = argparse.Namespace(**{**vars(args), "verbosity": 0})  # its note said once
+        other_fmus = {label: _chosen_fmus(quiet, other_loop)
+                      for label, other_loop in others.items()}
     return _execute(args, loop, stop, source.name, title_of_loop(loop, args.compare),
                     Marks.of_loop(loop), UNITS_BY_LOOP.get(source.name), label=mode,
-                    others=others, fmus=fmus)
+                    others=others, fmus=fmus, other_fmus=other_fmus)
 
 
 def _mode_of(loop) -> str | None:
@@ -659,9 +690,10 @@ def _mode_of(loop) -> str | None:
 
 def _execute(args, loop, stop: float, name: str, title: str, timing, units,
              label: str | None = None, others: dict | None = None, fmus=None,
-             runner=None) -> int:
-    """Run ``loop`` (and, for ``--compare``, the ``others``) to ``stop`` with the CSV
-    streamed to ``--out`` and decimated by ``--output-interval``; then plot and report.
+             runner=None, other_fmus: dict | None = None) -> int:
+    """Run ``loop`` (and, for ``--compare``, the ``others``, each with its
+    ``other_fmus``) to ``stop`` with the CSV streamed to ``--out`` (an other run's to
+    :func:`compare_path`) and decimated by ``--output-interval``; then plot and report.
 
     ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
     and are decimated afterwards)."""
@@ -684,7 +716,9 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
                                    args.engine, every, keep)
     info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
          f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
-    clear_previous(args.out, args.plot)
+    other_paths = {other: compare_path(args.out, other) if args.out else None
+                   for other in others or {}}
+    clear_previous(args.out, args.plot, *other_paths.values())
     names = loop.columns
     stream = CsvStream(args.out, names) if args.out else None
     started = time.perf_counter()
@@ -712,8 +746,41 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
     if others and result.success:
         runs = {label or "this run": result}
         for other_label, other_loop in others.items():
-            runs[other_label] = run_or_failed(other_loop, fmus="python", keep=True)
-    return _report_run(args, result, elapsed, name, title, where, timing, units, runs)
+            path = other_paths[other_label]
+            other_stream = CsvStream(path, other_loop.columns) if path else None
+            try:
+                with bar(ticks, f"{name}, {other_label}", args.verbosity,
+                         unit="step") as progress:
+                    def other_tick(k, progress=progress):
+                        progress.update(k - progress.n)
+
+                    chosen = (other_fmus or {}).get(other_label)
+                    other = run_or_failed(other_loop,
+                                          fmus="python" if chosen is None else chosen,
+                                          sink=other_stream, keep=keep,
+                                          progress=other_tick)
+            except BaseException:
+                if other_stream is not None:
+                    other_stream.finish(False)
+                raise
+            other_where = (other_stream.finish(other.success) if other_stream is not None
+                           else None)
+            if not other.success:  # as this run's failure: its rows kept apart, no plot
+                show_notes(other, args.verbosity)
+                kept = ""
+                if other_where is not None and other.row_count:
+                    kept = (f"; {other.row_count} rows to t = {other.times[-1]:.6g} kept "
+                            f"in {other_where}")
+                print(f"delaycomp: error: --compare, the {other_label} run: "
+                      f"{other.message}{kept}", file=sys.stderr)
+                return 1
+            runs[other_label] = other
+    code = _report_run(args, result, elapsed, name, title, where, timing, units, runs)
+    if code == 0 and runs:
+        for other_label, path in other_paths.items():
+            if path is not None:
+                print(f"{name}, {other_label}: {runs[other_label].row_count} rows in {path}")
+    return code
 
 
 def _foreign(args):
@@ -752,8 +819,9 @@ def _run_ssp(args) -> int:
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
                          "FMUs")
     if args.compare:
-        raise UsageError("--compare runs a scenario by name (set controller.mode for a "
-                         "FILE.ssp)")
+        raise UsageError("--compare runs a scenario or a loop file (a FILE.ssp: run it "
+                         "twice, with --set controller.mode=compensated and "
+                         "=uncompensated)")
     with Archive(Path(args.scenario), _foreign(args)) as archive:
         system = archive.system
         assert system is not None  # read by Archive.__enter__

@@ -8,7 +8,11 @@ panel per signal with its unit where known, a legend, the sampling instants ``t_
 shaded, the delay window ``[t_i - r, t_i + tau]`` of the first sample whose prediction is
 exact (``i = ceil(r/T)``, at least 1): the state measured at ``t_i`` is ``x(t_i - r)``, and
 the input the controller computes then reaches the plant at ``t_i + tau``. Several runs of
-the same loop (``run --compare``: compensated and uncompensated) share the panels.
+the same loop (``run --compare``: compensated and uncompensated) share the panels, each
+panel on a y scale on which every run reads (:func:`choose_scale`): linear where the runs'
+largest values are within :data:`LINEAR_RATIO` of each other, else (a diverging baseline
+beside a converging run) a symmetric log scale, linear within the smaller run's range, said
+on the panel.
 """
 
 from __future__ import annotations
@@ -28,6 +32,11 @@ UNITS_BY_LOOP: dict[str, dict[str, str]] = {
 #: At most this many sampling instants are drawn as lines (beyond, they would fill the
 #: panel; the title still gives T).
 MAX_SAMPLE_LINES = 60
+#: Runs drawn on one panel share a linear y axis while the largest ``|value|`` of one is at
+#: most this many times that of another; beyond, the smaller run would fill less than a
+#: quarter of the panel's half height (its dead-beat or its decay drawn flat on the zero
+#: line), and the panel goes to a symmetric log scale (:func:`choose_scale`).
+LINEAR_RATIO = 4.0
 
 
 @dataclass(frozen=True)
@@ -104,6 +113,119 @@ def title_of_loop(loop, compare: bool = False) -> str:
     return loop_title(loop.name, loop.title or None, params)
 
 
+@dataclass(frozen=True)
+class Scale:
+    """The y scale of one panel: ``linear``, or ``symlog`` (linear within
+    ``+-linthresh``, logarithmic beyond) with the words that say so on the figure."""
+
+    kind: str = "linear"
+    linthresh: float | None = None
+
+    @property
+    def note(self) -> str:
+        """What the panel says about its scale (empty for a linear one)."""
+        if self.kind != "symlog":
+            return ""
+        return (f"symmetric log scale: linear within \u00b1{self.linthresh:g}, "
+                "logarithmic beyond")
+
+
+def _nice_ceil(value: float) -> float:
+    """The smallest of 1, 2, 5 times a power of ten that is >= ``value`` (> 0)."""
+    decade = 10.0 ** math.floor(math.log10(value))
+    for step in (1.0, 2.0, 5.0, 10.0):
+        if step * decade >= value * (1 - 1e-12):
+            return step * decade
+    return 10.0 * decade  # pragma: no cover (10 * decade >= value always)
+
+
+def choose_scale(columns: Sequence) -> Scale:
+    """The y scale on which every run of one panel reads.
+
+    Parameters
+    ----------
+    columns : sequence of array_like
+        the panel's signal, one column per run.
+
+    Returns
+    -------
+    Scale
+        ``linear`` for a single run, or while the largest ``|value|`` of every run is
+        within :data:`LINEAR_RATIO` of the others'; else ``symlog`` whose linear part
+        ``+-linthresh`` holds the run of the smallest range (its largest ``|value|``
+        rounded up to 1, 2 or 5 times a power of ten), the larger runs growing
+        logarithmically beyond.
+
+    Examples
+    --------
+    >>> choose_scale([[1.0, -6.7, 0.3], [1.0, 14.6, -35.2]])
+    Scale(kind='symlog', linthresh=10.0)
+    >>> choose_scale([[1.0, -1.1, 0.1], [1.0, 0.6, -0.2]])
+    Scale(kind='linear', linthresh=None)
+    """
+    peaks = [_peak(column) for column in columns]
+    if len(peaks) < 2 or min(peaks) <= 0.0 or max(peaks) <= LINEAR_RATIO * min(peaks):
+        return Scale()
+    return Scale("symlog", _nice_ceil(min(peaks)))
+
+
+def panel_scales(panels: Sequence[Sequence]) -> list[Scale]:
+    """The y scales of a figure's panels, each a list of columns (one per run): linear
+    for all while every panel reads on a linear axis; else every panel of several runs
+    on its own symmetric log scale (:func:`choose_scale`'s ``linthresh``, or that of its
+    smallest nonzero run where the runs of that panel are close), so that the figure
+    reads one way throughout.
+
+    Examples
+    --------
+    >>> [s.kind for s in panel_scales([[[1, -6.7], [1, -35.2]], [[-5, 13], [-2, -50]]])]
+    ['symlog', 'symlog']
+    >>> [s.kind for s in panel_scales([[[1, -1.1], [1, 0.6]], [[-2, 2], [-2, 1]]])]
+    ['linear', 'linear']
+    """
+    chosen = [choose_scale(columns) for columns in panels]
+    if all(s.kind == "linear" for s in chosen):
+        return chosen
+    scales = []
+    for columns, s in zip(panels, chosen):
+        peaks = [p for p in (_peak(c) for c in columns) if p > 0]
+        if s.kind == "linear" and len(columns) > 1 and peaks:
+            s = Scale("symlog", _nice_ceil(min(peaks)))
+        scales.append(s)
+    return scales
+
+
+def _apply_scale(ax, scale: Scale, top: float) -> None:
+    """Set ``scale`` on ``ax`` with plain tick labels (0, +-linthresh and 1-2-5 steps
+    or powers of ten beyond it up to ``top``, none closer than 1/12 of the axis) and its
+    note in the panel's lower left corner."""
+    if scale.kind != "symlog":
+        return
+    from matplotlib.ticker import FixedLocator, FormatStrFormatter
+
+    assert scale.linthresh is not None
+    lt = scale.linthresh
+    ax.set_yscale("symlog", linthresh=lt, linscale=1.0)
+    # ticks beyond lt at least 1/12 of the axis apart (the axis spans 2 (1 + log10(top /
+    # lt)) decades: the linear part counts as one): 1-2-5 steps where that is close
+    # enough, else powers of ten
+    gap = 2 * (1 + math.log10(max(top, lt) / lt)) / 12
+    steps = (1.0, 2.0, 5.0) if gap <= math.log10(2) else (1.0,)
+    ticks = [lt]
+    decade = 10.0 ** math.floor(math.log10(lt) + 1e-12)
+    while decade <= top:
+        for m in steps:
+            v = m * decade
+            if v <= top * (1 + 1e-12) and math.log10(v / ticks[-1]) >= gap - 1e-12:
+                ticks.append(v)
+        decade *= 10.0
+    ax.yaxis.set_major_locator(FixedLocator([-t for t in reversed(ticks)] + [0.0] + ticks))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_locator(FixedLocator([]))
+    ax.text(0.01, 0.03, scale.note, transform=ax.transAxes, fontsize=7, va="bottom",
+            ha="left", bbox={"boxstyle": "round", "fc": "white", "ec": "0.6", "alpha": 0.85})
+
+
 def _label(name: str, units: dict[str, str]) -> str:
     var = name.split(".", 1)[-1]
     unit = units.get(var)
@@ -111,9 +233,11 @@ def _label(name: str, units: dict[str, str]) -> str:
 
 
 def figure(results, title: str = "", labels: Sequence[str] | None = None,
-           timing: Marks | None = None, units: dict[str, str] | None = None):
+           timing: Marks | None = None, units: dict[str, str] | None = None,
+           scale: str = "auto"):
     """One panel per recorded signal against time, one line per result; controller
-    signals as staircases (they are held over each base step).
+    signals as staircases (they are held over each base step). Several results share
+    each panel on the y scale of :func:`choose_scale`, said on the panel.
 
     Parameters
     ----------
@@ -128,11 +252,16 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
         marks the sampling instants and the first sample's delay window.
     units : dict, optional
         unit of a signal by variable name (``{"theta": "rad"}``).
+    scale : {"auto", "linear"}
+        ``auto``: each panel on :func:`choose_scale`'s scale (linear for one result);
+        ``linear``: every panel linear.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    if scale not in ("auto", "linear"):
+        raise ValueError(f"scale {scale!r} is not allowed: auto or linear")
     from matplotlib.figure import Figure
 
     results = list(results) if isinstance(results, (list, tuple)) else [results]
@@ -142,24 +271,42 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
     fig = Figure(figsize=(8, 2.4 + 1.9 * n))
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
     t_end = max(float(r.times[-1]) for r in results if len(r.times))
+    panels: list[list] = []
     for row, (ax, name) in enumerate(zip(axes, names)):
         style = "steps-post" if name.startswith("controller.") else "default"
+        columns = []
         for k, result in enumerate(results):
             if name not in result.names:
                 continue
             label = f"{name}, {labels[k]}" if labels else name
-            ax.plot(result.times, result.column(name), drawstyle=style, lw=1.4, label=label)
+            columns.append(result.column(name))
+            ax.plot(result.times, columns[-1], drawstyle=style, lw=1.4, label=label)
+        panels.append(columns)
         ax.set_ylabel(_label(name, units))
         ax.grid(True, alpha=0.3)
         ax.axhline(0.0, color="k", lw=0.6)
         if timing is not None:
             _mark_timing(ax, timing, t_end, legend=row == 0)
         ax.legend(fontsize=7, loc="best")
+    scales = panel_scales(panels) if scale == "auto" else [Scale()] * n
+    for ax, columns, scaled in zip(axes, panels, scales):
+        _apply_scale(ax, scaled, max((_peak(c) for c in columns), default=0.0))
+        if scaled.kind == "symlog":
+            ax.set_ylabel(ax.get_ylabel() + "\n(symmetric log)")
     axes[-1].set_xlabel("time t [s]")
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def _peak(column) -> float:
+    """The largest finite ``|value|`` of a column (0 for none)."""
+    import numpy as np
+
+    values = np.abs(np.asarray(column, dtype=float))
+    values = values[np.isfinite(values)]
+    return float(values.max()) if values.size else 0.0
 
 
 def result_figure(result, title: str, timing: Marks | None = None,
