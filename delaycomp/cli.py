@@ -212,14 +212,14 @@ def _build_parser(sub) -> None:
                    help="with LOOP.toml: override one of its keys (repeatable)")
     b.add_argument("--allow-unstable", action="store_true",
                    help="with LOOP.toml: let an LTI gain through with which the delay-free "
-                        "sampled loop is unstable (the sign guard; see README: loop files)")
+                        "sampled loop is unstable (the sign guard; docs: reference/loop-files)")
     _fmu_kind(b, "build C FMUs only (the default builds them where it can): the delay, "
                  "LTI plant and LTI controller, or with --model the model's plant, "
                  "controller and delays (f, k, step translated to C); an error where it "
                  "cannot")
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
-                        "(see README: the model interface)")
+                        "(docs: reference/model-files)")
 
 
 def _run_parser(sub) -> None:
@@ -265,7 +265,7 @@ def _run_parser(sub) -> None:
                    default="delaycomp",
                    help="FILE.ssp only: the co-simulation master (default: ours; libcosim "
                         "and Ecos need the Jacobi variant, `delaycomp ssp --jacobi`; "
-                        "omsimulator runs either, see README: Run in OpenModelica)")
+                        "omsimulator runs either; docs: reference/ssp)")
     r.add_argument("--period", type=float, default=None, metavar="T",
                    help="FILE.ssp of another tool (no delaycomp annotations): the sampling "
                         "period T [s]")
@@ -390,7 +390,7 @@ def _export_c_parser(sub) -> None:
                    help="set a scenario parameter or a loop file's key (repeatable)")
     c.add_argument("--allow-unstable", action="store_true",
                    help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
-                        "loop is unstable (the sign guard; see README: loop files)")
+                        "loop is unstable (the sign guard; docs: reference/loop-files)")
     c.add_argument("--prefix", required=True, metavar="NAME",
                    help="the C prefix of the files and of every exported name")
     c.add_argument("--out", required=True, type=Path, metavar="DIR",
@@ -406,7 +406,7 @@ def _ssp_parser(sub) -> None:
                             "--out DIR/<scenario>/)")
     _common(p_ssp)
     p_ssp.add_argument("--jacobi", action="store_true",
-                       help="pack the Jacobi variant, for libcosim and Ecos (see README)")
+                       help="pack the Jacobi variant, for libcosim and Ecos (docs: reference/ssp)")
     _fmu_kind(p_ssp, "pack the native C FMUs, an error where the loop has none (the "
                      "default packs them where it can)")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
@@ -420,8 +420,8 @@ def _fmu_kind(p: argparse.ArgumentParser, native_help: str) -> None:
     kind = p.add_mutually_exclusive_group()
     kind.add_argument("--native", action="store_true", help=native_help)
     kind.add_argument("--python", action="store_true",
-                      help="the Python FMUs (pythonfmu: the host needs Python, see README) "
-                           "instead of the native default")
+                      help="the Python FMUs (pythonfmu: the host needs Python; docs: "
+                           "reference/native) instead of the native default")
 
 
 def _chosen_fmus(args, loop) -> dict | None:
@@ -448,7 +448,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="set a scenario parameter or a loop file's key (repeatable)")
     p.add_argument("--allow-unstable", action="store_true",
                    help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
-                        "loop is unstable (the sign guard; see README: loop files)")
+                        "loop is unstable (the sign guard; docs: reference/loop-files)")
     p.add_argument("--fmu-dir", type=Path, default=None,
                    help="folder of built FMUs (default: a per-version cache, built on demand)")
 

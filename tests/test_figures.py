@@ -64,10 +64,9 @@ def test_the_hero_figure_is_the_first_commands_run():
     """The README's hero figure is the plot of the first command's ``run``, which
     compares (``--compare``) and writes both CSVs and the plot.
 
-    The first command is the one proposed in ``scripts/figures.py`` (FIRST_COMMAND);
-    once the README carries it, ``figures.readme_first_command(README text)`` replaces
-    it here."""
-    first = figures.FIRST_COMMAND
+    The first command is the README's, and ``scripts/figures.py`` draws with it."""
+    first = figures.readme_first_command((REPO / "README.md").read_text(encoding="utf-8"))
+    assert first == figures.FIRST_COMMAND
     run = figures.first_run(first)
     assert figures.FIGURES[figures.HERO] == run
     assert _chunks(figures.FIGURES_DIR / figures.HERO)[figures.COMMAND_KEY] == run
