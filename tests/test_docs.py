@@ -23,9 +23,8 @@ def test_tutorial_code_runs_and_prints_what_the_page_shows(tmp_path, monkeypatch
     namespace: dict = {}
     exec(compile(blocks[0], "tutorial-1", "exec"), namespace)
     printed = dict(line.split() for line in capsys.readouterr().out.splitlines())
-    shown = dict(line.split() for line in
-                 re.search(r"prints\n\n```text\n(.*?)```", text, flags=re.S).group(1)
-                 .splitlines())
+    output = re.search(r"prints\n\n(?:<!--.*?-->\n\n)?```text\n(.*?)```", text, flags=re.S)
+    shown = dict(line.split() for line in output.group(1).splitlines())
     assert printed.keys() == shown.keys() == {"compensated", "uncompensated"}
     # dead-beat: the compensated cart is at the origin to round-off (|x0| = 1 scale)
     assert abs(float(printed["compensated"])) < 1e-12
@@ -42,14 +41,6 @@ def test_every_page_in_the_nav_exists():
     assert len(pages) > 15
     missing = [p for p in pages if not (REPO / "docs" / p).is_file()]
     assert missing == []
-
-
-def test_stability_map_page_code_prints_what_its_comment_says(capsys):
-    page = (REPO / "docs" / "howto" / "stability-maps.md").read_text(encoding="utf-8")
-    (block,) = _python_blocks(page)
-    exec(compile(block, "stability-maps", "exec"), {})
-    shown = re.search(r"print\(notes\)\s+# (.*)", block).group(1)
-    assert capsys.readouterr().out.strip() == shown
 
 
 README = REPO / "README.md"
