@@ -10,6 +10,10 @@ reports the scripts in ``bench/`` write), without its title and with its links t
 ``docs/`` made relative to the page; ``<!-- delaycomp:readme SECTION -->`` becomes the
 README's section of that title (its commands, so that the site and the README cannot give
 different ones).
+
+When the site is built, :func:`check_links` follows every link and image of every page of
+it (``on_post_build``): a link to a file that is not there, to an anchor the page does not
+have, or to a folder (which a site opened from disk cannot follow) fails the build.
 """
 
 from __future__ import annotations
@@ -17,7 +21,9 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+from html.parser import HTMLParser
 from pathlib import Path
+from urllib.parse import unquote, urlsplit
 
 CLI_MARK = "<!-- delaycomp:cli -->"
 SCENARIOS_MARK = "<!-- delaycomp:scenarios -->"
@@ -101,3 +107,71 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         lambda m: readme_section(m.group(1), page.file.src_uri), markdown)
     markdown = INCLUDE.sub(lambda m: include(m.group(1), page.file.src_uri), markdown)
     return markdown
+
+
+class _Links(HTMLParser):
+    """The links (``href``, ``src``) and the anchors (``id``, ``name``) of an HTML page."""
+
+    def __init__(self):
+        super().__init__()
+        self.links: list[str] = []
+        self.ids: set[str] = set()
+
+    def handle_starttag(self, tag, attrs):
+        for name, value in attrs:
+            if value is None:
+                continue
+            if name in ("href", "src"):
+                self.links.append(value)
+            elif name in ("id", "name") and tag != "meta":
+                self.ids.add(value)
+
+
+def _parse(path: Path) -> _Links:
+    parser = _Links()
+    parser.feed(path.read_text(encoding="utf-8", errors="replace"))
+    return parser
+
+
+def check_links(site: Path) -> list[str]:
+    """Every broken link of the built ``site``, one line each (``[]`` if none): a relative
+    link or image to a file that is not there, to an anchor its page does not have, or to
+    a folder. Links to other sites are not followed (no network); the 404 page, whose
+    links are absolute by design, is left out."""
+    site = Path(site).resolve()
+    pages: dict[Path, _Links] = {}
+
+    def page(path: Path) -> _Links:
+        if path not in pages:
+            pages[path] = _parse(path)
+        return pages[path]
+
+    problems = []
+    for html in sorted(site.rglob("*.html")):
+        if html.name == "404.html":
+            continue
+        for url in page(html).links:
+            parts = urlsplit(url)
+            if parts.scheme or parts.netloc or url.startswith("/"):
+                continue  # another site, mailto:, data:, or the server's root
+            where = f"{html.relative_to(site)}: {url}"
+            target = (html.parent / unquote(parts.path)).resolve() if parts.path else html
+            if parts.path.endswith("/") or target.is_dir():
+                problems.append(f"{where}: a folder (a site opened from disk cannot follow it)")
+            elif not target.is_file():
+                problems.append(f"{where}: no such file")
+            elif not target.is_relative_to(site):
+                problems.append(f"{where}: outside the site")
+            elif parts.fragment and target.suffix == ".html" \
+                    and unquote(parts.fragment) not in page(target).ids:
+                problems.append(f"{where}: no anchor #{parts.fragment} there")
+    return problems
+
+
+def on_post_build(config) -> None:
+    from mkdocs.exceptions import PluginError
+
+    problems = check_links(Path(config["site_dir"]))
+    if problems:
+        raise PluginError(f"{len(problems)} broken links in the built site:\n"
+                          + "\n".join(problems))

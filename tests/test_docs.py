@@ -148,13 +148,44 @@ def test_site_commands_are_the_readmes():
     assert "<!-- delaycomp:readme The two commands -->" in index
     assert "<!-- delaycomp:readme Documentation -->" in index
     assert "```sh" not in index
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("hooks", REPO / "scripts" / "mkdocs_hooks.py")
-    hooks = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(hooks)
+    hooks = _hooks()
     body = hooks.readme_section("The two commands", "index.md")
     first = re.search(r"```sh\n(.*)\n```", README.read_text(encoding="utf-8")).group(1)
     assert first in body
     # links into docs/ become relative to the page that includes them
     assert "](docs/" not in hooks.readme_section("Documentation", "howto/page.md")
     assert "](../tutorial.md)" in hooks.readme_section("Documentation", "howto/page.md")
+
+
+def _hooks():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("hooks", REPO / "scripts" / "mkdocs_hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    return hooks
+
+
+def test_the_link_checker_finds_what_a_reader_would_stumble_on(tmp_path):
+    """``mkdocs build`` (CI, strict) follows every link of the built site
+    (``scripts/mkdocs_hooks.py``, ``on_post_build``); here on a site of four pages."""
+    site = tmp_path / "site"
+    (site / "howto").mkdir(parents=True)
+    (site / "index.html").write_text(
+        '<a href="howto/a.html#step">ok</a> <a href="howto/a.html#nowhere">anchor</a> '
+        '<a href="howto/">folder</a> <img src="figures/gone.png"> '
+        '<a href="https://example.org/x">other site</a> <a href="#top">here</a>'
+        '<h1 id="top">t</h1>', encoding="utf-8")
+    (site / "howto" / "a.html").write_text('<h2 id="step">s</h2><a href="../index.html">up</a>'
+                                           '<a href="../../outside.html">out</a>',
+                                           encoding="utf-8")
+    (tmp_path / "outside.html").write_text("x", encoding="utf-8")
+    (site / "404.html").write_text('<a href="/whatever/">root</a>', encoding="utf-8")
+    problems = _hooks().check_links(site)
+    assert problems == [
+        "howto/a.html: ../../outside.html: outside the site",
+        "index.html: howto/a.html#nowhere: no anchor #nowhere there",
+        "index.html: howto/: a folder (a site opened from disk cannot follow it)",
+        "index.html: figures/gone.png: no such file",
+    ]
+    mkdocs = (REPO / "mkdocs.yml").read_text(encoding="utf-8")
+    assert "use_directory_urls: false" in mkdocs and "scripts/mkdocs_hooks.py" in mkdocs
