@@ -189,3 +189,4 @@ def test_the_link_checker_finds_what_a_reader_would_stumble_on(tmp_path):
     ]
     mkdocs = (REPO / "mkdocs.yml").read_text(encoding="utf-8")
     assert "use_directory_urls: false" in mkdocs and "scripts/mkdocs_hooks.py" in mkdocs
+
