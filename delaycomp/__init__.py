@@ -33,22 +33,23 @@ __path__ = layout.whole(__name__, __path__)
 layout.install()
 
 #: the public API (:mod:`delaycomp.api`), each name imported from there on first access
-API = ("BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError", "Result",
-       "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
-       "export_c", "iter_sweep", "load", "lti", "model", "plot", "run", "sweep", "to_ssp")
+_API = ("BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError", "Result",
+        "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
+        "export_c", "iter_sweep", "load", "lti", "model", "plot", "run", "sweep", "to_ssp")
 
-__all__ = list(API)
+__all__ = list(_API)
 
 
 def __getattr__(name: str):
     """An API name, from :mod:`delaycomp.api` (imported on first access)."""
-    if name in API:
+    if name in _API:
         return getattr(importlib.import_module("delaycomp.api"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *API})
+    """The module's names and the API's."""
+    return sorted({*globals(), *_API})
 
 
 class _Package(types.ModuleType):
@@ -57,7 +58,7 @@ class _Package(types.ModuleType):
     over the API function (the import system binds each submodule on its package)."""
 
     def __setattr__(self, name: str, value) -> None:
-        if name in API and isinstance(value, types.ModuleType):
+        if name in _API and isinstance(value, types.ModuleType):
             return
         super().__setattr__(name, value)
 

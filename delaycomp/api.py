@@ -17,6 +17,14 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 - :func:`critical_delay` gives the largest measurement delay the uncompensated loop
   survives (LTI).
 
+**One face.** Every function that takes a loop takes it in the same three forms: a
+:class:`~delaycomp.system.Loop`, a loop file's path (str or Path) or a scenario's name,
+with overrides (``sets=["r=0.4"]`` or ``sets={"r": 0.4}``); :func:`sweep` builds each
+grid point of a ``Loop`` again from the loop-file data it keeps
+(:attr:`~delaycomp.system.Loop.origin`). The same functions are importable from
+``delaycomp`` itself (``delaycomp.run``, ``delaycomp.sweep``, ...), imported on first use.
+A message names what was passed in a short form (:func:`~delaycomp.errors.short`).
+
 Failures raise named exceptions, all :class:`~delaycomp.errors.DelaycompError`:
 :class:`~delaycomp.errors.ParameterError` (a value out of range, the sign guard),
 :class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.maths.model.ModelError`,
@@ -47,6 +55,14 @@ True
 >>> fig = api.plot([res, bare], labels=["compensated", "uncompensated"])
 >>> type(fig).__name__
 'Figure'
+
+The same from ``delaycomp`` itself, with a scenario by name:
+
+>>> import delaycomp
+>>> delaycomp.run is api.run
+True
+>>> delaycomp.run("example-3.6", 5.0, engine="inprocess", sets={"r": 0.5}).success
+True
 """
 
 from __future__ import annotations

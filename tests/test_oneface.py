@@ -121,9 +121,10 @@ def test_a_loop_sweeps_to_the_rows_of_its_loop_file(tmp_path, engine):
     assert rows == api.sweep(str(_file(tmp_path, SCALAR_TOML, "scalar")), grid,
                              engine=engine)
     assert [row["stable"] for row in rows] == [1, 0, 1, 0]
-    # at r = 0 the sampled loop is x+ = (e + (e - 1) K) x: rho = |e - 1.5 (e - 1)|
+    # at r = 0 the sampled loop is x+ = (e + (e - 1) K) x: rho = |e - 1.5 (e - 1)|, which
+    # the trajectory's estimate finds within 0.017 (delaycomp.studies.sweep's docstring)
     e = np.e
-    assert rows[0]["rho"] == pytest.approx(abs(e - 1.5 * (e - 1)), abs=0.02)
+    assert rows[0]["rho"] == pytest.approx(abs(e - 1.5 * (e - 1)), abs=0.017)
 
 
 def test_a_model_loop_sweeps_over_its_own_parameters(tmp_path):
@@ -147,6 +148,15 @@ def test_a_loop_of_a_scenario_or_a_loop_file_sweeps_as_its_source():
     assert rows == api.sweep("example-3.6", {"r": [0.0, 0.5]}, stop_time=10.0)
     path = loop_file("example-3.6")
     assert list(api.iter_sweep(api.load(path), {"r": [0.0, 0.5]}, stop_time=10.0)) == rows
+
+
+@pytest.mark.fmu
+def test_a_loop_sweeps_on_the_fmu_engine_as_in_process():
+    """Each point's FMUs built from the loop's data (prebuilt once) and run through fmpy:
+    the in-process engine's rows (the same slaves, without the FMI layer)."""
+    grid = {"r": [0.0, 0.36]}
+    assert api.sweep(double(), grid, engine="fmu") == api.sweep(double(), grid,
+                                                                engine="inprocess")
 
 
 def test_a_loop_sweeps_on_worker_processes(tmp_path):
@@ -257,7 +267,7 @@ def test_import_delaycomp_is_light_and_offers_the_api():
         or m in ("delaycomp.api", "delaycomp.system", "delaycomp.maths")]
     assert not heavy, got["light"]
     assert all(got["same"]) and len(got["same"]) == len(api.__all__)
-    assert set(api.__all__) <= set(got["all"]) <= set(got["names"])
+    assert got["all"] == api.__all__ and set(got["all"]) <= set(got["names"])
     assert {"run", "load", "lti", "model", "sweep", "plot", "ParameterError"} <= set(
         got["names"])
 
