@@ -9,8 +9,19 @@ studies (:mod:`delaycomp.studies`) and verification (:mod:`delaycomp.verify`), a
 (:mod:`delaycomp.api`, :mod:`delaycomp.cli`). :mod:`delaycomp.layout` keeps the modules'
 earlier names importable.
 
+The Python API is importable from here: ``delaycomp.run``, ``delaycomp.load``,
+``delaycomp.lti``, ``delaycomp.sweep``, ... are :mod:`delaycomp.api`'s, imported on first
+use (PEP 562), so that ``import delaycomp`` stays light. The earlier module names that are
+now API names (``delaycomp.lti``, ``delaycomp.model``, ``delaycomp.build``,
+``delaycomp.sweep``) still import as modules (``importlib.import_module``), but the
+attribute is the API function.
+
 This module must stay light: it is imported inside every FMU.
 """
+
+import importlib
+import sys
+import types
 
 from delaycomp import layout
 
@@ -20,3 +31,36 @@ __version__ = "0.1.0"
 __path__ = layout.whole(__name__, __path__)
 
 layout.install()
+
+#: the public API (:mod:`delaycomp.api`), each name imported from there on first access
+_API = ("BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError", "Result",
+        "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
+        "export_c", "iter_sweep", "load", "lti", "model", "plot", "run", "sweep", "to_ssp")
+
+__all__ = list(_API)
+
+
+def __getattr__(name: str):
+    """An API name, from :mod:`delaycomp.api` (imported on first access)."""
+    if name in _API:
+        return getattr(importlib.import_module("delaycomp.api"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the API's."""
+    return sorted({*globals(), *_API})
+
+
+class _Package(types.ModuleType):
+    """The package's module type: a submodule imported under an earlier name that is an
+    API name now (``import delaycomp.lti``, :data:`delaycomp.layout.MOVED`) is not bound
+    over the API function (the import system binds each submodule on its package)."""
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in _API and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

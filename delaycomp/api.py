@@ -17,6 +17,14 @@ A loop comes from a loop file (:func:`load`), from matrices or a python-control
 - :func:`critical_delay` gives the largest measurement delay the uncompensated loop
   survives (LTI).
 
+**One face.** Every function that takes a loop takes it in the same three forms: a
+:class:`~delaycomp.system.Loop`, a loop file's path (str or Path) or a scenario's name,
+with overrides (``sets=["r=0.4"]`` or ``sets={"r": 0.4}``); :func:`sweep` builds each
+grid point of a ``Loop`` again from the loop-file data it keeps
+(:attr:`~delaycomp.system.Loop.origin`). The same functions are importable from
+``delaycomp`` itself (``delaycomp.run``, ``delaycomp.sweep``, ...), imported on first use.
+A message names what was passed in a short form (:func:`~delaycomp.errors.short`).
+
 Failures raise named exceptions, all :class:`~delaycomp.errors.DelaycompError`:
 :class:`~delaycomp.errors.ParameterError` (a value out of range, the sign guard),
 :class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.maths.model.ModelError`,
@@ -47,10 +55,19 @@ True
 >>> fig = api.plot([res, bare], labels=["compensated", "uncompensated"])
 >>> type(fig).__name__
 'Figure'
+
+The same from ``delaycomp`` itself, with a scenario by name:
+
+>>> import delaycomp
+>>> delaycomp.run is api.run
+True
+>>> delaycomp.run("example-3.6", 5.0, engine="inprocess", sets={"r": 0.5}).success
+True
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -61,14 +78,15 @@ from delaycomp.errors import (
     DelaycompError,
     ParameterError,
     SimulationFailed,
+    short,
 )
 from delaycomp.maths.model import ModelError
 from delaycomp.names import FMU_KINDS
 from delaycomp.orchestrator.simulate import Result
-from delaycomp.system import Loop
+from delaycomp.system import Loop, Origin
 from delaycomp.system import lti_loop as _lti_loop
 from delaycomp.system import model_loop as _model_loop
-from delaycomp.system.loopfile import DEFAULT_N, LoopFile, SignError, check_sign
+from delaycomp.system.loopfile import DEFAULT_N, SignError, check_sign
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
            "Result", "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
@@ -76,23 +94,90 @@ __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterErr
            "to_ssp"]
 
 
-def load(path: str | Path, **overrides) -> Loop:
-    """The loop of a loop file (TOML), with key overrides.
+#: a loop, as every function here takes one: a :class:`Loop`, a loop file's path, or a
+#: scenario's name
+LoopLike = Loop | str | Path
+
+
+def load(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
+         **overrides) -> Loop:
+    """The loop of a loop file (TOML), a scenario or a :class:`Loop`, with key overrides.
 
     Parameters
     ----------
-    path : str or Path
-        The loop file (see :mod:`delaycomp.system.loopfile` for its keys).
+    source : Loop, str or Path
+        A loop file's path (see :mod:`delaycomp.system.loopfile` for its keys), a
+        scenario's name (``delaycomp list``) or a :class:`Loop` (built again with the
+        overrides from the loop-file data it keeps).
+    sets : sequence of str or mapping, optional
+        Overrides as ``--set`` takes them: ``["r=0.4", "controller.K=-1,-2"]``, or a
+        mapping ``{"r": 0.4, "plant.x0": [1, 0]}``.
     **overrides
-        Keys to override, as ``--set`` takes them; a section key is written with a double
-        underscore: ``r=0.4``, ``plant__x0=[1, 0]``, ``controller__mode="uncompensated"``.
+        Keys to override; a section key is written with a double underscore: ``r=0.4``,
+        ``plant__x0=[1, 0]``, ``controller__mode="uncompensated"``. Short names serve
+        too: ``x0``, ``u0``, ``K``, ``mode`` and a model's own parameters
+        (:func:`~delaycomp.system.loopfile.long_key`). A scenario takes its own parameter
+        names (``k``, ``r``, ...).
 
     Returns
     -------
     Loop
+
+    Examples
+    --------
+    >>> from delaycomp import api
+    >>> api.load("example-3.6", r=0.5)
+    <Loop 'example-3.6' n=1 m=1 T=1 N=100>
+    >>> loop = api.lti([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, x0=[1.0], name="ex")
+    >>> api.load(loop, sets=["r=0.5"], K=-1.5).lti.K.tolist()
+    [[-1.5]]
     """
-    sets = {key.replace("__", "."): value for key, value in overrides.items()}
-    return LoopFile(path).loop(sets)
+    return _as_loop(source, sets, overrides)
+
+
+def _as_loop(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
+             overrides: Mapping[str, object] | None = None) -> Loop:
+    """The :class:`Loop` of ``source`` with ``sets`` and ``overrides`` applied: the one
+    reading of a loop for every function here (:func:`~delaycomp.paper.scenarios.open_source`:
+    a :class:`Loop`, a loop file's path, a scenario's name; anything else is refused in
+    one short line naming it)."""
+    from delaycomp.paper.scenarios import open_source
+
+    assignments = _assignments(sets, overrides)
+    if isinstance(source, Loop) and not assignments:
+        return source
+    return open_source(source).loop(assignments)
+
+
+def _assignments(sets: Sequence[str] | Mapping[str, object] = (),
+                 overrides: Mapping[str, object] | None = None) -> list[str]:
+    """``sets`` (``NAME=VALUE`` texts, or a mapping) and ``overrides`` (``section__key``
+    names) as ``NAME=VALUE`` texts, as ``--set`` takes them."""
+    if isinstance(sets, str):
+        raise ParameterError(f"sets = {short(sets)} is not allowed: give a list of "
+                             "NAME=VALUE texts or a mapping")
+    items: list[str | tuple[str, object]] = [
+        *(sets.items() if isinstance(sets, Mapping) else sets),
+        *((k.replace("__", "."), v) for k, v in (overrides or {}).items())]
+    return [item if isinstance(item, str) else f"{item[0]}={_text(item[1])}"
+            for item in items]
+
+
+def _text(value) -> str:
+    """A Python value as ``--set`` reads it (numbers to the bit, lists as TOML arrays)."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_text(v)}"
+                               for k, v in value.items()) + "}"
+    if isinstance(value, (int, float, np.number)):
+        return repr(float(value))
+    try:
+        return json.dumps(np.asarray(value, dtype=float).tolist())
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def _matrices(plant, B):
@@ -155,7 +240,25 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
                      name=name, title=f"LTI loop {name}", stop_time=stop_time)
     if not allow_unstable:
         check_sign(A, B, K, T)
-    return loop
+    d = loop.lti
+    assert d is not None
+    return loop.replace(origin=Origin(_top_data(
+        loop, d.r, d.tau, d.r_true, d.tau_true,
+        plant={"A": d.A.tolist(), "B": d.B.tolist(), "x0": np.ravel(d.x0).tolist()},
+        controller={"K": d.K.tolist(), "u0": np.ravel(d.u0).tolist(), "mode": d.mode,
+                    "allow_unstable": bool(allow_unstable)})))
+
+
+def _top_data(loop: Loop, r: float, tau: float, r_true, tau_true, **sections) -> dict:
+    """The loop-file data of a loop built by :func:`lti` or :func:`model` (its
+    :attr:`~delaycomp.system.Loop.origin`): what a sweep of it resolves each point from."""
+    data: dict = {"name": loop.name, "title": loop.title, "T": loop.T, "N": loop.N,
+                  "r": r, "tau": tau, **sections}
+    for key, value in (("r_true", r_true), ("tau_true", tau_true),
+                       ("stop_time", loop.stop_time)):
+        if value is not None:
+            data[key] = value
+    return data
 
 
 def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
@@ -171,14 +274,22 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
     from delaycomp.maths.model import load_model
 
     if mode not in ("compensated", "uncompensated"):
-        raise ParameterError(f"mode = {mode!r} is not allowed: must be compensated or "
+        raise ParameterError(f"mode = {short(mode)} is not allowed: must be compensated or "
                              "uncompensated")
+    path = Path(path).resolve()
     m = load_model(path).m
     u0 = np.zeros(m) if u0 is None else u0
-    return _model_loop(path, T, r, tau, N, x0, u0, params=parameters,
+    loop = _model_loop(path, T, r, tau, N, x0, u0, params=parameters,
                        predictor="none" if mode == "uncompensated" else predictor, pad=pad,
-                       name=Path(path).stem, title=f"model {Path(path).stem}",
-                       stop_time=stop_time)
+                       name=path.stem, title=f"model {path.stem}", stop_time=stop_time)
+    controller: dict = {"mode": mode, "u0": np.ravel(np.asarray(u0, dtype=float)).tolist(),
+                        "pad": bool(pad), **parameters}
+    if predictor is not None:
+        controller["predictor"] = predictor
+    return loop.replace(origin=Origin(_top_data(
+        loop, r, tau, None, None,
+        plant={"model": str(path), "x0": np.ravel(np.asarray(x0, dtype=float)).tolist()},
+        controller=controller)))
 
 
 #: which FMUs :func:`run` and :func:`to_ssp` use: the native C FMUs where the loop has
@@ -188,11 +299,11 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
 
 def _fmu_kind(fmus: str) -> None:
     if fmus not in FMU_KINDS:
-        raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
+        raise ParameterError(f"fmus = {short(fmus)} is not allowed: must be one of "
                              f"{', '.join(FMU_KINDS)}")
 
 
-def choose_fmus(loop: Loop, fmus: str = "auto", fmu_dir: str | Path | None = None,
+def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None = None,
                 engine: str = "fmu") -> tuple[dict[str, Path] | None, str | None]:
     """The FMU files a run of ``loop`` uses, and why not the native ones where it could
     have: ``(files, why)``, ``files`` ``None`` for the Python FMUs of the build cache.
@@ -210,6 +321,7 @@ def choose_fmus(loop: Loop, fmus: str = "auto", fmu_dir: str | Path | None = Non
     (None, None)
     """
     _fmu_kind(fmus)
+    loop = _as_loop(loop)
     if engine != "fmu":
         if fmus == "native":
             raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
@@ -225,10 +337,11 @@ def choose_fmus(loop: Loop, fmus: str = "auto", fmu_dir: str | Path | None = Non
     return native_or_why(loop, native_dir)
 
 
-def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
+def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         fmu_dir: str | Path | None = None, fmus: str | Mapping[str, Path] = "auto",
         every: int = 1, sink=None, keep: bool = True, progress=None,
-        watchdog: float | None = None) -> Result:
+        watchdog: float | None = None,
+        sets: Sequence[str] | Mapping[str, object] = ()) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (:data:`FMU_KINDS`): with the FMU engine, the native C
@@ -246,10 +359,21 @@ def run(loop: Loop, stop_time: float | None = None, *, engine: str = "fmu",
     An FMU file of another tool in the loop runs in a child process of its own; a call of
     it that takes longer than ``watchdog`` seconds (default: 10 s, or 100 base steps if
     longer) stops the run, as does the FMU ending or crashing its process
-    (:mod:`delaycomp.orchestrator.isolated`)."""
+    (:mod:`delaycomp.orchestrator.isolated`).
+
+    ``loop`` is a :class:`Loop`, a loop file's path or a scenario's name, with ``sets``
+    (``["r=0.4"]`` or ``{"r": 0.4}``) as :func:`load` takes them.
+
+    Examples
+    --------
+    >>> res = run("example-3.6", 5.0, engine="inprocess", sets={"r": 0.5})
+    >>> float(res.times[-1]), len(res.times)
+    (5.0, 501)
+    """
     from delaycomp.orchestrator.isolated import check_watchdog
     from delaycomp.orchestrator.simulate import run_loop
 
+    loop = _as_loop(loop, sets)
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
         raise ParameterError("stop_time is required (the loop has none)")
@@ -280,8 +404,9 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
     return figure(results, title, labels)
 
 
-def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
-          fmus: str = "auto", info: Callable[[str], None] | None = None):
+def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
+          fmus: str = "auto", info: Callable[[str], None] | None = None,
+          sets: Sequence[str] | Mapping[str, object] = ()):
     """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
     (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
     ``<name>_input_delay.fmu``) with the loop's values as their start values, and
@@ -291,8 +416,9 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
 
     Parameters
     ----------
-    loop : Loop
-        The loop (:func:`load`, :func:`lti`, :func:`model`); its ``name`` names the files.
+    loop : Loop, str or Path
+        The loop (:func:`load`, :func:`lti`, :func:`model`), a loop file's path or a
+        scenario's name; its ``name`` names the files.
     out : path
         Output folder (created; files of those names are replaced).
     only : sequence of str, optional
@@ -302,6 +428,8 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
         with a note in ``.notes`` otherwise), only native ones, or the Python ones.
     info : callable, optional
         Hears what is being built, one line at a time (the command line's ``-v``).
+    sets : sequence of str or mapping, optional
+        Overrides, as :func:`load` takes them.
 
     Returns
     -------
@@ -320,10 +448,11 @@ def build(loop: Loop, out: str | Path, *, only: Sequence[str] | None = None,
     """
     from delaycomp.formats.loopbuild import build_loop
 
-    return build_loop(loop, out, only=only, fmus=fmus, info=info)
+    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info)
 
 
-def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
+def export_c(loop: LoopLike, out: str | Path, prefix: str, *,
+             sets: Sequence[str] | Mapping[str, object] = ()) -> list[Path]:
     """Write the controller of ``loop`` as plain C for an embedded target: ``out/prefix.h``
     and ``out/prefix.c`` (C99, no heap, no I/O, no global state), with ``prefix_init``,
     ``prefix_sample`` and ``prefix_output`` (the header documents them and their return
@@ -332,12 +461,15 @@ def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
 
     Parameters
     ----------
-    loop : Loop
-        A loop whose controller is delaycomp's (LTI, or a model file's).
+    loop : Loop, str or Path
+        A loop whose controller is delaycomp's (LTI, or a model file's), a loop file's
+        path or a scenario's name.
     out : path
         The folder (created).
     prefix : str
         A C identifier: the files' names and every exported name start with it.
+    sets : sequence of str or mapping, optional
+        Overrides, as :func:`load` takes them.
 
     Returns
     -------
@@ -355,19 +487,22 @@ def export_c(loop: Loop, out: str | Path, prefix: str) -> list[Path]:
     """
     from delaycomp.formats.exportc import export_c as _export_c
 
-    return _export_c(loop, out, prefix)
+    return _export_c(_as_loop(loop, sets), out, prefix)
 
 
-def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
+def to_ssp(loop: LoopLike, out: str | Path, *, jacobi: bool = False,
            fmu_dir: str | Path | None = None, fmus: str = "auto",
-           notes: list[str] | None = None) -> Path:
+           notes: list[str] | None = None,
+           sets: Sequence[str] | Mapping[str, object] = ()) -> Path:
     """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
     variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`).
     ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``: where they
     do not, the Python ones, and ``notes`` hears why), only native ones, or the Python
-    ones. ``delaycomp ssp`` on the command line."""
+    ones. ``delaycomp ssp`` on the command line. ``loop``: a :class:`Loop`, a loop file's
+    path or a scenario's name, with ``sets`` as :func:`load` takes them."""
     from delaycomp.formats import ssp
     _fmu_kind(fmus)
+    loop = _as_loop(loop, sets)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
     if jacobi:
         from delaycomp.verify.thirdparty import pack_jacobi
@@ -391,7 +526,8 @@ def to_ssp(loop: Loop, out: str | Path, *, jacobi: bool = False,
     return path
 
 
-def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = (),
+def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
+          sets: Sequence[str] | Mapping[str, object] = (),
           stop_time: float | None = None, engine: str = "batch", workers: int = 1,
           exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
           scheduler: str | None = None, notes: list[str] | None = None) -> list[dict]:
@@ -402,8 +538,14 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     divergence (which is unstable, ``rho = inf``) ``rho`` and ``stable`` are ``None``
     (:mod:`delaycomp.studies.sweep`).
 
-    ``source`` is a scenario name or a loop file's path; grid and ``sets`` names are its
-    keys (``r``, ``T``, ``controller.K``, ...). ``engine`` is ``batch`` (all points
+    ``source`` is a scenario name, a loop file's path or a :class:`Loop` (from
+    :func:`load`, :func:`lti` or :func:`model`: it keeps the loop-file data it was built
+    from, and each point is built again from it); grid and ``sets`` names are a scenario's
+    parameters or a loop's loop-file keys (``r``, ``T``, ``tau``, ``N``, ``controller.K``,
+    ...) or their short names (``x0``, ``u0``, ``K``, ``mode``, a model's own parameters;
+    a single number for a vector or matrix key is a list of one: ``K=-2`` is
+    ``[[-2]]``). A :class:`Loop` sweeps to the rows of the same loop given as a loop file.
+    ``engine`` is ``batch`` (all points
     advanced together, vectorized; points it cannot take run on the per-point engine),
     ``inprocess`` or ``fmu`` (point by point); the results agree (tested). ``workers``
     processes or a Dask ``scheduler`` address share the work; ``array_backend`` (numpy,
@@ -428,14 +570,24 @@ def sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = 
     0.718282
     >>> notes
     ['batch engine (numpy, cpu): 4 of 4 points in 1 chunk']
+
+    A loop of your own, over its gain and delay:
+
+    >>> loop = lti([[1.0]], [[1.0]], [[-2.0]], T=1.0, x0=[1.0], mode="uncompensated",
+    ...            allow_unstable=True)
+    >>> rows = sweep(loop, {"K": [-1.5, -2.0], "r": [0.0, 0.5]}, stop_time=10.0)
+    >>> [(row["K"], row["r"], row["stable"]) for row in rows]
+    [(-1.5, 0.0, 1), (-1.5, 0.5, 0), (-2.0, 0.0, 1), (-2.0, 0.5, 0)]
     """
     from delaycomp.studies.sweep import run_sweep
 
-    return run_sweep(str(source), _axes(grid), list(sets), stop_time, engine, workers,
-                     scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+    return run_sweep(_source(source), _axes(grid), _assignments(sets), stop_time, engine,
+                     workers, scheduler, None, exact, array_backend, chunk, notes,
+                     verbosity=0)
 
 
-def iter_sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[str] = (),
+def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
+               sets: Sequence[str] | Mapping[str, object] = (),
                stop_time: float | None = None, engine: str = "batch", workers: int = 1,
                exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
                scheduler: str | None = None,
@@ -457,24 +609,55 @@ def iter_sweep(source, grid: Mapping[str, Sequence[float]], *, sets: Sequence[st
     """
     from delaycomp.studies.sweep import iter_sweep as stream
 
-    return stream(str(source), _axes(grid), list(sets), stop_time, engine, workers,
-                  scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+    return stream(_source(source), _axes(grid), _assignments(sets), stop_time, engine,
+                  workers, scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+
+
+def _source(source: LoopLike):
+    """What a sweep runs, read by the same reading as :func:`_as_loop`
+    (:func:`~delaycomp.paper.scenarios.open_source`): a :class:`Loop`'s loop-file data, a
+    loop file's path or a scenario's name."""
+    from delaycomp.paper.scenarios import open_source
+
+    opened = open_source(source)  # refuses what is none of them, in one short line
+    return str(source) if isinstance(source, (str, Path)) else opened
 
 
 def _axes(grid: Mapping[str, Sequence[float]]) -> list:
     """The :class:`~delaycomp.studies.axes.Axis` of each grid parameter."""
     from delaycomp.studies.axes import Axis
 
-    return [Axis(name, tuple(float(v) for v in values)) for name, values in grid.items()]
+    if not isinstance(grid, Mapping):
+        raise ParameterError(f"grid = {short(grid)} is not allowed: give a mapping of "
+                             "parameter name -> values")
+    axes = []
+    for name, values in grid.items():
+        try:
+            axes.append(Axis(name, tuple(float(v) for v in np.ravel(values))))
+        except (TypeError, ValueError):
+            raise ParameterError(f"grid[{name!r}] = {short(values)} is not allowed: must "
+                                 "be numbers") from None
+    return axes
 
 
-def critical_delay(loop: Loop) -> float:
+def critical_delay(loop: LoopLike, *,
+                   sets: Sequence[str] | Mapping[str, object] = ()) -> float:
     """The largest measurement delay ``r_c`` for which the *uncompensated* LTI loop is
     stable, from the spectral radius of the exact lifted model (the loop's own ``r`` is not
-    used)."""
+    used). ``loop``: a :class:`Loop`, a loop file's path or a scenario's name, with
+    ``sets`` as :func:`load` takes them.
+
+    Examples
+    --------
+    Example 3.6 with ``k = 2`` (``r_c = 0.203``, see :func:`sweep`):
+
+    >>> round(critical_delay("example-3.6", sets={"k": 2.0}), 3)
+    0.203
+    """
     from delaycomp.maths.lti import critical_delay as search
     from delaycomp.maths.lti import lifted_loop
 
+    loop = _as_loop(loop, sets)
     d = loop.lti
     if d is None:
         raise ParameterError(f"critical_delay needs an LTI loop; {loop.name} is not")

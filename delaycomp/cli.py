@@ -52,7 +52,7 @@ import time
 from pathlib import Path
 
 from delaycomp import __version__
-from delaycomp.errors import BadFileError, DelaycompError, SimulationFailed, SspError
+from delaycomp.errors import BadFileError, DelaycompError, SimulationFailed, SspError, short
 from delaycomp.maths.model import ModelError
 from delaycomp.names import LOOP_GROUPS
 from delaycomp.paper import scenarios
@@ -135,7 +135,7 @@ def _file_path(text: str) -> Path:
     """An output file's path; a name ending in a separator is a folder, refused here
     (``Path`` would drop the separator)."""
     if text.endswith(("/", os.sep)):
-        raise argparse.ArgumentTypeError(f"{text!r} is a folder: give a file name such as "
+        raise argparse.ArgumentTypeError(f"{short(text)} is a folder: give a file name such as "
                                          f"{text}result.csv (or .png for a plot)")
     return Path(text)
 
@@ -806,7 +806,7 @@ def _foreign(args):
     for item in args.role:
         name, sep, role = item.partition("=")
         if not sep or not name:
-            raise UsageError(f"--role {item!r}: expected NAME=ROLE")
+            raise UsageError(f"--role {short(item)}: expected NAME=ROLE")
         roles[name.strip()] = role.strip()
     return Foreign(args.period, args.steps, roles)
 
@@ -1039,7 +1039,7 @@ def _cmd_check(args) -> int:
         if args.master:
             for name in args.master:
                 if name not in check.PROVIDERS.masters:
-                    raise KeyError(f"unknown master {name!r}: allowed are "
+                    raise KeyError(f"unknown master {short(name)}: allowed are "
                                    f"{', '.join(check.PROVIDERS.masters)}")
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
@@ -1063,7 +1063,7 @@ def _cmd_crosscheck(args) -> int:
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
     if args.out.exists() and not args.out.is_dir():
-        raise UsageError(f"--out {str(args.out)!r} is not a folder")
+        raise UsageError(f"--out {short(str(args.out))} is not a folder")
     made = crosscheck.generate(args.out, cases, args.fmu_dir, with_fmus=not args.no_fmu)
     print(f"wrote {len(made)} cross-check models under {crosscheck.models_dir(args.out)}")
     return 0
@@ -1073,7 +1073,7 @@ def _cmd_export_loop(args) -> int:
     from delaycomp.verify.container import export_loop
 
     if args.out.suffix != ".fmu":
-        raise UsageError(f"--out {str(args.out)!r} is not allowed: must end in .fmu")
+        raise UsageError(f"--out {short(str(args.out))} is not allowed: must end in .fmu")
     _outputs(args)
     _, _, loop = _loop(args)
     fmus = _chosen_fmus(args, loop)

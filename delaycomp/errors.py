@@ -32,6 +32,30 @@ def shown(text: str, limit: int = 60) -> str:
     return f"{text[:half]}...{text[-half:]}"
 
 
+def short(obj, limit: int = 80) -> str:
+    """``obj`` as a message names what a user passed in: a string quoted (:func:`shown`:
+    its start and end where long), anything else by its type and the start and end of its
+    ``repr``, on one line of at most about ``limit`` characters (never a multi-kilobyte
+    ``repr`` of a loop, a dict or an array).
+
+    >>> short("example-9.9"), short(3.5), short(["a"] * 100, 30)
+    ("'example-9.9'", 'float 3.5', "list ['a', 'a...a', 'a', 'a']")
+    >>> len(short({"plant": {"A": [[0.0] * 50] * 50}})) <= 80
+    True
+    """
+    if isinstance(obj, str):
+        return repr(shown(obj, limit))
+    try:
+        text = repr(obj)
+    except Exception:  # noqa: BLE001 - a broken repr still gets its type named
+        text = object.__repr__(obj)
+    text = " ".join(text.split())
+    kind = type(obj).__name__
+    if not text.startswith(("<", kind)):
+        text = f"{kind} {text}"
+    return shown(text, limit)
+
+
 def is_divergence(reason: str, ours: bool = True) -> bool:
     """Whether a failure's ``reason`` is the loop's own divergence, as reported by one of
     delaycomp's own components (``ours``; another tool's FMU may use the same word for

@@ -24,9 +24,14 @@ into the Python FMUs with the maths.
 
 Examples
 --------
->>> import delaycomp.lti, delaycomp.maths.lti
->>> delaycomp.lti is delaycomp.maths.lti
+>>> import delaycomp.grid, delaycomp.maths.grid
+>>> delaycomp.grid is delaycomp.maths.grid
 True
+
+Four earlier names are API names now (``delaycomp.lti``, ``delaycomp.model``,
+``delaycomp.build``, ``delaycomp.sweep``): they import as the modules
+(``importlib.import_module("delaycomp.lti")``), while the attribute ``delaycomp.lti`` is
+the API function (``delaycomp/__init__.py``).
 >>> import delaycomp.orchestrator.master
 >>> delaycomp.orchestrator.master.__name__
 'delaycomp.orchestrator.master'

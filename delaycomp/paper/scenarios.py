@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from delaycomp.errors import ParameterError, shown
+from delaycomp.errors import ParameterError, short, shown
 from delaycomp.maths.grid import on_grid
 from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_loop, model_loop
 from delaycomp.system import loopfile as lf
@@ -478,7 +478,8 @@ def get(name: str) -> Scenario:
         return SCENARIOS[name]
     except KeyError:
         raise ParameterError(
-            f"unknown scenario {name!r}: allowed are {', '.join(SCENARIOS)}") from None
+            f"unknown scenario {short(name)}: allowed are {', '.join(SCENARIOS)} (or a "
+            "loop file: a path ending in .toml)") from None
 
 
 def loop_file(name: str) -> Path:
@@ -488,12 +489,33 @@ def loop_file(name: str) -> Path:
     return LOOPS_DIR / f"{name}.toml"
 
 
-def open_source(text: str | Path):
-    """A scenario by name, or a loop file (a path ending in ``.toml``).
+def open_source(source: str | Path | Loop | LoopFile | Scenario):
+    """The one reading of what a command or an API call is given as a loop: a
+    :class:`Loop` (its loop-file data, :class:`~delaycomp.system.loopfile.LoopData`), a
+    loop file (a path ending in ``.toml``, str or Path) or a scenario by name (an opened
+    one passes as it is). Anything else is refused in one short line naming it.
 
-    Both give ``name``, ``title``, ``default_stop_time`` (``None`` when a loop file has
+    Each gives ``name``, ``title``, ``default_stop_time`` (``None`` when a loop file has
     none), ``resolve(assignments)``, ``make(resolved) -> Loop`` and ``loop(assignments)``.
+
+    Examples
+    --------
+    >>> open_source("example-3.6"), open_source(loop_file("example-3.6")).name
+    (Scenario('example-3.6'), 'example-3.6')
+    >>> open_source(get("example-3.6").loop(["r=0.5"])).loop(["r=0"]).lti.r
+    0.0
+    >>> open_source(3.5)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: source = float 3.5 is not allowed: give a Loop, ...
     """
-    if str(text).endswith(".toml"):
-        return LoopFile(text)
-    return get(str(text))
+    if isinstance(source, (LoopFile, Scenario)):
+        return source
+    if isinstance(source, Loop):
+        return lf.LoopData.of(source)
+    if not isinstance(source, (str, Path)):
+        raise ParameterError(f"source = {short(source)} is not allowed: give a Loop, a loop "
+                             "file path or a scenario name")
+    if str(source).endswith(".toml"):
+        return LoopFile(source)
+    return get(str(source))

@@ -61,7 +61,7 @@ def format_value(value: float) -> str:
 GRID_BOUND = ("r", "tau", "r_true", "tau_true")
 
 
-def base_loop(scenario: str, sets: list[str]):
+def base_loop(scenario, sets: list[str]):
     """The loop of ``scenario`` with ``sets`` and ``r = 0`` (on every grid), or ``None``
     if that does not resolve."""
     source = open_source(scenario)
@@ -73,7 +73,7 @@ def base_loop(scenario: str, sets: list[str]):
     return None
 
 
-def snap_axes(scenario: str, axes: list[Axis], sets: list[str]) -> tuple[list[Axis], list[str]]:
+def snap_axes(scenario, axes: list[Axis], sets: list[str]) -> tuple[list[Axis], list[str]]:
     """Snap the values of delay axes (``r``, ``tau``, ``r_true``, ``tau_true``) to the
     nearest multiple of the base step ``h = T/N``; return the axes and one note per
     snapped axis (what moved, and by how much at most).

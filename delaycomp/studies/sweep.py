@@ -56,7 +56,8 @@ from delaycomp.errors import ParameterError, is_divergence
 from delaycomp.paper.scenarios import open_source
 from delaycomp.studies.axes import Axis, base_loop, format_value
 from delaycomp.studies.pool import Progress, on_dask, on_processes
-from delaycomp.system import FmuFile, LtiBatch, Timing
+from delaycomp.system import FmuFile, Loop, LtiBatch, Timing
+from delaycomp.system.loopfile import LoopData
 from delaycomp.tmpfiles import new_file
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
@@ -68,8 +69,9 @@ METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time", "failed"
 class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
-    #: a scenario name or a loop file's path
-    scenario: str
+    #: a scenario name, a loop file's path, or a loop's own loop-file data (a sweep of a
+    #: :class:`~delaycomp.system.Loop`: :class:`~delaycomp.system.loopfile.LoopData`)
+    scenario: str | LoopData
     sets: tuple[str, ...]
     stop: float
     engine: str
@@ -258,7 +260,7 @@ def sweep_memory(count: int, axes: int, held: bool = True, kept: int = 0) -> tup
     return rows + working, rows
 
 
-def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
+def check_sweep_size(scenario: str | LoopData, axes: list[Axis], sets: list[str],
                      stop: float | None = None, engine: str = "inprocess", workers: int = 1,
                      exact: bool = False, held: bool = True,
                      plot: bool = False) -> tuple[int, float]:
@@ -284,7 +286,7 @@ def check_sweep_size(scenario: str, axes: list[Axis], sets: list[str],
     return count, seconds
 
 
-def _check_time(scenario: str, axes: list[Axis], count: int, base, stop: float | None,
+def _check_time(scenario: str | LoopData, axes: list[Axis], count: int, base, stop: float | None,
                 engine: str, workers: int, exact: bool) -> float:
     """Refuse, in one line with the estimate, a sweep that cannot finish in
     :data:`~delaycomp.formats.outputs.MAX_RUN_SECONDS`; return its estimated seconds (a lower
@@ -338,14 +340,19 @@ def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
 SWEEP_ENGINES = ("batch", "inprocess", "fmu")
 
 
-def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
+def run_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
+              stop: float | None = None,
               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
               fmu_dir: str | None = None, exact: bool = False,
               array_backend: str = "numpy", chunk: int | None = None,
               notes: list[str] | None = None, verbosity: int = 1) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
-    ``scenario`` is a scenario name or a loop file's path (``.toml``). ``engine="batch"``
+    ``scenario`` is a scenario name, a loop file's path (``.toml``) or a
+    :class:`~delaycomp.system.Loop` (built by the loop-file reader, ``api.lti`` or
+    ``api.model``: the grid's and ``sets``' names are then its loop-file keys, or their
+    short names: ``r``, ``T``, ``x0``, ``K``, a model's own parameters; the rows are those
+    of the same loop given as a loop file). ``engine="batch"``
     advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
     :func:`delaycomp.studies.batch.get_backend`) in chunks of at most ``chunk`` points (default:
     from the available memory); what it did, and which points fell back to the per-point
@@ -364,7 +371,8 @@ def run_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | No
     return rows
 
 
-def iter_sweep(scenario: str, axes: list[Axis], sets: list[str], stop: float | None = None,
+def iter_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
+               stop: float | None = None,
                engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
                fmu_dir: str | None = None, exact: bool = False,
                array_backend: str = "numpy", chunk: int | None = None,
@@ -415,16 +423,19 @@ class _SweepPlan:
         return [a.name for a in self.axes]
 
 
-def _plan(scenario: str, axes: list[Axis], sets: list[str], stop: float | None,
-          engine: str, workers: int, scheduler: str | None, fmu_dir: str | None,
-          exact: bool, backend: str, chunk: int | None, held: bool) -> _SweepPlan:
+def _plan(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
+          stop: float | None, engine: str, workers: int, scheduler: str | None,
+          fmu_dir: str | None, exact: bool, backend: str, chunk: int | None,
+          held: bool) -> _SweepPlan:
     """The sweep's arguments checked, and every point validated (a piece at a time), before
     anything runs; the validated points of the first pieces kept (:data:`KEEP_BYTES`)."""
     names = [a.name for a in axes]
+    if isinstance(scenario, Loop):  # its loop-file data, read once (and checked)
+        scenario = LoopData.of(scenario)
     sc, stop = _checked(scenario, axes, names, sets, stop, engine, workers, scheduler,
                         exact, chunk, held)
-    source = (str(Path(scenario).resolve()) if str(scenario).endswith(".toml")
-              else scenario)
+    source = scenario if isinstance(scenario, LoopData) else (
+        str(Path(scenario).resolve()) if str(scenario).endswith(".toml") else scenario)
     batched = engine == "batch" and not exact
     # a stream chunk holds whole pieces and whole chunks of --chunk points, so that its
     # chunks are cut as from the whole grid (a larger --chunk makes pieces that large)
@@ -444,7 +455,7 @@ def _plan(scenario: str, axes: list[Axis], sets: list[str], stop: float | None,
     return plan
 
 
-def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
+def _checked(scenario: str | LoopData, axes: list[Axis], names: list[str], sets: list[str],
              stop: float | None, engine: str, workers: int, scheduler: str | None,
              exact: bool, chunk: int | None, held: bool = True):
     """The sweep's arguments checked (in one line each, before anything runs): the opened
@@ -453,7 +464,8 @@ def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
                      exact, held)
     sc = open_source(scenario)
     if exact and sc.loop(list(sets)).lti is None:
-        raise ParameterError(f"--exact needs an LTI scenario or loop file; {scenario} is not")
+        raise ParameterError(f"--exact needs an LTI scenario or loop file; {_label(sc)} is "
+                             "not")
     if workers < 1:
         raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
     if len(set(names)) != len(names):
@@ -465,8 +477,14 @@ def _checked(scenario: str, axes: list[Axis], names: list[str], sets: list[str],
         raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
     stop = sc.default_stop_time if stop is None else stop
     if stop is None:
-        raise ParameterError(f"{scenario} has no stop time: give --stop-time")
+        raise ParameterError(f"{_label(sc)} has no stop time: give --stop-time")
     return sc, stop
+
+
+def _label(sc) -> str:
+    """How a message names an opened source: a scenario's name, a loop file's name, a
+    loop's ``loop 'NAME'``."""
+    return getattr(sc, "where", None) or sc.name
 
 
 def _pieces(axes: list[Axis], size: int, values: bool = False) -> Iterator[tuple]:

@@ -15,6 +15,7 @@ from delaycomp.system.loop import (
     LtiDesign,
     LtiPoint,
     ModelFmu,
+    Origin,
     Port,
     Role,
     Source,
@@ -28,5 +29,5 @@ from delaycomp.system.loop import (
 )
 
 __all__ = ["ROLES", "BuiltinFmu", "Connection", "FmuFile", "Instance", "Loop", "LtiBatch",
-           "LtiDesign", "LtiPoint", "ModelFmu", "Port", "Role", "Source", "Timing",
+           "LtiDesign", "LtiPoint", "ModelFmu", "Origin", "Port", "Role", "Source", "Timing",
            "check_zoh_delay", "design_loop", "lti_design", "lti_designs", "lti_loop", "model_loop"]

@@ -225,6 +225,18 @@ class LtiDesign:
 
 
 @dataclass(frozen=True)
+class Origin:
+    """What a loop was built from, as a loop file says it: the loop-file ``data`` (a dict
+    as the TOML reads: top-level keys, ``plant`` and ``controller`` tables) and the folder
+    ``base`` its relative paths resolve against. A loop that keeps its origin can be built
+    again with overrides (a sweep's grid points, ``sets``):
+    :class:`~delaycomp.system.loopfile.LoopData`."""
+
+    data: Mapping[str, Any]
+    base: Path | None = None
+
+
+@dataclass(frozen=True)
 class Loop:
     """A closed loop ready for a master; validated when built (see module docstring)."""
 
@@ -246,6 +258,10 @@ class Loop:
     #: own ``instance.variable`` is not what the column shows (a plant FMU's input, recorded
     #: as the input delay's output that drives it, is ``plant.<the FMU's input name>``)
     labels: tuple[tuple[Port, str], ...] = ()
+    #: the loop-file data it was built from (:class:`Origin`; set by the loop-file reader,
+    #: ``api.lti`` and ``api.model``), for building it again with overrides; ``None`` for a
+    #: loop put together otherwise
+    origin: Origin | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "instances", tuple(self.instances))
@@ -277,6 +293,19 @@ class Loop:
             if port.instance not in names:
                 raise ParameterError(f"loop {self.name}: {port} names no instance: "
                                      f"allowed are {', '.join(names)}")
+
+    def __repr__(self) -> str:
+        """A short form (the fields' full ``repr`` runs to kilobytes): the name, the
+        measured states ``n`` and inputs ``m``, the timing.
+
+        >>> lti_loop([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, tau=0.0, N=100,
+        ...          mode="compensated", x0=[1.0], u0=[0.0], name="ex")
+        <Loop 'ex' n=1 m=1 T=1 N=100>
+        """
+        plant, ctrl = self.by_role("plant"), self.by_role("controller")
+        n = sum(1 for p in self.recorded if plant is not None and p.instance == plant.name)
+        m = sum(1 for p in self.recorded if ctrl is not None and p.instance == ctrl.name)
+        return f"<Loop {self.name!r} n={n} m={m} T={self.T:.6g} N={self.N}>"
 
     # -- reading --
     @property
@@ -582,8 +611,10 @@ def _floats(what: str, value) -> np.ndarray:
 
 
 def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "loop",
-                title: str = "", stop_time: float | None = None) -> Loop:
-    """The standard four-instance loop of a validated :class:`LtiPoint`."""
+                title: str = "", stop_time: float | None = None,
+                origin: Origin | None = None) -> Loop:
+    """The standard four-instance loop of a validated :class:`LtiPoint` (``origin``: what
+    it was built from, :attr:`Loop.origin`)."""
     d, timing = point.lti, point.timing
     A, B, K, x0, u0 = d.A, d.B, d.K, d.x0, d.u0
     n, m = d.n, d.m
@@ -604,7 +635,7 @@ def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "
     )
     recorded = tuple([Port("plant", x) for x in xs] + [Port("controller", u) for u in us])
     return Loop(instances, _chain(xs, indexed("y", n), us, us), timing, recorded, name,
-                title, stop_time, d)
+                title, stop_time, d, origin=origin)
 
 
 def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,

@@ -66,11 +66,13 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli packag
     import tomli as tomllib
 
 from delaycomp.errors import BadFileError, ParameterError, shown
+from delaycomp.maths.grid import on_grid
 from delaycomp.names import MODES
 from delaycomp.system.loop import (
     Loop,
     LtiBatch,
     LtiPoint,
+    Origin,
     check_model_loop,
     check_zoh_delay,
     design_loop,
@@ -380,6 +382,11 @@ class LoopFile:
         return self.path.resolve().parent
 
     @property
+    def where(self) -> str:
+        """How a message names it: the file's name."""
+        return self.path.name
+
+    @property
     def default_stop_time(self) -> float | None:
         """The file's ``stop_time`` (checked), or ``None`` where it gives none."""
         stop = self.data.get("stop_time")
@@ -394,6 +401,7 @@ class LoopFile:
         items = assignments.items() if isinstance(assignments, dict) else (
             _split(a) for a in (assignments or []))
         for key, text in items:
+            key = long_key(key, data)
             section, dot, name = key.partition(".")
             if not dot:
                 section, name = "", key
@@ -401,13 +409,14 @@ class LoopFile:
                 value = parse_value(text) if isinstance(text, str) else text
             except ValueError as exc:
                 raise ParameterError(f"--set {key}={shown(text)}: {exc}") from None
+            value = _listed(key, value)
             if section == "":
-                _check_keys(self.path.name, {name: 0}, TOP_KEYS)
+                _check_keys(self.where, {name: 0}, TOP_KEYS)
                 data[name] = value
             elif section in SECTIONS:
                 table = data.setdefault(section, {})
                 if not isinstance(table, dict):
-                    raise ParameterError(f"--set {key}: {section} in {self.path.name} is "
+                    raise ParameterError(f"--set {key}: {section} in {self.where} is "
                                          "not a table")
                 sub, dot, var = name.partition(".")
                 if section == "plant" and sub in ("parameters", "start") and dot:
@@ -416,7 +425,7 @@ class LoopFile:
                     params = table.get(sub) or {}
                     if not isinstance(params, dict):
                         raise ParameterError(f"--set {key}: plant.{sub} in "
-                                             f"{self.path.name} is not a table")
+                                             f"{self.where} is not a table")
                     table[sub] = {**params, _fmu_name(key, var, sub): value}
                     continue
                 table[name] = value
@@ -428,20 +437,134 @@ class LoopFile:
 
     def make(self, data: dict) -> Loop:
         """The loop of resolved ``data``."""
-        return build(data, self.base, self.name, self.title, where=self.path.name)
+        return build(data, self.base, self.name, self.title, where=self.where)
 
     def design(self, data: dict) -> LtiPoint | None:
         """The design and timing of resolved ``data`` without the loop's instances (for an
         LTI loop file; ``None`` otherwise): see :func:`design`."""
-        return design(data, where=self.path.name)
+        return design(data, where=self.where)
 
     def designs(self, datas: list[dict]) -> LtiBatch | None:
         """The designs of many resolved points at once, or ``None``: see :func:`designs`."""
-        return designs(datas, where=self.path.name)
+        return designs(datas, where=self.where)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
         """The loop for ``NAME=VALUE`` assignments over the file's values."""
         return self.make(self.resolve(assignments))
+
+
+class LoopData(LoopFile):
+    """A loop file held in memory: the loop-file data a :class:`Loop` was built from
+    (:attr:`Loop.origin`), read as a file is (:meth:`resolve` with overrides, :meth:`make`,
+    :meth:`loop`, a sweep's grid). Messages name it ``loop 'NAME'``.
+
+    Examples
+    --------
+    >>> loop = LoopData({"T": 1.0, "r": 0.5, "plant": {"A": [[1.0]], "B": [[1.0]],
+    ...                  "x0": [1.0]}, "controller": {"K": [[-2.0]]}}, name="ex").loop()
+    >>> loop.origin is not None
+    True
+    >>> again = LoopData.of(loop).loop(["r=0.25", "K=-1.5"])
+    >>> again, again.lti.r, again.lti.K.tolist()
+    (<Loop 'ex' n=1 m=1 T=1 N=100>, 0.25, [[-1.5]])
+    """
+
+    def __init__(self, data, base: Path | None = None, name: str = "loop", title: str = "",
+                 stop_time: float | None = None):
+        self.data = dict(data)
+        self._base = base
+        self.name = name
+        self.title = title
+        self._stop = stop_time
+
+    @classmethod
+    def of(cls, loop: Loop) -> LoopData:
+        """The loop-file data of ``loop`` (its :attr:`~Loop.origin`), checked to build
+        ``loop`` itself: a loop built otherwise, or changed since (``Loop.replace``,
+        ``set_parameters``), is refused (a :class:`ParameterError` naming it)."""
+        if loop.origin is None:
+            raise ParameterError(
+                f"source = {loop!r} is not allowed here: it keeps no loop-file data to build "
+                "it again with other values (build it with load, lti or model, or give its "
+                "loop file)")
+        src = cls(loop.origin.data, loop.origin.base, loop.name, loop.title, loop.stop_time)
+        if src.loop() != loop:
+            raise ParameterError(
+                f"source = {loop!r} is not allowed here: it was changed after it was built "
+                "(Loop.replace, set_parameters) and its loop-file data no longer builds it; "
+                "give the changes as overrides (sets) instead")
+        return src
+
+    @property
+    def base(self) -> Path:
+        """The folder relative paths resolve against (the working directory if none)."""
+        return self._base if self._base is not None else Path.cwd()
+
+    @property
+    def where(self) -> str:
+        """How a message names it: ``loop 'NAME'``."""
+        return f"loop {self.name!r}"
+
+    @property
+    def default_stop_time(self) -> float | None:
+        """The loop's stop time, else the data's (``None`` where neither has one)."""
+        return self._stop if self._stop is not None else super().default_stop_time
+
+    def make(self, data: dict) -> Loop:
+        """The loop of resolved ``data``, with the loop's stop time where the data give
+        none and it lies on the base grid."""
+        loop = super().make(data)
+        if data.get("stop_time") is None and self._stop is not None and on_grid(
+                self._stop, loop.h):
+            loop = loop.replace(stop_time=self._stop)
+        return loop
+
+
+#: the short names of loop-file keys that ``--set``, ``sets``, overrides and grids may use:
+#: ``x0`` for ``plant.x0``, ``K`` for ``controller.K`` (see :func:`long_key`)
+SHORT_KEYS = {"x0": "plant.x0", "u0": "controller.u0", "K": "controller.K",
+              "mode": "controller.mode", "predictor": "controller.predictor",
+              "pad": "controller.pad", "allow_unstable": "controller.allow_unstable"}
+#: keys whose value is a vector or a matrix: a single number is a list of one
+_VECTOR_KEYS = ("plant.x0", "controller.u0")
+_MATRIX_KEYS = ("plant.A", "plant.B", "controller.K", "controller.A", "controller.B")
+
+
+def long_key(key: str, data: dict) -> str:
+    """The loop-file key of ``key`` in a loop of ``data``: a dotted or top-level key as it
+    is, a short name (:data:`SHORT_KEYS`; ``A``, ``B`` of the section that holds them) and,
+    in a loop around a model file, a model's own parameter (``gain`` for
+    ``controller.gain``).
+
+    Examples
+    --------
+    >>> data = {"T": 1.0, "plant": {"model": "pend.py", "x0": [0.0]}}
+    >>> long_key("r", data), long_key("x0", data), long_key("gain", data)
+    ('r', 'plant.x0', 'controller.gain')
+    """
+    if "." in key or key in TOP_KEYS:
+        return key
+    if key in SHORT_KEYS:
+        return SHORT_KEYS[key]
+    plant = data.get("plant")
+    plant = plant if isinstance(plant, dict) else {}
+    ctrl = data.get("controller")
+    ctrl = ctrl if isinstance(ctrl, dict) else {}
+    if key in ("A", "B"):
+        return f"controller.{key}" if "A" in ctrl and "A" not in plant else f"plant.{key}"
+    if "model" in plant or "model" in ctrl:
+        return f"controller.{key}"
+    return key
+
+
+def _listed(key: str, value):
+    """A single number given for a vector or matrix key (``x0=1``, ``K=-2``: one state,
+    one input) as a list of one, or one row of one."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return value
+    if key in _VECTOR_KEYS:
+        return [value]
+    return [[value]] if key in _MATRIX_KEYS else value
 
 
 def _fmu_name(key: str, name: str, table: str = "parameters") -> str:
@@ -596,14 +719,17 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     stop = top["stop"]
     common = dict(r_true=top["r_true"], tau_true=top["tau_true"], name=name, title=title,
                   stop_time=stop)
+    origin = Origin(data, base)
     if "fmu" in plant:
         return _fmu_tolerance(plant, lambda: _fmu_plant(plant, ctrl, base, where, T, N, r,
-                                                        tau, mode, common))
+                                                        tau, mode, common)).replace(
+            origin=origin)
     if "A" in plant:
         point, state, inp = _lti(top, where)
-        return design_loop(point, state, inp, name=name, title=title, stop_time=stop)
+        return design_loop(point, state, inp, name=name, title=title, stop_time=stop,
+                           origin=origin)
     model_path, _, args = _model_args(top, base, where)
-    return model_loop(model_path, T, r, tau, N, **args, **common)
+    return model_loop(model_path, T, r, tau, N, **args, **common).replace(origin=origin)
 
 
 def model_value(model, key: str, value, where: str | None = None) -> Any:
