@@ -159,6 +159,10 @@ RUN_EXAMPLES = """examples:
 """
 
 
+#: the commands that draw a progress bar: they take --progress and --no-progress
+COMMANDS_WITH_BARS = ("run", "sweep")
+
+
 def _parser() -> argparse.ArgumentParser:
     """The command line: one subparser per command (each built by its own function),
     each with ``-q`` / ``-v``."""
@@ -182,8 +186,18 @@ def _parser() -> argparse.ArgumentParser:
                           default=1, help="errors, an FMU's warnings and results only (no "
                                                "progress, no notes)")
         loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
-                          const=2, help="also say what is run (steps, estimates, snapping) "
-                                           "and show the FMUs' information messages")
+                          const=2, help="also say what is run (steps, estimates, snapping), "
+                                           "each FMU built or found in the cache, and show "
+                                           "the FMUs' information messages")
+    for name in COMMANDS_WITH_BARS:
+        shown = sub.choices[name].add_mutually_exclusive_group()
+        shown.add_argument("--progress", dest="progress", action="store_true", default=None,
+                           help="show the progress bar on standard error whatever it is (a "
+                                "file, a pipe; with -q too); by default it shows when "
+                                "standard error is a terminal of any kind (a console, a "
+                                "pseudo-terminal such as script's) and not with -q")
+        shown.add_argument("--no-progress", dest="progress", action="store_false",
+                           help="never show the progress bar")
     return p
 
 
@@ -1124,6 +1138,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"unrecognized arguments: --set (delaycomp {args.command} "
                                  "takes no --set)")
             args.set = [*args.set, *sets]
+        from delaycomp import progress
+
+        progress.choose(getattr(args, "progress", None), args.verbosity)
         handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
                    "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                    "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
@@ -1144,6 +1161,10 @@ def main(argv: list[str] | None = None) -> int:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         print(f"delaycomp: error: {msg}", file=sys.stderr)
         return 1
+    finally:  # --progress / --no-progress hold for this command only
+        progress_module = sys.modules.get("delaycomp.progress")
+        if progress_module is not None:
+            progress_module.choose(None)
 
 
 def entry() -> None:

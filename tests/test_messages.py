@@ -124,3 +124,128 @@ def test_a_delay_off_the_base_grid_names_an_N_that_holds_it_not_raise_N():
     assert math.isclose(hi - lo, h, rel_tol=1e-9)
     assert n >= 100 and _multiple(0.5, 0.3 / n)
     assert not any(_multiple(0.5, 0.3 / k) for k in range(100, n))  # the smallest
+
+
+# -- -v: FMU builds and cache hits ------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["--native", "--python"])
+def test_verbose_tells_each_fmu_built_then_each_cache_hit(tmp_path, kind):
+    import fmpy
+
+    env = {"DELAYCOMP_CACHE_DIR": str(tmp_path / "cache")}
+    args = ("run", "example-3.6", "--stop-time", "1", kind, "--out", str(tmp_path / "o.csv"))
+    idents = ("DelaycompPlantLTI", "DelaycompDelay", "DelaycompControllerLTI")
+    quiet = cli(*args, env={"DELAYCOMP_CACHE_DIR": str(tmp_path / "other")})
+    assert quiet.returncode == 0, quiet.stderr
+    assert "building" not in quiet.stderr and "cache hit" not in quiet.stderr  # no -v
+
+    first = cli(*args, "-v", env=env)
+    assert first.returncode == 0, first.stderr
+    built = re.findall(r"^building (\S+) \((.+?)\) into (.+) \.\.\.$", first.stderr, re.M)
+    assert sorted(b[0] for b in built) == sorted(idents)  # each once: no hit after a build
+    assert "cache hit" not in first.stderr
+    for _, how, folder in built:
+        if kind == "--native":
+            assert how.split(", ")[0] == "native"
+            assert how.split(", ")[1].split()[0] == fmpy.platform  # this machine first
+        else:
+            assert how == "Python, pythonfmu"
+        assert Path(folder).parent == tmp_path / "cache"
+
+    second = cli(*args, "-v", env=env)
+    assert second.returncode == 0, second.stderr
+    hits = re.findall(r"^cache hit: (\S+) \((.+)\)$", second.stderr, re.M)
+    assert sorted(h[0] for h in hits) == sorted(idents)
+    assert all(Path(p).is_file() and Path(p).parent.parent == tmp_path / "cache"
+               for _, p in hits)
+    assert "building" not in second.stderr
+
+    third = cli(*args, env=env)
+    assert third.returncode == 0, third.stderr
+    assert "cache hit" not in third.stderr and "building" not in third.stderr
+
+
+def test_verbose_build_of_a_loop_file_tells_each_fmu(tmp_path):
+    proc = cli("build", str(LOOPS / "example-3.6.toml"), "--out", str(tmp_path), "-v")
+    assert proc.returncode == 0, proc.stderr
+    built = re.findall(r"^building (\S+) \((.+?)\) into (.+) \.\.\.$", proc.stderr, re.M)
+    assert {b[0] for b in built} >= {"DelaycompPlantLTI", "DelaycompDelay",
+                                     "DelaycompControllerLTI"}
+    plain = cli("build", str(LOOPS / "example-3.6.toml"), "--out", str(tmp_path / "q"))
+    assert plain.returncode == 0, plain.stderr
+    assert "building" not in plain.stderr
+
+
+# -- progress bars -----------------------------------------------------------------------
+
+def on_a_pty(*args, timeout: float = 300) -> tuple[int, str]:
+    """Run the command with standard error on a pseudo-terminal (as ``script`` gives one:
+    size 0 x 0, never set); its exit status and what reached the terminal."""
+    import select
+
+    master, slave = os.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "delaycomp", *args], cwd=REPO,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=slave)
+    os.close(slave)
+    out = b""
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.2)
+            if ready:
+                try:
+                    data = os.read(master, 65536)
+                except OSError:  # the slave side closed (Linux: EIO)
+                    break
+                if not data:
+                    break
+                out += data
+            elif proc.poll() is not None:
+                break
+        rc = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(master)
+    return rc, out.decode(errors="replace")
+
+
+BAR = re.compile(r"\d+%\|.*\| \d+/(\d+) \[")
+
+
+@pytest.mark.parametrize("command", [
+    ("run", "example-3.6", "--engine", "inprocess", "--stop-time", "50"),
+    ("sweep", "example-3.6", "--grid", "k=1:2:4", "--workers", "1", "--engine",
+     "inprocess", "--stop-time", "5"),
+], ids=["run", "sweep"])
+def test_a_bar_shows_on_a_pseudo_terminal(tmp_path, command):
+    rc, seen = on_a_pty(*command, "--out", str(tmp_path / "o.csv"))
+    assert rc == 0, seen
+    totals = {int(t) for t in BAR.findall(seen)}
+    assert totals == ({5000} if command[0] == "run" else {4}), seen  # steps, or points
+    for off in (("--no-progress",), ("-q",)):
+        rc, seen = on_a_pty(*command, *off, "--out", str(tmp_path / "o.csv"))
+        assert rc == 0, seen
+        assert not BAR.search(seen), seen
+
+
+@pytest.mark.parametrize("command", [
+    ("run", "example-3.6", "--engine", "inprocess", "--stop-time", "50"),
+    ("sweep", "example-3.6", "--grid", "k=1:2:4", "--workers", "1", "--engine",
+     "inprocess", "--stop-time", "5"),
+], ids=["run", "sweep"])
+def test_progress_forces_a_bar_into_a_pipe_and_no_progress_or_quiet_keep_it_off(
+        tmp_path, command):
+    out = ("--out", str(tmp_path / "o.csv"))
+    forced = cli(*command, *out, "--progress")
+    assert forced.returncode == 0, forced.stderr
+    assert BAR.search(forced.stderr), forced.stderr
+    quiet_forced = cli(*command, *out, "-q", "--progress")
+    assert quiet_forced.returncode == 0 and BAR.search(quiet_forced.stderr)
+    for args in ((), ("--no-progress",), ("-q",)):
+        proc = cli(*command, *out, *args)
+        assert proc.returncode == 0, proc.stderr
+        assert not BAR.search(proc.stderr), (args, proc.stderr)
+    both = cli(*command, *out, "--progress", "--no-progress")
+    assert both.returncode == 2 and "not allowed with argument" in both.stderr
