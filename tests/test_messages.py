@@ -77,7 +77,8 @@ def check_zoh_line(line: str, tau: float, T: float, pad: bool) -> None:
 @pytest.mark.parametrize("args,tau,T,pad", [
     (["run", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, False),
     (["run", "example-3.8", "--set", "tau=0.5"], 0.5, 1.0, True),
-    (["run", "example-3.8", "--set", "tau=2.5", "--set", "T=0.7", "--set", "r=0.7"], 2.5, 0.7, True),
+    (["run", "example-3.8", "--set", "tau=2.5", "--set", "T=0.7", "--set", "r=0.7"], 2.5,
+     0.7, True),
     (["run", str(LOOPS / "example-3.6.toml"), "--set", "tau=0.5"], 0.5, 1.0, False),
     (["run", str(LOOPS / "example-3.8.toml"), "--set", "tau=1.5"], 1.5, 1.0, True),
     (["critical-delay", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, False),
@@ -249,3 +250,156 @@ def test_progress_forces_a_bar_into_a_pipe_and_no_progress_or_quiet_keep_it_off(
         assert not BAR.search(proc.stderr), (args, proc.stderr)
     both = cli(*command, *out, "--progress", "--no-progress")
     assert both.returncode == 2 and "not allowed with argument" in both.stderr
+
+
+# -- Ctrl-C --------------------------------------------------------------------------------
+
+INTERRUPTED_AT = re.compile(r"delaycomp: interrupted at t = (\S+)")
+
+
+def _children_with(folder: Path, marker: str) -> list[int]:
+    """Processes with ``folder`` and ``marker`` on their command line."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(
+                    errors="replace")
+            except OSError:
+                continue
+            if str(folder) in cmd and marker in cmd:
+                found.append(int(entry.name))
+    return found
+
+
+def interrupt(args, cwd: Path, started, after: float = 0.0, timeout: float = 120):
+    """Start ``delaycomp ARGS`` in a process group of its own, wait until ``started()``
+    says it has (polled), then ``after`` seconds more, and send SIGINT to the group as a
+    terminal's Ctrl-C does; the exit status and standard error."""
+    proc = subprocess.Popen([sys.executable, "-m", "delaycomp", *args], cwd=cwd,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while not started() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        assert started(), "the command did not start in time"
+        time.sleep(after)
+        assert proc.poll() is None, proc.communicate()  # still running: interrupted below
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    return proc.returncode, err
+
+
+def check_interrupted_run(rc: int, err: str, partial: Path, stop: float, h: float) -> float:
+    """Exit 130, one last line naming the time reached, which the rows kept in
+    ``partial`` reach too (a row per base step: the last one within a step of it)."""
+    assert rc == 130, err
+    assert "Traceback" not in err and "failed" not in err and "error" not in err, err
+    found = INTERRUPTED_AT.fullmatch(err.strip().splitlines()[-1])
+    assert found, err
+    t = float(found[1])
+    assert 0 <= t < stop
+    rows = partial.read_text().splitlines()
+    last = float(rows[-1].split(",")[0])
+    assert last <= t + 1e-9 * stop and t - last <= h * (1 + 1e-9), (t, last)
+    return t
+
+
+@pytest.mark.parametrize("engine", ["fmu", "inprocess"])
+def test_ctrl_c_during_a_run_names_the_time_reached(tmp_path, engine):
+    out = tmp_path / "o.csv"
+    part = tmp_path / "o.csv.part"
+    rc, err = interrupt(["run", "example-3.6", "--stop-time", "100000", "--engine", engine,
+                         "--out", str(out)], tmp_path, part.exists, after=0.5)
+    t = check_interrupted_run(rc, err, tmp_path / "o.csv.partial", 100000.0, 0.01)
+    assert t > 0  # it ran a while: half a second
+    assert not out.exists() and not part.exists()
+
+
+PLANT_LOOP = """T = 0.5
+N = 10
+r = 0.3
+tau = 0.5
+stop_time = 100000.0
+[plant]
+fmu = "Oscillator.fmu"
+states = ["position", "velocity"]
+inputs = ["force"]
+x0 = [1.0, 0.0]
+[controller]
+A = [[0, 1], [1, -0.2]]
+B = [[0], [1]]
+K = [[-3.0, -2.5]]
+"""
+
+
+@pytest.fixture
+def plant_loop(tmp_path):
+    """A loop whose plant is an FMU of another tool (C, run in a child process)."""
+    from tests.cfmu.build import build_oscillator
+
+    build_oscillator(tmp_path, "Oscillator.fmu")
+    (tmp_path / "loop.toml").write_text(PLANT_LOOP, encoding="utf-8")
+    yield tmp_path
+    for pid in _children_with(tmp_path, "delaycomp.orchestrator.isolated"):
+        os.kill(pid, signal.SIGKILL)
+
+
+def test_ctrl_c_with_a_plant_fmu_of_another_tool_names_the_time_reached(plant_loop):
+    rc, err = interrupt(["run", "loop.toml", "--out", "o.csv"], plant_loop,
+                        (plant_loop / "o.csv.part").exists, after=0.5)
+    check_interrupted_run(rc, err, plant_loop / "o.csv.partial", 100000.0, 0.05)
+    assert _children_with(plant_loop, "delaycomp.orchestrator.isolated") == []
+
+
+def test_ctrl_c_while_the_plant_fmus_process_starts_is_no_plant_failure(plant_loop):
+    """SIGINT as soon as the plant's child process exists, while it still imports (before
+    it could ignore SIGINT): before, that child died of the KeyboardInterrupt, with its
+    traceback, and the run could be reported as the plant's failure."""
+    rc, err = interrupt(["run", "loop.toml", "--out", "o.csv"], plant_loop,
+                        lambda: bool(_children_with(plant_loop,
+                                                    "delaycomp.orchestrator.isolated")))
+    assert rc == 130, err
+    assert "Traceback" not in err and "failed" not in err and "KeyboardInterrupt" not in err
+    assert re.fullmatch(r"delaycomp: interrupted( at t = \S+)?", err.strip().splitlines()[-1])
+    time.sleep(0.5)
+    assert _children_with(plant_loop, "delaycomp.orchestrator.isolated") == []
+
+
+def test_ctrl_c_during_a_sweep_with_workers(tmp_path):
+    out = tmp_path / "s.csv"
+    part = tmp_path / "s.csv.part"
+    rc, err = interrupt(["sweep", "example-3.6", "--grid", "k=0.5:2.5:2000", "--workers", "2",
+                         "--engine", "inprocess", "--stop-time", "200", "--out", str(out)],
+                        tmp_path, part.exists, after=0.5)
+    assert rc == 130, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "delaycomp: interrupted"  # many runs: no one time
+    assert not out.exists() and not part.exists()  # no half-written result, as before
+    assert _children_with(tmp_path, "multiprocessing") == []
+
+
+def test_a_failure_that_follows_ctrl_c_is_reported_as_the_interrupt(monkeypatch, capsys):
+    """Code that catches every exception (an FMU's slave, a build step) can turn Ctrl-C
+    into its own error; the command line reports the interrupt, exit 130."""
+    from delaycomp import cli
+    from delaycomp.errors import ParameterError
+
+    def swallowing(args):
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt as exc:  # as a slave does: its own failure
+            raise ParameterError(f"controller: initialization failed: {exc!r}") from None
+        return 0
+
+    monkeypatch.setattr(cli, "_cmd_list", swallowing)
+    assert cli.main(["list"]) == 130
+    assert capsys.readouterr().err == "delaycomp: interrupted\n"
+    monkeypatch.setattr(cli, "_cmd_list", lambda args: 0)
+    assert cli.main(["list"]) == 0  # the watch ended with the command
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -287,17 +287,21 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
 
     Examples
     --------
+    >>> import re
     >>> periods(0.6, 0.2)
     3
-    >>> periods(2.5, 1.0)  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    ...
-    ValueError: tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) of T = 1.0: the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)
-    >>> try:
-    ...     periods(2.5, 1.0, padding=True)
-    ... except ValueError as exc:
-    ...     print(str(exc).split("; ")[1])
-    or pad = true ([controller] pad in a loop file, --set pad=1 for a scenario) accepts it, delaying the output to the next multiple, 3 (Remark 3.3(b))
+    >>> for padding in (False, True):
+    ...     try:
+    ...         periods(2.5, 1.0, padding=padding)
+    ...     except ValueError as exc:
+    ...         for part in re.split(r"(?<=:) (?=the)|; | (?=accepts)", str(exc)):
+    ...             print(part)
+    tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) of T = 1.0:
+    the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)
+    tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) of T = 1.0:
+    the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)
+    or pad = true ([controller] pad in a loop file, --set pad=1 for a scenario)
+    accepts it, delaying the output to the next multiple, 3 (Remark 3.3(b))
     """
     usable = math.isfinite(value) and value >= 0 and math.isfinite(period) and period > 0
     if usable:
