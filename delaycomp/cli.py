@@ -100,8 +100,9 @@ def _ending_signals():
             signal.signal(signum, handler)
 
 
-#: the commands that run many co-simulations, whose interrupt names no one time
-MANY_RUNS = ("sweep",)
+#: the commands that run many co-simulations (a grid, the reference cases in every master),
+#: whose interrupt names no one time
+MANY_RUNS = ("sweep", "check", "crosscheck")
 
 
 @contextlib.contextmanager

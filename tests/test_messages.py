@@ -403,3 +403,26 @@ def test_a_failure_that_follows_ctrl_c_is_reported_as_the_interrupt(monkeypatch,
     monkeypatch.setattr(cli, "_cmd_list", lambda args: 0)
     assert cli.main(["list"]) == 0  # the watch ended with the command
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_ctrl_c_during_a_build_is_one_line(tmp_path):
+    out = tmp_path / "fmus"
+    env_cache = tmp_path / "cache"
+    proc_env = {**os.environ, "DELAYCOMP_CACHE_DIR": str(env_cache)}
+    proc = subprocess.Popen([sys.executable, "-m", "delaycomp", "build", "--out", str(out)],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env=proc_env)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out.exists() and any(out.iterdir())) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        assert proc.poll() is None, proc.communicate()  # the first FMU is out, more to come
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "error" not in err, err
+    assert err.strip().splitlines()[-1] == "delaycomp: interrupted"
