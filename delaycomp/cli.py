@@ -100,13 +100,51 @@ def _ending_signals():
             signal.signal(signum, handler)
 
 
-def _stopped(exc: KeyboardInterrupt | Terminated) -> int:
-    """Ctrl-C, SIGTERM or SIGHUP: one line on standard error, and the exit status a shell
-    gives a process that the signal ended, ``128 + signum`` (130 for Ctrl-C)."""
+#: the commands that run many co-simulations (a grid, the reference cases in every master),
+#: whose interrupt names no one time
+MANY_RUNS = ("sweep", "check", "crosscheck")
+
+
+@contextlib.contextmanager
+def _interrupt_watch():
+    """A list that gets an entry when SIGINT arrives while the command runs (Python's
+    handler then raises KeyboardInterrupt as before), in the main thread only. Code that
+    catches every exception (an FMU's slave, a build step, a check) may turn Ctrl-C into
+    its own failure; :func:`main` reports such a failure as the interrupt it was."""
     import signal
+    import threading
+
+    seen: list[bool] = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield seen
+        return
+
+    def handler(signum, frame):
+        seen.append(True)
+        signal.default_int_handler(signum, frame)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _stopped(exc: KeyboardInterrupt | Terminated, command: str | None = None) -> int:
+    """Ctrl-C, SIGTERM or SIGHUP: one line on standard error, and the exit status a shell
+    gives a process that the signal ended, ``128 + signum`` (130 for Ctrl-C). Ctrl-C
+    during a co-simulation (:class:`~delaycomp.errors.Interrupted`) names the simulation
+    time reached, ``delaycomp: interrupted at t = 12.34``; elsewhere (a sweep's many
+    runs, a build, an analysis) ``delaycomp: interrupted``."""
+    import signal
+
+    from delaycomp.errors import Interrupted
 
     if isinstance(exc, Terminated):
         signum, line = exc.signum, f"terminated ({signal.Signals(exc.signum).name})"
+    elif isinstance(exc, Interrupted) and command not in MANY_RUNS:
+        signum, line = signal.SIGINT, f"interrupted at t = {exc.time:.10g}"
     else:
         signum, line = signal.SIGINT, "interrupted"
     with contextlib.suppress(OSError):  # the terminal may be gone (SIGHUP)
@@ -160,6 +198,10 @@ RUN_EXAMPLES = """examples:
 """
 
 
+#: the commands that draw a progress bar: they take --progress and --no-progress
+COMMANDS_WITH_BARS = ("run", "sweep")
+
+
 def _parser() -> argparse.ArgumentParser:
     """The command line: one subparser per command (each built by its own function),
     each with ``-q`` / ``-v``."""
@@ -183,8 +225,18 @@ def _parser() -> argparse.ArgumentParser:
                           default=1, help="errors, an FMU's warnings and results only (no "
                                                "progress, no notes)")
         loud.add_argument("-v", "--verbose", dest="verbosity", action="store_const",
-                          const=2, help="also say what is run (steps, estimates, snapping) "
-                                           "and show the FMUs' information messages")
+                          const=2, help="also say what is run (steps, estimates, snapping), "
+                                           "each FMU built or found in the cache, and show "
+                                           "the FMUs' information messages")
+    for name in COMMANDS_WITH_BARS:
+        shown = sub.choices[name].add_mutually_exclusive_group()
+        shown.add_argument("--progress", dest="progress", action="store_true", default=None,
+                           help="show the progress bar on standard error whatever it is (a "
+                                "file, a pipe; with -q too); by default it shows when "
+                                "standard error is a terminal of any kind (a console, a "
+                                "pseudo-terminal such as script's) and not with -q")
+        shown.add_argument("--no-progress", dest="progress", action="store_false",
+                           help="never show the progress bar")
     return p
 
 
@@ -1183,35 +1235,54 @@ def _platform_notes(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     """The command line: parse ``argv`` (default: ``sys.argv[1:]``), run the command, return the
     exit status (2 for bad input, 1 for a failed run, with one line on stderr; Ctrl-C, and
-    SIGTERM or SIGHUP during a sweep, give ``128 + signal``: :func:`_stopped`)."""
-    try:
-        sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
-        args = _parser().parse_args(rest)
-        if sets:
-            if not hasattr(args, "set"):
-                raise UsageError(f"unrecognized arguments: --set (delaycomp {args.command} "
-                                 "takes no --set)")
-            args.set = [*args.set, *sets]
-        handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
-                   "critical-delay": _cmd_critical_delay, "check": _cmd_check,
-                   "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
-                   "export-c": _cmd_export_c,
-                   "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
-        rc = handler(args)
-        _platform_notes(args)
-        return rc
-    except (UsageError, ParameterError, ModelError, BadFileError, SspError) as exc:
-        print(f"delaycomp: error: {exc}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, Terminated) as exc:
-        return _stopped(exc)
-    except BrokenPipeError:  # `delaycomp list | head`: the reader left; stop quietly
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141  # as a shell reports a process ended by SIGPIPE
-    except (OSError, RuntimeError, ValueError) as exc:
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        print(f"delaycomp: error: {msg}", file=sys.stderr)
-        return 1
+    SIGTERM or SIGHUP during a sweep, give ``128 + signal``: :func:`_stopped`; a failure
+    that follows a Ctrl-C, code that caught the interrupt as an error, is reported as the
+    interrupt)."""
+    command = None
+    with _interrupt_watch() as interrupted:
+        try:
+            sets, rest = _split_sets(list(sys.argv[1:] if argv is None else argv))
+            args = _parser().parse_args(rest)
+            command = args.command
+            if sets:
+                if not hasattr(args, "set"):
+                    raise UsageError(f"unrecognized arguments: --set (delaycomp "
+                                     f"{args.command} takes no --set)")
+                args.set = [*args.set, *sets]
+            from delaycomp import progress
+
+            progress.choose(getattr(args, "progress", None), args.verbosity)
+            handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
+                       "critical-delay": _cmd_critical_delay, "check": _cmd_check,
+                       "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
+                       "export-c": _cmd_export_c,
+                       "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
+            rc = handler(args)
+            if interrupted and rc != 0:  # a failure that Ctrl-C caused
+                return _stopped(KeyboardInterrupt(), command)
+            _platform_notes(args)
+            return rc
+        except (UsageError, ParameterError, ModelError, BadFileError, SspError) as exc:
+            if interrupted:
+                return _stopped(KeyboardInterrupt(), command)
+            print(f"delaycomp: error: {exc}", file=sys.stderr)
+            return 2
+        except (KeyboardInterrupt, Terminated) as exc:
+            return _stopped(exc, command)
+        except BrokenPipeError:  # `delaycomp list | head`: the reader left; stop quietly
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 141  # as a shell reports a process ended by SIGPIPE
+        except (OSError, RuntimeError, ValueError) as exc:
+            if interrupted:
+                return _stopped(KeyboardInterrupt(), command)
+            msg = (str(exc).strip().splitlines()[-1] if str(exc).strip()
+                   else type(exc).__name__)
+            print(f"delaycomp: error: {msg}", file=sys.stderr)
+            return 1
+        finally:  # --progress / --no-progress and -v hold for this command only
+            progress_module = sys.modules.get("delaycomp.progress")
+            if progress_module is not None:
+                progress_module.choose(None)
 
 
 def entry() -> None:
@@ -1225,7 +1296,9 @@ def entry() -> None:
     """
     rc = main()
     fmu = sys.modules.get("delaycomp.orchestrator.fmu")
-    if fmu is not None and getattr(fmu, "_UNPACKED", None):
+    # an interrupt leaves the same way: under ``python -m`` an interrupted command's
+    # sys.exit(130) left by SIGINT instead (exit status -2 to a parent in Python)
+    if rc >= 128 or (fmu is not None and getattr(fmu, "_UNPACKED", None)):
         import atexit
 
         atexit._run_exitfuncs()

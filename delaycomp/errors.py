@@ -106,3 +106,15 @@ class SimulationFailed(DelaycompError, RuntimeError):
 class SspError(DelaycompError, ValueError):
     """An SSD, SSV or SSP archive that :mod:`delaycomp.formats.ssp` cannot read (one-line
     message)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a co-simulation: a ``KeyboardInterrupt`` (whatever handles Ctrl-C
+    handles it: an interrupt, not an error) that knows the simulation time reached,
+    :attr:`time` (the last tick the master completed). The command line reports it as
+    ``delaycomp: interrupted at t = <time>``, exit status 130; the rows so far are kept
+    (``.partial``)."""
+
+    def __init__(self, time: float):
+        super().__init__(time)
+        self.time = float(time)

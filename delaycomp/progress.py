@@ -1,12 +1,16 @@
 """Progress bars and verbosity of the command line (tqdm, on standard error).
 
-A bar shows only on a terminal (``tqdm(disable=None)``) and never with ``-q``: when
-standard error is redirected nothing but the results reach the files, and standard output
-carries results only, whatever the verbosity.
+A bar shows when standard error is a terminal of any kind (a console, or a pseudo-terminal:
+``script``, an editor's terminal, ``ssh -t``; one that reports no size gets
+:data:`DEFAULT_COLUMNS` columns) and never with ``-q``; ``--progress`` shows it whatever
+standard error is (a file, a pipe, with ``-q`` too), ``--no-progress`` never
+(:func:`choose`). When standard error is redirected nothing but the results reach the
+files, and standard output carries results only, whatever the verbosity.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 #: ``-q``: errors only; default: progress on a terminal and notes; ``-v``: also details
@@ -40,6 +44,39 @@ class NoBar:
         self.close()
 
 
+#: the width of a bar on a terminal that reports no size (a pty whose size was never set,
+#: as ``script`` gives without a terminal of its own) and off a terminal (``--progress``)
+DEFAULT_COLUMNS = 80
+#: its height in rows (tqdm hides a bar beyond the terminal's last row)
+DEFAULT_ROWS = 24
+
+#: ``--progress`` (True), ``--no-progress`` (False), neither (None): :func:`choose`
+_chosen: bool | None = None
+#: the command's verbosity (:func:`choose`), for the details told from deep inside (FMU
+#: builds, cache hits: :func:`detail`); a library caller's default says nothing
+_verbosity = NORMAL
+
+
+def choose(shown: bool | None, verbosity: int = NORMAL) -> None:
+    """Bars on (``True``: ``--progress``, even off a terminal and with ``-q``), off
+    (``False``: ``--no-progress``) or as the terminal and the verbosity say (``None``);
+    ``verbosity``: the command's, for :func:`detail`. The command line sets both for one
+    command and puts them back (``None``, :data:`NORMAL`) when it ends."""
+    global _chosen, _verbosity
+    _chosen, _verbosity = shown, verbosity
+
+
+def detail(message: str) -> None:
+    """Print ``message`` to standard error under ``-v`` (:func:`choose`), else nothing:
+    what the code deep inside does that no caller hands a verbosity to (an FMU built, one
+    found in the build cache).
+
+    >>> detail("cache hit: DelaycompDelay (/tmp/x.fmu)")  # no -v: nothing
+    """
+    if _verbosity >= VERBOSE:
+        print(message, file=sys.stderr, flush=True)
+
+
 def _terminal(stream) -> bool:
     try:
         return stream.isatty()
@@ -47,18 +84,46 @@ def _terminal(stream) -> bool:
         return False
 
 
+def _columns(stream) -> int:
+    """The width of ``stream``'s terminal, or 0 where it has none or reports none."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns
+    except (AttributeError, OSError, ValueError):
+        return 0
+
+
+def shows(verbosity: int = NORMAL) -> bool:
+    """Whether :func:`bar` draws a bar: ``--progress``/``--no-progress`` where given, else
+    not with ``-q`` and only when standard error is a terminal (any kind: a pty too)."""
+    if _chosen is not None:
+        return _chosen
+    return verbosity > QUIET and _terminal(sys.stderr)
+
+
 def bar(total: int, desc: str, verbosity: int = NORMAL, unit: str = "it"):
     """A tqdm bar on standard error with an estimate of the time left.
 
-    With ``verbosity == QUIET``, or when standard error is not a terminal, a :class:`NoBar`
-    instead: tqdm (30 ms to import) is loaded only for a bar that shows.
+    Where no bar shows (:func:`shows`), a :class:`NoBar` instead: tqdm (30 ms to import)
+    is loaded only for a bar that shows. A terminal that reports its width gets a bar
+    that follows it; one that reports none (a pty of ``script``, of size 0 x 0, where
+    tqdm's own sizing hid the bar), or a file, :data:`DEFAULT_COLUMNS` (or ``$COLUMNS``).
     """
-    if verbosity <= QUIET or not _terminal(sys.stderr):
+    if not shows(verbosity):
         return NoBar(total)
     from tqdm import tqdm
 
+    width = _columns(sys.stderr)
+    if width > 0:
+        sizing: dict = {"dynamic_ncols": True}
+    else:
+        try:
+            width = int(os.environ.get("COLUMNS", "")) or DEFAULT_COLUMNS
+        except ValueError:
+            width = DEFAULT_COLUMNS
+        # and rows: tqdm takes such a terminal for one of -1 rows and hides every bar
+        sizing = {"ncols": width, "nrows": DEFAULT_ROWS}
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
-                dynamic_ncols=True, mininterval=0.2)
+                mininterval=0.2, **sizing)
 
 
 def info(message: str, verbosity: int, level: int = NORMAL) -> None:

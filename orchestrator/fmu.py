@@ -25,7 +25,7 @@ from fmpy.fmi2 import (
 )
 
 from delaycomp.errors import DelaycompError
-from delaycomp.orchestrator.master import ComponentBase
+from delaycomp.orchestrator.master import ComponentBase, interrupt_held
 from delaycomp.tmpfiles import mkdtemp
 from delaycomp.unpack import extract
 
@@ -48,10 +48,19 @@ _RawCall = tuple[Callable[..., int], c_void_p]
 
 
 def _route(env, instance_name, status, category, message):
-    ref = _COMPONENTS.get(env or 0)
-    comp = ref() if ref is not None else None
-    if comp is not None:
-        comp._logger(status, message)
+    try:
+        ref = _COMPONENTS.get(env or 0)
+        comp = ref() if ref is not None else None
+        if comp is not None:
+            comp._logger(status, message)
+    except KeyboardInterrupt:
+        # Ctrl-C inside this callback, called by the FMU's C code: ctypes would print it
+        # and drop it (the run went on, deaf to that Ctrl-C); raised again once Python
+        # runs its handlers outside the callback (after the FMI call, or in the Python
+        # FMU's slave, which reports it and the run knows it: Interrupted)
+        import _thread
+
+        _thread.interrupt_main()
 
 
 _DISPATCH = fmi2CallbackLoggerTYPE(_route)
@@ -190,7 +199,8 @@ class FmuComponent(ComponentBase):
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
                         instanceName=self.name)
         try:
-            fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+            with interrupt_held():
+                fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
         except Exception:
             fmu.freeLibrary()
             self.worst_status = FATAL

@@ -14,9 +14,11 @@ talks to it over a pipe:
   that does not return in time stops the child and fails the run, naming the call;
 - a child that ends during a call (``exit()``, a crash) fails the run naming its exit
   status or signal;
-- Ctrl-C reaches this process, which is only waiting on the pipe; the child ignores it
-  and is stopped when the run ends. The child also dies with this process (Linux:
-  ``PR_SET_PDEATHSIG``; elsewhere it leaves when the pipe closes).
+- Ctrl-C reaches this process, which is only waiting on the pipe, and is reported as an
+  interrupt (:class:`~delaycomp.errors.Interrupted`), never as the FMU's failure: the
+  child runs in a session of its own, which the terminal's Ctrl-C does not reach, and
+  ignores SIGINT besides; it is stopped when the run ends. The child also dies with this
+  process (Linux: ``PR_SET_PDEATHSIG``; elsewhere it leaves when the pipe closes).
 
 One round trip per tick: the inputs set are sent with the next step or read (FMI's order of
 calls is kept), and the values of every output the master reads come back with the step.
@@ -125,9 +127,15 @@ class IsolatedFmu(ComponentBase):
     def _start(self) -> None:
         from delaycomp.child import module_argv
 
+        # a session of its own: the terminal's Ctrl-C (SIGINT to the foreground process
+        # group) never reaches the child, not even while it starts, before ``serve``
+        # ignores SIGINT (a KeyboardInterrupt there ended it, and the run was reported as
+        # the plant's failure, with the child's traceback); it ends with this process all
+        # the same (``parent_death_signal``, the pipe)
         proc = subprocess.Popen(module_argv("delaycomp.orchestrator.isolated", self.name,
                                             str(self.path)),
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                start_new_session=True)
         assert proc.stdin is not None and proc.stdout is not None  # both are pipes
         self._proc, self.fmu = proc, proc
         self._conn = _Pipe(proc.stdout.fileno(), proc.stdin.fileno())

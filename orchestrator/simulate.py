@@ -14,7 +14,7 @@ from typing import cast
 
 import numpy as np
 
-from delaycomp.errors import ParameterError
+from delaycomp.errors import Interrupted, ParameterError
 from delaycomp.fmu.cache import source_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.master import Master, Recorder, SimulationError
@@ -277,8 +277,13 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                 _run_until(master, ticks, progress)
         except SimulationError as exc:
             if interrupted:  # Ctrl-C inside a component's code, which reported it as a
-                raise KeyboardInterrupt from None  # failure: it is the user's interrupt
+                # failure: it is the user's interrupt
+                raise Interrupted(master.time_of(master.k)) from None
             success, message, culprit = False, str(exc), exc.instance
+        except Interrupted:
+            raise
+        except KeyboardInterrupt:  # Ctrl-C between the components' calls: the time too
+            raise Interrupted(master.time_of(master.k)) from None
         finally:
             master.terminate()
     data = np.array(recorder.rows, dtype=float).reshape(len(recorder.rows), len(spec.recorded))
@@ -323,28 +328,30 @@ def check_initial(spec: Loop, master: Master) -> None:
 @contextlib.contextmanager
 def _interrupts_seen():
     """A list that gets an entry when SIGINT arrives while the block runs (the previous
-    handler then runs as before: Python's raises KeyboardInterrupt). A component that runs
-    Python code (a model's ``f``, a pythonfmu slave) catches every exception and reports
-    it as its own failure; with this the run knows that it was the user's Ctrl-C. Only in
-    the main thread, and only over Python's own handler."""
+    handler then runs as before: Python's, or the command line's, raises
+    KeyboardInterrupt). A component that runs Python code (a model's ``f``, a pythonfmu
+    slave) catches every exception and reports it as its own failure; with this the run
+    knows that it was the user's Ctrl-C. Only in the main thread, and only over a handler
+    of Python code (not where SIGINT is ignored)."""
     import signal
     import threading
 
     seen: list[bool] = []
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+    previous = (signal.getsignal(signal.SIGINT)
+                if threading.current_thread() is threading.main_thread() else None)
+    if not callable(previous):  # another thread, SIG_IGN, SIG_DFL, or not Python's
         yield seen
         return
 
     def handler(signum, frame):
         seen.append(True)
-        signal.default_int_handler(signum, frame)
+        previous(signum, frame)
 
     signal.signal(signal.SIGINT, handler)
     try:
         yield seen
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, previous)
 
 
 def _run_until(master: Master, ticks: int, progress) -> None:

@@ -139,6 +139,9 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / (file_name or f"{ident}.fmu")
+    from delaycomp.progress import detail
+
+    detail(f"building {ident} (Python, pythonfmu) into {out_dir} ...")
     # pythonfmu writes into a folder of ours; the finished file is renamed into place:
     # a reader never sees a half-written FMU, and a link at the target is replaced, never
     # written through

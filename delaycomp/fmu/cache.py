@@ -29,7 +29,7 @@ from delaycomp.fmu.build import (
 from delaycomp.system import FmuFile, Source
 from delaycomp.tmpfiles import build_lock
 
-__all__ = ["check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_fmu"]
+__all__ = ["cache_hit", "check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_fmu"]
 
 
 def _source_digest() -> str:
@@ -71,13 +71,35 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
         raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
     path = fmu_dir / fmu_file_name(kind, config)
     _regular_or_missing(path)
+    built = False
     if not path.exists():
         fmu_dir.mkdir(parents=True, exist_ok=True)
         with build_lock(path):  # parallel first runs: one builds, the others wait
             if not path.exists():
                 build_fmu(kind, fmu_dir, config, path.name)
+                built = True
     check_fmu(path, kind, config)
+    cache_hit(path, model_identifier(kind, config), built)
     return path
+
+
+#: the FMU files whose cache hit this process told (:func:`cache_hit`)
+_HITS: set[str] = set()
+
+
+def cache_hit(path: Path, ident: str, built: bool = False) -> None:
+    """Under ``-v`` (:func:`delaycomp.progress.detail`), one line for the FMU ``ident``
+    found in the cache at ``path``, ``cache hit: <ident> (<path>)``, once per file and
+    process (the runs of a sweep look up the same FMUs); ``built``: this process has just
+    built it (its build said so), no line."""
+    from delaycomp.progress import detail
+
+    key = str(path)
+    if key in _HITS:
+        return
+    _HITS.add(key)
+    if not built:
+        detail(f"cache hit: {ident} ({path})")
 
 
 def _regular_or_missing(path: Path) -> None:

@@ -44,7 +44,7 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
 from delaycomp.errors import DelaycompError
-from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS
+from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS, model_identifier
 from delaycomp.tmpfiles import zip_folder
 
 if TYPE_CHECKING:
@@ -504,6 +504,10 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / (file_name or f"{ident}.fmu")
+    from delaycomp.progress import detail
+
+    detail(f"building {ident} (native, {' '.join([fmpy.platform, *crosses])}) into "
+           f"{out_dir} ...")
     with tempfile.TemporaryDirectory(prefix="delaycomp-native-") as tmp:
         stage = Path(tmp) / "fmu"
         src = stage / "sources"
@@ -532,7 +536,6 @@ def _native_config(kind: str, config: dict | None
                              "from 1 to 1000 (a dimension of the FMU)")
     if kind not in MODEL_KINDS:
         return config, None, FMUS[kind].model_identifier
-    from delaycomp.fmu.build import model_identifier
     from delaycomp.fmu.translate import translate
     from delaycomp.maths.model import load_model
 
@@ -640,18 +643,20 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Pat
     built there if missing; an FMU already there is checked as
     :func:`delaycomp.fmu.cache.check_fmu` does, and must be native."""
     from delaycomp.errors import BadFileError
-    from delaycomp.fmu.cache import check_fmu, fmu_file_name
+    from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
 
     fmu_dir = Path(fmu_dir) if fmu_dir is not None else native_fmu_dir()
     path = fmu_dir / fmu_file_name(kind, config)
     if not path.exists():
         build_native_fmu(kind, fmu_dir, config, path.name)
+        cache_hit(path, model_identifier(kind, config), built=True)
         return path
     check_fmu(path, kind, config)
     with zipfile.ZipFile(path) as zf:
         if not json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"):
             raise BadFileError(path, "is a Python FMU, not a native one (use another "
                                      "--fmu-dir, or delete it to rebuild)")
+    cache_hit(path, model_identifier(kind, config))
     return path
 
 

@@ -210,6 +210,58 @@ def split(value: float, period: float) -> tuple[int, float]:
     return q, max(value - q * period, 0.0)
 
 
+def _show(x: float) -> str:
+    """A value the message computed (a multiple, a quotient): 12 significant digits, so
+    that round-off (``3 * 0.3 = 0.8999999999999999``) does not show."""
+    return f"{x:.12g}"
+
+
+#: how ``pad`` is spelled where it is offered (Remark 3.3(b)), for the messages
+PAD_SPELLING = "pad = true ([controller] pad in a loop file, --set pad=1 for a scenario)"
+
+
+def base_alternatives(value: float, period: float, N: int) -> str:
+    """The fix for a delay ``value`` off the base grid ``h = period / N``: the nearest
+    multiples of ``h``, and the smallest ``N' >= N`` (if one up to :data:`MAX_STEPS`
+    exists) whose grid holds ``value``; never "raise N" where no larger ``N`` helps
+    (``r = 0.5``, ``T = 0.3``: only ``N`` a multiple of 3 does).
+
+    >>> base_alternatives(0.305, 1.0, 100)
+    'the nearest allowed are 0.3 or 0.31, or N = 200 puts it on the grid'
+    >>> base_alternatives(0.5, 0.3, 100)
+    'the nearest allowed are 0.498 or 0.501, or N = 102 puts it on the grid'
+    """
+    from fractions import Fraction
+
+    h = period / N
+    q = math.floor(value / h)
+    text = f"the nearest allowed are {_show(q * h)} or {_show((q + 1) * h)}"
+    ratio = Fraction(value / period).limit_denominator(MAX_STEPS)
+    d = ratio.denominator
+    better = d * -(-N // d)
+    if better <= MAX_STEPS and on_grid(value, period / better):
+        text += f", or N = {better} puts it on the grid"
+    return text
+
+
+def zoh_alternatives(value: float, period: float) -> str:
+    """The allowed values nearest to a ``tau = value`` that is no multiple of ``T =
+    period``: the multiples of ``T`` below and above it, and the periods ``T = tau/l``
+    below and above ``period`` (the fix where ``T`` is what varies: a sweep over ``T``).
+
+    >>> zoh_alternatives(2.5, 1.0)
+    'the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)'
+    >>> zoh_alternatives(0.5, 1.0)
+    'the nearest allowed are tau = 0 or 1 (l*T), or T = 0.5 (tau/l)'
+    """
+    q = math.floor(value / period)
+    text = (f"the nearest allowed are tau = {_show(q * period)} or "
+            f"{_show((q + 1) * period)} (l*T)")
+    below, above = value / (q + 1), (value / q if q >= 1 else None)
+    periods_near = [_show(below)] + ([_show(above)] if above is not None else [])
+    return text + f", or T = {' or '.join(periods_near)} (tau/l)"
+
+
 def periods(value: float, period: float, name: str = "tau", padding: bool = False) -> int:
     """``l`` with ``value = l period``, ``l >= 0``: under zero-order hold the input delay
     is a whole number of sampling periods (Theorem 3.2, ``tau = l T``), up to round-off as
@@ -217,12 +269,16 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
 
     The rule and its message, written once: the typed loop
     (:func:`delaycomp.system.loop.check_zoh_delay`), the scenarios, the batch engine and
-    the controllers (the FMUs, whose C twins log the same words) call it.
+    the controllers (the FMUs, whose C twins log the first words) call it. The message
+    is one line that tells the fix: the nearest allowed ``tau`` (multiples of ``T``) and
+    ``T`` (``tau / l``, for a sweep over ``T``), and where the caller can pad, that
+    ``pad = true`` accepts ``tau`` as it is.
 
     Parameters
     ----------
     padding : bool
-        The caller could pad the delay up (Remark 3.3(b)): the message says to what.
+        The caller could pad the delay up (Remark 3.3(b)): the message says how, and to
+        what.
 
     Raises
     ------
@@ -231,17 +287,21 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
 
     Examples
     --------
+    >>> import re
     >>> periods(0.6, 0.2)
     3
-    >>> periods(2.5, 1.0, padding=True)  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    ...
-    ValueError: tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) ...
-    >>> try:
-    ...     periods(2.5, 1.0, padding=True)
-    ... except ValueError as exc:
-    ...     print(str(exc).split("; ")[1])
-    pad = true pads it up to 3.0 (Remark 3.3(b))
+    >>> for padding in (False, True):
+    ...     try:
+    ...         periods(2.5, 1.0, padding=padding)
+    ...     except ValueError as exc:
+    ...         for part in re.split(r"(?<=:) (?=the)|; | (?=accepts)", str(exc)):
+    ...             print(part)
+    tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) of T = 1.0:
+    the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)
+    tau = 2.5 is not allowed: zero-order hold needs a multiple l*T (l >= 0) of T = 1.0:
+    the nearest allowed are tau = 2 or 3 (l*T), or T = 0.833333333333 or 1.25 (tau/l)
+    or pad = true ([controller] pad in a loop file, --set pad=1 for a scenario)
+    accepts it, delaying the output to the next multiple, 3 (Remark 3.3(b))
     """
     usable = math.isfinite(value) and value >= 0 and math.isfinite(period) and period > 0
     if usable:
@@ -250,8 +310,11 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
             return q
     text = (f"{name} = {value!r} is not allowed: zero-order hold needs a multiple l*T "
             f"(l >= 0) of T = {period!r}")
+    if usable:
+        text += f": {zoh_alternatives(value, period)}"
     if padding and usable:
-        text += f"; pad = true pads it up to {(q + 1) * period!r} (Remark 3.3(b))"
+        text += (f"; or {PAD_SPELLING} accepts it, delaying the output to the next "
+                 f"multiple, {_show((q + 1) * period)} (Remark 3.3(b))")
     raise ValueError(text)
 
 

@@ -194,7 +194,7 @@ class Timing:
         if not grid.on_grid(value, self.h):
             raise ParameterError(
                 f"parameter {name} = {value!r} is not allowed: must be a multiple of the "
-                f"base step h = T/N = {self.h!r} (raise N)")
+                f"base step h = T/N = {self.h!r}: {grid.base_alternatives(value, self.T, self.N)}")
 
 
 @dataclass(frozen=True)
@@ -402,9 +402,16 @@ def matrix_params(label: str, M) -> dict:
             for i in range(M.shape[0]) for j in range(M.shape[1])}
 
 
-def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tuple[float, float]:
+def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true,
+                 zoh: Literal["hold", "pad"] | None = None) -> tuple[float, float]:
     """The true delays ``(r_true, tau_true)`` (each the assumed one where ``None``), after
-    refusing any delay that is not a finite number >= 0 on the base grid."""
+    refusing any delay that is not a finite number >= 0 on the base grid.
+
+    ``zoh``: the controller holds its output over each period, so ``tau`` must be a
+    multiple of ``T`` (:func:`check_zoh_delay`; ``"pad"``: the caller could pad it). That
+    rule is checked before the base grid's: a multiple of ``T`` is on the grid of every
+    ``N``, and a ``tau`` off both is refused with the fix of the rule that binds (the
+    nearest multiples of ``T``, ``pad``), never with the base grid's."""
     for name, value in (("r", r), ("tau", tau), ("r_true", r_true), ("tau_true", tau_true)):
         if value is None and name in ("r_true", "tau_true"):  # default: the assumed one
             continue
@@ -412,6 +419,8 @@ def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true) -> tupl
                 and float(value) >= 0):
             raise ParameterError(f"parameter {name} = {value!r} is not allowed: must be a "
                                  "finite number >= 0")
+        if name == "tau" and zoh is not None:
+            check_zoh_delay(cast(float, value), timing.T, padding=zoh == "pad")
         timing.check_on_grid(name, cast(float, value))
     return (r if r_true is None else r_true), (tau if tau_true is None else tau_true)
 
@@ -483,8 +492,7 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
         raise ParameterError(f"parameter mode = {mode!r} is not allowed: must be "
                              f"{' or '.join(MODES)}")
     timing = Timing(T, N)
-    check_delays(timing, r, tau, r_true, tau_true)
-    check_zoh_delay(tau, T)
+    check_delays(timing, r, tau, r_true, tau_true, zoh="hold")
     return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true), timing)
 
 
@@ -681,9 +689,8 @@ def check_model_loop(model, T: float, r: float, tau: float, N: int, x0, u0,
         raise ParameterError(f"model {model.name} has no parameter {unknown[0]!r}: allowed "
                              f"are {allowed}")
     timing = Timing(T, N)
-    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
-    if model.control == "zoh" and not pad:
-        check_zoh_delay(tau, T, padding=True)
+    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true,
+                                    zoh="pad" if model.control == "zoh" and not pad else None)
     return x0, u0, params, timing, r_loop, tau_loop
 
 

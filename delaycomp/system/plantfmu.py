@@ -21,7 +21,7 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import cast
+from typing import Literal, cast
 from xml.etree import ElementTree
 
 import numpy as np
@@ -368,6 +368,19 @@ def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
     return BuiltinFmu("delay", {"n": n})
 
 
+def _zoh_of(model, controller_parameters: Mapping | None) -> Literal["hold", "pad"] | None:
+    """How the controller constrains ``tau`` (:func:`~delaycomp.system.loop.check_delays`):
+    the LTI controller holds without padding; a model's, under zero-order hold, unless it
+    pads."""
+    if model is None:
+        return "hold"
+    from delaycomp.maths.model import load_model
+
+    if load_model(model).control != "zoh" or (controller_parameters or {}).get("pad", False):
+        return None
+    return "pad"
+
+
 def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                    fmu_parameters: Mapping | None, T: float, r: float, tau: float, N: int, x0,
                    u0=None,
@@ -394,7 +407,8 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     n, m = len(states), len(inputs)
     x0, u0 = histories(x0, u0, states, inputs)
     timing = Timing(T, N)
-    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true)
+    r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true,
+                                    zoh=_zoh_of(model, controller_parameters))
     if model is None:
         ctrl, ctrl_in, ctrl_out = _lti_controller(A, B, K, states, inputs, T, r, tau, mode,
                                                   u0)
