@@ -494,7 +494,7 @@ def _measurements(loop, periods: int):
 
 
 def _drive(path, name, params, ins, outs, rows, h, stop):
-    """One FMU alone through fmpy (:class:`FmuComponent`), as our master calls it: the
+    """One FMU alone through fmpy (``FmuComponent``), as our master calls it: the
     inputs of t = 0, then per base step ``do_step``, the inputs, the outputs. The wall
     time of the stepping (setup and initialization excluded)."""
     from delaycomp.orchestrator.fmu import FmuComponent
@@ -958,7 +958,7 @@ def merge_report(old: str, new: str, args) -> str:
 
 def write_report(path, results, args) -> None:
     """The report of the sections in ``results``: all of them, or with ``--sections``,
-    those put into the report already at ``path`` (:func:`merge_report`)."""
+    those put into the report already at ``path`` (``merge_report``)."""
     e36, eng, mas, pred, acc, nat, sta, imp, pac, spd = (results.get(k) for k in (
         "ex36", "engines", "master", "predictors", "accuracy", "native", "start",
         "fmu_imports", "packed", "speed"))

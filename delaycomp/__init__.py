@@ -1,16 +1,16 @@
 """delaycomp: predictor-based delay compensation for sampled-data control, as FMUs.
 
 The package stands in layers, each a folder, imports only downward: the maths, free of FMI
-(:mod:`delaycomp.maths`: exact discretization, predictor maps, the controllers, the grid),
-the typed loop (:mod:`delaycomp.system`), the paper as data (:mod:`delaycomp.paper`), the
-FMUs' build side (:mod:`delaycomp.fmu`), the master (:mod:`delaycomp.orchestrator`) and
-the FMUs (:mod:`delaycomp.fmus`), what it writes and reads (:mod:`delaycomp.formats`),
-studies (:mod:`delaycomp.studies`) and verification (:mod:`delaycomp.verify`), and the face
-(:mod:`delaycomp.api`, :mod:`delaycomp.cli`). :mod:`delaycomp.layout` keeps the modules'
+(``delaycomp.maths``: exact discretization, predictor maps, the controllers, the grid),
+the typed loop (``delaycomp.system``), the paper as data (``delaycomp.paper``), the
+FMUs' build side (``delaycomp.fmu``), the master (``delaycomp.orchestrator``) and
+the FMUs (``delaycomp.fmus``), what it writes and reads (``delaycomp.formats``),
+studies (``delaycomp.studies``) and verification (``delaycomp.verify``), and the face
+(``delaycomp.api``, ``delaycomp.cli``). ``delaycomp.layout`` keeps the modules'
 earlier names importable.
 
 The Python API is importable from here: ``delaycomp.run``, ``delaycomp.load``,
-``delaycomp.lti``, ``delaycomp.sweep``, ... are :mod:`delaycomp.api`'s, imported on first
+``delaycomp.lti``, ``delaycomp.sweep``, ... are ``delaycomp.api``'s, imported on first
 use (PEP 562), so that ``import delaycomp`` stays light. The earlier module names that are
 now API names (``delaycomp.lti``, ``delaycomp.model``, ``delaycomp.build``,
 ``delaycomp.sweep``) still import as modules (``importlib.import_module``), but the
@@ -32,7 +32,7 @@ __path__ = layout.whole(__name__, __path__)
 
 layout.install()
 
-#: the public API (:mod:`delaycomp.api`), each name imported from there on first access
+#: the public API (``delaycomp.api``), each name imported from there on first access
 _API = ("BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError", "Result",
         "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
         "export_c", "iter_sweep", "load", "lti", "model", "plot", "run", "sweep", "to_ssp")
@@ -41,7 +41,7 @@ __all__ = list(_API)
 
 
 def __getattr__(name: str):
-    """An API name, from :mod:`delaycomp.api` (imported on first access)."""
+    """An API name, from ``delaycomp.api`` (imported on first access)."""
     if name in _API:
         return getattr(importlib.import_module("delaycomp.api"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -54,7 +54,7 @@ def __dir__() -> list[str]:
 
 class _Package(types.ModuleType):
     """The package's module type: a submodule imported under an earlier name that is an
-    API name now (``import delaycomp.lti``, :data:`delaycomp.layout.MOVED`) is not bound
+    API name now (``import delaycomp.lti``, ``delaycomp.layout.MOVED``) is not bound
     over the API function (the import system binds each submodule on its package)."""
 
     def __setattr__(self, name: str, value) -> None:

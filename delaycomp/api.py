@@ -1,34 +1,34 @@
 """The Python API: your own loop, run, plotted, packed, swept and analysed from Python.
 
-A loop comes from a loop file (:func:`load`), from matrices or a python-control
-``StateSpace`` (:func:`lti`), or from a model file (:func:`model`); each returns a
-:class:`~delaycomp.system.Loop`, the typed description every command runs. Then
+A loop comes from a loop file (``load``), from matrices or a python-control
+``StateSpace`` (``lti``), or from a model file (``model``); each returns a
+``Loop``, the typed description every command runs. Then
 
-- :func:`run` co-simulates it and returns a
-  :class:`~delaycomp.orchestrator.simulate.Result` (one numpy array per signal:
+- ``run`` co-simulates it and returns a
+  ``Result`` (one numpy array per signal:
   ``result["plant.x1"]``, ``result.signals``, ``result.to_pandas()``);
-- :func:`plot` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
-- :func:`build` writes the loop's FMUs, named after it, with its values as their start
+- ``plot`` returns a matplotlib ``Figure`` (pyplot is not touched, nor the backend);
+- ``build`` writes the loop's FMUs, named after it, with its values as their start
   values (ready to instantiate with no parameter set), and a wiring sheet: your
   controller (``only=["controller"]``) to take into your own tool chain;
-- :func:`to_ssp` packs an SSP archive (``jacobi=True`` for libcosim and Ecos);
-- :func:`sweep` runs a grid and returns one row of metrics per point (:func:`iter_sweep`
+- ``to_ssp`` packs an SSP archive (``jacobi=True`` for libcosim and Ecos);
+- ``sweep`` runs a grid and returns one row of metrics per point (``iter_sweep``
   hands them on one at a time, in memory bounded at any grid size);
-- :func:`critical_delay` gives the largest measurement delay the uncompensated loop
+- ``critical_delay`` gives the largest measurement delay the uncompensated loop
   survives (LTI).
 
 **One face.** Every function that takes a loop takes it in the same three forms: a
-:class:`~delaycomp.system.Loop`, a loop file's path (str or Path) or a scenario's name,
-with overrides (``sets=["r=0.4"]`` or ``sets={"r": 0.4}``); :func:`sweep` builds each
+``Loop``, a loop file's path (str or Path) or a scenario's name,
+with overrides (``sets=["r=0.4"]`` or ``sets={"r": 0.4}``); ``sweep`` builds each
 grid point of a ``Loop`` again from the loop-file data it keeps
-(:attr:`~delaycomp.system.Loop.origin`). The same functions are importable from
+(``origin``). The same functions are importable from
 ``delaycomp`` itself (``delaycomp.run``, ``delaycomp.sweep``, ...), imported on first use.
-A message names what was passed in a short form (:func:`~delaycomp.errors.short`).
+A message names what was passed in a short form (``short``).
 
-Failures raise named exceptions, all :class:`~delaycomp.errors.DelaycompError`:
-:class:`~delaycomp.errors.ParameterError` (a value out of range, the sign guard),
-:class:`~delaycomp.errors.BadFileError`, :class:`~delaycomp.maths.model.ModelError`,
-:class:`~delaycomp.errors.SimulationFailed` (a run stopped early; its rows are in
+Failures raise named exceptions, all ``DelaycompError``:
+``ParameterError`` (a value out of range, the sign guard),
+``BadFileError``, ``ModelError``,
+``SimulationFailed`` (a run stopped early; its rows are in
 ``exc.result``).
 
 **The sign.** delaycomp, like the paper, applies ``u = K x``; python-control's
@@ -94,20 +94,20 @@ __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterErr
            "to_ssp"]
 
 
-#: a loop, as every function here takes one: a :class:`Loop`, a loop file's path, or a
+#: a loop, as every function here takes one: a ``Loop``, a loop file's path, or a
 #: scenario's name
 LoopLike = Loop | str | Path
 
 
 def load(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
          **overrides) -> Loop:
-    """The loop of a loop file (TOML), a scenario or a :class:`Loop`, with key overrides.
+    """The loop of a loop file (TOML), a scenario or a ``Loop``, with key overrides.
 
     Parameters
     ----------
     source : Loop, str or Path
-        A loop file's path (see :mod:`delaycomp.system.loopfile` for its keys), a
-        scenario's name (``delaycomp list``) or a :class:`Loop` (built again with the
+        A loop file's path (see ``delaycomp.system.loopfile`` for its keys), a
+        scenario's name (``delaycomp list``) or a ``Loop`` (built again with the
         overrides from the loop-file data it keeps).
     sets : sequence of str or mapping, optional
         Overrides as ``--set`` takes them: ``["r=0.4", "controller.K=-1,-2"]``, or a
@@ -116,7 +116,7 @@ def load(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
         Keys to override; a section key is written with a double underscore: ``r=0.4``,
         ``plant__x0=[1, 0]``, ``controller__mode="uncompensated"``. Short names serve
         too: ``x0``, ``u0``, ``K``, ``mode`` and a model's own parameters
-        (:func:`~delaycomp.system.loopfile.long_key`). A scenario takes its own parameter
+        (``long_key``). A scenario takes its own parameter
         names (``k``, ``r``, ...).
 
     Returns
@@ -137,9 +137,9 @@ def load(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
 
 def _as_loop(source: LoopLike, sets: Sequence[str] | Mapping[str, object] = (),
              overrides: Mapping[str, object] | None = None) -> Loop:
-    """The :class:`Loop` of ``source`` with ``sets`` and ``overrides`` applied: the one
-    reading of a loop for every function here (:func:`~delaycomp.paper.scenarios.open_source`:
-    a :class:`Loop`, a loop file's path, a scenario's name; anything else is refused in
+    """The ``Loop`` of ``source`` with ``sets`` and ``overrides`` applied: the one
+    reading of a loop for every function here (``open_source``:
+    a ``Loop``, a loop file's path, a scenario's name; anything else is refused in
     one short line naming it)."""
     from delaycomp.paper.scenarios import open_source
 
@@ -225,7 +225,7 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         (``u0`` defaults to zeros).
     allow_unstable : bool
         Let through a ``K`` with which the delay-free sampled loop is unstable (otherwise
-        :class:`SignError`, which gives its spectral radius).
+        ``SignError``, which gives its spectral radius).
 
     Returns
     -------
@@ -250,8 +250,8 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
 
 
 def _top_data(loop: Loop, r: float, tau: float, r_true, tau_true, **sections) -> dict:
-    """The loop-file data of a loop built by :func:`lti` or :func:`model` (its
-    :attr:`~delaycomp.system.Loop.origin`): what a sweep of it resolves each point from."""
+    """The loop-file data of a loop built by ``lti`` or ``model`` (its
+    ``origin``): what a sweep of it resolves each point from."""
     data: dict = {"name": loop.name, "title": loop.title, "T": loop.T, "N": loop.N,
                   "r": r, "tau": tau, **sections}
     for key, value in (("r_true", r_true), ("tau_true", tau_true),
@@ -266,7 +266,7 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
           predictor: str | None = None, pad: bool = False,
           stop_time: float | None = None, **parameters) -> Loop:
     """A loop around a model file (the plant ``f`` and its delay-free feedback ``k``; see
-    :mod:`delaycomp.maths.model`); ``parameters`` are the model's own.
+    ``delaycomp.maths.model``); ``parameters`` are the model's own.
 
     ``mode="uncompensated"`` applies the feedback to the sample itself instead of the
     prediction (the baseline the predictor is compared with).
@@ -292,7 +292,7 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
         controller=controller)))
 
 
-#: which FMUs :func:`run` and :func:`to_ssp` use: the native C FMUs where the loop has
+#: which FMUs ``run`` and ``to_ssp`` use: the native C FMUs where the loop has
 #: them here, else the Python ones (``auto``, the default, as the CLI); only native ones
 #: (an error where there are none); only the Python ones
 
@@ -308,11 +308,11 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     """The FMU files a run of ``loop`` uses, and why not the native ones where it could
     have: ``(files, why)``, ``files`` ``None`` for the Python FMUs of the build cache.
 
-    ``fmus`` (:data:`FMU_KINDS`): ``auto`` takes the native C FMUs where the loop has them
+    ``fmus`` (``FMU_KINDS``): ``auto`` takes the native C FMUs where the loop has them
     here (``why`` says otherwise: no native twin, no C compiler, a model that does not
-    translate), ``native`` only those (:class:`ValueError` where there are none),
+    translate), ``native`` only those (``ValueError`` where there are none),
     ``python`` the Python ones. ``engine="inprocess"`` runs no FMU files. Native FMUs are
-    built into ``fmu_dir/native``; :func:`run` and the command line choose through here.
+    built into ``fmu_dir/native``; ``run`` and the command line choose through here.
 
     Examples
     --------
@@ -344,25 +344,25 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         sets: Sequence[str] | Mapping[str, object] = ()) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
-    same numbers, faster). ``fmus`` (:data:`FMU_KINDS`): with the FMU engine, the native C
+    same numbers, faster). ``fmus`` (``FMU_KINDS``): with the FMU engine, the native C
     FMUs where the loop has them (``auto``: LTI loops and model files that translate, with
     a C compiler; a note in ``result.notes`` says when the Python FMUs ran instead), only
-    native ones, or the Python ones (:func:`choose_fmus`); or the FMU file of each
+    native ones, or the Python ones (``choose_fmus``); or the FMU file of each
     instance, by name (an SSP archive's). Native FMUs are built into ``fmu_dir/native``.
 
     The rest is for long runs (as the command line's ``run``): a row every ``every`` base
     steps; ``sink(t, row)`` receives each row as it is made
-    (:class:`~delaycomp.formats.outputs.CsvStream`); ``keep=False`` keeps no rows in the
-    result; ``progress(k)`` hears the base step reached. Raises :class:`SimulationFailed`
+    (``CsvStream``); ``keep=False`` keeps no rows in the
+    result; ``progress(k)`` hears the base step reached. Raises ``SimulationFailed``
     if the run stops early (its rows so far in ``exc.result``).
 
     An FMU file of another tool in the loop runs in a child process of its own; a call of
     it that takes longer than ``watchdog`` seconds (default: 10 s, or 100 base steps if
     longer) stops the run, as does the FMU ending or crashing its process
-    (:mod:`delaycomp.orchestrator.isolated`).
+    (``delaycomp.orchestrator.isolated``).
 
-    ``loop`` is a :class:`Loop`, a loop file's path or a scenario's name, with ``sets``
-    (``["r=0.4"]`` or ``{"r": 0.4}``) as :func:`load` takes them.
+    ``loop`` is a ``Loop``, a loop file's path or a scenario's name, with ``sets``
+    (``["r=0.4"]`` or ``{"r": 0.4}``) as ``load`` takes them.
 
     Examples
     --------
@@ -417,19 +417,19 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     Parameters
     ----------
     loop : Loop, str or Path
-        The loop (:func:`load`, :func:`lti`, :func:`model`), a loop file's path or a
+        The loop (``load``, ``lti``, ``model``), a loop file's path or a
         scenario's name; its ``name`` names the files.
     out : path
         Output folder (created; files of those names are replaced).
     only : sequence of str, optional
         ``"plant"``, ``"controller"``, ``"delays"``: only these (default: all).
     fmus : str
-        As for :func:`run`: the native C FMUs where they exist (``auto``; the Python ones
+        As for ``run``: the native C FMUs where they exist (``auto``; the Python ones
         with a note in ``.notes`` otherwise), only native ones, or the Python ones.
     info : callable, optional
         Hears what is being built, one line at a time (the command line's ``-v``).
     sets : sequence of str or mapping, optional
-        Overrides, as :func:`load` takes them.
+        Overrides, as ``load`` takes them.
 
     Returns
     -------
@@ -469,7 +469,7 @@ def export_c(loop: LoopLike, out: str | Path, prefix: str, *,
     prefix : str
         A C identifier: the files' names and every exported name start with it.
     sets : sequence of str or mapping, optional
-        Overrides, as :func:`load` takes them.
+        Overrides, as ``load`` takes them.
 
     Returns
     -------
@@ -495,11 +495,11 @@ def to_ssp(loop: LoopLike, out: str | Path, *, jacobi: bool = False,
            notes: list[str] | None = None,
            sets: Sequence[str] | Mapping[str, object] = ()) -> Path:
     """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
-    variant that libcosim and Ecos run exactly (see :mod:`delaycomp.system.jacobi`).
-    ``fmus`` as for :func:`run`: the native C FMUs where they exist (``auto``: where they
+    variant that libcosim and Ecos run exactly (see ``delaycomp.system.jacobi``).
+    ``fmus`` as for ``run``: the native C FMUs where they exist (``auto``: where they
     do not, the Python ones, and ``notes`` hears why), only native ones, or the Python
-    ones. ``delaycomp ssp`` on the command line. ``loop``: a :class:`Loop`, a loop file's
-    path or a scenario's name, with ``sets`` as :func:`load` takes them."""
+    ones. ``delaycomp ssp`` on the command line. ``loop``: a ``Loop``, a loop file's
+    path or a scenario's name, with ``sets`` as ``load`` takes them."""
     from delaycomp.formats import ssp
     _fmu_kind(fmus)
     loop = _as_loop(loop, sets)
@@ -536,25 +536,25 @@ def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
     dict per point in grid order (the last parameter varies fastest). ``failed`` is empty
     where the run reached its stop time, else why not; where that is not the loop's own
     divergence (which is unstable, ``rho = inf``) ``rho`` and ``stable`` are ``None``
-    (:mod:`delaycomp.studies.sweep`).
+    (``delaycomp.studies.sweep``).
 
-    ``source`` is a scenario name, a loop file's path or a :class:`Loop` (from
-    :func:`load`, :func:`lti` or :func:`model`: it keeps the loop-file data it was built
+    ``source`` is a scenario name, a loop file's path or a ``Loop`` (from
+    ``load``, ``lti`` or ``model``: it keeps the loop-file data it was built
     from, and each point is built again from it); grid and ``sets`` names are a scenario's
     parameters or a loop's loop-file keys (``r``, ``T``, ``tau``, ``N``, ``controller.K``,
     ...) or their short names (``x0``, ``u0``, ``K``, ``mode``, a model's own parameters;
     a single number for a vector or matrix key is a list of one: ``K=-2`` is
-    ``[[-2]]``). A :class:`Loop` sweeps to the rows of the same loop given as a loop file.
+    ``[[-2]]``). A ``Loop`` sweeps to the rows of the same loop given as a loop file.
     ``engine`` is ``batch`` (all points
     advanced together, vectorized; points it cannot take run on the per-point engine),
     ``inprocess`` or ``fmu`` (point by point); the results agree (tested). ``workers``
     processes or a Dask ``scheduler`` address share the work; ``array_backend`` (numpy,
     cupy, jax, auto) and ``chunk`` (points per batch) tune the batch engine; what it did is
-    appended to ``notes``. See :func:`delaycomp.studies.sweep.run_sweep`.
+    appended to ``notes``. See ``delaycomp.studies.sweep.run_sweep``.
 
     The rows are held together: a grid whose rows would not fit in half of the memory is
-    refused before anything runs (a :class:`ParameterError` naming the points and the
-    estimate); :func:`iter_sweep` hands them on one at a time instead.
+    refused before anything runs (a ``ParameterError`` naming the points and the
+    estimate); ``iter_sweep`` hands them on one at a time instead.
 
     Examples
     --------
@@ -592,11 +592,11 @@ def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
                exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
                scheduler: str | None = None,
                notes: list[str] | None = None) -> Iterator[dict]:
-    """:func:`sweep`'s rows one at a time, in grid order, in memory bounded at any grid
-    size (:func:`sweep` holds them all, and refuses a grid whose rows would not fit in half
+    """``sweep``'s rows one at a time, in grid order, in memory bounded at any grid
+    size (``sweep`` holds them all, and refuses a grid whose rows would not fit in half
     of the memory): the points run a stream chunk at a time as the rows are taken. Every
     point is validated before this returns (a refusal raises here); ``notes`` are appended
-    once the last row is taken. See :func:`delaycomp.studies.sweep.iter_sweep`.
+    once the last row is taken. See ``delaycomp.studies.sweep.iter_sweep``.
 
     Examples
     --------
@@ -614,8 +614,8 @@ def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
 
 
 def _source(source: LoopLike):
-    """What a sweep runs, read by the same reading as :func:`_as_loop`
-    (:func:`~delaycomp.paper.scenarios.open_source`): a :class:`Loop`'s loop-file data, a
+    """What a sweep runs, read by the same reading as ``_as_loop``
+    (``open_source``): a ``Loop``'s loop-file data, a
     loop file's path or a scenario's name."""
     from delaycomp.paper.scenarios import open_source
 
@@ -624,7 +624,7 @@ def _source(source: LoopLike):
 
 
 def _axes(grid: Mapping[str, Sequence[float]]) -> list:
-    """The :class:`~delaycomp.studies.axes.Axis` of each grid parameter."""
+    """The ``Axis`` of each grid parameter."""
     from delaycomp.studies.axes import Axis
 
     if not isinstance(grid, Mapping):
@@ -644,12 +644,12 @@ def critical_delay(loop: LoopLike, *,
                    sets: Sequence[str] | Mapping[str, object] = ()) -> float:
     """The largest measurement delay ``r_c`` for which the *uncompensated* LTI loop is
     stable, from the spectral radius of the exact lifted model (the loop's own ``r`` is not
-    used). ``loop``: a :class:`Loop`, a loop file's path or a scenario's name, with
-    ``sets`` as :func:`load` takes them.
+    used). ``loop``: a ``Loop``, a loop file's path or a scenario's name, with
+    ``sets`` as ``load`` takes them.
 
     Examples
     --------
-    Example 3.6 with ``k = 2`` (``r_c = 0.203``, see :func:`sweep`):
+    Example 3.6 with ``k = 2`` (``r_c = 0.203``, see ``sweep``):
 
     >>> round(critical_delay("example-3.6", sets={"k": 2.0}), 3)
     0.203

@@ -2,7 +2,7 @@
 
 ``python -m delaycomp.X`` puts the working folder first on ``sys.path``: a folder that holds
 a ``delaycomp/`` (a checkout, or a build's staging copy) would shadow the installed package.
-:func:`module_argv` puts the folder that holds *this* process's ``delaycomp`` first instead,
+``module_argv`` puts the folder that holds *this* process's ``delaycomp`` first instead,
 so a child always runs the same code as its parent, from a wheel or an editable install.
 """
 

@@ -64,10 +64,10 @@ class UsageError(DelaycompError):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP (the terminal closing) during a sweep (:func:`_ending_signals`),
+    """SIGTERM or SIGHUP (the terminal closing) during a sweep (``_ending_signals``),
     raised in the main thread as Ctrl-C raises ``KeyboardInterrupt`` (an interrupt, not an
     error: whatever handles Ctrl-C handles it): the sweep stops the same way, its worker
-    processes ended (:func:`delaycomp.studies.pool.on_processes`), and :func:`main`
+    processes ended (``delaycomp.studies.pool.on_processes``), and ``main``
     reports it in one line, with exit status ``128 + signum``."""
 
     def __init__(self, signum: int):
@@ -81,7 +81,7 @@ def _raise_terminated(signum, frame):
 
 @contextlib.contextmanager
 def _ending_signals():
-    """SIGTERM and SIGHUP raise :class:`Terminated` while the block runs, where they have
+    """SIGTERM and SIGHUP raise ``Terminated`` while the block runs, where they have
     their default action (under ``nohup`` SIGHUP stays ignored) and in the main thread only
     (where Python runs signal handlers); the previous handlers come back afterwards."""
     import signal
@@ -110,7 +110,7 @@ def _interrupt_watch():
     """A list that gets an entry when SIGINT arrives while the command runs (Python's
     handler then raises KeyboardInterrupt as before), in the main thread only. Code that
     catches every exception (an FMU's slave, a build step, a check) may turn Ctrl-C into
-    its own failure; :func:`main` reports such a failure as the interrupt it was."""
+    its own failure; ``main`` reports such a failure as the interrupt it was."""
     import signal
     import threading
 
@@ -134,7 +134,7 @@ def _interrupt_watch():
 def _stopped(exc: KeyboardInterrupt | Terminated, command: str | None = None) -> int:
     """Ctrl-C, SIGTERM or SIGHUP: one line on standard error, and the exit status a shell
     gives a process that the signal ended, ``128 + signum`` (130 for Ctrl-C). Ctrl-C
-    during a co-simulation (:class:`~delaycomp.errors.Interrupted`) names the simulation
+    during a co-simulation (``Interrupted``) names the simulation
     time reached, ``delaycomp: interrupted at t = 12.34``; elsewhere (a sweep's many
     runs, a build, an analysis) ``delaycomp: interrupted``."""
     import signal
@@ -522,7 +522,7 @@ def _loop(args):
 
 def _cmd_build_loop(args) -> int:
     """``build LOOP.toml``: the loop's FMUs with its values as start values, and its
-    wiring sheet (:func:`delaycomp.api.build`)."""
+    wiring sheet (``delaycomp.api.build``)."""
     from delaycomp.progress import info
 
     if args.model is not None:
@@ -745,7 +745,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
              runner=None, other_fmus: dict | None = None) -> int:
     """Run ``loop`` (and, for ``--compare``, the ``others``, each with its
     ``other_fmus``) to ``stop`` with the CSV streamed to ``--out`` (an other run's to
-    :func:`compare_path`) and decimated by ``--output-interval``; then plot and report.
+    ``compare_path``) and decimated by ``--output-interval``; then plot and report.
 
     ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
     and are decimated afterwards)."""
@@ -836,7 +836,7 @@ def _execute(args, loop, stop: float, name: str, title: str, timing, units,
 
 
 def _foreign(args):
-    """The :class:`delaycomp.formats.ssp.Foreign` settings of ``--period``, ``--steps``, ``--role``
+    """The ``delaycomp.formats.ssp.Foreign`` settings of ``--period``, ``--steps``, ``--role``
     (None when none is given)."""
     from delaycomp.formats.ssp import Foreign
 
@@ -917,7 +917,7 @@ def _run_ssp(args) -> int:
 def _undriven_note(loop, verbosity: int) -> None:
     """The note (once, unless ``-q``) naming the inputs of a user's FMU that the loop does
     not drive, with the start values they keep
-    (:func:`delaycomp.system.plantfmu.undriven_notes`)."""
+    (``delaycomp.system.plantfmu.undriven_notes``)."""
     from delaycomp.progress import info
     from delaycomp.system.plantfmu import undriven_notes
 
@@ -1235,7 +1235,7 @@ def _platform_notes(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     """The command line: parse ``argv`` (default: ``sys.argv[1:]``), run the command, return the
     exit status (2 for bad input, 1 for a failed run, with one line on stderr; Ctrl-C, and
-    SIGTERM or SIGHUP during a sweep, give ``128 + signal``: :func:`_stopped`; a failure
+    SIGTERM or SIGHUP during a sweep, give ``128 + signal``: ``_stopped``; a failure
     that follows a Ctrl-C, code that caught the interrupt as an error, is reported as the
     interrupt)."""
     command = None
@@ -1286,7 +1286,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:
-    """The ``delaycomp`` command: :func:`main`, then the exit.
+    """The ``delaycomp`` command: ``main``, then the exit.
 
     When an FMU was loaded in this process, the process leaves with ``os._exit`` after the
     atexit handlers have run and the streams are flushed: unloading a pythonfmu FMU in the

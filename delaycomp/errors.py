@@ -1,6 +1,6 @@
 """Errors the command line reports as one line with exit status 2 (bad user input).
 
-:class:`BadFileError` is for any file the user hands over (an ``.fmu`` in ``--fmu-dir``,
+``BadFileError`` is for any file the user hands over (an ``.fmu`` in ``--fmu-dir``,
 an ``.ssp``, a CSV): missing, corrupt, or of the wrong kind. Raise it with the path and a
 reason that says what was expected; ``delaycomp.cli`` prints ``delaycomp: error: PATH:
 REASON`` and exits with status 2, without a traceback.
@@ -15,7 +15,7 @@ from pathlib import Path
 #: or control that overflowed from finite values (``... must be finite (the plant
 #: diverged: overflow)``). A sweep counts such a point unstable (``rho = inf``); any other
 #: failure (a plant FMU file whose output turned NaN, a refused call) is marked failed,
-#: neither stable nor unstable. See :func:`is_divergence`.
+#: neither stable nor unstable. See ``is_divergence``.
 DIVERGED = "diverged"
 
 
@@ -33,7 +33,7 @@ def shown(text: str, limit: int = 60) -> str:
 
 
 def short(obj, limit: int = 80) -> str:
-    """``obj`` as a message names what a user passed in: a string quoted (:func:`shown`:
+    """``obj`` as a message names what a user passed in: a string quoted (``shown``:
     its start and end where long), anything else by its type and the start and end of its
     ``repr``, on one line of at most about ``limit`` characters (never a multi-kilobyte
     ``repr`` of a loop, a dict or an array).
@@ -96,7 +96,7 @@ class ParameterError(DelaycompError, ValueError):
 
 class SimulationFailed(DelaycompError, RuntimeError):
     """A co-simulation stopped before its stop time (a component refused a step). The
-    rows recorded up to the failure are in :attr:`result` (``success`` is False)."""
+    rows recorded up to the failure are in ``result`` (``success`` is False)."""
 
     def __init__(self, message: str, result=None):
         super().__init__(message)
@@ -104,14 +104,14 @@ class SimulationFailed(DelaycompError, RuntimeError):
 
 
 class SspError(DelaycompError, ValueError):
-    """An SSD, SSV or SSP archive that :mod:`delaycomp.formats.ssp` cannot read (one-line
+    """An SSD, SSV or SSP archive that ``delaycomp.formats.ssp`` cannot read (one-line
     message)."""
 
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C during a co-simulation: a ``KeyboardInterrupt`` (whatever handles Ctrl-C
     handles it: an interrupt, not an error) that knows the simulation time reached,
-    :attr:`time` (the last tick the master completed). The command line reports it as
+    ``time`` (the last tick the master completed). The command line reports it as
     ``delaycomp: interrupted at t = <time>``, exit status 130; the rows so far are kept
     (``.partial``)."""
 

@@ -5,20 +5,20 @@ The package stands in layers, each a folder, imports only downward (docs/develop
 
 - **Earlier names.** Each module's name before 0.2 (``delaycomp.lti``,
   ``delaycomp.simulate``, ``delaycomp.models.unicycle``, ...) still imports, as the very
-  module at its new place (:data:`MOVED`): the same objects, so a patch or an
+  module at its new place (``MOVED``): the same objects, so a patch or an
   ``isinstance`` through either name sees the other.
 - **A Python FMU's part of the package.** An FMU bundles part of the package (the maths
   and the base slave) beside its ``delaycomp_fmu.json``, and its binary puts that folder
   first on ``sys.path`` of the process that runs it; processes started from there copy
   that ``sys.path``. In such a bundled copy, each package the FMU bundles in part also
   takes the same package's folders that ``sys.path`` and the other import finders hold
-  (:func:`whole`), so those processes still find every module.
+  (``whole``), so those processes still find every module.
 - **A checkout as it installs.** The repository keeps ``orchestrator/``, ``fmus/`` and
-  ``reference/`` at its top (:data:`BESIDE`); installed, they are ``delaycomp.orchestrator``,
+  ``reference/`` at its top (``BESIDE``); installed, they are ``delaycomp.orchestrator``,
   ``delaycomp.fmus`` and ``delaycomp.reference``. Run from a checkout that is not installed
   (``PYTHONPATH=.``), those names resolve to the top-level folders, as they do installed.
 
-:func:`install` puts the finder first on ``sys.meta_path`` (``import delaycomp`` calls it);
+``install`` puts the finder first on ``sys.meta_path`` (``import delaycomp`` calls it);
 it answers only for these names. This module imports nothing from delaycomp: it is bundled
 into the Python FMUs with the maths.
 
@@ -96,7 +96,7 @@ def bundled() -> bool:
 def whole(name: str, path: list[str]) -> list[str]:
     """The search path of package ``name`` (its ``__path__``): as it is, or, in an FMU's
     bundled copy, followed by the same package's folders further down ``sys.path``
-    (:func:`pkgutil.extend_path`) and those the other finders on ``sys.meta_path`` hold
+    (``pkgutil.extend_path``) and those the other finders on ``sys.meta_path`` hold
     (an editable install's). The bundled folder stays first: the FMU's own modules win.
 
     >>> import delaycomp

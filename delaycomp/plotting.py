@@ -1,16 +1,16 @@
 """Plots of recorded trajectories (matplotlib, no display needed).
 
-:func:`figure` draws into a new :class:`matplotlib.figure.Figure` without pyplot, so it
+``figure`` draws into a new ``matplotlib.figure.Figure`` without pyplot, so it
 never switches the caller's backend nor keeps figures alive in pyplot's registry.
 
-A run's figure explains itself: a title that names the loop (:func:`loop_title`), one
+A run's figure explains itself: a title that names the loop (``loop_title``), one
 panel per signal with its unit where known, a legend, the sampling instants ``t_i`` and,
 shaded, the delay window ``[t_i - r, t_i + tau]`` of the first sample whose prediction is
 exact (``i = ceil(r/T)``, at least 1): the state measured at ``t_i`` is ``x(t_i - r)``, and
 the input the controller computes then reaches the plant at ``t_i + tau``. Several runs of
 the same loop (``run --compare``: compensated and uncompensated) share the panels, each
-panel on a y scale on which every run reads (:func:`choose_scale`): linear where the runs'
-largest values are within :data:`LINEAR_RATIO` of each other, else (a diverging baseline
+panel on a y scale on which every run reads (``choose_scale``): linear where the runs'
+largest values are within ``LINEAR_RATIO`` of each other, else (a diverging baseline
 beside a converging run) a symmetric log scale, linear within the smaller run's range, said
 on the panel.
 """
@@ -35,7 +35,7 @@ MAX_SAMPLE_LINES = 60
 #: Runs drawn on one panel share a linear y axis while the largest ``|value|`` of one is at
 #: most this many times that of another; beyond, the smaller run would fill less than a
 #: quarter of the panel's half height (its dead-beat or its decay drawn flat on the zero
-#: line), and the panel goes to a symmetric log scale (:func:`choose_scale`).
+#: line), and the panel goes to a symmetric log scale (``choose_scale``).
 LINEAR_RATIO = 4.0
 
 
@@ -43,7 +43,7 @@ LINEAR_RATIO = 4.0
 class Marks:
     """What the figure marks: period ``T`` and the delays ``r``, ``tau`` the controller
     assumes (seconds), from ``t0``. (The loop's base grid is
-    :class:`delaycomp.system.Timing`; this is only what a figure draws.)"""
+    ``delaycomp.system.Timing``; this is only what a figure draws.)"""
 
     T: float
     r: float
@@ -62,7 +62,7 @@ class Marks:
     of_spec = of_loop
 
 
-#: the earlier name of :class:`Marks` (scripts written for it keep working)
+#: the earlier name of ``Marks`` (scripts written for it keep working)
 Timing = Marks
 
 
@@ -103,7 +103,7 @@ def loop_title(name: str, description: str | None, params: dict | None = None) -
 
 
 def title_of_loop(loop, compare: bool = False) -> str:
-    """:func:`loop_title` of a :class:`~delaycomp.system.Loop`: its name and title, its
+    """``loop_title`` of a ``Loop``: its name and title, its
     period, the delays its controller assumes and (unless ``compare``) its mode."""
     ctrl = loop.by_role("controller")
     params = dict(ctrl.parameters) if ctrl is not None else {}
@@ -151,7 +151,7 @@ def choose_scale(columns: Sequence) -> Scale:
     -------
     Scale
         ``linear`` for a single run, or while the largest ``|value|`` of every run is
-        within :data:`LINEAR_RATIO` of the others'; else ``symlog`` whose linear part
+        within ``LINEAR_RATIO`` of the others'; else ``symlog`` whose linear part
         ``+-linthresh`` holds the run of the smallest range (its largest ``|value|``
         rounded up to 1, 2 or 5 times a power of ten), the larger runs growing
         logarithmically beyond.
@@ -172,7 +172,7 @@ def choose_scale(columns: Sequence) -> Scale:
 def panel_scales(panels: Sequence[Sequence]) -> list[Scale]:
     """The y scales of a figure's panels, each a list of columns (one per run): linear
     for all while every panel reads on a linear axis; else every panel of several runs
-    on its own symmetric log scale (:func:`choose_scale`'s ``linthresh``, or that of its
+    on its own symmetric log scale (``choose_scale``'s ``linthresh``, or that of its
     smallest nonzero run where the runs of that panel are close), so that the figure
     reads one way throughout.
 
@@ -237,15 +237,15 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
            scale: str = "auto"):
     """One panel per recorded signal against time, one line per result; controller
     signals as staircases (they are held over each base step). Several results share
-    each panel on the y scale of :func:`choose_scale`, said on the panel.
+    each panel on the y scale of ``choose_scale``, said on the panel.
 
     Parameters
     ----------
     results : Result or list of Result
-        the runs (:class:`delaycomp.orchestrator.simulate.Result`); the first one's signals make the
+        the runs (``delaycomp.orchestrator.simulate.Result``); the first one's signals make the
         panels.
     title : str
-        the figure's title (:func:`loop_title`).
+        the figure's title (``loop_title``).
     labels : sequence of str, optional
         one label per result, in the legend (``["compensated", "uncompensated"]``).
     timing : Marks, optional
@@ -253,7 +253,7 @@ def figure(results, title: str = "", labels: Sequence[str] | None = None,
     units : dict, optional
         unit of a signal by variable name (``{"theta": "rad"}``).
     scale : {"auto", "linear"}
-        ``auto``: each panel on :func:`choose_scale`'s scale (linear for one result);
+        ``auto``: each panel on ``choose_scale``'s scale (linear for one result);
         ``linear``: every panel linear.
 
     Returns
@@ -311,7 +311,7 @@ def _peak(column) -> float:
 
 def result_figure(result, title: str, timing: Marks | None = None,
                   units: dict[str, str] | None = None, compare: dict | None = None):
-    """:func:`figure` of ``result``, or of the labelled runs ``compare``
+    """``figure`` of ``result``, or of the labelled runs ``compare``
     (``{"compensated": r1, "uncompensated": r2}``) of the same loop."""
     if compare:
         return figure(list(compare.values()), title, list(compare), timing, units)
@@ -346,5 +346,5 @@ def save(fig, path: str | Path) -> None:
 
 def plot_result(result, path: str | Path, title: str, timing: Marks | None = None,
                 units: dict[str, str] | None = None, compare: dict | None = None) -> None:
-    """:func:`result_figure` written to ``path`` (its suffix picks the format)."""
+    """``result_figure`` written to ``path`` (its suffix picks the format)."""
     save(result_figure(result, title, timing, units, compare), path)

@@ -2,9 +2,9 @@
 
 A bar shows when standard error is a terminal of any kind (a console, or a pseudo-terminal:
 ``script``, an editor's terminal, ``ssh -t``; one that reports no size gets
-:data:`DEFAULT_COLUMNS` columns) and never with ``-q``; ``--progress`` shows it whatever
+``DEFAULT_COLUMNS`` columns) and never with ``-q``; ``--progress`` shows it whatever
 standard error is (a file, a pipe, with ``-q`` too), ``--no-progress`` never
-(:func:`choose`). When standard error is redirected nothing but the results reach the
+(``choose``). When standard error is redirected nothing but the results reach the
 files, and standard output carries results only, whatever the verbosity.
 """
 
@@ -18,7 +18,7 @@ QUIET, NORMAL, VERBOSE = 0, 1, 2
 
 
 class NoBar:
-    """What :func:`bar` returns when no bar shows: counts, draws nothing, imports nothing.
+    """What ``bar`` returns when no bar shows: counts, draws nothing, imports nothing.
 
     >>> with NoBar(10) as b:
     ...     b.update(4)
@@ -50,24 +50,24 @@ DEFAULT_COLUMNS = 80
 #: its height in rows (tqdm hides a bar beyond the terminal's last row)
 DEFAULT_ROWS = 24
 
-#: ``--progress`` (True), ``--no-progress`` (False), neither (None): :func:`choose`
+#: ``--progress`` (True), ``--no-progress`` (False), neither (None): ``choose``
 _chosen: bool | None = None
-#: the command's verbosity (:func:`choose`), for the details told from deep inside (FMU
-#: builds, cache hits: :func:`detail`); a library caller's default says nothing
+#: the command's verbosity (``choose``), for the details told from deep inside (FMU
+#: builds, cache hits: ``detail``); a library caller's default says nothing
 _verbosity = NORMAL
 
 
 def choose(shown: bool | None, verbosity: int = NORMAL) -> None:
     """Bars on (``True``: ``--progress``, even off a terminal and with ``-q``), off
     (``False``: ``--no-progress``) or as the terminal and the verbosity say (``None``);
-    ``verbosity``: the command's, for :func:`detail`. The command line sets both for one
-    command and puts them back (``None``, :data:`NORMAL`) when it ends."""
+    ``verbosity``: the command's, for ``detail``. The command line sets both for one
+    command and puts them back (``None``, ``NORMAL``) when it ends."""
     global _chosen, _verbosity
     _chosen, _verbosity = shown, verbosity
 
 
 def detail(message: str) -> None:
-    """Print ``message`` to standard error under ``-v`` (:func:`choose`), else nothing:
+    """Print ``message`` to standard error under ``-v`` (``choose``), else nothing:
     what the code deep inside does that no caller hands a verbosity to (an FMU built, one
     found in the build cache).
 
@@ -93,7 +93,7 @@ def _columns(stream) -> int:
 
 
 def shows(verbosity: int = NORMAL) -> bool:
-    """Whether :func:`bar` draws a bar: ``--progress``/``--no-progress`` where given, else
+    """Whether ``bar`` draws a bar: ``--progress``/``--no-progress`` where given, else
     not with ``-q`` and only when standard error is a terminal (any kind: a pty too)."""
     if _chosen is not None:
         return _chosen
@@ -103,10 +103,10 @@ def shows(verbosity: int = NORMAL) -> bool:
 def bar(total: int, desc: str, verbosity: int = NORMAL, unit: str = "it"):
     """A tqdm bar on standard error with an estimate of the time left.
 
-    Where no bar shows (:func:`shows`), a :class:`NoBar` instead: tqdm (30 ms to import)
+    Where no bar shows (``shows``), a ``NoBar`` instead: tqdm (30 ms to import)
     is loaded only for a bar that shows. A terminal that reports its width gets a bar
     that follows it; one that reports none (a pty of ``script``, of size 0 x 0, where
-    tqdm's own sizing hid the bar), or a file, :data:`DEFAULT_COLUMNS` (or ``$COLUMNS``).
+    tqdm's own sizing hid the bar), or a file, ``DEFAULT_COLUMNS`` (or ``$COLUMNS``).
     """
     if not shows(verbosity):
         return NoBar(total)

@@ -1,9 +1,9 @@
 """Temporary folders that a killed process does not leave behind, and atomic writes.
 
-A folder made by :func:`temp_dir` is named ``<prefix><pid>-<random>``; :func:`sweep`
+A folder made by ``temp_dir`` is named ``<prefix><pid>-<random>``; ``sweep``
 removes the folders of a prefix whose process is gone (killed before its cleanup ran).
-:func:`build_lock` lets one process build a cache entry while the others wait;
-:func:`zip_folder` writes an archive (an FMU, an SSP) that appears whole or not at all.
+``build_lock`` lets one process build a cache entry while the others wait;
+``zip_folder`` writes an archive (an FMU, an SSP) that appears whole or not at all.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def sweep(prefix: str, folder: str | Path | None = None) -> int:
     Parameters
     ----------
     prefix : str
-        The prefix given to :func:`temp_dir`.
+        The prefix given to ``temp_dir``.
     folder : path, optional
         Where to look (default: the system's temporary folder).
     """
@@ -67,7 +67,7 @@ def temp_dir(prefix: str) -> Iterator[str]:
 
 
 def mkdtemp(prefix: str) -> str:
-    """:func:`tempfile.mkdtemp` named ``<prefix><pid>-*`` (stale ones swept first)."""
+    """``tempfile.mkdtemp`` named ``<prefix><pid>-*`` (stale ones swept first)."""
     sweep(prefix)
     return tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-")
 
@@ -115,7 +115,7 @@ def new_file(path: Path, binary: bool = False):
     """Open ``path`` as a new, empty file for writing: whatever file or link was at that
     name is removed first (a link's target is never opened), the file is created with
     ``O_EXCL`` (and ``O_NOFOLLOW``), with the permissions the umask allows. Text mode
-    writes UTF-8 with no newline translation (what :mod:`csv` needs)."""
+    writes UTF-8 with no newline translation (what ``csv`` needs)."""
     path = Path(path)
     if path.is_symlink() or path.is_file():
         path.unlink()
@@ -134,7 +134,7 @@ def _part_name(path: Path) -> Path:
 
 @contextlib.contextmanager
 def replacing(path: str | Path, binary: bool = False) -> Iterator:
-    """Write the file ``path`` as a whole: a new working file beside it (:func:`new_file`)
+    """Write the file ``path`` as a whole: a new working file beside it (``new_file``)
     that is renamed over ``path`` when the block ends without error, and removed
     otherwise. A link at ``path`` is replaced by the file, its target left alone; a reader
     never sees half a file.
@@ -163,7 +163,7 @@ def replacing(path: str | Path, binary: bool = False) -> Iterator:
 def replacing_path(path: str | Path) -> Iterator[Path]:
     """A working path beside ``path`` (same suffix, for writers that go by it: a plot, a
     zip) for the block to write; renamed over ``path`` when the block ends without error,
-    removed otherwise (see :func:`replacing`)."""
+    removed otherwise (see ``replacing``)."""
     path = Path(path)
     part = _part_name(path)
     try:
@@ -175,7 +175,7 @@ def replacing_path(path: str | Path) -> Iterator[Path]:
 
 
 def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8, newlines as given) to ``path`` through :func:`replacing`."""
+    """Write ``text`` (UTF-8, newlines as given) to ``path`` through ``replacing``."""
     with replacing(path) as fh:
         fh.write(text)
     return Path(path)

@@ -2,9 +2,9 @@
 
 Every archive delaycomp unpacks, and every archive inside one that it will unpack in turn
 (an FMU inside an SSP), is measured first from the sizes its zip directory declares, which
-:mod:`zipfile` enforces while extracting (a member that inflates beyond its declared size
-fails its CRC check and is refused): at most :data:`MAX_MEMBERS` files and
-:data:`MAX_BYTES` bytes, counted together for an archive and the archives inside it that
+``zipfile`` enforces while extracting (a member that inflates beyond its declared size
+fails its CRC check and is refused): at most ``MAX_MEMBERS`` files and
+``MAX_BYTES`` bytes, counted together for an archive and the archives inside it that
 will be unpacked, and no member outside the target folder. A request over the limits is
 refused before anything is written.
 
@@ -56,7 +56,7 @@ class Budget:
         self.bytes = 0
 
     def charge(self, infos: Iterable[zipfile.ZipInfo], what: str) -> None:
-        """Count ``infos`` (members of the archive ``what``); :class:`TooLarge` if the
+        """Count ``infos`` (members of the archive ``what``); ``TooLarge`` if the
         request goes over its limits, or a member's name leaves the folder."""
         infos = list(infos)
         for info in infos:

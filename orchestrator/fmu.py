@@ -42,7 +42,7 @@ _KEEPALIVE: list = []
 #: to their component by the componentEnvironment pointer the FMU passes back.
 _COMPONENTS: dict[int, weakref.ReferenceType] = {}
 _ENV_IDS = itertools.count(1)
-#: An FMI function of one instance as :meth:`FmuComponent._raw` returns it: the bare ctypes
+#: An FMI function of one instance as ``FmuComponent._raw`` returns it: the bare ctypes
 #: function (it returns the fmi2Status) and the instance pointer to pass it first.
 _RawCall = tuple[Callable[..., int], c_void_p]
 
@@ -193,7 +193,7 @@ class FmuComponent(ComponentBase):
 
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
         """Instantiate the FMU, set up the experiment from ``start_time`` to ``stop_time``
-        (with :attr:`tolerance` where one is given: ``toleranceDefined = true``), enter
+        (with ``tolerance`` where one is given: ``toleranceDefined = true``), enter
         initialization mode and set the ``parameters`` (by variable name)."""
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier,
@@ -237,7 +237,7 @@ class FmuComponent(ComponentBase):
         self.call_failed = True
 
     def initialize(self) -> None:
-        """Leave initialization mode; raise :class:`FmuRefused` if the FMU logged an
+        """Leave initialization mode; raise ``FmuRefused`` if the FMU logged an
         error (it would refuse to step)."""
         assert self.fmu is not None  # after setup()
         try:
@@ -356,7 +356,7 @@ class FmuComponent(ComponentBase):
             self._call(self.fmu.freeFMUstate, state)
 
     def set_state(self, data: bytes) -> None:
-        """Restore a state from :meth:`get_state`, possibly of another instance."""
+        """Restore a state from ``get_state``, possibly of another instance."""
         assert self.fmu is not None  # after setup()
         state = self._call(self.fmu.deSerializeFMUstate, data)
         try:

@@ -1,12 +1,12 @@
 """The project's slaves as master components in this process, without the FMI layer.
 
-:class:`SlaveComponent` instantiates the very slave class an FMU wraps (the modules under
-``fmus/``, on the maths of :mod:`delaycomp`) and calls its variable getters and setters and
+``SlaveComponent`` instantiates the very slave class an FMU wraps (the modules under
+``fmus/``, on the maths of ``delaycomp``) and calls its variable getters and setters and
 its ``do_step`` directly: no fmpy, no ctypes, no embedded interpreter. The master and the
 step order are the same as with FMUs, so a run gives the same numbers (tested to 1e-12 on
 every scenario) at a fraction of the cost: this is the engine for sweeps and tuning.
 
-Failures follow the FMU semantics of :mod:`delaycomp.fmu.slave`: a slave that refuses its
+Failures follow the FMU semantics of ``delaycomp.fmu.slave``: a slave that refuses its
 parameters logs an error at initialization (``initialize`` raises with that message), and a
 step it cannot take returns ``False`` (``do_step`` raises with the logged reason).
 """
@@ -35,7 +35,7 @@ class SlaveComponent(ComponentBase):
 
     def __init__(self, name: str, kind: str, config: dict, fp_guarded: bool = False):
         """``fp_guarded``: the caller runs every step under ``np.errstate(all="ignore")``
-        (as :func:`delaycomp.orchestrator.simulate.run_loop` does), so the slave need not."""
+        (as ``delaycomp.orchestrator.simulate.run_loop`` does), so the slave need not."""
         self.name = name
         self._cls, self._config = slave_class(kind, config)
         self.messages: list[str] = []
@@ -75,7 +75,7 @@ class SlaveComponent(ComponentBase):
         self._drain()
 
     def initialize(self) -> None:
-        """Leave initialization mode; raise :class:`SlaveRefused` if the slave logged an
+        """Leave initialization mode; raise ``SlaveRefused`` if the slave logged an
         error (it refused its parameters)."""
         self.slave.exit_initialization_mode()
         self._drain()
@@ -121,7 +121,7 @@ class SlaveComponent(ComponentBase):
         return write
 
     def do_step(self, t: float, h: float) -> None:
-        """Step the slave from ``t`` to ``t + h``; raise :class:`SlaveRefused` with the
+        """Step the slave from ``t`` to ``t + h``; raise ``SlaveRefused`` with the
         logged reason if it refuses."""
         if not self.slave.do_step(t, h):
             self._drain()
@@ -136,7 +136,7 @@ class SlaveComponent(ComponentBase):
         return data
 
     def set_state(self, data: bytes) -> None:
-        """Restore a state from :meth:`get_state`; raise :class:`SlaveRefused` if the slave
+        """Restore a state from ``get_state``; raise ``SlaveRefused`` if the slave
         refuses it."""
         self.slave._set_fmu_state(self.slave._fmu_state_from_bytes(data))
         self._drain()

@@ -4,18 +4,18 @@ A user's plant FMU is code we did not write, loaded into our process: a ``doStep
 never returns would hang the master (Ctrl-C included: a signal reaches Python only
 between bytecodes, never inside a C call), and one that calls ``exit()`` would end the
 command with the FMU's exit status, 0 for a run that did not finish. Neither can be
-contained inside the process that loaded the FMU, so :class:`IsolatedFmu` runs such an
-FMU in a child process (an :class:`~delaycomp.orchestrator.fmu.FmuComponent` there) and
+contained inside the process that loaded the FMU, so ``IsolatedFmu`` runs such an
+FMU in a child process (an ``FmuComponent`` there) and
 talks to it over a pipe:
 
-- every call waits at most the **watchdog**'s seconds (:func:`default_watchdog`: 10 s or
+- every call waits at most the **watchdog**'s seconds (``default_watchdog``: 10 s or
   100 times the loop's base step, whichever is longer; six times that for instantiation,
   initialization and termination, which may solve an initial system or read files); a call
   that does not return in time stops the child and fails the run, naming the call;
 - a child that ends during a call (``exit()``, a crash) fails the run naming its exit
   status or signal;
 - Ctrl-C reaches this process, which is only waiting on the pipe, and is reported as an
-  interrupt (:class:`~delaycomp.errors.Interrupted`), never as the FMU's failure: the
+  interrupt (``Interrupted``), never as the FMU's failure: the
   child runs in a session of its own, which the terminal's Ctrl-C does not reach, and
   ignores SIGINT besides; it is stopped when the run ends. The child also dies with this
   process (Linux: ``PR_SET_PDEATHSIG``; elsewhere it leaves when the pipe closes).
@@ -65,7 +65,7 @@ def default_watchdog(h: float) -> float:
 
 
 def check_watchdog(seconds: float) -> float:
-    """``seconds`` as a watchdog, or :class:`ParameterError` naming the allowed range."""
+    """``seconds`` as a watchdog, or ``ParameterError`` naming the allowed range."""
     from delaycomp.errors import ParameterError
 
     if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
@@ -198,7 +198,7 @@ class IsolatedFmu(ComponentBase):
 
     # -- Component protocol --------------------------------------------------------------
     def setup(self, start_time: float, stop_time: float, parameters: dict) -> None:
-        """Start the child and there instantiate, set up (with :attr:`tolerance`) and enter
+        """Start the child and there instantiate, set up (with ``tolerance``) and enter
         initialization."""
         self._start()
         self._call("fmi2Instantiate", ("setup", start_time, stop_time, parameters,
@@ -256,7 +256,7 @@ class IsolatedFmu(ComponentBase):
         return self._call("fmi2GetFMUstate", ("get_state",), self.watchdog)
 
     def set_state(self, data: bytes) -> None:
-        """Restore a state of :meth:`get_state` (in the child)."""
+        """Restore a state of ``get_state`` (in the child)."""
         self._sync("fmi2SetReal", None, self.watchdog)
         self._call("fmi2SetFMUstate", ("set_state", data), self.watchdog)
         self._values = [None] * len(self._reads)
@@ -362,7 +362,7 @@ def serve(name: str, path: str) -> None:
 
 class _Pipe:
     """Pickled messages, each after its length (8 bytes), over a pair of file
-    descriptors; :meth:`recv` waits at most ``timeout`` seconds (``None``: for ever) and
+    descriptors; ``recv`` waits at most ``timeout`` seconds (``None``: for ever) and
     gives ``None`` when the time is up."""
 
     def __init__(self, read_fd: int, write_fd: int):

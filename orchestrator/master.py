@@ -1,9 +1,9 @@
 """A small, exact fixed-step co-simulation master (Gauss-Seidel along the signal chain).
 
-Lifecycle (after libcosim's algorithm): :meth:`Master.setup` instantiates and sets
-parameters, :meth:`Master.initialize` leaves initialization mode, :meth:`Master.step`
-advances one base step, :meth:`Master.terminate` ends and frees everything. Results go to
-observers (:class:`Recorder`), kept apart from the stepping.
+Lifecycle (after libcosim's algorithm): ``Master.setup`` instantiates and sets
+parameters, ``Master.initialize`` leaves initialization mode, ``Master.step``
+advances one base step, ``Master.terminate`` ends and frees everything. Results go to
+observers (``Recorder``), kept apart from the stepping.
 
 Time is an integer count ``k`` of base steps ``h = T / N``; the master never accumulates
 ``t += h``. The time of tick ``k`` is ``t0 + (k // N) T + (k % N) T / N``, so every
@@ -109,18 +109,18 @@ class Component(Protocol):
     # master wraps ``get_outputs`` / ``set_inputs``. A wrapper that must see every value
     # (a recorder of inputs) sets both to None.
     # Optional: ``runs_python`` (bool), whether stepping it runs Python code in this
-    # interpreter; :func:`delaycomp.orchestrator.simulate.run_loop` keeps BLAS on one
+    # interpreter; ``delaycomp.orchestrator.simulate.run_loop`` keeps BLAS on one
     # thread only then. Without it a component is taken to run Python.
 
 
 class StatefulComponent(Component, Protocol):
-    """A component whose state can be saved and restored (:meth:`Master.get_state`)."""
+    """A component whose state can be saved and restored (``Master.get_state``)."""
 
     def get_state(self) -> bytes:
         """The component's complete state, serialized."""
 
     def set_state(self, data: bytes) -> None:
-        """Restore a state from :meth:`get_state`."""
+        """Restore a state from ``get_state``."""
 
 
 #: FMI status names, by value
@@ -367,7 +367,7 @@ class Master:
 
     def add_observer(self, observer) -> None:
         """Hand ``observer.record(k, t, values)`` the output values of every tick from now
-        on (``values[slot(instance, variable)]``, see :class:`Recorder`)."""
+        on (``values[slot(instance, variable)]``, see ``Recorder``)."""
         self._observers.append(observer.record)
 
     def setup(self, stop_time: float, parameters: dict[str, dict]) -> None:
@@ -391,7 +391,7 @@ class Master:
             for name, c in self.components.items()}}
 
     def set_state(self, state: dict) -> None:
-        """Go back (or forward) to a state from :meth:`get_state`; observers are not told
+        """Go back (or forward) to a state from ``get_state``; observers are not told
         again about the restored tick (they saw it when it was first reached)."""
         self.k = int(state["k"])
         for name, c in self.components.items():
@@ -487,8 +487,8 @@ class Master:
 
     def terminate(self) -> None:
         """Terminate every component, all of them even if some fail; then raise
-        :class:`SimulationError` naming the failures, if any. Ctrl-C meanwhile is held
-        until all are freed (:func:`interrupt_held`)."""
+        ``SimulationError`` naming the failures, if any. Ctrl-C meanwhile is held
+        until all are freed (``interrupt_held``)."""
         errors = []
         with interrupt_held():
             for c in self.components.values():
@@ -525,7 +525,7 @@ class Recorder:
         ``sink(t, row)`` for every recorded row, as it comes (a CSV written during the
         run).
     keep : bool
-        keep every recorded row in :attr:`times` / :attr:`rows` (memory grows with the
+        keep every recorded row in ``times`` / ``rows`` (memory grows with the
         run); with ``False`` only the last row is kept, so a streamed run stays flat.
     final : int, optional
         a tick recorded even off the decimation (the stop tick).

@@ -1,6 +1,6 @@
-"""Run a :class:`~delaycomp.system.Loop` with the project's FMUs and master.
+"""Run a ``Loop`` with the project's FMUs and master.
 
-:func:`make_master` is the one function that wires a master from a loop; everything that
+``make_master`` is the one function that wires a master from a loop; everything that
 runs a loop (``run``, sweeps, the cross-check, the benchmark) goes through it.
 """
 
@@ -39,14 +39,14 @@ class Result:
     rows: int | None = None
     #: the instance that failed the run (``None`` where it completed or no one is to blame)
     failed_by: str | None = None
-    #: the components' logged messages of :attr:`notes`, each ``(instance, status,
+    #: the components' logged messages of ``notes``, each ``(instance, status,
     #: text)`` with status ``"ok"`` (information: the command line shows it with ``-v``)
     #: or ``"warning"`` (always shown)
     logged: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def row_count(self) -> int:
-        """Rows recorded in the run (more than :attr:`times` holds if the run streamed)."""
+        """Rows recorded in the run (more than ``times`` holds if the run streamed)."""
         return len(self.times) if self.rows is None else self.rows
 
     def checked_finite(self, who: str) -> Result:
@@ -70,7 +70,7 @@ class Result:
                       list(self.notes), failed_by=self.names[j].split(".", 1)[0])
 
     def column(self, name: str) -> np.ndarray:
-        """The signal ``name`` as an array over :attr:`times` (a view of :attr:`data`)."""
+        """The signal ``name`` as an array over ``times`` (a view of ``data``)."""
         return self.data[:, self.names.index(name)]
 
     def __getitem__(self, name: str) -> np.ndarray:
@@ -106,12 +106,12 @@ class Result:
 
 
 def stop_ticks(stop_time: float, T: float, N: int) -> int:
-    """Base steps to ``stop_time`` (:meth:`delaycomp.system.Timing.ticks`)."""
+    """Base steps to ``stop_time`` (``delaycomp.system.Timing.ticks``)."""
     return Timing(T, N).ticks(stop_time)
 
 
 #: ``fmu``: the built FMUs through fmpy; ``inprocess``: the same slave classes called
-#: directly (:mod:`orchestrator.inprocess`), same master, same numbers, much faster.
+#: directly (``orchestrator.inprocess``), same master, same numbers, much faster.
 ENGINES = ("fmu", "inprocess")
 
 
@@ -121,10 +121,10 @@ def make_components(loop: Loop, engine: str = "fmu", fmu_dir: Path | None = None
     """The master components of ``loop`` for ``engine``. ``fp_guarded`` (in-process only):
     the caller steps them under ``np.errstate(all="ignore")``. ``fmus`` (FMU engine only)
     gives the FMU file of some instances (e.g. from an SSP archive); the others come from
-    :func:`source_fmu`. An instance whose source is an FMU file (another tool's FMU) runs
+    ``source_fmu``. An instance whose source is an FMU file (another tool's FMU) runs
     in a child process with a watchdog of ``watchdog`` seconds per call (default
-    :func:`~delaycomp.orchestrator.isolated.default_watchdog` of the loop's base step;
-    :mod:`delaycomp.orchestrator.isolated`); delaycomp's own FMUs run in this process."""
+    ``default_watchdog`` of the loop's base step;
+    ``delaycomp.orchestrator.isolated``); delaycomp's own FMUs run in this process."""
     if engine == "fmu":
         from delaycomp.orchestrator.isolated import IsolatedFmu, default_watchdog
 
@@ -164,9 +164,9 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
     """The master of ``loop``: its components (fresh ones for ``engine``, or the given
     ``components``, e.g. wrapped to tap their signals), its connections, its timing, and a
     recorder of its recorded ports at every ``every``-th tick and at tick ``final``
-    (``sink`` and ``keep`` as in :class:`~delaycomp.orchestrator.master.Recorder`). Not yet
+    (``sink`` and ``keep`` as in ``Recorder``). Not yet
     set up: call ``master.setup(stop_time, loop.parameters())``. ``watchdog``: seconds per
-    call of an FMU file's instance (:func:`make_components`)."""
+    call of an FMU file's instance (``make_components``)."""
     if components is None:
         components = make_components(loop, engine, fmu_dir, fp_guarded, fmus, watchdog)
     try:
@@ -185,7 +185,7 @@ def make_master(loop: Loop, fmu_dir: Path | None = None, t0: float = 0.0,
 
 def parameters_of(loop: Loop) -> dict[str, dict]:
     """The parameters of every instance of ``loop``, by instance name, as
-    :meth:`Master.setup` takes them (``loop.parameters()``)."""
+    ``Master.setup`` takes them (``loop.parameters()``)."""
     return loop.parameters()
 
 
@@ -208,7 +208,7 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
         layer).
     fmus : dict, optional
         the FMU file of some instances (e.g. from an SSP archive); the others come from
-        :func:`source_fmu`.
+        ``source_fmu``.
     every : int
         record every ``every``-th base step (and the stop time); 1: every base step.
     sink : callable, optional
@@ -221,7 +221,7 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
     watchdog : float, optional
         seconds of wall time an FMU file's instance (another tool's FMU, run in a child
         process) may take per call before the run is stopped; default
-        :func:`~delaycomp.orchestrator.isolated.default_watchdog` (10 s, or 100 base
+        ``default_watchdog`` (10 s, or 100 base
         steps if longer).
 
     Returns
@@ -295,7 +295,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                   recorder.count, culprit, logged)
 
 
-#: how far an output may be from its value in :attr:`Loop.initial` once initialized,
+#: how far an output may be from its value in ``Loop.initial`` once initialized,
 #: relative to 1 + the largest |value| (inf-norm): round-off, and the residual a tool's
 #: initialization solver leaves (its tolerance, typically 1e-6 to 1e-10 relative); a wrong
 #: x0 is off by the size of the state
@@ -303,8 +303,8 @@ INITIAL_RTOL = 1e-6
 
 
 def check_initial(spec: Loop, master: Master) -> None:
-    """Refuse (:class:`SimulationError`, one line naming both vectors) a loop whose outputs
-    in :attr:`Loop.initial` (a plant FMU's measured outputs) are not the values the loop
+    """Refuse (``SimulationError``, one line naming both vectors) a loop whose outputs
+    in ``Loop.initial`` (a plant FMU's measured outputs) are not the values the loop
     assumes (``x0``, the measured history) once the master has initialized it."""
     if not spec.initial:
         return

@@ -4,7 +4,7 @@ the plotting code (``tests/test_figures.py`` fails when either is stale).
 
 The hero figure at the top of the README, ``docs/figures/example-3.6-compare.png``, is
 the plot of the README's first command: its ``build`` (into a temporary folder, or the
-``--fmu-dir`` given here) and then its ``run`` (:data:`FIRST_RUN`) in that folder, the
+``--fmu-dir`` given here) and then its ``run`` (``FIRST_RUN``) in that folder, the
 plot copied here. The others run from the checkout's root with ``--plot`` into
 ``docs/figures``, the FMUs from delaycomp's build cache.
 
@@ -14,7 +14,7 @@ Usage (from the checkout, with delaycomp installed)::
     python scripts/figures.py --only example-3.6-compare.png --fmu-dir build/fmus
 
 Each PNG gets the text chunks ``delaycomp command`` (the command, as a user types it),
-``delaycomp plotting sha256`` (:func:`plotting_digest` of :data:`DRAWING_SOURCES`) and
+``delaycomp plotting sha256`` (``plotting_digest`` of ``DRAWING_SOURCES``) and
 ``delaycomp version``, beside matplotlib's ``Software``.
 """
 
@@ -103,7 +103,7 @@ VERSION_KEY = "delaycomp version"
 
 
 def plotting_digest(root: Path = REPO) -> str:
-    """SHA-256 of :data:`DRAWING_SOURCES` (each file's path and its text with ``\\n``
+    """SHA-256 of ``DRAWING_SOURCES`` (each file's path and its text with ``\\n``
     line ends, so a checkout's line-end conversion does not change it)."""
     digest = hashlib.sha256()
     for rel in DRAWING_SOURCES:

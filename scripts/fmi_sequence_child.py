@@ -10,7 +10,7 @@ fmi2Error) is expected; fmi2Fatal exits with status 5. Any other exit status, or
 
     python scripts/fmi_sequence_child.py SEQUENCE FMU [FMU ...]
 
-where SEQUENCE is a name of :data:`SEQUENCES`, or ``all`` for every one in turn.
+where SEQUENCE is a name of ``SEQUENCES``, or ``all`` for every one in turn.
 
 ``tests/test_python_fmu_heap.py`` and ``scripts/crash_rate.py --fmi-sequences`` run it.
 """

@@ -1,19 +1,20 @@
 """MkDocs hooks: pages generated from the code, so they cannot drift from it.
 
 ``<!-- delaycomp:cli -->`` in a page becomes the ``--help`` of ``delaycomp`` and of every
-subcommand (from :func:`delaycomp.cli._parser`, the parser the command runs);
+subcommand (from ``delaycomp.cli._parser``, the parser the command runs);
 ``<!-- delaycomp:scenarios -->`` becomes the output of ``delaycomp list``;
 ``<!-- delaycomp:loop-keys -->`` the loop-file reader's key table
-(:func:`delaycomp.system.loopkeys.markdown`);
+(``delaycomp.system.loopkeys.markdown``);
 ``<!-- delaycomp:include FILE.md -->`` becomes that file of the repository (the benchmark
 reports the scripts in ``bench/`` write), without its title and with its links to
 ``docs/`` made relative to the page; ``<!-- delaycomp:readme SECTION -->`` becomes the
 README's section of that title (its commands, so that the site and the README cannot give
 different ones).
 
-When the site is built, :func:`check_links` follows every link and image of every page of
+When the site is built, ``check_links`` follows every link and image of every page of
 it (``on_post_build``): a link to a file that is not there, to an anchor the page does not
-have, or to a folder (which a site opened from disk cannot follow) fails the build.
+have, or to a folder (which a site opened from disk cannot follow) fails the build, as
+does a Sphinx role left raw in a page (``raw_roles``).
 """
 
 from __future__ import annotations
@@ -168,10 +169,23 @@ def check_links(site: Path) -> list[str]:
     return problems
 
 
+#: a Sphinx role left raw in a rendered page (the docstrings are numpydoc without roles)
+RAW_ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|attr|data|exc|obj|const|ref):`")
+
+
+def raw_roles(html: str) -> list[str]:
+    """The Sphinx roles a rendered page shows as raw text."""
+    return RAW_ROLE.findall(html)
+
+
 def on_post_build(config) -> None:
     from mkdocs.exceptions import PluginError
 
-    problems = check_links(Path(config["site_dir"]))
+    site = Path(config["site_dir"])
+    problems = check_links(site)
+    problems += [f"{page.relative_to(site)}: raw role {role} (write ``name``)"
+                 for page in sorted(site.rglob("*.html"))
+                 for role in raw_roles(page.read_text(encoding="utf-8", errors="replace"))]
     if problems:
-        raise PluginError(f"{len(problems)} broken links in the built site:\n"
+        raise PluginError(f"{len(problems)} problems in the built site:\n"
                           + "\n".join(problems))

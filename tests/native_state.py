@@ -5,14 +5,14 @@ as it lies in memory: the ``Header`` (magic ``DCNATIV1``, the GUID, ``sizeof(Dat
 buffer's length ``nbuf``), the instance's ``Data`` (the state machine's state, ``t0``, the
 time, every variable by value reference, the String values, then the model's own
 ``ModelData``, ``fmus/<kind>/<name>.h``) and the model buffer of ``nbuf`` doubles. The
-structures are rebuilt here with :mod:`ctypes`, which lays out a C struct as this
+structures are rebuilt here with ``ctypes``, which lays out a C struct as this
 platform's compiler does (the same sizes, alignment and padding), from the FMU's own
 ``sources/config.h`` (``NVR``, ``NSTRING``, ``NIN``, ``NOUT``, ``MODEL_HEADER``) and the
 models' field lists below: a change of a ``ModelData`` must be made here too
-(:func:`decode` checks ``sizeof(Data)`` and the length against the blob's header).
+(``decode`` checks ``sizeof(Data)`` and the length against the blob's header).
 
-:func:`mutations` derives structure-aware mutations of a state (each field at its
-boundary values, buffers dropped, truncated, extended or swapped); :func:`run_batch` tries
+``mutations`` derives structure-aware mutations of a state (each field at its
+boundary values, buffers dropped, truncated, extended or swapped); ``run_batch`` tries
 them against one instance in a child process (``python tests/native_state.py SPEC``), so
 that a crash fails the test (``tests/test_state_structure.py``) instead of killing pytest.
 """

@@ -108,7 +108,7 @@ def read_table(path: Path) -> tuple[list[str], np.ndarray]:
 def assert_csv_close(got: Path, want: Path, ulps: float, atol: float = 0.0,
                      hint: str = "") -> None:
     """Two CSV traces: the same header and number of rows, the numbers (time included) to
-    :func:`assert_columns_close`; ``hint`` ends the message (how to regenerate a file)."""
+    ``assert_columns_close``; ``hint`` ends the message (how to regenerate a file)."""
     hg, g = read_table(got)
     hw, w = read_table(want)
     what = f"{Path(want).name}{' (' + hint + ')' if hint else ''}"

@@ -3,7 +3,7 @@
 The per-point in-process engine is the reference (it equals the FMU run to the bit,
 tests/test_engines.py). Tolerances:
 
-- trajectories are compared relative to the run's scale so far (:func:`assert_close`);
+- trajectories are compared relative to the run's scale so far (``assert_close``);
 - exact LTI loops: the batch does the per-point engine's arithmetic per point; for scalar
   plants in the same order (bit-equal), for n > 1 the matrix products are summed in
   another order than BLAS, a few ulp a step (measured at most 1.6e-14 on these grids):

@@ -1,5 +1,5 @@
 """The batch engine on another array library: JAX on the CPU (the ``jax`` extra, part of
-``test``). Proves that the non-numpy path of :mod:`delaycomp.studies.batch` computes what numpy
+``test``). Proves that the non-numpy path of ``delaycomp.studies.batch`` computes what numpy
 computes; on a GPU the same code runs on CuPy or JAX (``bench/batch.py`` measures it).
 
 JAX runs here eagerly in float64: every ufunc is the same IEEE operation as numpy's, so the

@@ -1,6 +1,6 @@
 """A misbehaving plant FMU is contained (issue 30, item 2).
 
-Another tool's FMU file runs in a child process (:mod:`delaycomp.orchestrator.isolated`):
+Another tool's FMU file runs in a child process (``delaycomp.orchestrator.isolated``):
 a ``doStep`` that never returns is stopped by the watchdog, Ctrl-C ends the command while
 it hangs, an FMU that calls ``exit()`` or crashes fails the run instead of ending the
 command (before: a hang was for ever and deaf to Ctrl-C; ``exit(0)`` made ``run`` exit 0

@@ -48,7 +48,7 @@ README = REPO / "README.md"
 
 def test_commands_page_states_the_grid_rule_of_r_and_tau_as_list_does():
     """The commands page's ``list`` bullet gives the allowed ranges of ``r`` and ``tau`` in
-    the words ``delaycomp list`` prints (:mod:`delaycomp.paper.scenarios`; the Scenarios page
+    the words ``delaycomp list`` prints (``delaycomp.paper.scenarios``; the Scenarios page
     is ``list`` itself, generated when the site is built)."""
     from delaycomp.paper import scenarios
     text = (REPO / "docs" / "reference" / "commands.md").read_text(encoding="utf-8")
@@ -190,3 +190,26 @@ def test_the_link_checker_finds_what_a_reader_would_stumble_on(tmp_path):
     mkdocs = (REPO / "mkdocs.yml").read_text(encoding="utf-8")
     assert "use_directory_urls: false" in mkdocs and "scripts/mkdocs_hooks.py" in mkdocs
 
+
+
+#: a Sphinx cross-reference role (````x````): the API pages render the numpydoc
+#: docstrings through mkdocstrings, which shows a role as raw text
+ROLE = re.compile(r":(?:py:)?[a-z]+:`")
+
+
+def test_docstrings_use_one_style_that_the_site_renders():
+    """No Sphinx role anywhere in the Python sources (names are written as double-backtick
+    code, ````delaycomp.api.run````); the built site is checked for them too
+    (``scripts/mkdocs_hooks.py``)."""
+    found = []
+    for folder in ("delaycomp", "orchestrator", "fmus", "reference", "scripts", "bench",
+                   "tests"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                if ROLE.search(line) and "ROLE = re.compile" not in line:
+                    found.append(f"{path.relative_to(REPO)}:{number}: {line.strip()}")
+    assert found == []
+    hooks = _hooks()
+    role = ":" + "func:`"  # spelled in two parts, so that this file holds no role
+    assert hooks.raw_roles(f"<p>see {role}delaycomp.api.run`</p>") == [role]
+    assert hooks.raw_roles("<p>see <code>delaycomp.api.run</code></p>") == []

@@ -364,7 +364,7 @@ def _random_model_loop(seed: int):
 def test_random_loops_export_equal_to_the_fmu(kind, seed, tmp_path):
     """Loops the shipped cases do not cover (random dimensions, periods, base steps,
     delays with fractional parts, padding, both predictors): the export equals the
-    controller FMU as in :func:`test_the_export_equals_the_controller_fmu`."""
+    controller FMU as in ``test_the_export_equals_the_controller_fmu``."""
     loop = (_random_lti_loop if kind == "lti" else _random_model_loop)(seed)
     ticks = 5 * loop.N + 3
     ys, want = closed_loop_io(loop, ticks, tmp_path / "fmus")

@@ -4,7 +4,7 @@ OpenModelica's command line (OMSimulator) keeps time as ``t += h``: after ``k`` 
 ``h = 0.01`` its time is ``1.4e-9 h`` off the grid at ``k = 10^4`` and ``1.7e-5 h`` at
 ``k = 10^6`` (measured), and it ends its last step on the stop time (a step ``h`` less the
 drift). The FMUs take such a step as one step of their own grid
-(:func:`delaycomp.maths.grid.grid_step`, ``drift`` of ``fmus/native/native.c``: the same
+(``delaycomp.maths.grid.grid_step``, ``drift`` of ``fmus/native/native.c``: the same
 arithmetic) and refuse a step that is really off the grid.
 
 Before: the controllers refused the step that ends on a sampling instant once the drift

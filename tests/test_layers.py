@@ -427,7 +427,7 @@ def test_each_class_name_is_one_class():
 
 def test_every_error_is_a_delaycomp_error_and_each_name_is_one_class():
     """One ``ParameterError`` (and one of every error name); each error class derives
-    from :class:`delaycomp.errors.DelaycompError`, so a caller catches them all with it."""
+    from ``delaycomp.errors.DelaycompError``, so a caller catches them all with it."""
     errors = _error_classes()
     assert "ParameterError" in errors and "SimulationError" in errors
     twice = {name: [m for m, _ in defs] for name, defs in errors.items() if len(defs) > 1}

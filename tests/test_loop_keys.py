@@ -1,6 +1,6 @@
 """The loop-file reference page says what the reader does (issue 27, item 2).
 
-The page's key tables are generated from :mod:`delaycomp.system.loopkeys` when the site is
+The page's key tables are generated from ``delaycomp.system.loopkeys`` when the site is
 built; the reader takes its allowed keys and defaults from the same table. These tests hold
 the reader's behaviour to it, for every kind of loop: a key the table calls required, left
 out, is refused in one line naming it; a default the table gives, written out, builds the

@@ -1,4 +1,4 @@
-"""Native C FMUs (``delaycomp build --native``, :mod:`delaycomp.fmu.native`).
+"""Native C FMUs (``delaycomp build --native``, ``delaycomp.fmu.native``).
 
 What is checked, and why each tolerance:
 

@@ -1,5 +1,5 @@
 """The native predictor-controller of a user model (issue 23, items 1 and 2 for the
-controller): ``k`` and the exact ``step`` in C from :mod:`delaycomp.fmu.translate`, the
+controller): ``k`` and the exact ``step`` in C from ``delaycomp.fmu.translate``, the
 numerical predictor by ``fmus/native/ode.c``, both families (continuous input, Theorem
 2.1; zero-order hold, Theorem 3.2, padding included); the twin of the Python model
 controller FMU.

@@ -1,5 +1,5 @@
 """The native plant of a user model (issue 23, items 1 and 2 for the plant): ``f`` (and an
-exact ``step`` that translates) in C from :mod:`delaycomp.fmu.translate`, the flow by
+exact ``step`` that translates) in C from ``delaycomp.fmu.translate``, the flow by
 ``fmus/native/ode.c``; the twin of the Python model plant FMU.
 
 Against the Python FMUs in our master (the Python plant uses the model's exact step where

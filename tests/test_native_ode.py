@@ -106,7 +106,7 @@ def native(lib, which: int, x0, p, duration: float, tol: float, max_steps: int =
     Parameters
     ----------
     lib : ctypes.CDLL
-        A library from :func:`_build`.
+        A library from ``_build``.
     which : int
         The right-hand side (``RHS_*`` of ``rhs.h``).
     x0, p : array_like

@@ -1,7 +1,7 @@
 """Archives bounded all the way down (issue 30, item 5).
 
 An FMU inside an SSP is unpacked under the same limits as the archive itself, counted
-together with it (:mod:`delaycomp.unpack`); a plant FMU of a loop file, the FMUs handed to
+together with it (``delaycomp.unpack``); a plant FMU of a loop file, the FMUs handed to
 the container and the FMUs our master unpacks are held to the same limits, from the sizes
 their zips declare, before anything is written. Before: a 4 MB SSP holding an FMU with a
 600 MiB member was refused at the SSP's level only after its FMU had been unpacked whole

@@ -1,7 +1,7 @@
 """Outputs never written through links (issue 30, item 6).
 
 Every output file is written to a new file beside it and renamed into place
-(:func:`delaycomp.tmpfiles.replacing`): a link at the output's name, or at its working
+(``delaycomp.tmpfiles.replacing``): a link at the output's name, or at its working
 name (``FILE.part``), is replaced, and its target is never opened. A FIFO, a device or a
 socket as an output is refused before anything runs, in one line, exit 2. Before:
 ``export-loop --out`` followed a link and overwrote its target (and was not atomic), and
@@ -27,7 +27,7 @@ def _cli(*args, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def _linked(folder: Path, name: str) -> Path:
-    """``folder/name`` as a link to a file holding :data:`KEEP`; return the target."""
+    """``folder/name`` as a link to a file holding ``KEEP``; return the target."""
     target = folder / f"target-of-{name.replace('/', '-')}"
     target.write_text(KEEP, encoding="utf-8")
     (folder / name).symlink_to(target)

@@ -2,7 +2,7 @@
 
 A host that keeps time exactly (``t_k = t0 + k h``, as the FMI guides ask) passes steps
 ``t_{k+1} - t_k`` that differ from ``h`` in the last bits. Both plant FMUs key their
-discretization ``Ad(h), Bd(h)`` on their own grid (:func:`delaycomp.maths.grid.same_step`): a
+discretization ``Ad(h), Bd(h)`` on their own grid (``delaycomp.maths.grid.same_step``): a
 step within ``GRID_RTOL`` of the cached step is that step, another one is discretized and
 becomes the key. What is checked, and why each tolerance:
 
@@ -109,7 +109,7 @@ def _flow(x, h: float) -> np.ndarray:
 
 def test_exact_grid_steps_differ_from_h_but_are_on_the_grid():
     """The premise: the steps of an exact grid are not all ``h`` bit for bit, and are all
-    ``h`` for :func:`same_step`: ``t_i`` is ``i h`` and ``t0 + i h`` rounded (each off by
+    ``h`` for ``same_step``: ``t_i`` is ``i h`` and ``t0 + i h`` rounded (each off by
     ``eps / 2`` of itself at most), and the difference rounded once more, so
     ``|t_{i+1} - t_i - h| <= (2 i + 3 + t0 / h) eps h``."""
     for t0 in (0.0, 0.3, 1000.0, 1e6):

@@ -4,14 +4,14 @@ Before, two writes into freed memory at a host's exit:
 
 - pythonfmu's runtime library, still loaded when a host exits (the first pythonfmu FMU of
   a process always is), decremented a count inside a block its static destructor had
-  freed (``finalizePythonInterpreter``; :mod:`delaycomp.fmu.runtime`), and a later
+  freed (``finalizePythonInterpreter``; ``delaycomp.fmu.runtime``), and a later
   ``free`` aborted the host with "corrupted double-linked list": 8 of 300 plain fmpy hosts
   running the sequences below (0 to 2 of 30 per sequence), 23 of 100 hosts that ran the
-  loop's three FMUs through :class:`~delaycomp.orchestrator.fmu.FmuComponent`. Our build
+  loop's three FMUs through ``FmuComponent``. Our build
   ships the library with that function returning at once;
 - a state the host freed twice (pythonfmu drops one reference per free) reached zero while
   the interpreter's teardown still freed its pins, which then read and wrote the freed
-  token (:func:`delaycomp.fmu.slave._never_freed`): the pins are now never freed.
+  token (``delaycomp.fmu.slave._never_freed``): the pins are now never freed.
 
 Every host here is a fresh plain-fmpy process (``scripts/fmi_sequence_child.py``) that
 leaves through the interpreter's normal exit. Whether such a write aborts a host depends on
@@ -115,7 +115,7 @@ def test_no_invalid_access_under_valgrind(fmu_dir, tmp_path):
     finalizePythonInterpreter, 8 bytes inside a block of size 128 free'd by
     __run_exit_handlers" (the runtime library), and "Invalid read of size 8 at Py_DECREF,
     list_dealloc, 0 bytes inside a block of size 40 free'd" (a state's token freed twice by
-    the host, then once more by the teardown: :func:`delaycomp.fmu.slave._never_freed`)."""
+    the host, then once more by the teardown: ``delaycomp.fmu.slave._never_freed``)."""
     valgrind = shutil.which("valgrind")
     if valgrind is None:
         pytest.skip("valgrind is not installed")

@@ -2,7 +2,7 @@
 scenarios imports neither scipy nor matplotlib nor fmpy (nor lxml, pythonfmu).
 
 Not a timed test (speed is measured in ``bench/``): a fresh interpreter runs the command
-through :func:`delaycomp.cli.main` and reports which of those packages ``sys.modules``
+through ``delaycomp.cli.main`` and reports which of those packages ``sys.modules``
 holds at its end. Importing scipy alone cost ``delaycomp --help`` about 0.35 s of its
 0.45 s on a 2-core machine (``python -X importtime``)."""
 
@@ -131,7 +131,7 @@ def python_fmus(fmu_dir, tmp_path_factory):
 
 @pytest.mark.parametrize("kind", FMU_NEEDS)
 def test_a_python_fmu_imports_only_what_its_maths_needs(kind, python_fmus):
-    """Instantiated as pythonfmu's binary does it (:func:`delaycomp.fmu.build.probe_instantiation`),
+    """Instantiated as pythonfmu's binary does it (``delaycomp.fmu.build.probe_instantiation``),
     the FMU imports no installed module that importing its short list alone would not
     (no matplotlib, fmpy, lxml; no scipy.optimize for a matrix exponential), and of the
     bundled delaycomp only its maths (no CLI, SSP, masters or plotting)."""
@@ -162,7 +162,7 @@ def test_the_fmu_probe_sees_what_an_fmu_imports(python_fmus):
 # -- a packed loop of native FMUs (issue "Start fast", item 4) ----------------------------
 
 #: the probe above, leaving with os._exit once it has printed (as ``delaycomp`` itself does
-#: with FMUs loaded: see :func:`delaycomp.cli.entry`)
+#: with FMUs loaded: see ``delaycomp.cli.entry``)
 PROBE_EXIT = PROBE + "sys.stdout.flush()\nimport os\nos._exit(0)\n"
 
 

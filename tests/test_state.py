@@ -38,7 +38,7 @@ CASES = {
     "zoh-numerical": ("example-3.8", ["N=10", "tau=1", "predictor=numerical"], 4.0),
 }
 #: the same with the controllers sampling the held input (``held_sample``, the loop of
-#: :func:`delaycomp.verify.thirdparty.jacobi_variant`): the held input is hidden state too
+#: ``delaycomp.verify.thirdparty.jacobi_variant``): the held input is hidden state too
 HELD = {
     "lti-held-sample": ("example-3.6", ["r=0.5", "tau=1", "u0=4", "N=4"], 6.0),
     "zoh-held-sample": ("example-3.8", ["N=10", "tau=1"], 4.0),

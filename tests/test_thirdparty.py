@@ -6,7 +6,7 @@ Tolerances:
 - against our master: ``1e-12 (1 + |ours|)``. Ecos reproduces it bit for bit (measured 0);
   libcosim keeps time in integer nanoseconds, so the step size and communication points the
   FMUs see differ from ours in the last bits (measured at most 3e-14 on these prefixes);
-- against the reference: the tolerances of :mod:`delaycomp.verify.check` (zero-order hold
+- against the reference: the tolerances of ``delaycomp.verify.check`` (zero-order hold
   ``1e-9 (1 + |ref|)``, continuous input 2 % of the signal's range), on a prefix of the
   reference trace that covers the first samples and the transient.
 

@@ -1,4 +1,4 @@
-"""Model files as C (issue 23, item 1, first piece): :mod:`delaycomp.fmu.translate`.
+"""Model files as C (issue 23, item 1, first piece): ``delaycomp.fmu.translate``.
 
 The generated C is compiled with the project's compiler and flags and called through
 ctypes at random points, against the model's own Python functions, for every branch of the

@@ -93,7 +93,7 @@ def test_same_version_fmus_share_one_process(fmu_dir, tmp_path):
     Both children leave through the interpreter's normal exit. Before issue 30, item 10
     they left with ``os._exit``: the teardown aborted them with "corrupted double-linked
     list" in 7 of 28 runs (pythonfmu's runtime library wrote into a freed block at exit,
-    :mod:`delaycomp.fmu.runtime`)."""
+    ``delaycomp.fmu.runtime``)."""
     code = textwrap.dedent(f'''
         from delaycomp.orchestrator.fmu import FmuComponent
         comps = [FmuComponent(p.stem, p) for p in

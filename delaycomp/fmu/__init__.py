@@ -1,9 +1,9 @@
-"""The FMUs' build side: the pythonfmu base slave (:mod:`.slave`, bundled into every
-Python FMU), the registry and the build of the Python FMUs (:mod:`.build`), the build cache
-(:mod:`.cache`), model files to C (:mod:`.translate`) and the native C build
-(:mod:`.native`). The FMUs themselves live in :mod:`delaycomp.fmus` (``fmus/``).
+"""The FMUs' build side: the pythonfmu base slave (``.slave``, bundled into every
+Python FMU), the registry and the build of the Python FMUs (``.build``), the build cache
+(``.cache``), model files to C (``.translate``) and the native C build
+(``.native``). The FMUs themselves live in ``delaycomp.fmus`` (``fmus/``).
 
-This package imports only :mod:`delaycomp.layout` (:func:`~delaycomp.layout.whole`):
+This package imports only ``delaycomp.layout`` (``whole``):
 the Python FMUs bundle it with the base slave.
 """
 

@@ -1,8 +1,8 @@
 """Build the project's FMUs with pythonfmu, each in its own Python process.
 
-One registry (:data:`FMUS`) drives the build and the tests. Every FMU bundles the slave
-module, the subset of :mod:`delaycomp` it imports, and ``delaycomp_fmu.json`` (its
-dimensions and the package version). :func:`probe_instantiation` reports what a built
+One registry (``FMUS``) drives the build and the tests. Every FMU bundles the slave
+module, the subset of ``delaycomp`` it imports, and ``delaycomp_fmu.json`` (its
+dimensions and the package version). ``probe_instantiation`` reports what a built
 FMU imports when a host instantiates it, and how long that takes.
 """
 
@@ -31,7 +31,7 @@ from delaycomp.tmpfiles import temp_dir
 
 
 def _fmus_folder() -> Path:
-    """The FMUs' folder (``fmus/`` in the repository, installed as :mod:`delaycomp.fmus`).
+    """The FMUs' folder (``fmus/`` in the repository, installed as ``delaycomp.fmus``).
     The build reads it as data (slave modules to bundle, C sources to compile) and never
     imports it: the FMUs stand above their build."""
     spec = importlib.util.find_spec("delaycomp.fmus")
@@ -39,13 +39,13 @@ def _fmus_folder() -> Path:
     return Path(spec.origin).resolve().parent
 
 
-#: The slave modules and C sources (``fmus/`` in the repository, :mod:`delaycomp.fmus`).
+#: The slave modules and C sources (``fmus/`` in the repository, ``delaycomp.fmus``).
 FMU_ROOT = _fmus_folder()
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
 
-#: Modules of :mod:`delaycomp` that run inside the FMUs (no CLI, no plotting, no fmpy): the
-#: package's light base, the maths (:mod:`delaycomp.maths`) and the base slave
-#: (:mod:`delaycomp.fmu.slave`). The paper's models (``paper/models/*.py``) are bundled too:
+#: Modules of ``delaycomp`` that run inside the FMUs (no CLI, no plotting, no fmpy): the
+#: package's light base, the maths (``delaycomp.maths``) and the base slave
+#: (``delaycomp.fmu.slave``). The paper's models (``paper/models/*.py``) are bundled too:
 #: their modules import each other. The packages' ``__init__.py`` import nothing.
 BUNDLED_MODULES = ("__init__.py", "errors.py", "names.py", "layout.py", "fmu/__init__.py",
                    "fmu/slave.py",
@@ -69,18 +69,18 @@ class FmuSpec:
     #: pythonfmu model options (canHandleVariableCommunicationStepSize, ...)
     options: tuple[tuple[str, bool], ...] = ()
     template: str = ""  # base class name in ``script`` for model templates
-    #: the native twin in the same folder (:mod:`delaycomp.fmu.native`): ``<native>.c``,
+    #: the native twin in the same folder (``delaycomp.fmu.native``): ``<native>.c``,
     #: its data in ``<native>.h``, its manifest ``<native>.toml``; "" where there is none
     native: str = ""
 
     @property
     def folder(self) -> Path:
-        """The FMU's folder, ``fmus/<kind>`` (under :data:`FMU_ROOT`)."""
+        """The FMU's folder, ``fmus/<kind>`` (under ``FMU_ROOT``)."""
         return FMU_ROOT / self.kind
 
     @property
     def script_path(self) -> Path:
-        """The slave module's file in :attr:`folder`."""
+        """The slave module's file in ``folder``."""
         return self.folder / self.script
 
 
@@ -121,7 +121,7 @@ def model_identifier(kind: str, config: dict) -> str:
 
 def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
               file_name: str | None = None) -> Path:
-    """Build the FMU ``kind`` of :data:`FMUS` into ``out_dir``; return the ``.fmu`` path.
+    """Build the FMU ``kind`` of ``FMUS`` into ``out_dir``; return the ``.fmu`` path.
 
     The build runs in a fresh Python process, so a module loaded by an earlier build in
     this process can never leak into the FMU.
@@ -251,9 +251,9 @@ def set_start(xml: str, name: str, value,
 
 def _finish(fmu: Path, start: Mapping) -> None:
     """Rewrite the pythonfmu FMU ``fmu`` as we ship it: its linux64 runtime library with
-    the fix of :mod:`delaycomp.fmu.runtime` (a heap corruption at exit), and, for a build
+    the fix of ``delaycomp.fmu.runtime`` (a heap corruption at exit), and, for a build
     with a ``start`` table, a modelDescription whose start values read back as the very
-    values the slave holds (:func:`start_text`)."""
+    values the slave holds (``start_text``)."""
     part = fmu.with_name(fmu.name + ".finished")
     with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zout:
         for info in zin.infolist():
@@ -302,7 +302,7 @@ def build_all(out_dir: Path) -> list[Path]:
     return [build_fmu(kind, out_dir) for kind, spec in FMUS.items() if not spec.template]
 
 
-#: What :func:`probe_instantiation` runs in a fresh interpreter: what pythonfmu's binary does
+#: What ``probe_instantiation`` runs in a fresh interpreter: what pythonfmu's binary does
 #: at ``fmi2Instantiate`` (the resources folder first on ``sys.path``, the module named in
 #: ``slavemodule.txt`` imported, its slave class called with ``instance_name`` and
 #: ``resources``), timed from before the import to the instance.
@@ -321,7 +321,7 @@ print(json.dumps({"seconds": seconds, "modules": sorted(set(sys.modules) - befor
 
 @dataclass(frozen=True)
 class Instantiation:
-    """What instantiating a Python FMU imported (:func:`probe_instantiation`)."""
+    """What instantiating a Python FMU imported (``probe_instantiation``)."""
 
     #: wall time of the import of the slave module and of the instance [s]
     seconds: float
@@ -330,7 +330,7 @@ class Instantiation:
 
     @property
     def packages(self) -> tuple[str, ...]:
-        """The installed packages among :attr:`modules` (top-level names; neither the
+        """The installed packages among ``modules`` (top-level names; neither the
         standard library nor the FMU's own bundled modules)."""
         own = ("delaycomp", "delaycomp_")
         tops = {m.split(".")[0] for m in self.modules}
@@ -340,14 +340,14 @@ class Instantiation:
 
     @property
     def subpackages(self) -> tuple[str, ...]:
-        """``package.subpackage`` names of :attr:`packages` (``scipy.linalg``, ...)."""
+        """``package.subpackage`` names of ``packages`` (``scipy.linalg``, ...)."""
         return tuple(sorted({".".join(m.split(".")[:2]) for m in self.modules
                              if "." in m and m.split(".")[0] in self.packages
                              and not m.split(".")[1].startswith("_")}))
 
     @property
     def delaycomp_modules(self) -> tuple[str, ...]:
-        """The modules of the bundled :mod:`delaycomp` it imported."""
+        """The modules of the bundled ``delaycomp`` it imported."""
         return tuple(m for m in self.modules if m.startswith("delaycomp."))
 
 
@@ -357,7 +357,7 @@ def probe_instantiation(fmu: str | Path) -> Instantiation:
 
     A host that loads a Python FMU pays this once per process (a second instance finds the
     modules loaded). The interpreter is this one (``sys.executable``) with its installed
-    packages; the FMU's bundled :mod:`delaycomp` comes first, as in a host.
+    packages; the FMU's bundled ``delaycomp`` comes first, as in a host.
 
     Raises
     ------

@@ -1,6 +1,6 @@
 """The build cache of the Python FMUs: where an FMU of a kind and configuration lives
-(:func:`fmu_path`, :func:`source_fmu`), built there on first use, and the checks that refuse
-a file that is not the FMU it should be (:func:`check_fmu`).
+(``fmu_path``, ``source_fmu``), built there on first use, and the checks that refuse
+a file that is not the FMU it should be (``check_fmu``).
 
 The cache is ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, one folder per digest of
 everything that goes into an FMU.
@@ -63,8 +63,8 @@ def fmu_file_name(kind: str, config: dict) -> str:
 def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing.
 
-    An FMU already there is checked first (:func:`check_fmu`): a corrupt or foreign file
-    raises :class:`~delaycomp.errors.BadFileError` before anything runs.
+    An FMU already there is checked first (``check_fmu``): a corrupt or foreign file
+    raises ``BadFileError`` before anything runs.
     """
     fmu_dir = Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
     if fmu_dir.exists() and not fmu_dir.is_dir():
@@ -83,12 +83,12 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     return path
 
 
-#: the FMU files whose cache hit this process told (:func:`cache_hit`)
+#: the FMU files whose cache hit this process told (``cache_hit``)
 _HITS: set[str] = set()
 
 
 def cache_hit(path: Path, ident: str, built: bool = False) -> None:
-    """Under ``-v`` (:func:`delaycomp.progress.detail`), one line for the FMU ``ident``
+    """Under ``-v`` (``delaycomp.progress.detail``), one line for the FMU ``ident``
     found in the cache at ``path``, ``cache hit: <ident> (<path>)``, once per file and
     process (the runs of a sweep look up the same FMUs); ``built``: this process has just
     built it (its build said so), no line."""
@@ -184,7 +184,7 @@ def _check_fmu(path: Path, kind: str, config: dict) -> None:
 
 def source_fmu(source: Source, fmu_dir: Path | None = None) -> Path:
     """The FMU file of an instance's source: a given file as it is, else the built FMU of
-    its kind and configuration (:func:`fmu_path`)."""
+    its kind and configuration (``fmu_path``)."""
     if isinstance(source, FmuFile):
         return Path(source.path)
     return fmu_path(*source.build_key(), fmu_dir)

@@ -1,8 +1,8 @@
 """Native C FMUs: the delay, the LTI plant and the LTI predictor-controller without Python.
 
-``delaycomp build --native --out DIR`` (:func:`build_native`) writes FMI 2.0 co-simulation
+``delaycomp build --native --out DIR`` (``build_native``) writes FMI 2.0 co-simulation
 FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs of
-:data:`delaycomp.fmu.build.FMUS`:
+``delaycomp.fmu.build.FMUS``:
 
 1. **Same table.** The modelDescription is the Python FMU's own (the slave class, with the
    same build configuration, writes its variables, value references, start values and
@@ -15,7 +15,7 @@ FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs
    numbers as Python's ``repr`` writes them), the linear algebra (``linalg.c``: the matrix
    exponential by scaling and squaring with Pade approximants, and the exact flow of
    ``x' = A x + B u``) and DOP853 (``ode.c``). Each model's C lives beside its Python twin
-   in ``fmus/<kind>/`` (:class:`NativeTwin`): ``<name>.c`` (its maths), ``<name>.h`` (its
+   in ``fmus/<kind>/`` (``NativeTwin``): ``<name>.c`` (its maths), ``<name>.h`` (its
    data) and ``<name>.toml`` (the shared sources it uses and the variables it addresses).
    A fault returns ``fmi2Error`` with the Python FMU's message logged.
 3. **Sources inside.** Each FMU carries its C sources and the FMI headers under
@@ -63,11 +63,11 @@ __all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "NativeTwin", "bui
 #: the shared C sources (``fmus/native/`` in the repository, package data of
 #: delaycomp.fmus): the FMI layer, the linear algebra, DOP853, the host, export-c's templates
 SOURCE_DIR = FMU_ROOT / "native"
-#: FMU kind -> the model's C file (in its folder, :func:`native_twin`)
+#: FMU kind -> the model's C file (in its folder, ``native_twin``)
 NATIVE_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.items()
                                 if spec.native and not spec.template}
 #: FMU kind of a user model -> its C file; with it model.c, generated from the model file
-#: by :mod:`delaycomp.fmu.translate`
+#: by ``delaycomp.fmu.translate``
 MODEL_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.items()
                                if spec.native and spec.template}
 #: the FMI layer, in every native FMU, and its headers (``native.h`` declares what
@@ -91,7 +91,7 @@ CROSS_TARGETS = {
                       ()),
 }
 
-#: notes of this process about platforms left out (each once; see :func:`pop_notes`)
+#: notes of this process about platforms left out (each once; see ``pop_notes``)
 _NOTES: list[str] = []
 _NOTED: set[str] = set()
 
@@ -109,7 +109,7 @@ class NativeTwin:
     manifest: ``uses``, the shared sources of ``fmus/native/`` it needs beside the FMI
     layer, and ``value_references``, the ``VR_*`` macros its C addresses, each naming a
     variable of the Python twin's table). The FMI layer knows no model: adding a model
-    is its folder and its row of :data:`delaycomp.fmu.build.FMUS`.
+    is its folder and its row of ``delaycomp.fmu.build.FMUS``.
     """
 
     kind: str
@@ -135,19 +135,19 @@ class NativeTwin:
                 *(["model.h", "model_config.h"] if FMUS[self.kind].template else [])]
 
     def path_of(self, file: str) -> Path:
-        """Where a source or header of :meth:`sources` / :meth:`headers` lives (the
+        """Where a source or header of ``sources`` / ``headers`` lives (the
         generated model files apart)."""
         return self.folder / file if file.startswith(self.name + ".") else SOURCE_DIR / file
 
 
 def native_twin(kind: str) -> NativeTwin:
-    """The native twin of ``kind`` (a key of :data:`NATIVE_KINDS` or :data:`MODEL_KINDS`),
+    """The native twin of ``kind`` (a key of ``NATIVE_KINDS`` or ``MODEL_KINDS``),
     read from its folder's manifest.
 
     Raises
     ------
     ValueError
-        ``kind`` has no native twin, or its manifest is not as :class:`NativeTwin` says.
+        ``kind`` has no native twin, or its manifest is not as ``NativeTwin`` says.
     """
     spec = FMUS.get(kind)
     if spec is None or not spec.native:
@@ -172,7 +172,7 @@ def _note(text: str) -> None:
 
 def pop_notes() -> list[str]:
     """The notes about platforms left out since the last call (each note once per
-    process): the commands print them, :func:`delaycomp.api.build` returns them."""
+    process): the commands print them, ``delaycomp.api.build`` returns them."""
     out = list(_NOTES)
     _NOTES.clear()
     return out
@@ -180,7 +180,7 @@ def pop_notes() -> list[str]:
 
 def requested_platforms() -> tuple[str, ...]:
     """The cross platforms to build: ``$DELAYCOMP_PLATFORMS`` (comma-separated names of
-    :data:`CROSS_TARGETS`; empty: none), by default all of them."""
+    ``CROSS_TARGETS``; empty: none), by default all of them."""
     text = os.environ.get("DELAYCOMP_PLATFORMS")
     if text is None:
         return tuple(CROSS_TARGETS)
@@ -194,9 +194,9 @@ def requested_platforms() -> tuple[str, ...]:
 
 
 def cross_compilers() -> dict[str, list[str]]:
-    """The cross platforms that will be built (:func:`requested_platforms`) with their
+    """The cross platforms that will be built (``requested_platforms``) with their
     compiler commands (``$CC_WIN64``, ``$CC_AARCH64``, else the default name on PATH).
-    A platform whose compiler is absent is left out with a note (:func:`pop_notes`);
+    A platform whose compiler is absent is left out with a note (``pop_notes``);
     a variable naming no program is an error."""
     found = {}
     for platform in requested_platforms():
@@ -294,7 +294,7 @@ def _python_table(kind: str, config: dict) -> Element:
 
 def _exact_starts(root: Element, start: dict) -> None:
     """Each start value of a build's ``start`` table, in the table tree as it reads back
-    exactly (:func:`delaycomp.fmu.build.start_text`: pythonfmu writes 16 digits); config.h and
+    exactly (``delaycomp.fmu.build.start_text``: pythonfmu writes 16 digits); config.h and
     the modelDescription are made from the tree. A name that is no variable of the FMU
     is refused."""
     from delaycomp.fmu.build import start_text
@@ -467,13 +467,13 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     Parameters
     ----------
     kind : str
-        One of :data:`NATIVE_KINDS`, or ``model_plant`` (:data:`MODEL_KINDS`) with
+        One of ``NATIVE_KINDS``, or ``model_plant`` (``MODEL_KINDS``) with
         ``config = {"model": FILE.py}``: the model's ``f`` (and ``step``) translated to C
-        by :mod:`delaycomp.fmu.translate`, the flow solved by ``ode.c``.
+        by ``delaycomp.fmu.translate``, the flow solved by ``ode.c``.
     out_dir : Path
         Output folder (created).
     config : dict, optional
-        The build configuration, as for :func:`delaycomp.fmu.build.build_fmu` (dimensions
+        The build configuration, as for ``delaycomp.fmu.build.build_fmu`` (dimensions
         ``n``, ``m``; names; an optional ``start`` table). Default: the scalar loop.
     file_name : str, optional
         Default ``<modelIdentifier>.fmu``.
@@ -605,9 +605,9 @@ def build_native(out_dir: Path) -> list[Path]:
 
 
 def build_native_model(model_path: str | Path, out_dir: Path) -> list[Path]:
-    """The native twins of :func:`delaycomp.fmu.build.build_model`: the model's plant and
+    """The native twins of ``delaycomp.fmu.build.build_model``: the model's plant and
     predictor-controller as C FMUs (``f``, ``k`` and ``step`` translated by
-    :mod:`delaycomp.fmu.translate`), and native delays of the model's widths (same file names
+    ``delaycomp.fmu.translate``), and native delays of the model's widths (same file names
     as the Python build).
 
     Raises
@@ -641,7 +641,7 @@ def native_fmu_dir() -> Path:
 def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     """The native FMU for ``kind`` and ``config`` in ``fmu_dir`` (default: the cache),
     built there if missing; an FMU already there is checked as
-    :func:`delaycomp.fmu.cache.check_fmu` does, and must be native."""
+    ``delaycomp.fmu.cache.check_fmu`` does, and must be native."""
     from delaycomp.errors import BadFileError
     from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
 
@@ -662,8 +662,8 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Pat
 
 def compile_host(exe: Path, platform: str | None = None) -> Path:
     """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
-    machine, or cross-compiled for ``platform`` (a key of :data:`CROSS_TARGETS`: the host
-    then loads that platform's binaries of the FMUs; run it with :func:`host_command`)."""
+    machine, or cross-compiled for ``platform`` (a key of ``CROSS_TARGETS``: the host
+    then loads that platform's binaries of the FMUs; run it with ``host_command``)."""
     argv: list[str] | None
     extra: tuple[str, ...]
     if platform is None:
@@ -696,7 +696,7 @@ def emulator(platform: str) -> tuple[list[str], dict[str, str]]:
     """The command prefix that runs a program built for ``platform`` here (wine for
     ``win64``, qemu-user for ``aarch64-linux``) and the environment variables it needs
     (wine: no debug output, no Mono or Gecko installers; ``WINEPREFIX`` is the caller's).
-    Raises :class:`NativeBuildError` naming the package to install where it is absent."""
+    Raises ``NativeBuildError`` naming the package to install where it is absent."""
     prefix, package = EMULATORS[platform]
     if shutil.which(prefix[0]) is None:
         raise NativeBuildError(f"no {prefix[0]} here to run {platform} programs "
@@ -726,7 +726,7 @@ def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
               timing: bool = False, exact_grid: bool = False,
               platform: str | None = None, start: float = 0.0) -> list[str]:
     """The C host's command line for the LTI loop ``loop`` (a
-    :class:`~delaycomp.system.loop.Loop`, scalar or with vectors) with the FMUs unpacked
+    ``Loop``, scalar or with vectors) with the FMUs unpacked
     in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
 
     Parameters
@@ -737,8 +737,8 @@ def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
         The host keeps time as the FMI guides ask (``--exact-grid``): ``t_k = t0 + k h``
         computed from ``k``, each step ``t_{k+1} - t_k``; else every step is ``h``.
     platform : str, optional
-        The host was built for this platform (:func:`compile_host`): the command starts
-        with its emulator (:func:`emulator`; its environment is the caller's to pass) and
+        The host was built for this platform (``compile_host``): the command starts
+        with its emulator (``emulator``; its environment is the caller's to pass) and
         names the folders as the emulated program sees them.
     start : float
         The start time ``t0`` (``--start=T0``); the run ends at ``stop``, an absolute time.
@@ -840,7 +840,7 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
 
 def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | None,
                                                                 str | None]:
-    """The native FMUs of ``loop`` where they can be had here (:func:`native_fmus`), else
+    """The native FMUs of ``loop`` where they can be had here (``native_fmus``), else
     ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
     or a model that does not translate (or CasADi missing). The commands' default: native
     where it exists, the Python FMUs otherwise."""
@@ -855,8 +855,8 @@ def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | 
 
 def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:
     """Native FMU files for every instance of ``loop`` (a
-    :class:`~delaycomp.system.loop.Loop`), to pass as ``fmus=`` to
-    :func:`delaycomp.orchestrator.simulate.run_loop`.
+    ``Loop``), to pass as ``fmus=`` to
+    ``delaycomp.orchestrator.simulate.run_loop``.
 
     Raises
     ------

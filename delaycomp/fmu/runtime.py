@@ -18,7 +18,7 @@ finalizePythonInterpreter, 8 bytes inside a block of size 128 free'd by
 __run_exit_handlers, alloc'd by pythonfmu::createInstance"). An FMU that ``dlclose``
 unloads runs the two in the other order and is not affected.
 
-The fix, :func:`patch_runtime`: ``finalizePythonInterpreter`` returns at once (one byte:
+The fix, ``patch_runtime``: ``finalizePythonInterpreter`` returns at once (one byte:
 ``ret`` after its ``endbr64``). The shared pointer's own static destructor is then the only
 end of the ``PyState``, at exit as at ``dlclose``, where it ran right after the library
 destructor anyway; what ending the ``PyState`` does (a host that is not Python: the thread
@@ -96,7 +96,7 @@ def patch_runtime(data: bytes) -> bytes:
 
 
 def is_runtime(member: str) -> bool:
-    """Is the FMU member ``member`` the linux64 runtime library that :func:`patch_runtime`
+    """Is the FMU member ``member`` the linux64 runtime library that ``patch_runtime``
     fixes?"""
     return member.startswith(PLATFORM_FOLDER) and member.endswith(".so")
 

@@ -4,7 +4,7 @@ It does the FMI bookkeeping that every slave of this project needs, so that each
 module only declares its variable table and calls the maths:
 
 1. the build configuration (dimensions, names) is read from ``delaycomp_fmu.json`` in the
-   FMU's resources, written there by :mod:`delaycomp.fmu.build`;
+   FMU's resources, written there by ``delaycomp.fmu.build``;
 2. the bundled package version is checked against the one the FMU was built with
    (pythonfmu slaves share the host's ``sys.modules``: a different ``delaycomp`` already
    imported in the host would silently run other code);
@@ -13,7 +13,7 @@ module only declares its variable table and calls the maths:
 3b. an optional ``start`` table in the configuration (parameter name -> value) replaces the
    slave's own defaults at registration, so the FMU's start values (in modelDescription and
    at run time) are those of one scenario: a self-contained FMU for the FMI cross-check
-   (:mod:`delaycomp.verify.crosscheck`), where an importer sets no parameters;
+   (``delaycomp.verify.crosscheck``), where an importer sets no parameters;
 4. the ModelStructure lists each output's dependencies on inputs (direct feedthrough),
    which pythonfmu leaves undeclared;
 5. no Python exception leaves the slave for an expected fault. pythonfmu 0.7 turns every
@@ -39,7 +39,7 @@ module only declares its variable table and calls the maths:
    fmi2Error from a set call (an exception would be fmi2Fatal), so a refused set returns
    fmi2OK with the error logged, and every later ``doStep`` returns fmi2Discard;
 8. an FMU state handed to the host is a small handle whose state lives in this module
-   (:class:`_StateHandle`): pythonfmu 0.7's ``fmi2FreeFMUstate`` drops one reference to
+   (``_StateHandle``): pythonfmu 0.7's ``fmi2FreeFMUstate`` drops one reference to
    the object it got and never clears the host's pointer, so a second free of the same
    state would free it twice and crash the host. Each handle is pinned (32 references
    held here), so repeated frees only lower the pin count; the state's data is dropped
@@ -100,7 +100,7 @@ def is_roundoff_step(step_size: float, h: float) -> bool:
 
 
 def check_finite(name: str, value: float) -> float:
-    """Return ``value``; raise :class:`ParameterError` naming ``name`` if it is not finite."""
+    """Return ``value``; raise ``ParameterError`` naming ``name`` if it is not finite."""
     if not math.isfinite(value):
         raise ParameterError(f"{name} = {value!r} is not allowed: must be a finite number")
     return value
@@ -222,9 +222,9 @@ class _StateHandle:
     references, so the garbage collector never examines them: pins that were lists or
     objects pointing back at the token made the collector crash once a double free left
     the count below the references it can see). pythonfmu frees a state by dropping one
-    reference to the token; :data:`PINS` references held here absorb further frees. A
+    reference to the token; ``PINS`` references held here absorb further frees. A
     token that only its pins and the registry hold was freed by the host: its data is
-    dropped at the next :meth:`new`.
+    dropped at the next ``new``.
     """
 
     PINS = 32
@@ -232,7 +232,7 @@ class _StateHandle:
     _registry: ClassVar[dict[int, tuple[int, list, dict]]] = {}
     _serial = 0
     #: references a token has with no owner: its pins, the registry tuple, and the
-    #: argument and loop variable of :meth:`_sweep` (measured by ``sys.getrefcount``)
+    #: argument and loop variable of ``_sweep`` (measured by ``sys.getrefcount``)
     _UNOWNED = PINS + 1 + 2
 
     @classmethod
@@ -587,15 +587,15 @@ class TableSlave(Fmi2Slave):
         self._set(vrs, values, Real, float)
 
     def set_integer(self, vrs, values):
-        """fmi2SetInteger: as :meth:`set_real`, for Integer variables."""
+        """fmi2SetInteger: as ``set_real``, for Integer variables."""
         self._set(vrs, values, Integer, int)
 
     def set_boolean(self, vrs, values):
-        """fmi2SetBoolean: as :meth:`set_real`, for Boolean variables."""
+        """fmi2SetBoolean: as ``set_real``, for Boolean variables."""
         self._set(vrs, values, Boolean, bool)
 
     def set_string(self, vrs, values):
-        """fmi2SetString: as :meth:`set_real`, for String variables."""
+        """fmi2SetString: as ``set_real``, for String variables."""
         self._set(vrs, values, String, str)
 
     def _get(self, vrs, kind, convert, missing) -> list:
@@ -625,15 +625,15 @@ class TableSlave(Fmi2Slave):
         return self._get(vrs, Real, float, math.nan)
 
     def get_integer(self, vrs):
-        """fmi2GetInteger: as :meth:`get_real`, for Integer variables (0 when refused)."""
+        """fmi2GetInteger: as ``get_real``, for Integer variables (0 when refused)."""
         return self._get(vrs, Integer, int, 0)
 
     def get_boolean(self, vrs):
-        """fmi2GetBoolean: as :meth:`get_real`, for Boolean variables (False when refused)."""
+        """fmi2GetBoolean: as ``get_real``, for Boolean variables (False when refused)."""
         return self._get(vrs, Boolean, bool, False)
 
     def get_string(self, vrs):
-        """fmi2GetString: as :meth:`get_real`, for String variables (``""`` when refused)."""
+        """fmi2GetString: as ``get_real``, for String variables (``""`` when refused)."""
         return self._get(vrs, String, str, "")
 
     def _setup(self) -> None:
@@ -652,7 +652,7 @@ class TableSlave(Fmi2Slave):
         return {}
 
     def _restore_hidden(self, hidden: dict) -> None:
-        """Inverse of :meth:`_hidden_state`, called after ``_setup`` rebuilt the maths."""
+        """Inverse of ``_hidden_state``, called after ``_setup`` rebuilt the maths."""
 
     def _state_data(self) -> dict:
         """The state as plain data (every settable variable, the times, the flags and the
@@ -672,8 +672,8 @@ class TableSlave(Fmi2Slave):
             return _StateHandle.new({"model": None, "invalid": message})
 
     def _set_fmu_state(self, handle) -> None:
-        """fmi2SetFMUstate: the state checked field by field (:meth:`_check_state`, then
-        :meth:`_restore_hidden` against the maths its parameters rebuild); a state that
+        """fmi2SetFMUstate: the state checked field by field (``_check_state``, then
+        ``_restore_hidden`` against the maths its parameters rebuild); a state that
         fails is refused (logged, the instance then refuses to step) and the instance's
         own state is put back."""
         try:
@@ -799,7 +799,7 @@ class TableSlave(Fmi2Slave):
 
 
 class HeldSampleMixin:
-    """The controllers' ``held_sample`` parameter (a :class:`TableSlave` with input ``y``).
+    """The controllers' ``held_sample`` parameter (a ``TableSlave`` with input ``y``).
 
     With ``held_sample = true`` a controller samples at ``t_i`` the input held over the step
     that ended at ``t_i`` (before the first step: the input set at ``t0``), so its output

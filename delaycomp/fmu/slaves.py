@@ -1,6 +1,6 @@
 """The slave class of each FMU kind in this process: the very class an FMU wraps (the
-modules under ``fmus/``, installed as :mod:`delaycomp.fmus`), for the in-process engine
-(:mod:`delaycomp.orchestrator.inprocess`) and for the native build, which writes the
+modules under ``fmus/``, installed as ``delaycomp.fmus``), for the in-process engine
+(``delaycomp.orchestrator.inprocess``) and for the native build, which writes the
 modelDescription of the Python twin.
 """
 

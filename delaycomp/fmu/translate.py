@@ -1,11 +1,11 @@
 """A model file's functions as C: traced with CasADi symbols, emitted as straight-line C.
 
-The first piece of the native nonlinear FMUs (issue 23): :func:`translate` calls the
+The first piece of the native nonlinear FMUs (issue 23): ``translate`` calls the
 model's ``f``, ``k`` and ``step`` once per combination of its string parameters' choices
 (``CHOICES``) with symbolic arguments (CasADi's ``SX``): the state, the input, the time or
 the step, and every numeric parameter (``T``, the sampling period, among them), so one C
 function serves every parameter value and one branch serves each choice. CasADi builds the
-expression graph with common subexpressions shared; :func:`emit_c` writes its instructions
+expression graph with common subexpressions shared; ``emit_c`` writes its instructions
 as C99, one local per register, constants exact (their shortest round-trip decimal), no
 heap, no library but ``math.h``.
 
@@ -14,7 +14,7 @@ What traces: arithmetic, numpy's functions (``np.sin``, ``np.where``, ``np.clip`
 branches on string parameters (``p["law"] == "printed"``). What does not: Python control
 flow on the state or on a numeric parameter (``if x[0] > 0``, ``max(x[0], 1)``), and
 ``float()`` or ``int()`` of them; such a function is refused with one line naming the
-function, the operation and the line of the user's file (:class:`TranslationError`). The
+function, the operation and the line of the user's file (``TranslationError``). The
 Python FMUs run every model.
 
 CasADi is an optional dependency (``pip install 'delaycomp[native]'``); it is imported
@@ -91,7 +91,7 @@ class CFunction:
 
 @dataclass(frozen=True)
 class Translation:
-    """The C functions of a model (:func:`translate`)."""
+    """The C functions of a model (``translate``)."""
 
     model: Model
     #: one dict of string-parameter values per branch, in the order of the C names' index
@@ -153,7 +153,7 @@ _MATH_NAMES = ("sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tan
 @contextlib.contextmanager
 def _tracing(ca):
     """``math``'s functions accept symbols; ``float()``, ``int()`` and truth values of a
-    symbol raise :class:`_Untraceable` (CasADi returns NaN for ``float()``)."""
+    symbol raise ``_Untraceable`` (CasADi returns NaN for ``float()``)."""
     saved_math = {name: getattr(math, name) for name in _MATH_NAMES}
     saved_sx = {name: ca.SX.__dict__.get(name) for name in ("__float__", "__int__",
                                                              "__bool__", "__index__")}

@@ -1,4 +1,4 @@
-"""What delaycomp writes and reads: SSP files (:mod:`.ssp`: write, read, archive), the
-outputs of runs (:mod:`.outputs`), your loop's FMUs with their wiring sheet
-(:mod:`.loopbuild`) and the controller as plain C (:mod:`.exportc`).
+"""What delaycomp writes and reads: SSP files (``.ssp``: write, read, archive), the
+outputs of runs (``.outputs``), your loop's FMUs with their wiring sheet
+(``.loopbuild``) and the controller as plain C (``.exportc``).
 """

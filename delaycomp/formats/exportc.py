@@ -12,8 +12,8 @@ interface of issue 33::
 The maths is the native controller FMU's (``fmus/controller/controller_lti.c``,
 ``model_controller.c``) without its FMI layer; the loop's parameters are constants of
 ``NAME.c``. An LTI controller's matrices ``e^{A (r + tau)}`` and ``Q_p B`` are computed
-here, once (:class:`delaycomp.maths.lti.LTIPredictor`); a model's ``f``, ``k`` and ``step`` are
-its C from :mod:`delaycomp.fmu.translate`, and the numerical predictor's integrator is
+here, once (``delaycomp.maths.lti.LTIPredictor``); a model's ``f``, ``k`` and ``step`` are
+its C from ``delaycomp.fmu.translate``, and the numerical predictor's integrator is
 ``fmus/native/ode.c`` (DOP853), put into ``NAME.c`` with ``static`` linkage. The values are
 checked by the controller FMU's own code (its Python twin, in-process), so a bad value is
 refused with the FMU's message. The C templates are ``fmus/native/export/``.
@@ -93,7 +93,7 @@ def _array(values) -> str:
 
 
 def check_prefix(prefix: str) -> str:
-    """The C prefix of the exported names, or :class:`ParameterError` naming the rule."""
+    """The C prefix of the exported names, or ``ParameterError`` naming the rule."""
     if not isinstance(prefix, str) or not _PREFIX.fullmatch(prefix) or \
             prefix in _C_KEYWORDS:
         raise ParameterError(f"--prefix {prefix!r} is not allowed: must be a C identifier "

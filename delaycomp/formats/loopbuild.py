@@ -1,6 +1,6 @@
 """The FMUs of one loop, ready to instantiate, and its wiring sheet.
 
-``delaycomp build LOOP.toml`` (and :func:`delaycomp.api.build`) write, for a loop file or a
+``delaycomp build LOOP.toml`` (and ``delaycomp.api.build``) write, for a loop file or a
 scenario, one FMU per instance named after the loop (``myloop_plant.fmu``,
 ``myloop_meas_delay.fmu``, ``myloop_controller.fmu``, ``myloop_input_delay.fmu``) whose
 start values are the loop's parameter values (``A``, ``B``, ``K``, ``T``, ``r``, ``tau``,
@@ -15,7 +15,7 @@ that translate, a C compiler), else the Python FMUs with a note; ``fmus="native"
 ``"python"`` chooses. An instance whose FMU is a user's file (a plant FMU exported by
 another tool) is not rebuilt: the sheet names the file and the loop's values for it.
 
-Every start value is written as it reads back (:func:`delaycomp.fmu.build.start_text`) and
+Every start value is written as it reads back (``delaycomp.fmu.build.start_text``) and
 checked after the build against the loop: the modelDescription's start of each parameter
 equals the loop's value exactly.
 
@@ -47,7 +47,7 @@ ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
 
 @dataclass(frozen=True)
 class LoopBuild:
-    """What :func:`build_loop` wrote."""
+    """What ``build_loop`` wrote."""
 
     #: the loop's name as the files carry it
     name: str
@@ -77,7 +77,7 @@ def file_stem(name: str) -> str:
 
 
 def roles_of(only: Iterable[str] | None) -> tuple[Role, ...]:
-    """The roles ``only`` names (:data:`delaycomp.names.LOOP_GROUPS`), in signal order;
+    """The roles ``only`` names (``delaycomp.names.LOOP_GROUPS``), in signal order;
     ``None``: every role."""
     if only is None:
         return ROLES
@@ -100,7 +100,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     Parameters
     ----------
     loop : Loop
-        The loop (:func:`delaycomp.api.load` of a loop file, a scenario's loop, ...).
+        The loop (``delaycomp.api.load`` of a loop file, a scenario's loop, ...).
     out_dir : path
         Output folder (created). Files are named ``<loop>_<role>.fmu`` and
         ``<loop>_wiring.txt``; existing files of those names are replaced.
@@ -148,7 +148,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
 
 def _build_args(loop: Loop, out_dir: str | Path, only: Iterable[str] | None,
                 fmus: str) -> tuple[tuple[Role, ...], str, Path]:
-    """The arguments of :func:`build_loop` checked: the roles, the file stem, the folder."""
+    """The arguments of ``build_loop`` checked: the roles, the file stem, the folder."""
     if fmus not in FMU_KINDS:
         raise ParameterError(f"fmus = {fmus!r} is not allowed: must be one of "
                              f"{', '.join(FMU_KINDS)}")

@@ -1,15 +1,15 @@
 """Result files of a run: checked before it starts, written while it goes.
 
-- :func:`check_output` refuses an output path that cannot take a file (an existing folder,
+- ``check_output`` refuses an output path that cannot take a file (an existing folder,
   a name ending in a path separator, a parent that is a file, a plot format matplotlib
   cannot write) before anything runs, so a late failure cannot strand a half-made result.
-- :func:`clear_previous` removes an older result at the same path (and its ``.partial``)
+- ``clear_previous`` removes an older result at the same path (and its ``.partial``)
   before a run, so a failed rerun never leaves an old file that looks like the new one.
-- :func:`output_every` turns ``--output-interval S`` into a decimation of the base step.
-- :class:`CsvStream` writes the CSV row by row as the master records it, into
+- ``output_every`` turns ``--output-interval S`` into a decimation of the base step.
+- ``CsvStream`` writes the CSV row by row as the master records it, into
   ``FILE.part``; it becomes ``FILE`` on success and ``FILE.partial`` (the rows up to the
   failure, never read as a result) on failure. Memory stays flat however long the run.
-- :func:`check_budget` estimates a run's time and memory before it starts and refuses,
+- ``check_budget`` estimates a run's time and memory before it starts and refuses,
   with the estimate in one line, what cannot finish.
 """
 
@@ -201,8 +201,8 @@ def output_every(interval: float | None, T: float, N: int) -> int:
 class CsvStream:
     """A CSV written row by row: ``time`` then one column per name.
 
-    Use as ``sink`` of :func:`delaycomp.orchestrator.simulate.run_loop`; call :meth:`finish` once.
-    Rows go to ``FILE.part``; :meth:`finish` renames it to ``FILE`` (success) or
+    Use as ``sink`` of ``delaycomp.orchestrator.simulate.run_loop``; call ``finish`` once.
+    Rows go to ``FILE.part``; ``finish`` renames it to ``FILE`` (success) or
     ``FILE.partial`` (failure). Numbers are written with ``repr`` (17 significant digits,
     read back bit for bit).
     """
@@ -293,7 +293,7 @@ def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
 
     Memory counts the delay lines (``delay / h`` held values each), the controller's
     input history (``(r + tau) / h`` values) and, with ``keep``, the recorded rows.
-    ``loop`` is a :class:`~delaycomp.system.Loop`.
+    ``loop`` is a ``Loop``.
     """
     h = loop.T / loop.N
     held = 0.0
@@ -317,7 +317,7 @@ def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
 
 def check_budget(loop, ticks: int, engine: str = "fmu", every: int = 1,
                  keep: bool = True) -> tuple[float, float]:
-    """Refuse a run that cannot finish (:data:`MAX_RUN_SECONDS`) or cannot fit in half
+    """Refuse a run that cannot finish (``MAX_RUN_SECONDS``) or cannot fit in half
     the physical memory; return the estimate ``(seconds, bytes)`` otherwise."""
     seconds, memory = estimate(loop, ticks, engine, every, keep)
     steps = f"{ticks:.4g} base steps (T = {loop.T!r}, N = {loop.N})"

@@ -1,9 +1,9 @@
-"""The maths, free of FMI (numpy and scipy only): the grid (:mod:`.grid`), exact
-discretization and the lifted loop (:mod:`.lti`), predictor maps (:mod:`.predictors`), the
-zero-order-hold controller of Theorem 3.2 (:mod:`.zoh`), the controllers of model files
-(:mod:`.nlcontrol`), the model-file interface (:mod:`.model`), input histories
-(:mod:`.history`) and the delay line (:mod:`.delayline`).
+"""The maths, free of FMI (numpy and scipy only): the grid (``.grid``), exact
+discretization and the lifted loop (``.lti``), predictor maps (``.predictors``), the
+zero-order-hold controller of Theorem 3.2 (``.zoh``), the controllers of model files
+(``.nlcontrol``), the model-file interface (``.model``), input histories
+(``.history``) and the delay line (``.delayline``).
 
 This is what the Python FMUs bundle: the package imports nothing, and its modules import
-only each other and :mod:`delaycomp`'s light base (errors, names).
+only each other and ``delaycomp``'s light base (errors, names).
 """

@@ -57,5 +57,5 @@ class DelayLine:
         return [list(v) for v in self.buffer]
 
     def set_state(self, state: list) -> None:
-        """Restore the buffer :meth:`get_state` returned."""
+        """Restore the buffer ``get_state`` returned."""
         self.buffer = deque((tuple(v) for v in state), maxlen=self.D)

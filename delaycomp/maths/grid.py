@@ -3,7 +3,7 @@
 A loop runs on integer ticks ``t_k = t0 + k h`` of the base step ``h = T / N``. Delays,
 windows, stop times and sampling periods enter as real numbers and must be whole numbers
 of a step (``h``, a communication step, or ``T``); every such question in the package is
-asked here, with one tolerance (:data:`GRID_RTOL`) and one bound (:data:`MAX_STEPS`).
+asked here, with one tolerance (``GRID_RTOL``) and one bound (``MAX_STEPS``).
 This module imports nothing of the package: the maths, the FMUs and the system model all
 stand on it.
 
@@ -31,17 +31,17 @@ GRID_RTOL = 1e-9
 #: (a huge delay, a tiny step) must be refused, not allocate until the host is killed.
 #: 10^6 steps of a scalar signal take about 80 MB once filled.
 MAX_STEPS = 1_000_000
-#: the unit round-off of a double (2^-52): :func:`same_step`'s allowance for the host's times
+#: the unit round-off of a double (2^-52): ``same_step``'s allowance for the host's times
 _EPS = 2.0 ** -52
 #: The most a host's clock may drift off an FMU's grid, relative to the step
-#: (:func:`drift`): a host that keeps time as ``t += h`` (OpenModelica, OMSimulator) is
+#: (``drift``): a host that keeps time as ``t += h`` (OpenModelica, OMSimulator) is
 #: 1.7e-5 h off after 10^6 steps of ``h = 0.01`` (measured); a step ``h (1 + 1e-3)`` or a
 #: jump is refused.
 DRIFT_RTOL = 1e-4
 
 
 def nearest_multiple(value: float, step: float) -> int | None:
-    """``k`` with ``value = k step`` up to :data:`GRID_RTOL`, else ``None``."""
+    """``k`` with ``value = k step`` up to ``GRID_RTOL``, else ``None``."""
     ratio = value / step
     if not math.isfinite(ratio):
         return None
@@ -57,7 +57,7 @@ def on_grid(value: float, step: float) -> bool:
 
 
 def on_grid_array(values, step):
-    """:func:`on_grid` elementwise over arrays (``values`` and ``step`` broadcast), with the
+    """``on_grid`` elementwise over arrays (``values`` and ``step`` broadcast), with the
     same floating-point arithmetic: the same answer for every element.
 
     >>> on_grid_array([0.3, 0.305, float("nan")], 0.01).tolist()
@@ -87,7 +87,7 @@ def same_step(step: float, h: float, t: float = 0.0) -> bool:
     ``|d| <= (2 k + 3 + |t0| / h) eps``, and ``|d| <= (k + 1) eps`` from ``t0 = 0``; in
     absolute terms ``|d| h`` is a few ulps of ``t``, which the second term covers however
     long the run or far from 0 its start (from ``t = 1e5`` with ``h = 0.005``, ``d`` is
-    ``3e-9``, beyond :data:`GRID_RTOL` alone). Reusing the plant's ``Ad(h)`` for a step
+    ``3e-9``, beyond ``GRID_RTOL`` alone). Reusing the plant's ``Ad(h)`` for a step
     ``h (1 + d)`` errs by ``~ |d| h |x'|`` against that step, and not at all against the
     grid ``t0 + k h`` the host means.
 
@@ -103,7 +103,7 @@ def same_step(step: float, h: float, t: float = 0.0) -> bool:
     Returns
     -------
     bool
-        True when ``step`` is ``h`` up to :data:`GRID_RTOL` relative to ``h`` and the
+        True when ``step`` is ``h`` up to ``GRID_RTOL`` relative to ``h`` and the
         round-off of the times near ``t``.
 
     Examples
@@ -128,7 +128,7 @@ def drift(t: float, h: float, t0: float = 0.0) -> float:
     Each addition rounds once, by at most ``eps / 2`` of the sum (``eps = 2^-52``), so after
     ``k = |t - t0| / h`` additions the host is off by at most ``k eps max(|t0|, |t|) / 2``;
     twice that, plus 8 ulps for a host that computes ``t0 + k h`` instead, is allowed, and
-    never more than :data:`DRIFT_RTOL` ``h`` (so a step ``h (1 + 1e-3)`` or a jump of a
+    never more than ``DRIFT_RTOL`` ``h`` (so a step ``h (1 + 1e-3)`` or a jump of a
     step stays refused however long the run). The native FMUs use the same arithmetic
     (``drift`` of ``fmus/native/native.c``).
 
@@ -146,7 +146,7 @@ def drift(t: float, h: float, t0: float = 0.0) -> float:
 
 def grid_step(t: float, step: float, h: float, t0: float) -> bool:
     """Is ``[t, t + step]`` one step of the grid ``t0 + k h``, each end within
-    ``GRID_RTOL h +`` :func:`drift` of consecutive grid points?
+    ``GRID_RTOL h +`` ``drift`` of consecutive grid points?
 
     The rule by which an FMU on its own grid takes a host's step whose ends drifted
     (``t += h``: a last step ``stop - t`` to the stop time is ``h`` less the drift); the FMU
@@ -170,7 +170,7 @@ def grid_step(t: float, step: float, h: float, t0: float) -> bool:
 
 
 def check_steps(name: str, value: float, steps: float, unit: str) -> None:
-    """Refuse a window of more than :data:`MAX_STEPS` steps of ``unit``."""
+    """Refuse a window of more than ``MAX_STEPS`` steps of ``unit``."""
     if not steps <= MAX_STEPS:
         raise ValueError(f"{name} = {value!r} is not allowed: must be at most {MAX_STEPS} "
                          f"{unit} (it needs {steps:.6g})")
@@ -222,7 +222,7 @@ PAD_SPELLING = "pad = true ([controller] pad in a loop file, --set pad=1 for a s
 
 def base_alternatives(value: float, period: float, N: int) -> str:
     """The fix for a delay ``value`` off the base grid ``h = period / N``: the nearest
-    multiples of ``h``, and the smallest ``N' >= N`` (if one up to :data:`MAX_STEPS`
+    multiples of ``h``, and the smallest ``N' >= N`` (if one up to ``MAX_STEPS``
     exists) whose grid holds ``value``; never "raise N" where no larger ``N`` helps
     (``r = 0.5``, ``T = 0.3``: only ``N`` a multiple of 3 does).
 
@@ -265,10 +265,10 @@ def zoh_alternatives(value: float, period: float) -> str:
 def periods(value: float, period: float, name: str = "tau", padding: bool = False) -> int:
     """``l`` with ``value = l period``, ``l >= 0``: under zero-order hold the input delay
     is a whole number of sampling periods (Theorem 3.2, ``tau = l T``), up to round-off as
-    :func:`split` decides it.
+    ``split`` decides it.
 
     The rule and its message, written once: the typed loop
-    (:func:`delaycomp.system.loop.check_zoh_delay`), the scenarios, the batch engine and
+    (``delaycomp.system.loop.check_zoh_delay``), the scenarios, the batch engine and
     the controllers (the FMUs, whose C twins log the first words) call it. The message
     is one line that tells the fix: the nearest allowed ``tau`` (multiples of ``T``) and
     ``T`` (``tau / l``, for a sweep over ``T``), and where the caller can pad, that

@@ -3,7 +3,7 @@
 The plant receives the controller output ``u`` delayed by ``tau``, held constant over each
 base step ``h`` (FMI 2.0 co-simulation holds inputs over a communication step). The
 predictor at time ``t`` needs ``u`` on ``[t - r - tau, t)``: exactly ``W = (r + tau) / h``
-held values. :class:`InputHistory` keeps those (a bounded buffer) and hands them out as
+held values. ``InputHistory`` keeps those (a bounded buffer) and hands them out as
 segments ``(duration, u)``, oldest first, with equal neighbours merged, so a zero-order-hold
 history of period ``T`` becomes a few segments of length ``T``.
 """
@@ -46,5 +46,5 @@ class InputHistory:
         return [list(v) for v in self.values]
 
     def set_state(self, state: list) -> None:
-        """Restore the inputs :meth:`get_state` returned."""
+        """Restore the inputs ``get_state`` returned."""
         self.values = deque((tuple(v) for v in state), maxlen=self.W)

@@ -24,7 +24,7 @@ from ``x`` after ``r + tau`` (Phi of the paper). Without it the controller solve
 points: ``x`` of shape ``(n, P)``, ``u`` of shape ``(m, P)``, ``h`` and ``t`` of shape
 ``(P,)``, and ``p["T"]`` of shape ``(P,)``; they return ``(n, P)`` and ``(m, P)`` arrays.
 With it and an exact ``step``, sweeps run the model on the batch engine
-(:mod:`delaycomp.studies.batch`).
+(``delaycomp.studies.batch``).
 """
 
 from __future__ import annotations
@@ -172,7 +172,7 @@ def module_name(model_path: str | Path) -> str:
 
 
 def load_model(path: str | Path) -> Model:
-    """Import a model file (once per process: under :func:`module_name`, the name its FMUs
+    """Import a model file (once per process: under ``module_name``, the name its FMUs
     import it by) and check it."""
     path = Path(path)
     if not path.is_file() or path.suffix != ".py":

@@ -9,17 +9,17 @@ Both are stepping objects free of FMI. Contract, at every base tick ``t_k``:
    over ``[t_k, t_k + h)`` and recorded in the history; then the controller moves to
    ``t_{k+1}``.
 
-The history (:class:`~delaycomp.maths.history.InputHistory`) holds exactly what the plant will
+The history (``InputHistory``) holds exactly what the plant will
 receive ``tau`` later, so the prediction is exact (to the predictor's tolerance) from the
 first sample with ``t_i >= r``.
 
-- :class:`ContinuousController` (Theorem 2.1): ``z' = f(z, u)``, ``u = k(t + tau, z)``,
+- ``ContinuousController`` (Theorem 2.1): ``z' = f(z, u)``, ``u = k(t + tau, z)``,
   ``z(t_i) = Phi(y_i, history)`` at every ``t_i`` with ``i >= 1`` (not at ``t0``: there
   ``z = z0``). The input is realised on the base grid: ``u`` is evaluated at each ``t_k``
   and held for ``h`` (FMI 2.0 holds inputs over a communication step), and ``z`` is
   integrated with that held value, so ``z`` stays the plant's state ``tau`` ahead. It
   tends to the paper's continuous law as ``h -> 0``.
-- :class:`ZOHModelController` (Theorem 3.2): ``u_i = k(Phi(y_i, history))`` held over each
+- ``ZOHModelController`` (Theorem 3.2): ``u_i = k(Phi(y_i, history))`` held over each
   period. ``tau`` must be ``l T``; with ``pad=True`` a ``tau`` that is not is padded up to
   ``ceil(tau / T) T`` (Remark 3.3(b)): the controller delays its own output by the
   difference and predicts over the padded delay.
@@ -40,7 +40,7 @@ from delaycomp.maths.predictors import DEFAULT_TOL, integrate, numerical_predict
 
 
 def grid_steps(value: float, h: float, name: str) -> int:
-    """Base steps in ``value`` (:func:`delaycomp.maths.grid.steps_of`)."""
+    """Base steps in ``value`` (``delaycomp.maths.grid.steps_of``)."""
     return grid.steps_of(value, h, name)
 
 
@@ -176,7 +176,7 @@ class ContinuousController(_Base):
         return {**super().get_state(), "z": self.z.tolist(), "t0": self.t0}
 
     def set_state(self, state: dict) -> None:
-        """Restore the state :meth:`get_state` returned."""
+        """Restore the state ``get_state`` returned."""
         super().set_state(state)
         self.z = np.array(state["z"], dtype=float).reshape(self.model.n)
         self.t0 = float(state["t0"])
@@ -232,7 +232,7 @@ class ZOHModelController(_Base):
                 "pad_line": self.pad_line.get_state()}
 
     def set_state(self, state: dict) -> None:
-        """Restore the state :meth:`get_state` returned."""
+        """Restore the state ``get_state`` returned."""
         super().set_state(state)
         self.held = np.array(state["held"], dtype=float).reshape(self.model.m)
         self.pad_line.set_state(state["pad_line"])

@@ -2,13 +2,13 @@
 
 A plant exported by a Modelica tool keeps its continuous states hidden and exposes sensor
 outputs that are a function of them. ``predictor = "plant-fmu"`` measures ``y``, finds the
-state ``x`` with ``h(x) = y`` (:func:`invert`), predicts ``x`` with the plant's own
+state ``x`` with ``h(x) = y`` (``invert``), predicts ``x`` with the plant's own
 derivatives, and gives the feedback ``h`` of the prediction. This module is the maths of the
 inversion only: ``h`` and its Jacobian are callables (through the FMU's Model Exchange
-interface in the generated model module, :mod:`delaycomp.system.fmumodel`).
+interface in the generated model module, ``delaycomp.system.fmumodel``).
 
 The map must be locally injective: as many outputs as states or more, and a Jacobian
-``dh/dx`` of full column rank (:func:`check_rank`). Then Newton's method (Gauss-Newton,
+``dh/dx`` of full column rank (``check_rank``). Then Newton's method (Gauss-Newton,
 with halving of the step while the residual does not decrease) from a nearby state
 converges quadratically; for a linear ``h = C x + c`` it ends in one step.
 
@@ -53,7 +53,7 @@ def _names(names: Sequence[str]) -> str:
 def check_rank(J: np.ndarray, outputs: Sequence[str], states: Sequence[str],
                where: str = "") -> None:
     """Refuse a Jacobian ``dh/dx`` (outputs x states) that is not of full column rank (or is
-    worse conditioned than :data:`CONDITION_LIMIT`), naming both sides; ``where``: the
+    worse conditioned than ``CONDITION_LIMIT``), naming both sides; ``where``: the
     state at which it was taken, for the message."""
     J = np.atleast_2d(np.asarray(J, dtype=float))
     n_out, n_x = J.shape
@@ -78,8 +78,8 @@ def check_rank(J: np.ndarray, outputs: Sequence[str], states: Sequence[str],
 def invert(h: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray],
            y, x_guess, max_iter: int = 50) -> np.ndarray:
     """The state ``x`` with ``h(x) = y`` (least squares where there are more outputs than
-    states), by Newton's method from ``x_guess``; :class:`NotInvertible` (one line) where
-    the Jacobian loses rank or no state reaches ``y`` within :data:`RESIDUAL_RTOL`."""
+    states), by Newton's method from ``x_guess``; ``NotInvertible`` (one line) where
+    the Jacobian loses rank or no state reaches ``y`` within ``RESIDUAL_RTOL``."""
     y = np.asarray(y, dtype=float)
     x = np.array(x_guess, dtype=float)
     r = np.asarray(h(x), dtype=float) - y

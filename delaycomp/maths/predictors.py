@@ -3,18 +3,18 @@
 ``Phi(x, segments)`` is the state reached from ``x`` when the plant is driven over the
 input segments ``(duration, u)`` (oldest first) that cover the window ``[t - r - tau, t)``.
 
-- :func:`integrate` solves the ODE over the segments (DOP853, stated tolerances): the
+- ``integrate`` solves the ODE over the segments (DOP853, stated tolerances): the
   numerical Phi for any forward-complete ``f``, and the plant step when no exact step is
   known.
-- :func:`bilinear_predictor`: Remark 2.2(d)(ii), ``x' = A x + B u + u C x`` with
+- ``bilinear_predictor``: Remark 2.2(d)(ii), ``x' = A x + B u + u C x`` with
   ``AC = CA``.
-- :func:`chain_predictor`: Corollary 3.7, a system diffeomorphic to a chain of
+- ``chain_predictor``: Corollary 3.7, a system diffeomorphic to a chain of
   integrators by ``z = Theta(x)``: ``Phi = Theta^{-1}(flow of the chain from Theta(x))``.
 The closed forms of Example 2.4 and of the unicycle live with their models in
-:mod:`delaycomp.paper.models`.
+``delaycomp.paper.models``.
 
 scipy is imported by the predictor that uses it, when it is first used: ``scipy.integrate``
-by the ODE solves, ``scipy.linalg`` (through :mod:`delaycomp.maths.lti`) by the two matrix closed
+by the ODE solves, ``scipy.linalg`` (through ``delaycomp.maths.lti``) by the two matrix closed
 forms. A model FMU whose model has its own exact step and Phi (Example 2.4) so loads
 numpy only: 0.1 s to instantiate instead of 0.38 s (``bench/run.py``, section 7).
 """
@@ -52,16 +52,16 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
     scipy's compiled binding, restarted at each segment: per segment it costs a few
     microseconds plus the evaluations of ``f``, where ``solve_ivp``'s Python stepping cost
     five to eight times more (measured). One solver object per thread and tolerance pair
-    is reused for every call (see :func:`_solver`): a solver per call is never freed by
+    is reused for every call (see ``_solver``): a solver per call is never freed by
     scipy and grew memory by about 1.5 KiB per call. Where the compiled DOP853 gives up
     with "step size becomes too small" on a state whose scaled error underflows (a state
     near 1e-150 with these tolerances; the band 2e-155 .. 3e-148 measured), or spends its
     step budget on a state below 1e-100 (seen at 1e-156 in a long run), the segment is
     solved again by the same method in scipy's Python implementation
     (``solve_ivp(method="DOP853")``, same tolerances). A segment whose state and input
-    are all below 1e-100 is solved for ``z / 2^k`` instead (:func:`_scaled_segment`),
+    are all below 1e-100 is solved for ``z / 2^k`` instead (``_scaled_segment``),
     where neither implementation's error norm underflows. Raises
-    :class:`IntegrationError` if a solve fails or the state stops being finite; the
+    ``IntegrationError`` if a solve fails or the state stops being finite; the
     message names the model's own exception when ``f`` raised.
 
     Parameters
@@ -105,7 +105,7 @@ def integrate(f: Callable, p: dict, x, segments: Segments, rtol: float = DEFAULT
 
 
 def _nested(f, p, z, segments, rtol, atol) -> np.ndarray:
-    """:func:`integrate` by scipy's Python DOP853 only (a solve inside a solve)."""
+    """``integrate`` by scipy's Python DOP853 only (a solve inside a solve)."""
     slot = _Slot.__new__(_Slot)
     slot.f, slot.p, slot.rtol, slot.atol = f, p, rtol, atol
     elapsed = 0.0
@@ -161,7 +161,7 @@ def _checked(ok: bool, reason: str, z_end: np.ndarray, elapsed: float,
 
 
 def _scaled_segment(slot: _Slot, z, duration, u, elapsed, size) -> np.ndarray:
-    """A segment whose state and input are all below :data:`_TINY`, solved for ``y = z /
+    """A segment whose state and input are all below ``_TINY``, solved for ``y = z /
     s`` with ``s`` the power of two nearest ``size``: ``y' = f(s y, u) / s`` is the same
     ODE (multiplying and dividing by a power of two is exact above the subnormals), and
     its tolerances, applied to ``y``, are tighter than the caller's on ``z``. Both DOP853
@@ -365,7 +365,7 @@ def deadbeat_gain(n: int, T: float) -> np.ndarray:
 
 @functools.cache
 def _unit_deadbeat_gain(n: int) -> tuple[Fraction, ...]:
-    """The dead-beat gain of :func:`deadbeat_gain` for ``T = 1``, as exact rationals."""
+    """The dead-beat gain of ``deadbeat_gain`` for ``T = 1``, as exact rationals."""
     Ad = [[Fraction(1, math.factorial(j - i)) if j >= i else Fraction(0) for j in range(n)]
           for i in range(n)]
     Bd = [Fraction(1, math.factorial(n - i)) for i in range(n)]

@@ -67,7 +67,7 @@ class ZOHController:
         return {"held": self.held.tolist(), "history": [h.tolist() for h in self.history]}
 
     def set_state(self, state: dict) -> None:
-        """Restore the state :meth:`get_state` returned."""
+        """Restore the state ``get_state`` returned."""
         self.held = np.asarray(state["held"], dtype=float)
         self.history = deque(
             (np.asarray(h, dtype=float) for h in state["history"]), maxlen=self.predictor.L

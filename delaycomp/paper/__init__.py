@@ -1,8 +1,8 @@
 """The paper as data: its cases as loop files (``loops/*.toml``), the model modules of
-its nonlinear examples (:mod:`.models`) and the scenarios built from them
-(:mod:`.scenarios`).
+its nonlinear examples (``.models``) and the scenarios built from them
+(``.scenarios``).
 
-This package imports only :mod:`delaycomp.layout` (:func:`~delaycomp.layout.whole`):
+This package imports only ``delaycomp.layout`` (``whole``):
 the FMUs bundle it with the models.
 """
 

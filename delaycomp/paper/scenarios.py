@@ -2,11 +2,11 @@
 
 A scenario is a loop file in ``delaycomp/paper/loops/`` (the paper as data: the matrices
 or the model file, the timing, the histories) read by the loop-file reader
-(:mod:`delaycomp.system.loopfile`), which parses and checks every value, plus an alias
+(``delaycomp.system.loopfile``), which parses and checks every value, plus an alias
 table: each scenario parameter (``k``, ``T``, ``x0``, ``law``) names the loop-file key it
 sets (``k`` is ``controller.K = [[-k]]``) and how its value maps to the key's. Defaults are
 the file's values; the allowed ranges are the reader's. A scenario turns ``NAME=VALUE``
-assignments into a :class:`~delaycomp.system.Loop`; it does not run anything.
+assignments into a ``Loop``; it does not run anything.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ __all__ = [
 #: the scenarios at their defaults, as loop files shipped in the package
 LOOPS_DIR = Path(__file__).resolve().parent / "loops"
 
-#: distinct values remembered per parameter (:meth:`Scenario._file_value`)
+#: distinct values remembered per parameter (``Scenario._file_value``)
 _MEMO_SIZE = 4096
 #: no default in the alias: the loop file's value is the default
 _FROM_FILE: Any = object()
@@ -60,7 +60,7 @@ class Param:
     scenario's ``derive``), ``to_file`` maps the parameter's value to the key's (``k`` to
     ``[[-k]]``) and ``from_file`` the key's checked value back (the default shown by
     ``delaycomp list`` is the file's value read so). ``allowed`` is the range in words
-    (``None``: the reader's, :data:`delaycomp.system.loopfile.KEYS`; a model's own
+    (``None``: the reader's, ``delaycomp.system.loopfile.KEYS``; a model's own
     parameter states its choices, which ``delaycomp list`` prints without importing the
     model, tested equal to the model's). The reader checks every value; a refusal names
     this parameter. A parameter without a key (Corollary 3.7's ``n``) has its own
@@ -132,7 +132,7 @@ class Scenario:
     Parameters
     ----------
     name : str
-        The scenario's name, also its loop file's stem in :data:`LOOPS_DIR`.
+        The scenario's name, also its loop file's stem in ``LOOPS_DIR``.
     params : tuple of Param
         The alias table, in the order ``delaycomp list`` shows it.
     derive : callable, optional
@@ -174,7 +174,7 @@ class Scenario:
 
     @functools.cached_property
     def model(self):
-        """The model of a model scenario (:mod:`delaycomp.maths.model`), ``None`` for LTI."""
+        """The model of a model scenario (``delaycomp.maths.model``), ``None`` for LTI."""
         plant = self.file.data["plant"]
         if "model" not in plant:
             return None
@@ -250,7 +250,7 @@ class Scenario:
 
     def _file_value(self, p: Param, value):
         """The key's value of parameter ``p``'s ``value``, one object per distinct value (the
-        reader parses a list it has seen once: :func:`~delaycomp.system.loopfile.designs`)."""
+        reader parses a list it has seen once: ``designs``)."""
         memo = self._memo.setdefault(p.name, {})
         key = repr(value)  # not the value: 0.0 == -0.0, and K = [[-k]] keeps the sign
         got = memo.get(key)
@@ -290,9 +290,9 @@ class Scenario:
         return values
 
     def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> Grid | None:
-        """:meth:`resolve` of ``sets`` followed by each point's assignments, for every
+        """``resolve`` of ``sets`` followed by each point's assignments, for every
         point of a grid, parsing each distinct assignment once (an LTI grid is checked
-        at once, :func:`~delaycomp.system.loopfile.designs`); ``None`` if some point is
+        at once, ``designs``); ``None`` if some point is
         refused (resolve the points one by one to name it).
 
         Examples
@@ -320,7 +320,7 @@ class Scenario:
             return None
 
     def make(self, params: dict) -> Loop:
-        """The loop for resolved ``params`` (:meth:`resolve`), named after the scenario.
+        """The loop for resolved ``params`` (``resolve``), named after the scenario.
 
         Its stop time is the scenario's default where that lies on the loop's base grid;
         with a new ``T`` or ``N`` it may not, and the loop then has none (a run names
@@ -336,7 +336,7 @@ class Scenario:
 
     def design(self, params: dict) -> LtiPoint | None:
         """For an LTI scenario, the design and timing of resolved ``params`` without the
-        loop's instances (validated as :meth:`make` validates them; a batch sweep's grid
+        loop's instances (validated as ``make`` validates them; a batch sweep's grid
         point); ``None`` for the others.
 
         Examples
@@ -349,19 +349,19 @@ class Scenario:
         return self.file.design(self.data(params))
 
     def designs(self, params: list[dict]) -> LtiBatch | None:
-        """:meth:`design` of many resolved points at once, as arrays
-        (:func:`~delaycomp.system.loopfile.designs`: the same checks, vectorized); ``None``
+        """``design`` of many resolved points at once, as arrays
+        (``designs``: the same checks, vectorized); ``None``
         for a scenario that is not LTI, or points that do not stack or fail a check
-        (validate those one by one with :meth:`design`, which names what is wrong)."""
+        (validate those one by one with ``design``, which names what is wrong)."""
         if isinstance(params, Grid) and params.designs is not None:
             return params.designs  # checked by resolve_grid
         return self.file.designs([self.data(p) for p in params])
 
 
 class Grid(list):
-    """The resolved points of a grid (:meth:`Scenario.resolve_grid`); for an LTI scenario
+    """The resolved points of a grid (``Scenario.resolve_grid``); for an LTI scenario
     it keeps their designs (``designs``: the check made them), so that
-    :meth:`Scenario.designs` does not make them twice."""
+    ``Scenario.designs`` does not make them twice."""
 
     designs: LtiBatch | None = None
 
@@ -436,7 +436,7 @@ CHAIN_MAX = 12
 
 
 def _chain_length(n) -> int:
-    """Corollary 3.7's ``n``: an integer from 1 to :data:`CHAIN_MAX`."""
+    """Corollary 3.7's ``n``: an integer from 1 to ``CHAIN_MAX``."""
     if isinstance(n, bool) or not isinstance(n, (int, float)) or not (
             math.isfinite(n) and n == int(n) and 1 <= n <= CHAIN_MAX):
         raise ValueError(n)
@@ -491,7 +491,7 @@ def loop_file(name: str) -> Path:
 
 def open_source(source: str | Path | Loop | LoopFile | Scenario):
     """The one reading of what a command or an API call is given as a loop: a
-    :class:`Loop` (its loop-file data, :class:`~delaycomp.system.loopfile.LoopData`), a
+    ``Loop`` (its loop-file data, ``LoopData``), a
     loop file (a path ending in ``.toml``, str or Path) or a scenario by name (an opened
     one passes as it is). Anything else is refused in one short line naming it.
 

@@ -1,7 +1,7 @@
 """The axes of a grid over a loop's parameters, written once for sweeps and the
-critical-delay tables: ``NAME=START:STOP:COUNT`` (:func:`parse_grid`), each value as a
-person would write it (:func:`format_value`), the delay axes snapped to the base grid
-(:func:`snap_axes`) and the grid's points (:func:`points`).
+critical-delay tables: ``NAME=START:STOP:COUNT`` (``parse_grid``), each value as a
+person would write it (``format_value``), the delay axes snapped to the base grid
+(``snap_axes``) and the grid's points (``points``).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Many closed loops at once: the sampled-data loop advanced for a batch of points.
 
 A maths module (numpy/scipy; no FMI, no scenario): it takes the loops as validated
-batches of points (:class:`delaycomp.system.LtiBatch` for LTI loops, :class:`ModelBatch`
+batches of points (``delaycomp.system.LtiBatch`` for LTI loops, ``ModelBatch``
 for a model's), arrays with one entry per point, and advances every point together on
 the base grid, tick by tick, vectorized over the points. It computes what the per-point
 engine (the master stepping the slaves) computes, in the same order, so the sweep's
@@ -21,14 +21,14 @@ under zero-order hold, one per tick under continuous input) for the predictor's 
 the input delay. Points with different ``N`` run in separate groups; within a group the
 ticks are common and ``T`` (hence ``h``), ``r``, ``tau`` differ freely.
 
-- :func:`run_lti` (an ``LtiBatch``; :func:`simulate_lti` takes loose arrays):
+- ``run_lti`` (an ``LtiBatch``; ``simulate_lti`` takes loose arrays):
   ``x' = A x + B u``, exactly discretized (per-point matrices, one matrix exponential per
   distinct ``(A, B, h)``), the zero-order-hold controller of
   Theorem 3.2 with the closed-form predictor of Corollary 3.4 (``compensated``) or
   ``u = K y`` (``uncompensated``). Any array library with numpy's API (numpy, CuPy, JAX)
-  through :func:`get_backend`.
-- :func:`run_model` (a model, its parameters and a ``ModelBatch``; :func:`simulate_model`
-  takes loose arrays): a model (:mod:`delaycomp.maths.model`) that declares ``BATCH = True``
+  through ``get_backend``.
+- ``run_model`` (a model, its parameters and a ``ModelBatch``; ``simulate_model``
+  takes loose arrays): a model (``delaycomp.maths.model``) that declares ``BATCH = True``
   and has an exact ``step``: its ``f``, ``k`` and ``step`` accept a batch (states of shape
   ``(n, P)``). Zero-order hold (Theorem 3.2, with Remark 3.3(b) padding) and continuous
   input (Theorem 2.1, the controller's copy ``z`` integrated on the base grid and reset to
@@ -45,7 +45,7 @@ measurement) refuses the tick (not recorded), a plant state that is not finite a
 step ends the run after the last recorded tick; the point then has ``rho = inf`` (the loop
 diverged: every failure of this engine says so, as the per-point engine's components do).
 
-Metrics (the sweep's, :mod:`delaycomp.studies.sweep`): ``rho`` from a least-squares line through
+Metrics (the sweep's, ``delaycomp.studies.sweep``): ``rho`` from a least-squares line through
 the logarithm of the per-period root-sum-square of ``|x|`` after the first fifth of the
 periods, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time`` (the time from which
 ``|x| < 1e-9`` holds to the end; ``nan`` if never).
@@ -69,7 +69,7 @@ from delaycomp.system import LtiBatch
 
 #: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.studies.sweep.ZERO``).
 ZERO = 1e-9
-#: Array libraries :func:`get_backend` knows; ``auto`` takes the first GPU library found.
+#: Array libraries ``get_backend`` knows; ``auto`` takes the first GPU library found.
 BACKENDS = ("numpy", "cupy", "jax", "auto")
 
 
@@ -108,11 +108,11 @@ class Backend:
 
 
 def get_backend(name: str = "numpy") -> Backend:
-    """The array library ``name`` (one of :data:`BACKENDS`), checked to be usable.
+    """The array library ``name`` (one of ``BACKENDS``), checked to be usable.
 
     ``jax`` runs in double precision (``jax_enable_x64`` is switched on: the maths needs
     float64). ``auto`` is CuPy if it sees a GPU, else JAX if it sees one, else numpy.
-    Raises :class:`BatchError` naming what is missing.
+    Raises ``BatchError`` naming what is missing.
     """
     if name not in BACKENDS:
         raise BatchError(f"array backend {name!r} is not allowed: must be one of "
@@ -161,7 +161,7 @@ def get_backend(name: str = "numpy") -> Backend:
 class BatchResult:
     """Per-point metrics (arrays of length P, in input order) and optional trajectories.
 
-    ``deadbeat_time`` is ``nan`` where ``|x|`` never stays below :data:`ZERO` (and where the
+    ``deadbeat_time`` is ``nan`` where ``|x|`` never stays below ``ZERO`` (and where the
     run failed); ``success`` is False where a component would have refused (``message``
     then says why). With ``record=True``: ``states[p, k]`` is ``x`` of point ``p`` at tick
     ``k`` and ``inputs[p, k]`` the controller's output (``nan`` after a point's end).
@@ -180,7 +180,7 @@ class BatchResult:
     def rows(self) -> list[dict]:
         """One dict per point with the sweep's metric columns (``None`` for never;
         ``failed`` the message of a point that did not reach its stop time: every failure
-        of this engine is the loop's own divergence, :func:`delaycomp.errors.is_divergence`)."""
+        of this engine is the loop's own divergence, ``delaycomp.errors.is_divergence``)."""
         deadbeat = [None if math.isnan(d) else d for d in np.asarray(
             self.deadbeat_time, dtype=float).tolist()]
         # tolist() gives Python floats and ints at once (a float() per value is 10x slower)
@@ -236,7 +236,7 @@ def _merge(parts: list[tuple[np.ndarray, BatchResult]], P: int) -> BatchResult:
 # -- grid arithmetic --------------------------------------------------------------------
 
 def _ticks(name: str, value: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """``value / h`` as integers; :class:`BatchError` if some point is off the base grid."""
+    """``value / h`` as integers; ``BatchError`` if some point is off the base grid."""
     ratio = np.asarray(value, dtype=float) / h
     steps = np.rint(ratio)
     bad = ~on_grid_array(value, h)
@@ -317,11 +317,11 @@ def _finish(metrics: _Metrics, backend: Backend, failed: np.ndarray, fail_norm: 
 @dataclass(frozen=True)
 class ModelBatch:
     """Many loops of one model at once: each point's timing and constant histories, arrays
-    with a leading axis of points. What :func:`run_model` takes; :func:`simulate_model`
+    with a leading axis of points. What ``run_model`` takes; ``simulate_model``
     gathers its loose per-point arguments into one (broadcast and checked: ``T > 0``,
     delays finite and ``>= 0``, ``N >= 1``; ``r_true`` and ``tau_true`` filled in with
     ``r`` and ``tau`` where not given). The timing fields of
-    :class:`delaycomp.system.LtiBatch`, in its order."""
+    ``delaycomp.system.LtiBatch``, in its order."""
 
     T: np.ndarray  # (P,)
     N: np.ndarray  # (P,) int64
@@ -341,7 +341,7 @@ _Points = TypeVar("_Points", bound="LtiBatch | ModelBatch")
 
 def take(points: _Points, index) -> _Points:
     """The points ``index`` (an index array, a slice or a mask) of an
-    :class:`~delaycomp.system.LtiBatch` or a :class:`ModelBatch`: every field indexed on
+    ``LtiBatch`` or a ``ModelBatch``: every field indexed on
     its leading axis (a group of points, a chunk)."""
     return type(points)(*(getattr(points, f.name)[index]
                           for f in dataclasses.fields(points)))
@@ -406,9 +406,9 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
                  backend: Backend | str = "numpy") -> BatchResult:
     """Advance ``P`` LTI loops of Theorem 3.2 / Corollary 3.4 together to ``stop``.
 
-    A convenience over :func:`run_lti` for loose arrays: the ingredients are broadcast
+    A convenience over ``run_lti`` for loose arrays: the ingredients are broadcast
     over the points (shared matrices and scalars to every point), checked (shapes, finite
-    timing; :class:`BatchError`) and stacked into a :class:`delaycomp.system.LtiBatch`.
+    timing; ``BatchError``) and stacked into a ``delaycomp.system.LtiBatch``.
 
     Parameters
     ----------
@@ -431,7 +431,7 @@ def simulate_lti(A, B, K, T, N, r, tau, x0, u0, mode, stop: float, r_true=None,
     record : bool
         Keep every tick's state and control (memory ``P x ticks``; for tests and plots).
     backend : Backend or str
-        Array library (:func:`get_backend`).
+        Array library (``get_backend``).
 
     Returns
     -------
@@ -465,13 +465,13 @@ def run_lti(design: LtiBatch, stop: float, *, record: bool = False,
     """Advance the ``P`` LTI loops of ``design`` together to ``stop`` (Theorem 3.2 with the
     closed-form predictor of Corollary 3.4, or ``u = K y``): the batch engine's core.
 
-    ``design`` is a validated :class:`delaycomp.system.LtiBatch` (from
-    :func:`delaycomp.system.lti_designs`, a scenario's or a loop file's ``designs``, or
-    :func:`simulate_lti`), one entry per point; points with different ``N`` run as
-    separate groups (:func:`take`), within a group ``T``, the delays and the matrices
+    ``design`` is a validated ``delaycomp.system.LtiBatch`` (from
+    ``delaycomp.system.lti_designs``, a scenario's or a loop file's ``designs``, or
+    ``simulate_lti``), one entry per point; points with different ``N`` run as
+    separate groups (``take``), within a group ``T``, the delays and the matrices
     differ freely. ``stop`` is a multiple of every point's ``h = T / N``; ``record`` keeps
     every tick's state and control; ``backend`` is the array library
-    (:func:`get_backend`). Raises :class:`BatchError` where a mode, a delay or ``stop``
+    (``get_backend``). Raises ``BatchError`` where a mode, a delay or ``stop``
     is not allowed at some point, or a predictor overflows.
 
     Examples
@@ -512,7 +512,7 @@ class _LtiPlan:
 
 def _lti_plan(d: LtiBatch, N: int, stop: float) -> _LtiPlan:
     """The plan of the group ``d`` (every point with ``N`` base steps a period), or a
-    :class:`BatchError` naming the first point off the grid."""
+    ``BatchError`` naming the first point off the grid."""
     P = len(d)
     T = d.T
     h = T / N
@@ -535,7 +535,7 @@ def _lti_plan(d: LtiBatch, N: int, stop: float) -> _LtiPlan:
 def _predictors(d: LtiBatch, comp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``E`` (P, n, n) and ``QB`` (Lmax, P, n, m) of the points' predictors, once per
     distinct ``(A, B, T, r, tau)``; an uncompensated point has ``E = I``, ``QB = 0``,
-    hence ``u = K y``. :class:`BatchError` where a predictor is not finite."""
+    hence ``u = K y``. ``BatchError`` where a predictor is not finite."""
     A, B, T, r, tau = d.A, d.B, d.T, d.r, d.tau
     P, n, m = B.shape
     L = np.ones(P, dtype=np.int64)
@@ -568,7 +568,7 @@ def _predictors(d: LtiBatch, comp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _lti_group(be: Backend, d: LtiBatch, N: int, stop: float, record: bool) -> BatchResult:
     """The points of ``d`` (every one with ``N`` base steps a period) to ``stop``: the
     bookkeeping (plan, metrics a block at a time, the record's end) around the stepping
-    of :class:`_LtiStepper`."""
+    of ``_LtiStepper``."""
     plan = _lti_plan(d, N, stop)
     run = _LtiStepper(be, plan, d, record)
     acc = _BlockMetrics(be, len(d), N, plan.stop_k, int((plan.stop_k // N).max()))
@@ -903,11 +903,11 @@ def batchable(model) -> str | None:
 
 def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_true=None,
                    tau_true=None, *, pad: bool = False, record: bool = False) -> BatchResult:
-    """Advance ``P`` loops of a batchable model (:func:`batchable`) together to ``stop``.
+    """Advance ``P`` loops of a batchable model (``batchable``) together to ``stop``.
 
-    A convenience over :func:`run_model` for loose arrays: the per-point timing and
-    histories are broadcast over the points, checked (:class:`BatchError`) and gathered
-    into one :class:`ModelBatch`.
+    A convenience over ``run_model`` for loose arrays: the per-point timing and
+    histories are broadcast over the points, checked (``BatchError``) and gathered
+    into one ``ModelBatch``.
 
     Parameters
     ----------
@@ -916,7 +916,7 @@ def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_tru
     params : dict
         The model's parameters, shared by every point (numbers may be arrays of length P).
     T, N, r, tau, x0, u0, stop, r_true, tau_true :
-        As in :func:`simulate_lti`; ``x0`` is also the controller's initial ``z``
+        As in ``simulate_lti``; ``x0`` is also the controller's initial ``z``
         (continuous input).
     pad : bool
         Zero-order hold: pad ``tau`` up to the next multiple of ``T`` (Remark 3.3(b)).
@@ -937,14 +937,14 @@ def simulate_model(model, params: dict, T, N, r, tau, x0, u0, stop: float, r_tru
 
 def run_model(model, params: dict, points: ModelBatch, stop: float, *, pad: bool = False,
               record: bool = False) -> BatchResult:
-    """Advance the ``P`` loops of a batchable ``model`` (:func:`batchable`) at ``points``
+    """Advance the ``P`` loops of a batchable ``model`` (``batchable``) at ``points``
     together to ``stop``: the batch engine's core for model loops.
 
     ``params`` are the model's parameters, shared by every point (a number may be an array
     of length ``P``, one per point); ``points`` the checked per-point timing and histories
-    (:class:`ModelBatch`); points with different ``N`` run as separate groups. ``pad``:
+    (``ModelBatch``); points with different ``N`` run as separate groups. ``pad``:
     under zero-order hold, pad ``tau`` up to the next multiple of ``T`` (Remark 3.3(b));
-    ``record`` keeps every tick's state and control. Raises :class:`BatchError` where the
+    ``record`` keeps every tick's state and control. Raises ``BatchError`` where the
     model is not batchable or a delay or ``stop`` is not allowed at some point.
     """
     why = batchable(model)
@@ -979,7 +979,7 @@ class _ModelPlan:
 
 def _model_plan(model, pts: ModelBatch, N: int, stop: float, pad: bool) -> _ModelPlan:
     """The plan of the group ``pts`` (every point with ``N`` base steps a period), or a
-    :class:`BatchError` naming what is off the grid."""
+    ``BatchError`` naming what is off the grid."""
     T, tau = pts.T, pts.tau
     P = len(T)
     h = T / N
@@ -1039,7 +1039,7 @@ def _model_group(model, params: dict, pts: ModelBatch, N: int, stop: float, pad:
                  record: bool) -> BatchResult:
     """The points of ``pts`` (every one with ``N`` base steps a period) to ``stop``: the
     bookkeeping (plan, metrics, failures, the record) around the stepping of
-    :class:`_ModelStepper`."""
+    ``_ModelStepper``."""
     plan = _model_plan(model, pts, N, stop, pad)
     P, n, m = len(pts), model.n, model.m
     run = _ModelStepper(model, {**params, "T": plan.T}, pts, plan)

@@ -137,7 +137,7 @@ def held_fixed(params: dict) -> str:
 
 def _held_fixed(source, loop: Loop, d: LtiDesign, sets: list[str]) -> str:
     """What a search over ``r`` holds fixed: a scenario's parameters by name
-    (:func:`held_fixed`), a loop file's ``T``, ``tau`` and gain ``K``."""
+    (``held_fixed``), a loop file's ``T``, ``tau`` and gain ``K``."""
     if hasattr(source, "params"):  # a scenario: its own parameter names
         return held_fixed(source.resolve(["r=0", *sets]))
     gain = np.array2string(np.asarray(d.K, dtype=float), precision=6, separator=", ")
@@ -239,7 +239,7 @@ def _plot_table(table, name: str, path: Path, title: str) -> None:
         plt.close(fig)
 
 
-#: the most values of the other grid axis at which :func:`critical_curve` solves for r_c
+#: the most values of the other grid axis at which ``critical_curve`` solves for r_c
 CURVE_POINTS = 40
 
 
@@ -249,7 +249,7 @@ def critical_curve(source, sets: list[str], names: list[str],
 
     For an LTI loop (``source``: a scenario or a loop file) swept over ``r`` (and at most
     one other parameter) in the
-    uncompensated mode: rows ``(a, r)`` at up to :data:`CURVE_POINTS` values ``a`` of the
+    uncompensated mode: rows ``(a, r)`` at up to ``CURVE_POINTS`` values ``a`` of the
     other axis (``a = nan`` for a map over ``r`` alone), one row for every ``r`` on the
     map where the lifted loop's spectral radius crosses 1 (bracketed on the map's ``r``
     values, refined by Brent's method to 1e-9). From a loop stable at ``r = 0`` the first

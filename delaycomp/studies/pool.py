@@ -1,14 +1,14 @@
 """The worker pool of the studies, written once: jobs run on spawned worker processes
-(:func:`on_processes`, one BLAS thread each) or on a Dask cluster (:func:`on_dask`), their
-results in the jobs' order, a progress bar (:class:`Progress`) ticking as each finishes.
+(``on_processes``, one BLAS thread each) or on a Dask cluster (``on_dask``), their
+results in the jobs' order, a progress bar (``Progress``) ticking as each finishes.
 
 No worker outlives the process that started it (issue 30, item 4). When the pool is left
 by an exception (Ctrl-C's ``KeyboardInterrupt``, the command line's SIGTERM and SIGHUP, a
 job's error) the jobs not started are cancelled and the workers are terminated at once,
 not waited for. When the main process dies without a word (SIGKILL, a crash) each worker
-ends by itself (:func:`worker_init`): the kernel kills it (Linux), or a thread of its own
+ends by itself (``worker_init``): the kernel kills it (Linux), or a thread of its own
 sees the parent gone (everywhere). Multiprocessing's resource tracker, the only other
-process the pool starts (:func:`start_resource_tracker`), ends when the main process and
+process the pool starts (``start_resource_tracker``), ends when the main process and
 the workers have.
 """
 
@@ -55,7 +55,7 @@ def on_processes(fn: Callable, jobs: Sequence, workers: int, progress,
     the jobs must be picklable (a top-level function, frozen dataclasses).
 
     An exception here (``KeyboardInterrupt`` included) or in a job cancels the jobs not
-    started and ends the workers at once (:func:`end_workers`) before it propagates.
+    started and ends the workers at once (``end_workers``) before it propagates.
     """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
@@ -129,12 +129,12 @@ def end_workers(pool, grace: float = END_GRACE) -> None:
 
 
 def worker_init(parent: int | None = None) -> None:
-    """Set a worker process up: it ends with its parent (:func:`end_with_parent`), leaves
+    """Set a worker process up: it ends with its parent (``end_with_parent``), leaves
     Ctrl-C to it, and runs small matrices on one BLAS thread (no oversubscription).
 
     Ctrl-C in a terminal sends SIGINT to every process of the job: a worker ignores it
     (instead of a ``KeyboardInterrupt`` traceback each), and the parent, interrupted,
-    terminates the workers (:func:`on_processes`). A program a worker started would
+    terminates the workers (``on_processes``). A program a worker started would
     inherit the ignored SIGINT; no worker starts one.
     """
     from threadpoolctl import threadpool_limits
@@ -152,8 +152,8 @@ def end_with_parent(parent: int | None = None) -> None:
     in a process multiprocessing started, a daemon thread waits on the parent's sentinel
     (a pipe that closes when the parent dies; its process handle on Windows) and ends the
     process when it fires, within milliseconds where the thread gets to run
-    (:func:`watch_parent`). (Linux's signal comes when the parent's thread that started
-    the worker ends: :func:`on_processes` starts them from the thread that waits for them.)
+    (``watch_parent``). (Linux's signal comes when the parent's thread that started
+    the worker ends: ``on_processes`` starts them from the thread that waits for them.)
     """
     if parent_death_signal(signal.SIGKILL):
         if parent is not None and os.getppid() != parent:

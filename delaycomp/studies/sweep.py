@@ -10,7 +10,7 @@ LTI scenarios). Per point the sweep reports
   after the first fifth of the periods (0 if the state is exactly zero there, ``inf`` if
   the loop diverged); on Example 3.6 over 20 periods it is within 0.017 of the exact
   value. With ``exact`` it is the spectral radius of the lifted closed loop
-  (:func:`delaycomp.maths.lti.lifted_loop`);
+  (``delaycomp.maths.lti.lifted_loop``);
 - ``stable``: 1 if ``rho < 1``, else 0;
 - ``final_norm``, ``peak_norm``: ``|x|`` at the end (of what was recorded) and its largest
   value;
@@ -18,7 +18,7 @@ LTI scenarios). Per point the sweep reports
 - ``failed``: empty where the run reached its stop time, else why it did not (the failing
   component, the time and its reason; the wording depends on the engine). A run that
   ends because the loop itself diverged (one of delaycomp's own components found its
-  state, prediction or control overflowing: :func:`delaycomp.errors.is_divergence`) is
+  state, prediction or control overflowing: ``delaycomp.errors.is_divergence``) is
   unstable: ``rho = inf``, ``stable = 0``. Any other failure (a plant FMU file whose
   output turned NaN or infinite, a refused call, an exception in a model) says nothing
   about stability: ``rho`` and ``stable`` are empty (``None``), never "unstable".
@@ -26,16 +26,16 @@ LTI scenarios). Per point the sweep reports
 Points run one after another, on local worker processes, or on a Dask cluster; every
 point is computed by the same deterministic function, so the results do not depend on how
 they are distributed. With ``engine="batch"`` the points are advanced together, vectorized
-(:mod:`delaycomp.studies.batch`, :mod:`delaycomp.studies.sweep_batch`), in chunks spread
+(``delaycomp.studies.batch``, ``delaycomp.studies.sweep_batch``), in chunks spread
 the same way; points it cannot take run on the per-point in-process engine, and ``notes``
 says which.
 
 Memory stays bounded at any grid size: every point is validated, a piece
-(:data:`PIECE_POINTS`) at a time, before any runs; then the points are resolved, run and
-handed on a stream chunk (:data:`STREAM_POINTS`) at a time (:func:`iter_sweep`), and
-``delaycomp sweep`` writes their rows to its CSV as they come. :func:`run_sweep` returns
+(``PIECE_POINTS``) at a time, before any runs; then the points are resolved, run and
+handed on a stream chunk (``STREAM_POINTS``) at a time (``iter_sweep``), and
+``delaycomp sweep`` writes their rows to its CSV as they come. ``run_sweep`` returns
 the rows together: a grid whose rows would not fit in half of the memory is refused
-before anything runs, with the estimate (:func:`check_sweep_size`, :func:`sweep_memory`).
+before anything runs, with the estimate (``check_sweep_size``, ``sweep_memory``).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
     #: a scenario name, a loop file's path, or a loop's own loop-file data (a sweep of a
-    #: :class:`~delaycomp.system.Loop`: :class:`~delaycomp.system.loopfile.LoopData`)
+    #: ``Loop``: ``LoopData``)
     scenario: str | LoopData
     sets: tuple[str, ...]
     stop: float
@@ -129,7 +129,7 @@ def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool = Tr
 
 
 def result_metrics(loop, res) -> dict:
-    """The sweep's metrics of a run of ``loop`` (a :class:`delaycomp.system.Loop`): its
+    """The sweep's metrics of a run of ``loop`` (a ``delaycomp.system.Loop``): its
     plant's recorded states, and where the run failed, whether the loop diverged (one of
     delaycomp's own components said so; a plant FMU file's breakdown is a failure)."""
     plant = loop.by_role("plant").name
@@ -198,7 +198,7 @@ SECONDS_PER_BATCH_TICK = 3e-9
 # state, 5 s) and Example 2.4 (a model scenario, 1 s), the larger, rounded up.
 
 #: Points resolved and validated together (a piece): the batch engine's chunk on numpy
-#: (:data:`~delaycomp.studies.sweep_batch.CHUNK_MAX`).
+#: (``CHUNK_MAX``).
 PIECE_POINTS = 16384
 #: Points run together (a stream chunk, 16 pieces): their chunks go to the workers at once
 #: (one pool of worker processes, or one Dask client, per stream chunk), and their rows are
@@ -214,18 +214,18 @@ BYTES_PER_RESOLVED = 7000
 #: Bytes per point of a batch chunk run in this process (one at a time; on workers, in
 #: theirs): 2.5 kB (Example 3.6) and 3.9 kB (Example 2.4) measured; more for long runs at
 #: large N, where the batch engine cuts smaller chunks (at most a quarter of the available
-#: memory: :data:`~delaycomp.studies.sweep_batch.MEMORY_SHARE`).
+#: memory: ``MEMORY_SHARE``).
 BYTES_PER_RUN = 4000
 #: Bytes per point of a stream chunk in flight: its points' assignments and values, their
 #: batches or per-point jobs, their metrics as they come back and their rows (batch
 #: engine: 640 measured; per-point engines: about 1 kB).
 BYTES_PER_STREAMED = 1000
 #: Bytes of a point kept from the validation pass, grouped as the batch engine takes it
-#: (:class:`_Piece`): an LTI design with one state and one input (144 measured; 8 more per
+#: (``_Piece``): an LTI design with one state and one input (144 measured; 8 more per
 #: further matrix entry), a model loop's timing and histories (178 measured).
 BYTES_PER_KEPT_LTI = 144
 BYTES_PER_KEPT_MODEL = 180
-#: Bytes of one held result row (:func:`run_sweep`, ``api.sweep``): a dict of the grid
+#: Bytes of one held result row (``run_sweep``, ``api.sweep``): a dict of the grid
 #: values and the six metrics, its four floats and its slot in the list (356 measured with
 #: 2, 3 or 4 grid parameters); a dict of 11 to 21 keys is 192 bytes larger.
 BYTES_PER_ROW = 360
@@ -237,8 +237,8 @@ PLOT_MAX_POINTS = 1_000_000
 
 def sweep_memory(count: int, axes: int, held: bool = True, kept: int = 0) -> tuple[int, int]:
     """An estimate of the bytes a sweep of ``count`` points over ``axes`` grid parameters
-    holds at its peak, and of those its rows' (``held``: :func:`run_sweep` returns them
-    together; else they are handed on as they come, :func:`iter_sweep`). ``kept``: bytes
+    holds at its peak, and of those its rows' (``held``: ``run_sweep`` returns them
+    together; else they are handed on as they come, ``iter_sweep``). ``kept``: bytes
     per point kept from the validation pass (a batch sweep's).
 
     Examples
@@ -266,9 +266,9 @@ def check_sweep_size(scenario: str | LoopData, axes: list[Axis], sets: list[str]
                      plot: bool = False) -> tuple[int, float]:
     """Refuse, in one line with the estimate, a grid that cannot finish or fit in memory.
 
-    ``held``: the rows are returned together (:func:`run_sweep`), else streamed
-    (:func:`iter_sweep`, ``delaycomp sweep``); ``plot``: ``--plot`` draws them (at most
-    :data:`PLOT_MAX_POINTS`). Returns the number of points and the estimated seconds (a
+    ``held``: the rows are returned together (``run_sweep``), else streamed
+    (``iter_sweep``, ``delaycomp sweep``); ``plot``: ``--plot`` draws them (at most
+    ``PLOT_MAX_POINTS``). Returns the number of points and the estimated seconds (a
     lower bound).
     """
     count = math.prod(len(a.values) for a in axes)
@@ -289,7 +289,7 @@ def check_sweep_size(scenario: str | LoopData, axes: list[Axis], sets: list[str]
 def _check_time(scenario: str | LoopData, axes: list[Axis], count: int, base, stop: float | None,
                 engine: str, workers: int, exact: bool) -> float:
     """Refuse, in one line with the estimate, a sweep that cannot finish in
-    :data:`~delaycomp.formats.outputs.MAX_RUN_SECONDS`; return its estimated seconds (a lower
+    ``MAX_RUN_SECONDS``; return its estimated seconds (a lower
     bound): every point resolved here, then run on the workers (``base``: the loop at
     ``r = 0``, for its timing; ``None`` where unknown or not needed)."""
     from delaycomp.formats.outputs import MAX_RUN_SECONDS, SECONDS_PER_TICK, format_duration
@@ -320,7 +320,7 @@ def _check_time(scenario: str | LoopData, axes: list[Axis], count: int, base, st
 
 
 def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
-    """Refuse, in one line with the estimate (:func:`sweep_memory`), a sweep that would
+    """Refuse, in one line with the estimate (``sweep_memory``), a sweep that would
     not fit in half of this machine's memory."""
     from delaycomp.formats.outputs import format_bytes, physical_memory
 
@@ -335,8 +335,8 @@ def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
             f"of this machine's {format_bytes(ram)} ({what})")
 
 
-#: engines of :func:`run_sweep`: ``batch`` advances all points together (vectorized);
-#: ``inprocess`` and ``fmu`` run point by point (:data:`delaycomp.orchestrator.simulate.ENGINES`)
+#: engines of ``run_sweep``: ``batch`` advances all points together (vectorized);
+#: ``inprocess`` and ``fmu`` run point by point (``delaycomp.orchestrator.simulate.ENGINES``)
 SWEEP_ENGINES = ("batch", "inprocess", "fmu")
 
 
@@ -349,18 +349,18 @@ def run_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str]
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
     ``scenario`` is a scenario name, a loop file's path (``.toml``) or a
-    :class:`~delaycomp.system.Loop` (built by the loop-file reader, ``api.lti`` or
+    ``Loop`` (built by the loop-file reader, ``api.lti`` or
     ``api.model``: the grid's and ``sets``' names are then its loop-file keys, or their
     short names: ``r``, ``T``, ``x0``, ``K``, a model's own parameters; the rows are those
     of the same loop given as a loop file). ``engine="batch"``
     advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
-    :func:`delaycomp.studies.batch.get_backend`) in chunks of at most ``chunk`` points (default:
+    ``delaycomp.studies.batch.get_backend``) in chunks of at most ``chunk`` points (default:
     from the available memory); what it did, and which points fell back to the per-point
     in-process engine and why, is appended to ``notes``. ``verbosity`` 0 hides the progress
     bar (shown on a terminal otherwise).
 
     The rows are held together: a grid whose rows would not fit in half of the memory is
-    refused before anything runs (:func:`check_sweep_size`); :func:`iter_sweep` hands them
+    refused before anything runs (``check_sweep_size``); ``iter_sweep`` hands them
     on as they come instead.
     """
     plan = _plan(scenario, axes, sets, stop, engine, workers, scheduler, fmu_dir, exact,
@@ -377,9 +377,9 @@ def iter_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str
                fmu_dir: str | None = None, exact: bool = False,
                array_backend: str = "numpy", chunk: int | None = None,
                notes: list[str] | None = None, verbosity: int = 1) -> Iterator[dict]:
-    """:func:`run_sweep`'s rows, one at a time, in grid order, in memory bounded at any
+    """``run_sweep``'s rows, one at a time, in grid order, in memory bounded at any
     grid size: the points are resolved, run and handed on a stream chunk
-    (:data:`STREAM_POINTS`) at a time.
+    (``STREAM_POINTS``) at a time.
 
     Every point is validated before this returns (a refusal raises here, before anything
     runs); the points run as the rows are taken. ``notes`` are appended once the last row
@@ -401,7 +401,7 @@ def iter_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str
 
 @dataclass
 class _SweepPlan:
-    """A checked, validated sweep: what its run needs (:func:`_plan`)."""
+    """A checked, validated sweep: what its run needs (``_plan``)."""
 
     sc: object  # the opened source
     axes: list[Axis]
@@ -428,7 +428,7 @@ def _plan(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
           fmu_dir: str | None, exact: bool, backend: str, chunk: int | None,
           held: bool) -> _SweepPlan:
     """The sweep's arguments checked, and every point validated (a piece at a time), before
-    anything runs; the validated points of the first pieces kept (:data:`KEEP_BYTES`)."""
+    anything runs; the validated points of the first pieces kept (``KEEP_BYTES``)."""
     names = [a.name for a in axes]
     if isinstance(scenario, Loop):  # its loop-file data, read once (and checked)
         scenario = LoopData.of(scenario)
@@ -504,7 +504,7 @@ def _validate(plan: _SweepPlan) -> None:
     """Every point validated, a piece at a time, before any runs (a refusal names the
     point); for a batch sweep, the validated points of the first pieces kept in
     ``plan.kept`` as the batch engine takes them while they take at most
-    :data:`KEEP_BYTES` (a grid of one piece: all of it)."""
+    ``KEEP_BYTES`` (a grid of one piece: all of it)."""
     seen: set = set()
     kept_bytes = 0
     for k, (texts,) in enumerate(_pieces(plan.axes, plan.piece)):
@@ -525,7 +525,7 @@ def _validate(plan: _SweepPlan) -> None:
 @dataclass
 class _Piece:
     """A piece's validated points as the batch engine takes them: in groups that share a
-    batch (:func:`delaycomp.studies.sweep_batch.groups`: indices in the piece, points
+    batch (``delaycomp.studies.sweep_batch.groups``: indices in the piece, points
     stacked), each model group's model, and the points it cannot take, each with its
     reason and its per-point engine: in-process, or ``fmu`` where the loop holds an FMU
     file (the in-process engine runs delaycomp's own slaves only)."""
@@ -536,7 +536,7 @@ class _Piece:
 
     @classmethod
     def of(cls, loops) -> _Piece:
-        """The piece of validated points ``loops`` (:func:`_grid_loops`)."""
+        """The piece of validated points ``loops`` (``_grid_loops``)."""
         from delaycomp.studies import sweep_batch
 
         found, others, models = sweep_batch.groups(loops)
@@ -558,11 +558,11 @@ def _grid_loops(sc, sets: list[str], grid_texts: list[tuple[str, ...]], batched:
                 timings: bool = False):
     """Every grid point validated before any runs: all at once where the source can
     (``Scenario.resolve_grid``), else (or to name a refused point) one by one. Returns
-    the points' loops (with ``timings``, only their :class:`delaycomp.system.Timing`); for a
+    the points' loops (with ``timings``, only their ``delaycomp.system.Timing``); for a
     batch sweep of an LTI source, their designs instead (what the batch engine reads): one
-    :class:`delaycomp.system.LtiBatch` where the source validates them all at once
+    ``delaycomp.system.LtiBatch`` where the source validates them all at once
     (``Scenario.designs``, ``LoopFile.designs``), else one
-    :class:`delaycomp.system.LtiPoint` (or, where a point has none, its loop) each."""
+    ``delaycomp.system.LtiPoint`` (or, where a point has none, its loop) each."""
     params = (sc.resolve_grid(list(sets), grid_texts) if hasattr(sc, "resolve_grid")
               else None)
     if params is None:
@@ -773,7 +773,7 @@ def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
 @dataclass
 class Tally:
     """What the end of a streamed sweep needs of its rows, counted as they pass
-    (:meth:`count`): the points, the stable ones, the failed ones (neither stable nor
+    (``count``): the points, the stable ones, the failed ones (neither stable nor
     unstable) and the first failure's reason; with ``rho`` (an array of one float per
     point), each point's ``rho`` (``nan`` where empty), for ``--plot``.
 
@@ -810,7 +810,7 @@ class Tally:
 
 def write_csv(rows: Iterable[dict], names: list[str], path: str | Path) -> None:
     """Write the sweep's rows to ``path`` as CSV: the grid columns ``names``, then
-    :data:`METRICS`. ``rows`` may be an iterator (:func:`iter_sweep`): each row is written
+    ``METRICS``. ``rows`` may be an iterator (``iter_sweep``): each row is written
     as it comes, to a ``.part`` file (a new file: never through a link) moved into place
     once the last is written (and removed if the rows stop with an error, Ctrl-C or
     SIGTERM included: no half-written file looks like a result).
@@ -846,9 +846,9 @@ def plot_sweep(rows: list[dict] | np.ndarray, axes: list[Axis], path: str | Path
     """A curve of ``rho`` for one grid parameter, a heat map of it for two.
 
     ``rows``: the sweep's rows, or their ``rho`` alone as an array in grid order
-    (:attr:`Tally.rho`); at most :data:`PLOT_MAX_POINTS`. ``critical``: rows ``(a, r)``
+    (``Tally.rho``); at most ``PLOT_MAX_POINTS``. ``critical``: rows ``(a, r)``
     where the exact lifted model has ``rho = 1``
-    (:func:`delaycomp.studies.critical.critical_curve`), drawn over the map and labelled.
+    (``delaycomp.studies.critical.critical_curve``), drawn over the map and labelled.
     """
     import matplotlib
 

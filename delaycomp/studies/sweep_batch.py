@@ -1,11 +1,11 @@
 """The batch engine behind ``delaycomp sweep``: grid points turned into batch ingredients.
 
-Each grid point is a typed loop (:class:`delaycomp.system.Loop`, from a scenario or a loop
-file); this module takes from it what :mod:`delaycomp.studies.batch` needs (the LTI design and
+Each grid point is a typed loop (``delaycomp.system.Loop``, from a scenario or a loop
+file); this module takes from it what ``delaycomp.studies.batch`` needs (the LTI design and
 timing; or the model file, its parameters and timing), groups the points that can share a
 batch (same dimensions, same model and string parameters), stacks each group into the
-engine's typed batch (:class:`delaycomp.system.LtiBatch`, which a scenario or a loop file
-may also hand over whole, or :class:`delaycomp.studies.batch.ModelBatch`), cuts the groups
+engine's typed batch (``delaycomp.system.LtiBatch``, which a scenario or a loop file
+may also hand over whole, or ``delaycomp.studies.batch.ModelBatch``), cuts the groups
 into chunks that fit in memory, and runs the chunks here, on local worker processes or on
 a Dask cluster. Every point of a chunk is computed independently of the others, so
 the results do not depend on the chunking or on where a chunk runs (tested).
@@ -44,8 +44,8 @@ MEMORY_SHARE = 0.25
 @dataclass(frozen=True)
 class Chunk:
     """One batch: picklable, for worker processes and Dask. ``points`` is a
-    :class:`delaycomp.system.LtiBatch` (an LTI chunk, run on ``backend``) or a
-    :class:`delaycomp.studies.batch.ModelBatch` of the model file ``model_path`` with its
+    ``delaycomp.system.LtiBatch`` (an LTI chunk, run on ``backend``) or a
+    ``delaycomp.studies.batch.ModelBatch`` of the model file ``model_path`` with its
     parameters ``params`` and padding ``pad`` (a model chunk, run on numpy)."""
 
     points: LtiBatch | batch.ModelBatch
@@ -75,7 +75,7 @@ def compute_chunk(chunk: Chunk) -> batch.BatchResult:
     else:
         from delaycomp.maths.model import load_model
 
-        # a model chunk names its model file (:func:`prepare` sets it)
+        # a model chunk names its model file (``prepare`` sets it)
         model = load_model(cast(str, chunk.model_path))
         res = batch.run_model(model, model.params(**dict(chunk.params)), chunk.points,
                               chunk.stop, pad=chunk.pad)
@@ -99,22 +99,22 @@ def available_memory() -> int:
 
 def chunk_size(bytes_per_point: int, workers: int, limit: int | None = None) -> int:
     """Points per chunk: what ``MEMORY_SHARE`` of the available memory holds for each of
-    ``workers`` chunks in flight, at most :data:`CHUNK_MAX` (or ``limit``), at least 1."""
+    ``workers`` chunks in flight, at most ``CHUNK_MAX`` (or ``limit``), at least 1."""
     budget = available_memory() * MEMORY_SHARE / max(1, workers)
     size = int(budget // max(1, bytes_per_point))
     return max(1, min(size, limit or CHUNK_MAX))
 
 
 def _lti_bytes(n: int, m: int, N: int, periods: int, ring_ticks: int, L: int) -> int:
-    """Memory per point of :func:`delaycomp.studies.batch.run_lti`, a generous estimate."""
+    """Memory per point of ``delaycomp.studies.batch.run_lti``, a generous estimate."""
     floats = ((ring_ticks // N + 2) * N * n + (L + ring_ticks // N + 3) * m
               + 3 * n * n + 2 * n * m + L * n * m + periods + 16)
     return 8 * floats * 2
 
 
 def lti_point(loop) -> dict | str:
-    """The batch ingredients of an LTI loop (:class:`delaycomp.system.Loop`, or the
-    :class:`delaycomp.system.LtiPoint` of a grid point whose loop is the standard one by
+    """The batch ingredients of an LTI loop (``delaycomp.system.Loop``, or the
+    ``delaycomp.system.LtiPoint`` of a grid point whose loop is the standard one by
     construction), or why not."""
     if isinstance(loop, Loop):
         why = _standard(loop, BuiltinFmu)
@@ -180,11 +180,11 @@ def prepare(loops: list | LtiBatch, stop: float, backend: str, workers: int,
             limit: int | None) -> tuple[list, list[tuple[int, str]], list[str]]:
     """Chunks for the batchable points, and ``(index, reason)`` for the others.
 
-    ``loops`` are the grid's points (:class:`delaycomp.system.Loop` or
-    :class:`delaycomp.system.LtiPoint` each), or all of them as one
-    :class:`delaycomp.system.LtiBatch` (one group, cut into chunks as it is). Returns
+    ``loops`` are the grid's points (``delaycomp.system.Loop`` or
+    ``delaycomp.system.LtiPoint`` each), or all of them as one
+    ``delaycomp.system.LtiBatch`` (one group, cut into chunks as it is). Returns
     ``(chunks, fallback, notes)`` where each chunk comes with the point indices it covers:
-    ``[(indices, Chunk), ...]``. :func:`groups` then :func:`cut`.
+    ``[(indices, Chunk), ...]``. ``groups`` then ``cut``.
     """
     found, fallback, models = groups(loops)
     chunks, notes = cut(found, models, stop, backend, workers, limit)
@@ -195,11 +195,11 @@ Groups = dict[tuple, tuple[list[int], LtiBatch | batch.ModelBatch]]
 
 
 def groups(loops: list | LtiBatch) -> tuple[Groups, list[tuple[int, str]], dict[tuple, Model]]:
-    """The batchable points of ``loops`` (as :func:`prepare` takes them) in groups that
+    """The batchable points of ``loops`` (as ``prepare`` takes them) in groups that
     share a batch, each group's indices and points stacked (an LTI group keyed by its
     dimensions, a model's by its model file, string parameters and padding); ``(index,
     reason)`` for the others; each model group's model. Groups of several parts of a grid
-    may be joined (:func:`join`) before they are cut into chunks (:func:`cut`).
+    may be joined (``join``) before they are cut into chunks (``cut``).
 
     Examples
     --------
@@ -217,7 +217,7 @@ def groups(loops: list | LtiBatch) -> tuple[Groups, list[tuple[int, str]], dict[
 
 
 def join(parts: list[LtiBatch | batch.ModelBatch]) -> LtiBatch | batch.ModelBatch:
-    """The points of a group's ``parts`` (of one type, one key of :func:`groups`) in one
+    """The points of a group's ``parts`` (of one type, one key of ``groups``) in one
     batch, in order."""
     if len(parts) == 1:
         return parts[0]
@@ -228,7 +228,7 @@ def join(parts: list[LtiBatch | batch.ModelBatch]) -> LtiBatch | batch.ModelBatc
 
 def cut(found: Groups, models: dict[tuple, Model], stop: float, backend: str, workers: int,
         limit: int | None) -> tuple[list, list[str]]:
-    """The groups ``found`` (:func:`groups`) cut into chunks: ``[(indices, Chunk), ...]``
+    """The groups ``found`` (``groups``) cut into chunks: ``[(indices, Chunk), ...]``
     and notes (model loops on numpy where ``backend`` is another library)."""
     notes: list[str] = []
     if backend != "numpy" and any(k[0] == "model" for k in found):
@@ -285,7 +285,7 @@ def _groups(loops: list) -> tuple[dict[tuple, tuple[list[int], LtiBatch | batch.
 
 
 def _lti_batch_bytes(points: LtiBatch, stop: float) -> int:
-    """Memory per point of a chunk of ``points`` (:func:`_lti_bytes` of the largest)."""
+    """Memory per point of a chunk of ``points`` (``_lti_bytes`` of the largest)."""
     h = points.T / points.N
     n, m = points.B.shape[1:]
     ring = int(np.max(np.rint(np.maximum(points.r_true, points.tau_true) / h)))
@@ -305,7 +305,7 @@ def _model_batch_bytes(points: batch.ModelBatch, n: int, stop: float) -> int:
 
 def _stack(points: list[dict], lti: bool) -> LtiBatch | batch.ModelBatch:
     """Per-point ingredients stacked into arrays (a leading axis of points): an
-    :class:`~delaycomp.system.LtiBatch` or a :class:`~delaycomp.studies.batch.ModelBatch`."""
+    ``LtiBatch`` or a ``ModelBatch``."""
     out = {key: np.array([p[key] for p in points], dtype=float)
            for key in ("T", "r", "tau", "r_true", "tau_true")}
     out["N"] = np.array([p["N"] for p in points], dtype=np.int64)

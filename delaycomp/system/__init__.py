@@ -1,6 +1,6 @@
-"""The system model: the typed description of a closed loop (:mod:`.loop`), the loop file
-that describes one in TOML (:mod:`.loopfile`) and the rewrites that work on roles
-(:mod:`.jacobi`). It stands on the maths and :mod:`delaycomp.maths.grid`, and imports nothing
+"""The system model: the typed description of a closed loop (``.loop``), the loop file
+that describes one in TOML (``.loopfile``) and the rewrites that work on roles
+(``.jacobi``). It stands on the maths and ``delaycomp.maths.grid``, and imports nothing
 above it (no FMI, no master).
 """
 

@@ -4,16 +4,15 @@ When the plant FMU also implements Model Exchange, the controller predicts with 
 own derivatives, so a plant exported from a Modelica tool needs no second model of itself.
 The FMU's continuous states may be hidden (locals, as Modelica tools keep them) and the
 measured outputs ``plant.states`` any function of them, ``y = h(x)``: at each sample the
-controller finds the FMU's state from the measured outputs (:func:`~delaycomp.maths.
-outputmap.invert`: Newton's method on ``h`` through Model Exchange, with the FMU's
-directional derivatives where it provides them, central differences otherwise), checks
-that the map is invertible (:func:`~delaycomp.maths.outputmap.check_rank`, once at the
-FMU's initial state), integrates the FMU's derivatives over the window in the FMU's state
-coordinates (DOP853, rtol = atol = the controller's ``tolerance``) and gives ``u = K
-h(x_pred)``. For a linear export (``h = C x``, ``C`` invertible) this is the matrix
+controller finds the FMU's state from the measured outputs (``invert``: Newton's method
+on ``h`` through Model Exchange, with the FMU's directional derivatives where it provides
+them, central differences otherwise), checks that the map is invertible (``check_rank``,
+once at the FMU's initial state), integrates the FMU's derivatives over the window in the
+FMU's state coordinates (DOP853, rtol = atol = the controller's ``tolerance``) and gives
+``u = K h(x_pred)``. For a linear export (``h = C x``, ``C`` invertible) this is the matrix
 predictor of ``(C A C^-1, C B)`` within the ODE tolerance.
 
-This module writes that model module (:mod:`delaycomp.maths.model`'s interface: its
+This module writes that model module (``delaycomp.maths.model``'s interface: its
 ``STATES`` the measured outputs, ``predictor`` the above, ``k`` is ``u = K y``, ``f`` the
 outputs' derivative ``dh/dx f(x, u)``); the FMU file is embedded in it (base64), so it
 travels inside the controller FMU built from that module. Names that are not Python

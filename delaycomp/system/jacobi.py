@@ -1,6 +1,6 @@
 """The Jacobi variant of a loop: the same trajectory in a master that steps every
 component and only then exchanges the outputs (libcosim, Ecos; see
-:mod:`delaycomp.verify.thirdparty` for the measurement of that latency).
+``delaycomp.verify.thirdparty`` for the measurement of that latency).
 
 A rewrite of the typed loop by roles, never by instance names:
 
@@ -24,7 +24,7 @@ from delaycomp.names import indexed
 from delaycomp.system.loop import Connection, Loop
 
 #: base steps of latency a Jacobi master adds on a connection out of a direct-feedthrough
-#: output (measured, see :mod:`delaycomp.verify.thirdparty`)
+#: output (measured, see ``delaycomp.verify.thirdparty``)
 JACOBI_LATENCY_STEPS = 1
 DELAY_ROLES = ("meas_delay", "input_delay")
 

@@ -1,23 +1,23 @@
 """The typed description of a closed loop: the one structure every consumer takes.
 
-A :class:`Loop` holds
+A ``Loop`` holds
 
-- :class:`Instance` objects, each with a **role** (:data:`ROLES`: the plant, the
+- ``Instance`` objects, each with a **role** (``ROLES``: the plant, the
   measurement delay, the predictor-controller, the input delay) and a **source** (where its
-  FMU comes from: :class:`BuiltinFmu`, one of delaycomp's FMU kinds with its build
-  configuration; :class:`ModelFmu`, the plant or controller FMU of a user's model file;
-  :class:`FmuFile`, an FMU file given as it is) and its parameter values;
-- typed :class:`Connection` objects between :class:`Port` objects;
-- the :class:`Timing` (``T``, ``N``, integer ticks of ``h = T/N``, decided by
-  :mod:`delaycomp.maths.grid`);
-- the recorded ports, and for LTI loops the design (:class:`LtiDesign`: ``A``, ``B``,
+  FMU comes from: ``BuiltinFmu``, one of delaycomp's FMU kinds with its build
+  configuration; ``ModelFmu``, the plant or controller FMU of a user's model file;
+  ``FmuFile``, an FMU file given as it is) and its parameter values;
+- typed ``Connection`` objects between ``Port`` objects;
+- the ``Timing`` (``T``, ``N``, integer ticks of ``h = T/N``, decided by
+  ``delaycomp.maths.grid``);
+- the recorded ports, and for LTI loops the design (``LtiDesign``: ``A``, ``B``,
   ``K``, delays, histories) that exact analyses (lifted model, critical delay, the sign
   guard) read.
 
 Everything is validated once, when the loop is built; consumers (the master wiring, the SSP
 writer and reader, the Jacobi variant, the container export, the cross-check, sweeps,
 critical delay, the benchmark) read fields and never parse strings. Builders for the
-standard four-instance loop are :func:`lti_loop` and :func:`model_loop`.
+standard four-instance loop are ``lti_loop`` and ``model_loop``.
 
 Examples
 --------
@@ -57,21 +57,21 @@ ROLES: tuple[Role, ...] = ("plant", "meas_delay", "controller", "input_delay")
 
 @dataclass(frozen=True)
 class BuiltinFmu:
-    """One of delaycomp's FMUs: a kind of :data:`delaycomp.fmu.build.FMUS` (``plant``,
+    """One of delaycomp's FMUs: a kind of ``delaycomp.fmu.build.FMUS`` (``plant``,
     ``delay``, ``controller``) and its build configuration (dimensions, names)."""
 
     kind: str
     config: Mapping[str, Any] = field(default_factory=dict)
 
     def build_key(self) -> tuple[str, dict]:
-        """``(kind, config)`` as :func:`delaycomp.fmu.build.build_fmu` takes them."""
+        """``(kind, config)`` as ``delaycomp.fmu.build.build_fmu`` takes them."""
         return self.kind, dict(self.config)
 
 
 @dataclass(frozen=True)
 class ModelFmu:
     """The plant (``kind = "model_plant"``) or controller (``"model_controller"``) FMU of
-    a user's model file (:mod:`delaycomp.maths.model`)."""
+    a user's model file (``delaycomp.maths.model``)."""
 
     kind: str
     model: Path
@@ -132,7 +132,7 @@ class Connection:
 
     @classmethod
     def parse(cls, text: str) -> Connection:
-        """From ``"plant.x -> delay.u"`` (:meth:`__str__` read back).
+        """From ``"plant.x -> delay.u"`` (``__str__`` read back).
 
         Examples
         --------
@@ -230,7 +230,7 @@ class Origin:
     as the TOML reads: top-level keys, ``plant`` and ``controller`` tables) and the folder
     ``base`` its relative paths resolve against. A loop that keeps its origin can be built
     again with overrides (a sweep's grid points, ``sets``):
-    :class:`~delaycomp.system.loopfile.LoopData`."""
+    ``LoopData``."""
 
     data: Mapping[str, Any]
     base: Path | None = None
@@ -258,7 +258,7 @@ class Loop:
     #: own ``instance.variable`` is not what the column shows (a plant FMU's input, recorded
     #: as the input delay's output that drives it, is ``plant.<the FMU's input name>``)
     labels: tuple[tuple[Port, str], ...] = ()
-    #: the loop-file data it was built from (:class:`Origin`; set by the loop-file reader,
+    #: the loop-file data it was built from (``Origin``; set by the loop-file reader,
     #: ``api.lti`` and ``api.model``), for building it again with overrides; ``None`` for a
     #: loop put together otherwise
     origin: Origin | None = field(default=None, compare=False, repr=False)
@@ -336,13 +336,13 @@ class Loop:
         raise KeyError(f"loop {self.name}: no instance {name!r}")
 
     def column(self, port: Port) -> str:
-        """The column name of the recorded ``port``: its label (:attr:`labels`), else
+        """The column name of the recorded ``port``: its label (``labels``), else
         ``instance.variable``."""
         return dict(self.labels).get(port, str(port))
 
     @property
     def columns(self) -> list[str]:
-        """The column names of the recorded ports, in order (:meth:`column`)."""
+        """The column names of the recorded ports, in order (``column``)."""
         return [self.column(p) for p in self.recorded]
 
     def by_role(self, role: Role) -> Instance | None:
@@ -408,7 +408,7 @@ def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true,
     refusing any delay that is not a finite number >= 0 on the base grid.
 
     ``zoh``: the controller holds its output over each period, so ``tau`` must be a
-    multiple of ``T`` (:func:`check_zoh_delay`; ``"pad"``: the caller could pad it). That
+    multiple of ``T`` (``check_zoh_delay``; ``"pad"``: the caller could pad it). That
     rule is checked before the base grid's: a multiple of ``T`` is on the grid of every
     ``N``, and a ``tau`` off both is refused with the fix of the rule that binds (the
     nearest multiples of ``T``, ``pad``), never with the base grid's."""
@@ -427,8 +427,8 @@ def check_delays(timing: Timing, r: float, tau: float, r_true, tau_true,
 
 def check_zoh_delay(tau: float, T: float, padding: bool = False) -> None:
     """Under zero-order hold the input delay is a whole number of periods, ``tau = l T``
-    (:func:`delaycomp.maths.grid.periods`, the rule written once), as a
-    :class:`~delaycomp.errors.ParameterError`. The loop builders call it where ``tau``
+    (``delaycomp.maths.grid.periods``, the rule written once), as a
+    ``ParameterError``. The loop builders call it where ``tau``
     enters a loop whose controller holds its output over each period (the LTI controller;
     a model with ``control = "zoh"`` unless it pads); ``padding``: the message says what
     ``pad = true`` gives."""
@@ -441,9 +441,9 @@ def check_zoh_delay(tau: float, T: float, padding: bool = False) -> None:
 @dataclass(frozen=True)
 class LtiPoint:
     """An LTI loop's design and timing without its instances: what a batch sweep needs of
-    a grid point (:meth:`delaycomp.paper.scenarios.Scenario.design`). It carries the same
-    ``lti`` and ``timing`` fields as the :class:`Loop` that :func:`design_loop` builds from
-    it, validated by the same code (:func:`lti_design`)."""
+    a grid point (``delaycomp.paper.scenarios.Scenario.design``). It carries the same
+    ``lti`` and ``timing`` fields as the ``Loop`` that ``design_loop`` builds from
+    it, validated by the same code (``lti_design``)."""
 
     lti: LtiDesign
     timing: Timing
@@ -451,9 +451,9 @@ class LtiPoint:
 
 def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
                r_true: float | None = None, tau_true: float | None = None) -> LtiPoint:
-    """The validated design and timing of the LTI loop :func:`lti_loop` builds.
+    """The validated design and timing of the LTI loop ``lti_loop`` builds.
 
-    Every check of :func:`lti_loop` happens here (shapes, finite entries, histories, mode,
+    Every check of ``lti_loop`` happens here (shapes, finite entries, histories, mode,
     the base grid of the delays), so a point that passes builds a valid loop.
 
     Examples
@@ -499,7 +499,7 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
 @dataclass(frozen=True)
 class LtiBatch:
     """Many LTI grid points at once, as arrays with a leading axis of points: what
-    :func:`lti_designs` validated (the fields of :class:`LtiPoint`, stacked). ``r_true``
+    ``lti_designs`` validated (the fields of ``LtiPoint``, stacked). ``r_true``
     and ``tau_true`` are filled in with ``r`` and ``tau`` where a point has none."""
 
     A: np.ndarray  # (P, n, n)
@@ -525,14 +525,14 @@ class LtiBatch:
 
 
 def lti_designs(args: list[dict]) -> LtiBatch | None:
-    """:func:`lti_design` for many points at once (each dict holds one point's arguments),
+    """``lti_design`` for many points at once (each dict holds one point's arguments),
     its checks vectorized: a grid sweep validates every point without a loop of numpy calls
     per point.
 
     Returns ``None`` where the points do not stack (matrices of different shapes, an
     argument that is not an array of numbers) or some point fails a check: validate those
-    one by one with :func:`lti_design`, which names what is wrong with the first failing
-    point. A batch it returns holds only points :func:`lti_design` accepts.
+    one by one with ``lti_design``, which names what is wrong with the first failing
+    point. A batch it returns holds only points ``lti_design`` accepts.
 
     Examples
     --------
@@ -587,7 +587,7 @@ def _checked_batch(args: list[dict], A: np.ndarray, B: np.ndarray, K: np.ndarray
                    x0: np.ndarray, u0: np.ndarray, T: list, Ns: list,
                    delays: dict[str, list]) -> LtiBatch | None:
     """The batch of stacked points when the shapes, entries, modes, timings and delays (on
-    the base grid) of every point pass :func:`lti_design`'s checks, else None."""
+    the base grid) of every point pass ``lti_design``'s checks, else None."""
     _, n, m = B.shape
     T_a, N_a = np.array(T, dtype=float), np.array(Ns, dtype=np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):  # a bad T or N: refused below
@@ -621,8 +621,8 @@ def _floats(what: str, value) -> np.ndarray:
 def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "loop",
                 title: str = "", stop_time: float | None = None,
                 origin: Origin | None = None) -> Loop:
-    """The standard four-instance loop of a validated :class:`LtiPoint` (``origin``: what
-    it was built from, :attr:`Loop.origin`)."""
+    """The standard four-instance loop of a validated ``LtiPoint`` (``origin``: what
+    it was built from, ``Loop.origin``)."""
     d, timing = point.lti, point.timing
     A, B, K, x0, u0 = d.A, d.B, d.K, d.x0, d.u0
     n, m = d.n, d.m
@@ -666,12 +666,12 @@ def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
 def check_model_loop(model, T: float, r: float, tau: float, N: int, x0, u0,
                      params: dict | None = None, pad: bool = False,
                      r_true: float | None = None, tau_true: float | None = None) -> tuple:
-    """The checks of :func:`model_loop` for a loaded ``model`` (:mod:`delaycomp.maths.model`),
+    """The checks of ``model_loop`` for a loaded ``model`` (``delaycomp.maths.model``),
     without building the loop: the lengths of ``x0`` and ``u0``, the parameter names, the
     delays on the base grid and, under zero-order hold unless ``pad``, ``tau = l T``.
 
     Returns ``(x0, u0, params, timing, r_true, tau_true)``: the histories as lists of
-    floats, the parameters as a new dict, the :class:`Timing` and the true delays.
+    floats, the parameters as a new dict, the ``Timing`` and the true delays.
     """
     n, m = model.n, model.m
     x0 = [float(v) for v in np.ravel(x0)]
@@ -700,7 +700,7 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
                pad: bool = False, r_true: float | None = None,
                tau_true: float | None = None, name: str = "loop", title: str = "",
                stop_time: float | None = None) -> Loop:
-    """Plant, delays and predictor-controller around a model file (:mod:`delaycomp.maths.model`).
+    """Plant, delays and predictor-controller around a model file (``delaycomp.maths.model``).
 
     Column names are the model's own: ``plant.<state>`` and ``controller.<input>``.
     ``params`` are the model's parameters (an unknown name is refused).

@@ -29,11 +29,11 @@ tolerance of its ``fmi2SetupExperiment``, in (0, 1)); ``[controller] predictor``
 (``closed`` or ``numerical``, for models), ``pad`` (pad ``tau`` up to a multiple of T,
 Remark 3.3(b)), ``tolerance`` and ``allow_unstable``.
 
-A plant FMU from another tool (:mod:`.plantfmu`): ``[plant] fmu``, ``states`` (its
+A plant FMU from another tool (``.plantfmu``): ``[plant] fmu``, ``states`` (its
 outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start there),
 ``parameters`` and ``start`` (tables of values set before its initialization); the
 predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predictor =
-"plant-fmu"`` with ``K`` (the FMU's own Model Exchange derivatives, :mod:`.fmumodel`).
+"plant-fmu"`` with ``K`` (the FMU's own Model Exchange derivatives, ``.fmumodel``).
 
 Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
 the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
@@ -82,7 +82,7 @@ from delaycomp.system.loop import (
 )
 from delaycomp.system.loopkeys import DEFAULTS, allowed
 
-#: the keys of each table, required or not, and the defaults: :mod:`.loopkeys`
+#: the keys of each table, required or not, and the defaults: ``.loopkeys``
 TOP_KEYS = allowed("", "lti")
 SECTIONS = ("plant", "controller")
 #: tables that describe something besides the loop (``[reference]``: for ``check``)
@@ -218,7 +218,7 @@ PREDICTORS = ("closed", "numerical")
 #: the allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
 #: ``tau`` under continuous input), as ``delaycomp list`` and docs/reference/commands.md say it
 ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
-#: ``tau`` under zero-order hold (Theorem 3.2); :data:`ZOH_TAU_PAD` where ``pad`` is offered
+#: ``tau`` under zero-order hold (Theorem 3.2); ``ZOH_TAU_PAD`` where ``pad`` is offered
 ZOH_TAU = "a finite multiple l*T of T, l >= 0"
 ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
 
@@ -226,8 +226,8 @@ ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
 @dataclass(frozen=True)
 class Key:
     """A loop-file key whose value is checked on its own: ``check(where, value)`` returns
-    the value checked (or raises :class:`ParameterError` naming ``where``); ``allowed`` says
-    the range in words (the rules between keys, such as the base grid, are :func:`check`'s)."""
+    the value checked (or raises ``ParameterError`` naming ``where``); ``allowed`` says
+    the range in words (the rules between keys, such as the base grid, are ``check``'s)."""
 
     check: Callable[[str, Any], Any]
     allowed: str
@@ -249,8 +249,8 @@ def _matrix(where: str, value) -> np.ndarray:
     return _array(where, value, 2)
 
 
-#: the keys checked on their own, each rule written once (what :func:`check_value` and the
-#: reader apply); a model's own parameters are checked against the model (:func:`check`)
+#: the keys checked on their own, each rule written once (what ``check_value`` and the
+#: reader apply); a model's own parameters are checked against the model (``check``)
 KEYS: dict[str, Key] = {
     "T": Key(_positive, "a finite number > 0"),
     "N": Key(_int, "a positive integer"),
@@ -270,7 +270,7 @@ KEYS: dict[str, Key] = {
 
 def check_value(key: str, value, where: str | None = None) -> Any:
     """``value`` of loop-file ``key`` (``"T"``, ``"plant.x0"``, ``"controller.mode"``)
-    checked on its own, as the reader checks it; a key not in :data:`KEYS` passes as it is.
+    checked on its own, as the reader checks it; a key not in ``KEYS`` passes as it is.
 
     Examples
     --------
@@ -288,7 +288,7 @@ def check_value(key: str, value, where: str | None = None) -> Any:
 # -- the sign guard ------------------------------------------------------------------------
 
 def check_sign(A, B, K, T: float) -> float:
-    """Refuse (:class:`SignError`) a gain with which the delay-free sampled loop
+    """Refuse (``SignError``) a gain with which the delay-free sampled loop
     ``x_{i+1} = (Ad + Bd K) x_i`` is unstable; return its spectral radius otherwise.
 
     Examples
@@ -318,7 +318,7 @@ def check_sign(A, B, K, T: float) -> float:
 
 @functools.lru_cache(maxsize=256)
 def _radius(sa, a, sb, b, sk, k, T: float) -> float:
-    """:func:`~delaycomp.maths.lti.sampled_radius` by value, remembered: a sweep's grid points
+    """``sampled_radius`` by value, remembered: a sweep's grid points
     share their matrices and repeat the guard."""
     from delaycomp.maths.lti import sampled_radius
 
@@ -338,7 +338,7 @@ def _check_keys(where: str, table: dict, allowed, extra=()) -> None:
 
 
 class LoopFile:
-    """A loop file read from disk: :meth:`loop` builds the :class:`Loop`, with overrides.
+    """A loop file read from disk: ``loop`` builds the ``Loop``, with overrides.
 
     Examples
     --------
@@ -441,11 +441,11 @@ class LoopFile:
 
     def design(self, data: dict) -> LtiPoint | None:
         """The design and timing of resolved ``data`` without the loop's instances (for an
-        LTI loop file; ``None`` otherwise): see :func:`design`."""
+        LTI loop file; ``None`` otherwise): see ``design``."""
         return design(data, where=self.where)
 
     def designs(self, datas: list[dict]) -> LtiBatch | None:
-        """The designs of many resolved points at once, or ``None``: see :func:`designs`."""
+        """The designs of many resolved points at once, or ``None``: see ``designs``."""
         return designs(datas, where=self.where)
 
     def loop(self, assignments: list[str] | dict | None = None) -> Loop:
@@ -454,9 +454,9 @@ class LoopFile:
 
 
 class LoopData(LoopFile):
-    """A loop file held in memory: the loop-file data a :class:`Loop` was built from
-    (:attr:`Loop.origin`), read as a file is (:meth:`resolve` with overrides, :meth:`make`,
-    :meth:`loop`, a sweep's grid). Messages name it ``loop 'NAME'``.
+    """A loop file held in memory: the loop-file data a ``Loop`` was built from
+    (``Loop.origin``), read as a file is (``resolve`` with overrides, ``make``,
+    ``loop``, a sweep's grid). Messages name it ``loop 'NAME'``.
 
     Examples
     --------
@@ -479,9 +479,9 @@ class LoopData(LoopFile):
 
     @classmethod
     def of(cls, loop: Loop) -> LoopData:
-        """The loop-file data of ``loop`` (its :attr:`~Loop.origin`), checked to build
+        """The loop-file data of ``loop`` (its ``origin``), checked to build
         ``loop`` itself: a loop built otherwise, or changed since (``Loop.replace``,
-        ``set_parameters``), is refused (a :class:`ParameterError` naming it)."""
+        ``set_parameters``), is refused (a ``ParameterError`` naming it)."""
         if loop.origin is None:
             raise ParameterError(
                 f"source = {loop!r} is not allowed here: it keeps no loop-file data to build "
@@ -521,7 +521,7 @@ class LoopData(LoopFile):
 
 
 #: the short names of loop-file keys that ``--set``, ``sets``, overrides and grids may use:
-#: ``x0`` for ``plant.x0``, ``K`` for ``controller.K`` (see :func:`long_key`)
+#: ``x0`` for ``plant.x0``, ``K`` for ``controller.K`` (see ``long_key``)
 SHORT_KEYS = {"x0": "plant.x0", "u0": "controller.u0", "K": "controller.K",
               "mode": "controller.mode", "predictor": "controller.predictor",
               "pad": "controller.pad", "allow_unstable": "controller.allow_unstable"}
@@ -532,7 +532,7 @@ _MATRIX_KEYS = ("plant.A", "plant.B", "controller.K", "controller.A", "controlle
 
 def long_key(key: str, data: dict) -> str:
     """The loop-file key of ``key`` in a loop of ``data``: a dotted or top-level key as it
-    is, a short name (:data:`SHORT_KEYS`; ``A``, ``B`` of the section that holds them) and,
+    is, a short name (``SHORT_KEYS``; ``A``, ``B`` of the section that holds them) and,
     in a loop around a model file, a model's own parameter (``gain`` for
     ``controller.gain``).
 
@@ -627,9 +627,9 @@ def _top(data: dict, where: str) -> dict:
 
 
 def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str], bool]:
-    """The :func:`~delaycomp.system.lti_design` arguments of an LTI loop file
+    """The ``lti_design`` arguments of an LTI loop file
     (``[plant] A, B``), its state and input names, and whether the sign guard applies;
-    the keys and values checked as :func:`build` checks them (``array`` parses a list)."""
+    the keys and values checked as ``build`` checks them (``array`` parses a list)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = array("plant.x0", plant["x0"], 1)
     _check_keys(f"{where} [plant]", plant, allowed("plant", "lti"))
@@ -659,7 +659,7 @@ def _lti_last(args: dict, guard: bool) -> None:
 
 def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
     """The design of an LTI loop file and its state and input names, checked as
-    :func:`build` checks them: keys, shapes and grid (:func:`~delaycomp.system.lti_design`),
+    ``build`` checks them: keys, shapes and grid (``lti_design``),
     zero-order hold, the sign guard."""
     args, names, guard = _lti_args(top, where)
     point = lti_design(**args)
@@ -669,7 +669,7 @@ def _lti(top: dict, where: str) -> tuple[LtiPoint, str, str]:
 
 def design(data: dict, where: str = "loop") -> LtiPoint | None:
     """The design and timing of an LTI loop file's ``data`` without the loop's instances
-    (checked as :func:`build` checks it; a batch sweep's grid point); ``None`` for a loop
+    (checked as ``build`` checks it; a batch sweep's grid point); ``None`` for a loop
     file that is not LTI."""
     top = _top(data, where)
     plant = top["plant"]
@@ -679,11 +679,11 @@ def design(data: dict, where: str = "loop") -> LtiPoint | None:
 
 
 def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
-    """:func:`design` of many resolved points at once (a batch sweep's grid): each point's
-    keys and lists are checked as :func:`build` checks them (a list shared by the points,
+    """``design`` of many resolved points at once (a batch sweep's grid): each point's
+    keys and lists are checked as ``build`` checks them (a list shared by the points,
     one no ``--set`` replaced, is parsed once), the design's checks are made vectorized
-    (:func:`~delaycomp.system.lti_designs`). ``None`` where the points are not LTI, do not
-    stack or some point is refused: check those one by one with :func:`design`, which
+    (``lti_designs``). ``None`` where the points are not LTI, do not
+    stack or some point is refused: check those one by one with ``design``, which
     names what is wrong."""
     parsed: dict[tuple, tuple] = {}
 
@@ -712,7 +712,7 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
 
 def build(data: dict, base: Path, name: str = "loop", title: str = "",
           where: str = "loop") -> Loop:
-    """The :class:`Loop` of a loop file's ``data`` (paths relative to ``base``)."""
+    """The ``Loop`` of a loop file's ``data`` (paths relative to ``base``)."""
     top = _top(data, where)
     plant, ctrl, T, N, r, tau, mode = (top[k] for k in ("plant", "ctrl", "T", "N", "r",
                                                          "tau", "mode"))
@@ -734,7 +734,7 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
 
 def model_value(model, key: str, value, where: str | None = None) -> Any:
     """``value`` of a model's own parameter ``key`` (``[controller] law = "printed"``)
-    checked against the model (:mod:`delaycomp.maths.model`): a string among its choices,
+    checked against the model (``delaycomp.maths.model``): a string among its choices,
     or a finite number."""
     where = where or f"controller.{key}"
     if isinstance(model.parameters[key], str):
@@ -755,7 +755,7 @@ def model_path(plant: dict, base: Path) -> Path:
 
 
 def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, Any, dict]:
-    """The model file, the model and the :func:`~delaycomp.system.model_loop` arguments
+    """The model file, the model and the ``model_loop`` arguments
     (``x0``, ``u0``, ``params``, ``predictor``, ``tolerance``, ``pad``) of a model loop
     file, its keys and values checked (``model``: the file's model, already loaded)."""
     plant, ctrl = top["plant"], top["ctrl"]
@@ -786,9 +786,9 @@ def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, An
 
 
 def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
-    """Check a loop file's ``data`` as :func:`build` checks it, without building the loop's
-    instances: an LTI loop's design (:func:`design`), a model loop's keys, values, lengths,
-    grid and zero-order hold (:func:`~delaycomp.system.check_model_loop`). A loop around a
+    """Check a loop file's ``data`` as ``build`` checks it, without building the loop's
+    instances: an LTI loop's design (``design``), a model loop's keys, values, lengths,
+    grid and zero-order hold (``check_model_loop``). A loop around a
     plant FMU is checked by building it. ``model``: the model of ``[plant] model``, where
     the caller has it loaded (a grid checks many points of one model)."""
     top = _top(data, where)
@@ -806,7 +806,7 @@ def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
 
 def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mode,
                common: dict) -> Loop:
-    """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (:mod:`.plantfmu`)."""
+    """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (``.plantfmu``)."""
     from delaycomp.system.plantfmu import fmu_plant_loop
 
     _check_keys(f"{where} [plant]", plant, allowed("plant", "fmu-lti"))
@@ -873,7 +873,7 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
 def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r, tau,
                          x0, common: dict) -> Loop:
     """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
-    predictor's model (:mod:`.fmumodel`), its state found from the measured outputs, with
+    predictor's model (``.fmumodel``), its state found from the measured outputs, with
     ``u = K y``."""
     from delaycomp.maths.predictors import DEFAULT_TOL
     from delaycomp.system.fmumodel import start_from_outputs, write_model
@@ -923,7 +923,7 @@ def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r
 
 def _fmu_tolerance(plant: dict, make: Callable[[], Loop]) -> Loop:
     """The loop of a plant FMU (``make()``) with ``[plant] tolerance``, checked first, for
-    its ``fmi2SetupExperiment`` (:func:`~delaycomp.system.plantfmu.with_tolerance`)."""
+    its ``fmi2SetupExperiment`` (``with_tolerance``)."""
     from delaycomp.system.plantfmu import check_tolerance, with_tolerance
 
     tol = plant.get("tolerance")

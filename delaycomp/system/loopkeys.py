@@ -1,8 +1,8 @@
 """The keys of a loop file: which loop takes each, whether it is required, its default.
 
-One table, :data:`TABLE`, read by the loop-file reader (:mod:`delaycomp.system.loopfile`:
-the keys each table allows, :data:`DEFAULTS`) and by the documentation build (the
-reference page's tables are :func:`markdown`), so the page says what the reader does;
+One table, ``TABLE``, read by the loop-file reader (``delaycomp.system.loopfile``:
+the keys each table allows, ``DEFAULTS``) and by the documentation build (the
+reference page's tables are ``markdown``), so the page says what the reader does;
 ``tests/test_loop_keys.py`` holds the reader to it (a required key left out is refused
 naming it; a default written out builds the same loop as the key left out).
 
@@ -33,7 +33,7 @@ FMU = ("fmu-lti", "fmu-model", "fmu-plant-fmu")
 MODEL_CONTROLLERS = ("model", "fmu-model")
 
 #: the ODE tolerance of the numerical predictors and of a model plant without an exact
-#: step (:data:`delaycomp.maths.predictors.DEFAULT_TOL`, which the tests hold it to)
+#: step (``delaycomp.maths.predictors.DEFAULT_TOL``, which the tests hold it to)
 ODE_TOL = 1e-10
 
 
@@ -196,7 +196,7 @@ def markdown(allowed_words: dict[str, str] | None = None) -> str:
     """The reference page's tables of every key, one per table of the file: key, the
     loops that take it, required or its default, the values allowed, the meaning.
     ``allowed_words`` gives the allowed values in words by dotted key (the reader's
-    :data:`~delaycomp.system.loopfile.KEYS`)."""
+    ``KEYS``)."""
     words = allowed_words or {}
     titles = {"": "Top level", "plant": "`[plant]`", "controller": "`[controller]`",
               "reference": "`[reference]` (for `delaycomp check LOOP.toml`)"}

@@ -1,13 +1,13 @@
 """A user's plant FMU in the loop: what its modelDescription offers, and the loop around it.
 
-``[plant] fmu = "Plant.fmu"`` in a loop file (:mod:`.loopfile`) names any FMI 2.0
+``[plant] fmu = "Plant.fmu"`` in a loop file (``.loopfile``) names any FMI 2.0
 co-simulation FMU (C, Python, any exporting tool). ``states`` name the plant outputs that
 form the measured state x (in order), ``inputs`` the plant inputs that receive u (in
 order), ``parameters`` values set before initialization. The predictor's model comes from
 ``[controller]``: ``A`` and ``B`` (LTI, with ``K``) or ``model = "file.py"``.
 
 The modelDescription is read here with the standard library only (zip and XML): this layer
-knows nothing of FMI calls. Each problem is a one-line :class:`ParameterError` naming the
+knows nothing of FMI calls. Each problem is a one-line ``ParameterError`` naming the
 key and the variable. The two delays are built without direct feedthrough whenever their
 delay is at least one base step, so a plant whose outputs depend on its inputs at the same
 instant (an ``acceleration`` output, say) is no algebraic loop.
@@ -97,7 +97,7 @@ def platform_folder() -> str:
 
 def check_declarations(path: Path, variables: Sequence[tuple[str, str, str, object]]
                        ) -> None:
-    """Refuse (:class:`BadFileError`, one line) a modelDescription that declares a variable
+    """Refuse (``BadFileError``, one line) a modelDescription that declares a variable
     name twice, a value reference that is not an integer from 0 to 2^32 - 1, or an input
     that shares its value reference with another variable of its type (an output that is
     an input's alias: setting the input would change what the FMU declares as its own
@@ -142,8 +142,8 @@ def check_declarations(path: Path, variables: Sequence[tuple[str, str, str, obje
 
 
 def read_interface(path: str | Path) -> FmuInterface:
-    """The :class:`FmuInterface` of the FMU file ``path``; a file that is not an FMI 2.0
-    FMU raises :class:`BadFileError` (one line)."""
+    """The ``FmuInterface`` of the FMU file ``path``; a file that is not an FMI 2.0
+    FMU raises ``BadFileError`` (one line)."""
     path = Path(path)
     if not path.is_file():
         raise BadFileError(path, "no such FMU file")
@@ -227,7 +227,7 @@ def check_mapping(fmu: FmuInterface, states, inputs, parameters: Mapping | None,
                   where: str = "plant", start: Mapping | None = None
                   ) -> tuple[list[str], list[str], dict]:
     """Check ``states``, ``inputs``, ``parameters`` and the ``start`` values (of variables
-    that are not parameters: :func:`start_variables`) against the FMU; return the names as
+    that are not parameters: ``start_variables``) against the FMU; return the names as
     lists and the values to set before initialization, parameters and start values in one
     table (numbers, booleans or strings)."""
     name = fmu.path.name
@@ -324,7 +324,7 @@ def check_output_map(fmu: FmuInterface, states: Sequence[str],
     modelDescription tells: fewer outputs than states, an output with direct feedthrough
     from an input, or a state no named output depends on (ModelStructure). Whether the map
     is invertible where the loop runs is checked by the controller on its Jacobian
-    (:func:`delaycomp.maths.outputmap.check_rank`)."""
+    (``delaycomp.maths.outputmap.check_rank``)."""
     name, xs = fmu.path.name, list(fmu.states)
     head = f'{where} = "plant-fmu" is not allowed'
     instead = "or give A and B (or model) for the predictor"
@@ -369,7 +369,7 @@ def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
 
 
 def _zoh_of(model, controller_parameters: Mapping | None) -> Literal["hold", "pad"] | None:
-    """How the controller constrains ``tau`` (:func:`~delaycomp.system.loop.check_delays`):
+    """How the controller constrains ``tau`` (``check_delays``):
     the LTI controller holds without padding; a model's, under zero-order hold, unless it
     pads."""
     if model is None:
@@ -394,11 +394,11 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     The controller is delaycomp's LTI controller with the model ``A``, ``B`` and gain
     ``K`` (``u = K x``, the paper's sign), or the controller FMU of the model file
     ``model`` (with ``controller_parameters``: its parameters and settings, as
-    :func:`~delaycomp.system.model_loop` takes them). ``x0`` is the history of the measured
+    ``model_loop`` takes them). ``x0`` is the history of the measured
     state on ``[-r, 0]`` (the measurement delay's initial output); the FMU's own initial
     state is set by its parameters and the ``start`` values of its other variables (its
-    hidden continuous states, say: :func:`start_variables`); the master checks that the
-    FMU's outputs ``states`` equal ``x0`` once it is initialized (:attr:`Loop.initial`).
+    hidden continuous states, say: ``start_variables``); the master checks that the
+    FMU's outputs ``states`` equal ``x0`` once it is initialized (``Loop.initial``).
     Recorded: the states, the controller's outputs and what the plant receives (the input
     delay's outputs, in columns named by the FMU's own inputs: ``plant.force``).
     """
@@ -517,7 +517,7 @@ def _plant_connections(states: list[str], inputs: list[str], ctrl_in: list[str],
 def check_tolerance(value, where: str = "plant.tolerance") -> float:
     """``[plant] tolerance`` of a plant FMU checked: a finite number in (0, 1) (what FMI's
     ``fmi2SetupExperiment`` takes as a relative tolerance), else a one-line
-    :class:`ParameterError` naming ``where``.
+    ``ParameterError`` naming ``where``.
 
     Examples
     --------
@@ -538,7 +538,7 @@ def check_tolerance(value, where: str = "plant.tolerance") -> float:
 def with_tolerance(loop: Loop, tolerance: float | None) -> Loop:
     """``loop`` whose plant FMU file gets the relative ``tolerance`` at
     ``fmi2SetupExperiment`` (``toleranceDefined = true``; checked by
-    :func:`check_tolerance`); ``None``: the loop as it is (no tolerance defined, the FMU's
+    ``check_tolerance``); ``None``: the loop as it is (no tolerance defined, the FMU's
     own default)."""
     if tolerance is None:
         return loop

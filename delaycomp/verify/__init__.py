@@ -1,5 +1,5 @@
-"""Verification: the reference cases (:mod:`.cases`), the cross-check table
-(:mod:`.check`), the FMU cross-check files (:mod:`.crosscheck`), and the runs in other
-masters: the container FMU (:mod:`.container`), libcosim and Ecos (:mod:`.thirdparty`),
-OMSimulator (:mod:`.omsimulator`).
+"""Verification: the reference cases (``.cases``), the cross-check table
+(``.check``), the FMU cross-check files (``.crosscheck``), and the runs in other
+masters: the container FMU (``.container``), libcosim and Ecos (``.thirdparty``),
+OMSimulator (``.omsimulator``).
 """

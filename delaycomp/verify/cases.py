@@ -1,9 +1,9 @@
 """Reference cases and how a run is compared with one: the bottom of verification.
 
-A :class:`RefCase` is a loop (a scenario with parameters, or a loop file) and the
-reference trace it must reproduce; :func:`compare` holds a recorded trajectory to it
+A ``RefCase`` is a loop (a scenario with parameters, or a loop file) and the
+reference trace it must reproduce; ``compare`` holds a recorded trajectory to it
 pointwise. The runners (our master, each FMU alone, the container, third-party masters)
-import this module, and :mod:`delaycomp.verify.check` imports the runners: no ring.
+import this module, and ``delaycomp.verify.check`` imports the runners: no ring.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import delaycomp.reference
 from delaycomp.errors import BadFileError, ParameterError
 
 #: the reference traces: ``reference/`` of the repository, installed as package data of
-#: :mod:`delaycomp.reference`
+#: ``delaycomp.reference``
 REFERENCE_DIR = Path(delaycomp.reference.__file__).resolve().parent
 
 #: zero-order-hold tolerance: ``|error| <= EXACT_TOL (1 + |ref|)``
@@ -45,7 +45,7 @@ class RefCase:
     tolerance: float = 1e-9
 
     def loop(self):
-        """The loop this case runs (:class:`delaycomp.system.Loop`)."""
+        """The loop this case runs (``delaycomp.system.Loop``)."""
         if self.loop_file is not None:
             from delaycomp.system.loopfile import LoopFile
 

@@ -1,9 +1,9 @@
 """Cross-checks: every reference case, run by every master we support, against its trace.
 
-The reference cases (:data:`CASES`) are the paper's examples with the traces of
+The reference cases (``CASES``) are the paper's examples with the traces of
 ``reference/`` (independent computations, see ``reference/README.md``). A *provider* runs
 some of them in one master (ours, a third-party one, one FMU alone, ...) and yields one
-:class:`CheckRow` per case: the largest error against the reference and the tolerance it is
+``CheckRow`` per case: the largest error against the reference and the tolerance it is
 held to. ``delaycomp check`` prints them as a table and fails if any row fails.
 
 Tolerances, from the maths:
@@ -52,7 +52,7 @@ class Requirement:
     hint: str
 
     def missing(self) -> list[str]:
-        """The modules of :attr:`modules` that cannot be imported here."""
+        """The modules of ``modules`` that cannot be imported here."""
         import importlib.util
 
         return [m for m in self.modules if importlib.util.find_spec(m) is None]
@@ -113,7 +113,7 @@ PROVIDERS.register("delaycomp", _run_ours)
 
 def _run_alone(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """Each FMU alone against the ``_ref.csv`` of its cross-check model
-    (:mod:`delaycomp.verify.crosscheck`)."""
+    (``delaycomp.verify.crosscheck``)."""
     from delaycomp.verify.crosscheck import run_alone_cases
 
     return run_alone_cases(cases)
@@ -123,7 +123,7 @@ PROVIDERS.register("fmu-alone", _run_alone)
 
 
 def _run_container(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
-    """The loop as one container FMU (:mod:`delaycomp.verify.container`), at ``t0 + iT``."""
+    """The loop as one container FMU (``delaycomp.verify.container``), at ``t0 + iT``."""
     from delaycomp.verify.container import run_container_cases
 
     return run_container_cases(cases)
@@ -142,7 +142,7 @@ NATIVE_RTOL = 1e-12
 
 
 def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
-    """The native C FMUs (:mod:`delaycomp.fmu.native`) in our master, for the cases whose loop
+    """The native C FMUs (``delaycomp.fmu.native``) in our master, for the cases whose loop
     has native FMUs (the LTI ones): one row against the reference, one against the Python
     FMUs (``native-vs-python``)."""
     from delaycomp.fmu.native import native_fmus
@@ -172,7 +172,7 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
 
 @dataclass(frozen=True)
 class CompilerRequirement(Requirement):
-    """The native FMUs need a C compiler (:func:`delaycomp.fmu.native.compiler`)."""
+    """The native FMUs need a C compiler (``delaycomp.fmu.native.compiler``)."""
 
     modules: tuple[str, ...] = ()
     hint: str = "install a C compiler, e.g. `apt-get install gcc`, or set CC"
@@ -200,7 +200,7 @@ def _third_party(master: str) -> Provider:
     return run
 
 
-#: libcosim and Ecos run each case's Jacobi variant (see :mod:`delaycomp.verify.thirdparty`)
+#: libcosim and Ecos run each case's Jacobi variant (see ``delaycomp.verify.thirdparty``)
 PROVIDERS.register("libcosim", _third_party("libcosim"),
                    Requirement(("libcosimpy",), "pip install 'delaycomp[masters]'"))
 PROVIDERS.register("ecos", _third_party("ecos"),
@@ -210,7 +210,7 @@ PROVIDERS.register("ecos", _third_party("ecos"),
 @dataclass(frozen=True)
 class _OMSimulatorRequirement(Requirement):
     """OMSimulator is found by ``$DELAYCOMP_OMSIMULATOR`` or as a package
-    (:func:`delaycomp.verify.omsimulator.locate`), not by a module name alone."""
+    (``delaycomp.verify.omsimulator.locate``), not by a module name alone."""
 
     def missing(self) -> list[str]:
         from delaycomp.verify.omsimulator import missing
@@ -220,7 +220,7 @@ class _OMSimulatorRequirement(Requirement):
 
 def _run_omsimulator(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """Each case's plain archive in OMSimulator's Python API
-    (:mod:`delaycomp.verify.omsimulator`)."""
+    (``delaycomp.verify.omsimulator``)."""
     from delaycomp.verify.omsimulator import provider
 
     return provider(cases)

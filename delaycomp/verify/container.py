@@ -1,7 +1,7 @@
 """The whole loop as one FMU: a container FMU made with fmu-manipulation-toolbox.
 
 ``delaycomp export-loop SCENARIO --out FILE.fmu`` puts the plant, the two delays and the
-controller of a :class:`~delaycomp.system.Loop` into one FMI 2.0 co-simulation FMU
+controller of a ``Loop`` into one FMI 2.0 co-simulation FMU
 (fmu-manipulation-toolbox's FMU container). The container steps its FMUs at the base step
 ``h = T/N`` inside each of its own communication steps, so an importer runs it with
 ``output_interval = T`` and gets the loop at the sampling instants.
@@ -33,7 +33,7 @@ What is exact instead:
    Both added steps are filled by the delays' initial histories, which are the loop's own
    (``x0`` and ``u0``). Every FMU then gets exactly what it gets in our master; the
    container is tested against the reference traces at the sampling instants with the
-   tolerances of :mod:`delaycomp.verify.check`.
+   tolerances of ``delaycomp.verify.check``.
 
 The measurement delay must be at least one base step (``r >= h``): with ``r = 0`` the
 controller needs ``x(t_i)`` before ``t_i`` is reached, which only direct feedthrough gives.
@@ -80,8 +80,8 @@ def _toolbox():
 
 def exposed(spec: Loop) -> list:
     """The recorded ports the container exposes: all but the delays' outputs (a plant
-    FMU's input columns, :attr:`Loop.labels`), which the container's order shifts by the
-    step it adds to each delay (:data:`ADDED_STEPS`): there they are not what the plant
+    FMU's input columns, ``Loop.labels``), which the container's order shifts by the
+    step it adds to each delay (``ADDED_STEPS``): there they are not what the plant
     receives at that instant."""
     delays = {i.name for i in spec.instances if i.role in ADDED_STEPS}
     return [p for p in spec.recorded if p.instance not in delays]
@@ -89,7 +89,7 @@ def exposed(spec: Loop) -> list:
 
 def output_names(spec: Loop) -> dict[str, str]:
     """Container output name -> the loop's column (``plant.x``), in the recorded order of
-    the ports it exposes (:func:`exposed`): the variable's own name, or
+    the ports it exposes (``exposed``): the variable's own name, or
     ``instance_variable`` where two of them share a variable name."""
     ports = exposed(spec)
     names = [p.variable for p in ports]
@@ -154,7 +154,7 @@ def _identifier(path: Path) -> str:
 class _UndrivenInputs(logging.Filter):
     """Drops fmu-manipulation-toolbox's error ``Input 'Port plant.fmu/load.tau' is not
     connected`` for the inputs of a user's FMU that the loop leaves at their start values
-    on purpose (:func:`delaycomp.system.plantfmu.undriven_inputs`: the command says so
+    on purpose (``delaycomp.system.plantfmu.undriven_inputs``: the command says so
     once, as a note); any other such error passes."""
 
     def __init__(self, spec: Loop):
@@ -172,7 +172,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
                 fmus: dict[str, Path] | None = None) -> Path:
     """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
     gives the FMU file of some instances (e.g. the native ones of
-    :func:`delaycomp.fmu.native.native_fmus`); the others come from their sources."""
+    ``delaycomp.fmu.native.native_fmus``); the others come from their sources."""
     from delaycomp.fmu.cache import source_fmu
     from delaycomp.tmpfiles import replacing_path
     from delaycomp.unpack import Budget, measure
@@ -218,7 +218,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
 def simulate_loop(path: Path, spec: Loop, stop_time: float):
     """``fmpy.simulate_fmu`` on the container at ``output_interval = T``: the times and
     the columns ``plant.x ...`` at the sampling instants (those it exposes: not a plant
-    FMU's input columns, :func:`exposed`). A plant FMU file's
+    FMU's input columns, ``exposed``). A plant FMU file's
     ``tolerance`` goes to the container's ``fmi2SetupExperiment``, which hands it on to
     the FMUs inside (delaycomp's own ignore it)."""
     import numpy as np
@@ -260,8 +260,8 @@ def run_container_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
 
 
 def _simulate_in_child(path: Path, c: RefCase):
-    """:func:`simulate_loop` in a fresh process (see
-    :func:`delaycomp.verify.crosscheck.run_alone_batch`)."""
+    """``simulate_loop`` in a fresh process (see
+    ``delaycomp.verify.crosscheck.run_alone_batch``)."""
     import subprocess
 
     import numpy as np

@@ -20,7 +20,7 @@ modelica/fmi-cross-check) and from fmpy's ``simulate_fmu``:
 - An importer sets no parameter: it runs the FMU with its start values and the
   ``_in.csv``. So each model gets its own FMU whose start values are the scenario's. It is
   the cached FMU repackaged, not rebuilt: the parameters go into the bundled
-  ``delaycomp_fmu.json`` (``start``, applied by :class:`delaycomp.fmu.slave.TableSlave` at
+  ``delaycomp_fmu.json`` (``start``, applied by ``delaycomp.fmu.slave.TableSlave`` at
   registration) and into the modelDescription's ``start`` attributes, with the GUID of that
   configuration; a test checks that pythonfmu builds the same modelDescription from it.
 - The rules interpolate ``_in.csv`` linearly. The loop holds every input over a base step,
@@ -35,7 +35,7 @@ modelica/fmi-cross-check) and from fmpy's ``simulate_fmu``:
   a zero delay they are the outputs for the input held over the previous step (the loop
   reads them again once it has set the new input, and records those).
 
-Tolerance (:data:`ALONE_TOL`): the FMU alone gets the inputs it got in the loop; only the
+Tolerance (``ALONE_TOL``): the FMU alone gets the inputs it got in the loop; only the
 communication points differ by round-off (fmpy steps to ``t0 + (n + 1) h``, our master to
 ``t0 + i T + j h``). Every component of the reference cases is an exact flow or a closed
 form, so the difference is round-off: ``|error| <= 1e-9 (1 + |ref|)``. An ODE-solved plant
@@ -158,7 +158,7 @@ class _Tap:
 
 
 def record_case(c: RefCase, fmu_dir: Path | None = None) -> dict[str, Trace]:
-    """Run the loop of ``c`` to :func:`stop_time` with every instance tapped."""
+    """Run the loop of ``c`` to ``stop_time`` with every instance tapped."""
     from delaycomp.fmu.cache import source_fmu
     from delaycomp.orchestrator.fmu import FmuComponent
     from delaycomp.orchestrator.simulate import make_master
@@ -253,7 +253,7 @@ needs a Python with numpy and scipy on the host (pythonfmu).
 
 def variant_fmu(src: Path, start: dict, dest: Path) -> Path:
     """``src`` with ``start`` as its parameters' start values (see the module docstring),
-    each written as it reads back exactly (:func:`delaycomp.fmu.build.start_text`)."""
+    each written as it reads back exactly (``delaycomp.fmu.build.start_text``)."""
     from delaycomp.fmu.build import set_start
     from delaycomp.fmu.slave import pinned_guid
 
@@ -337,7 +337,7 @@ def read_table(path: Path) -> tuple[list[str], np.ndarray]:
 def simulate_kept(fmu_file: Path, **kwargs):
     """``fmpy.simulate_fmu(fmu_file, **kwargs)`` on an FMU instance that is never freed.
 
-    For child processes only (:func:`run_alone_batch`). fmpy frees the FMU's library after
+    For child processes only (``run_alone_batch``). fmpy frees the FMU's library after
     a run; pythonfmu's runtime does not survive that reliably (measured: intermittent heap
     corruption, "corrupted double-linked list", in about one run in fifty). The child keeps
     the instance and leaves with ``os._exit`` once it has printed its result.
@@ -356,7 +356,7 @@ def simulate_kept(fmu_file: Path, **kwargs):
 
 def run_alone(model: Path) -> AloneResult:
     """``fmpy.simulate_fmu`` on ``<Model>.fmu`` with its ``_in.csv`` against ``_ref.csv``
-    (in a child process: see :func:`simulate_kept`)."""
+    (in a child process: see ``simulate_kept``)."""
     from fmpy.util import read_csv, read_ref_opt_file
 
     name = model.name
@@ -379,7 +379,7 @@ def run_alone(model: Path) -> AloneResult:
 
 
 def run_alone_batch(models: Sequence[Path]) -> list[AloneResult]:
-    """:func:`run_alone` on each model, each in a fresh Python process.
+    """``run_alone`` on each model, each in a fresh Python process.
 
     ``fmpy.simulate_fmu`` frees each FMU's library after the run, and pythonfmu's runtime
     does not survive that within one process: a later pythonfmu FMU in the same process
@@ -419,7 +419,7 @@ def run_alone_cases(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
 
 
 def _main(argv: list[str]) -> int:
-    """Child process of :func:`run_alone_batch`: one JSON list of results on stdout."""
+    """Child process of ``run_alone_batch``: one JSON list of results on stdout."""
     from dataclasses import asdict
 
     results = [asdict(run_alone(Path(m))) for m in argv]

@@ -1,26 +1,26 @@
 """Run an ``.ssp`` in OMSimulator, OpenModelica's FMI and SSP co-simulation engine.
 
-Two ways in, both found by :func:`locate`:
+Two ways in, both found by ``locate``:
 
-- the **Python API** (``from OMSimulator import SSP``): :func:`run_ssp` loads the archive
+- the **Python API** (``from OMSimulator import SSP``): ``run_ssp`` loads the archive
   unchanged, sets the base step ``h`` as the fixed step, steps to each ``t_k = t0 + k h``
   and reads the recorded signals as doubles (so no 12-digit CSV limits the comparison);
 - the **command line** (``bin/OMSimulator --stopTime=S --resultFile=F file.ssp``), which
   reads the step size from the archive's ``org.openmodelica`` annotation
-  (:mod:`delaycomp.formats.ssp`); :func:`cli_command` gives its argv and environment, with the
-  three settings a pythonfmu FMU needs in a host that is not Python (:func:`cli_env`).
+  (``delaycomp.formats.ssp``); ``cli_command`` gives its argv and environment, with the
+  three settings a pythonfmu FMU needs in a host that is not Python (``cli_env``).
 
 OMSimulator's fixed-step master orders the direct-feedthrough chain itself, so the plain
 archive is exact there; the Jacobi variant (``delaycomp ssp --jacobi``) runs to the same
 trajectory too. When an FMU discards a step OMSimulator stops there and its command line
-still exits 0: :func:`run_ssp` compares the time reached after every step with ``t_k`` and
+still exits 0: ``run_ssp`` compares the time reached after every step with ``t_k`` and
 reports the last error OMSimulator logged.
 
 The OMSimulator package is searched in the folder named by ``DELAYCOMP_OMSIMULATOR`` (an
 install folder with ``bin/OMSimulator`` and ``lib/x86_64-linux-gnu/OMSimulator/``), else as
 the importable ``OMSimulator`` package (``pip install OMSimulator``, which needs internet
 while it installs). Each run happens in a fresh Python process, as for libcosim and Ecos
-(:mod:`delaycomp.verify.thirdparty`).
+(``delaycomp.verify.thirdparty``).
 """
 
 from __future__ import annotations
@@ -102,8 +102,8 @@ def run_ssp(ssp_path: str | Path, stop_time: float, timeout: float = 900.0) -> R
     process; one row per base step and the columns the SSD records, as our master's.
 
     A run that stops before ``stop_time`` is a failed
-    :class:`~delaycomp.orchestrator.simulate.Result` whose message is OMSimulator's last
-    logged error. Raises :class:`NotInstalled` when OMSimulator is absent.
+    ``Result`` whose message is OMSimulator's last
+    logged error. Raises ``NotInstalled`` when OMSimulator is absent.
     """
     install = locate()
     with tempfile.TemporaryDirectory(prefix="delaycomp-oms-") as tmp:
@@ -224,7 +224,7 @@ def cli_env(base: dict | None = None) -> dict[str, str]:
 def cli_command(ssp_path: str | Path, stop_time: float, result_file: str | Path
                 ) -> tuple[list[str], dict[str, str]]:
     """argv and environment of OMSimulator's command line running ``ssp_path`` to
-    ``stop_time`` into ``result_file`` (CSV). Raises :class:`NotInstalled` without it."""
+    ``stop_time`` into ``result_file`` (CSV). Raises ``NotInstalled`` without it."""
     install = locate()
     if install.cli is None:
         raise NotInstalled(f"OMSimulator's command line was not found: {INSTALL_HINT}")
@@ -234,7 +234,7 @@ def cli_command(ssp_path: str | Path, stop_time: float, result_file: str | Path
 
 def read_cli_result(path: str | Path, system: str, recorded
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Times and the ``recorded`` ports' columns (:class:`delaycomp.system.Port`) of a
+    """Times and the ``recorded`` ports' columns (``delaycomp.system.Port``) of a
     command-line result CSV of the SSD system ``system``. OMSimulator writes each
     communication point twice (before and after the input update): the last row of each
     time is kept, the state our master records."""
@@ -253,7 +253,7 @@ def read_cli_result(path: str | Path, system: str, recorded
 # -- the cross-check -------------------------------------------------------------------------
 
 def missing() -> list[str]:
-    """``[]`` when OMSimulator is found, else why not (for :mod:`delaycomp.verify.check`)."""
+    """``[]`` when OMSimulator is found, else why not (for ``delaycomp.verify.check``)."""
     try:
         locate()
     except NotInstalled as exc:
@@ -262,7 +262,7 @@ def missing() -> list[str]:
 
 
 def provider(cases):
-    """The ``omsimulator`` rows of :mod:`delaycomp.verify.check`: each case's plain archive (no
+    """The ``omsimulator`` rows of ``delaycomp.verify.check``: each case's plain archive (no
     Jacobi variant: OMSimulator orders the feedthrough chain itself) through the Python
     API, against the case's reference trace, with the tolerances of every master."""
     from delaycomp.formats.ssp import loop_system, pack

@@ -24,7 +24,7 @@ step ``h`` of latency. In our loop that concerns
 
 The plant and a delay with ``delay >= h`` have no direct feedthrough (their outputs at
 ``t_k`` depend on inputs before ``t_k``), so those connections add nothing. The resulting
-*Jacobi variant* (:func:`jacobi_variant`) has the same total delays ``r`` and ``tau`` and,
+*Jacobi variant* (``jacobi_variant``) has the same total delays ``r`` and ``tau`` and,
 in any of the three masters (ours included), the same trajectory as the scenario in ours,
 to round-off. It needs ``r >= 2 h``: the shortened measurement delay must keep one base
 step, since without a delay FMU in front of it the controller would read the plant's output
@@ -33,7 +33,7 @@ instead of ``x0``; measured). A scenario with ``r < 2 h`` is refused with a mess
 so.
 
 pythonfmu FMUs run inside the host's interpreter (one per process), so every run happens in
-a fresh Python process (:func:`run_ssp`): a master that crashes, or FMUs of another build
+a fresh Python process (``run_ssp``): a master that crashes, or FMUs of another build
 that share module names, cannot take the caller with them. It costs about 4 s per run
 (interpreter, imports, loading the master); repeated runs of one archive in one process
 measured 0.4-0.8 s each and gave identical results, but nothing guarantees that across
@@ -204,7 +204,7 @@ def pack_jacobi(loop: Loop, out: str | Path, fmu_dir: Path | None = None,
 
 
 def provider(master: str):
-    """A :data:`delaycomp.verify.check.PROVIDERS` entry: each case's Jacobi variant in ``master``,
+    """A ``delaycomp.verify.check.PROVIDERS`` entry: each case's Jacobi variant in ``master``,
     against the case's reference trace."""
 
     def run(cases):

@@ -1,6 +1,6 @@
 """FMU slave: zero-order-hold predictor-controller for an LTI plant (Theorem 3.2).
 
-The maths is :class:`delaycomp.maths.zoh.ZOHController`. See README.md beside this file.
+The maths is ``delaycomp.maths.zoh.ZOHController``. See README.md beside this file.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """FMU slave template: predictor-based controller of a user model (Theorems 2.1 and 3.2).
 
 ``delaycomp build --model FILE.py`` generates a subclass naming the model module. The maths
-is :mod:`delaycomp.maths.nlcontrol`. See README.md beside this file.
+is ``delaycomp.maths.nlcontrol``. See README.md beside this file.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """FMU slave: transport delay ``y(t) = u(t - delay)`` on n channels.
 
-The maths is :class:`delaycomp.maths.delayline.DelayLine`. See README.md beside this file.
+The maths is ``delaycomp.maths.delayline.DelayLine``. See README.md beside this file.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """FMU slave: LTI plant ``x' = A x + B u``, exactly discretized over each step.
 
-The adapter only copies values in and out; the maths is :func:`delaycomp.maths.lti.discretize`.
+The adapter only copies values in and out; the maths is ``delaycomp.maths.lti.discretize``.
 See README.md beside this file for the equations and the variable table.
 """
 

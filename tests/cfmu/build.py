@@ -63,7 +63,7 @@ def build_oscillator(out_dir: Path, name: str = f"{MODEL}.fmu",
     """Compile ``oscillator.c`` and pack the FMU into ``out_dir``; return its path.
     ``broken_after``: a plant that breaks down, its ``position`` NaN from that time on
     (its state and every FMI status as before: only its output is broken).
-    ``misbehave`` (:data:`MISBEHAVIOURS`): at its first ``fmi2DoStep`` from ``after`` on,
+    ``misbehave`` (``MISBEHAVIOURS``): at its first ``fmi2DoStep`` from ``after`` on,
     the plant never returns (``hang``), calls ``exit(0)`` (``exit``) or raises SIGSEGV
     (``crash``)."""
     flags = [*([] if broken_after is None else [f"-DBROKEN_AFTER={broken_after!r}"]),

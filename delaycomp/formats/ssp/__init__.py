@@ -1,8 +1,8 @@
 """SSP 1.0 description of a closed loop: ``SystemStructure.ssd``, ``.ssv`` files, ``.ssp``:
-written by :mod:`.write`, read by :mod:`.read`, unpacked by :mod:`.archive`, on the names
-and values of :mod:`.common`.
+written by ``.write``, read by ``.read``, unpacked by ``.archive``, on the names
+and values of ``.common``.
 
-The SSD and its parameter sets are written from the same :class:`~delaycomp.system.Loop`
+The SSD and its parameter sets are written from the same ``Loop``
 that the master runs, so the two cannot drift apart, and are read back into one.
 This module only does XML; there is no maths here.
 
@@ -15,7 +15,7 @@ Layout of a system (a folder, or the zip archive ``<name>.ssp``)::
 The archive is written so that every SSP tool we know reads it as it is (our master,
 libcosim, Ecos, OMSimulator's Python API and its command line):
 
-- model and system are named by an identifier (:func:`ssd_identifier`: ``example_3_6``; the
+- model and system are named by an identifier (``ssd_identifier``: ``example_3_6``; the
   archive file keeps the loop's name, ``example-3.6.ssp``);
 - the master settings go into three vendor annotations:
 
@@ -26,18 +26,18 @@ libcosim, Ecos, OMSimulator's Python API and its command line):
     ``xmlns:osp`` is declared on the root, as here);
   - ``org.delaycomp.master`` in the default experiment: ``<dc:Master T= N= h= name=>``
     with the recorded signals and one ``<dc:Component element= role= kind= config=
-    choices=>`` per component, what :func:`delaycomp.fmu.cache.source_fmu` needs to rebuild
-    its FMU (namespace :data:`DC_NS`). Components carry no annotation: OMSimulator's schema
+    choices=>`` per component, what ``delaycomp.fmu.cache.source_fmu`` needs to rebuild
+    its FMU (namespace ``DC_NS``). Components carry no annotation: OMSimulator's schema
     check refuses ``ssd:Annotations`` there. (Archives written before kept ``<dc:Fmu>`` in
     each component; they are still read.)
 
 Parameters are bound per component (``<ssd:ParameterBinding source="resources/plant.ssv">``)
 and named by the FMU variable, as libcosim and Ecos expect. Every parameter set of a
-system has the same name (:data:`DEFAULT_SET` unless told otherwise): Ecos applies the set
+system has the same name (``DEFAULT_SET`` unless told otherwise): Ecos applies the set
 named in its ``init()``. The sets hold only Real, Integer and Boolean values, which every
 importer applies: a String parameter with a fixed set of choices (the controller's
 ``mode``, ...) is written as its FMU's Integer twin ``<name>_index`` (1 = the first choice,
-...; see :func:`foreign_parameters`) and read back as the String.
+...; see ``foreign_parameters``) and read back as the String.
 """
 
 from delaycomp.errors import SspError

@@ -1,5 +1,5 @@
 """An ``.ssp`` archive unpacked into a temporary folder, within limits (members, bytes,
-no member outside the folder), its FMUs checked before anything runs (:class:`Archive`).
+no member outside the folder), its FMUs checked before anything runs (``Archive``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from delaycomp.formats.ssp.read import Foreign, System, read_system
 from delaycomp.unpack import MAX_BYTES, MAX_MEMBERS, Budget, TooLarge, extract, measure
 
 #: what an archive may unpack to, with the FMUs inside it: members and bytes (the sizes
-#: the zips declare, which zipfile enforces while extracting; :mod:`delaycomp.unpack`)
+#: the zips declare, which zipfile enforces while extracting; ``delaycomp.unpack``)
 MAX_UNPACKED = MAX_BYTES
 
 

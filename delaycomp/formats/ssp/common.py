@@ -1,6 +1,6 @@
 """What the SSP writer and reader share: the namespaces and the tag helper, the names
 of an archive's parts, parameter values as SSV writes them, the String parameters'
-Integer twins and the header of a system (:class:`SystemInfo`).
+Integer twins and the header of a system (``SystemInfo``).
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def foreign_parameters(params: Mapping[str, Any],
 
 
 def native_parameters(params: dict, choices: dict[str, tuple[str, ...]], where: str) -> dict:
-    """The inverse of :func:`foreign_parameters`: each Integer twin back into its String
+    """The inverse of ``foreign_parameters``: each Integer twin back into its String
     (an index 0 leaves the String to its FMU default, so the String is omitted)."""
     out = {}
     for name, value in params.items():
@@ -191,7 +191,7 @@ class SystemInfo:
 
 def parse_xml(path: Path) -> etree._Element:
     """The root element of the XML file at ``path``; an unreadable file is an
-    :class:`~delaycomp.errors.SspError`."""
+    ``SspError``."""
     try:
         return etree.parse(str(path)).getroot()
     except (OSError, etree.XMLSyntaxError) as exc:
@@ -199,7 +199,7 @@ def parse_xml(path: Path) -> etree._Element:
 
 
 def required_attr(el: etree._Element, name: str, where: str) -> str:
-    """Attribute ``name`` of ``el``; a missing one is an :class:`~delaycomp.errors.SspError`
+    """Attribute ``name`` of ``el``; a missing one is an ``SspError``
     naming ``where``."""
     value = el.get(name)
     if value is None:

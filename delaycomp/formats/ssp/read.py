@@ -1,6 +1,6 @@
-"""Reading SSP 1.0 back into a loop: an SSD and its SSVs (:func:`read_system`), an SSP
-written by another tool (:class:`Foreign`), parameter sets applied to a loop
-(:func:`apply_sets`), the check against the SSP XSDs (:func:`validate`).
+"""Reading SSP 1.0 back into a loop: an SSD and its SSVs (``read_system``), an SSP
+written by another tool (``Foreign``), parameter sets applied to a loop
+(``apply_sets``), the check against the SSP XSDs (``validate``).
 """
 
 from __future__ import annotations
@@ -150,10 +150,10 @@ def _infer_roles(where: str, names: list[str], roles: dict[str, str | None],
 
 
 def read_system(ssd_path: str | Path, foreign: Foreign | None = None) -> System:
-    """Read an SSD written by :func:`write_system` (and its SSVs) back into a loop.
+    """Read an SSD written by ``write_system`` (and its SSVs) back into a loop.
 
     With ``foreign`` an SSD without delaycomp's annotations is read too (an SSP 1.0 of
-    another tool): its master settings and roles come from ``foreign`` (:class:`Foreign`),
+    another tool): its master settings and roles come from ``foreign`` (``Foreign``),
     its components are FMU files as they are, and the recorded signals are the plant's and
     the controller's connected outputs."""
     ssd_path = Path(ssd_path)
@@ -403,7 +403,7 @@ def apply_sets(spec: Loop, assignments: list[str], fmus: dict[str, Path]) -> Loo
 
     The value is parsed as the parameter's type (from the SSV, else the FMU's
     modelDescription); an unknown instance or parameter, or a bad value, raises
-    :class:`SspError`.
+    ``SspError``.
     """
     params = {i.name: dict(i.parameters) for i in spec.instances}
     for text in assignments:

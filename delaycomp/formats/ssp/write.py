@@ -1,5 +1,5 @@
-"""Writing a loop as SSP 1.0: the SSD and its SSVs (:func:`write_system`), the archive
-with its FMUs (:func:`pack`), the paper's scenarios (:func:`pack_scenarios`).
+"""Writing a loop as SSP 1.0: the SSD and its SSVs (``write_system``), the archive
+with its FMUs (``pack``), the paper's scenarios (``pack_scenarios``).
 """
 
 from __future__ import annotations
@@ -166,7 +166,7 @@ def pack(spec: Loop, info: SystemInfo, out: str | Path,
     """Write the archive ``out`` (``.ssp``): the SSD, its SSVs and the FMUs.
 
     The FMUs are taken from ``fmus`` (instance -> path) where given, else from
-    :func:`delaycomp.fmu.cache.source_fmu` (built into ``fmu_dir`` or the cache if missing).
+    ``delaycomp.fmu.cache.source_fmu`` (built into ``fmu_dir`` or the cache if missing).
     """
     from delaycomp.fmu.cache import source_fmu
 
@@ -206,7 +206,7 @@ def write_all(folder: str | Path) -> list[Path]:
 
 def pack_scenarios(out_dir: str | Path, fmu_dir: Path | None = None) -> list[Path]:
     """``out_dir/<scenario>.ssp`` for every scenario at its defaults, and its Jacobi variant
-    ``out_dir/<scenario>-jacobi.ssp`` for libcosim and Ecos (:mod:`delaycomp.verify.thirdparty`).
+    ``out_dir/<scenario>-jacobi.ssp`` for libcosim and Ecos (``delaycomp.verify.thirdparty``).
 
     The FMUs come from ``fmu_dir`` where they are (``delaycomp build`` has just built the
     LTI loop's there) and are otherwise built, two at a time, into the build cache.

@@ -1,4 +1,4 @@
-"""Model modules of the paper's examples, in the format of :mod:`delaycomp.maths.model`.
+"""Model modules of the paper's examples, in the format of ``delaycomp.maths.model``.
 
 Each is an ordinary model file, built into FMUs exactly like a user's ``--model FILE.py``.
 """

@@ -59,7 +59,7 @@ def predictor(x, segments, p):
 
 def step(x, u, h, p):
     """The predictor over one segment: its terms with ``U = 0`` at the start (the same
-    arithmetic as :func:`predictor` of one segment), for a point or a batch, and without
+    arithmetic as ``predictor`` of one segment), for a point or a batch, and without
     ``float()``, so that delaycomp.fmu.translate traces it."""
     x1, x2, x3 = x
     v, d = u[0], h

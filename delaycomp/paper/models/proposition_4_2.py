@@ -52,7 +52,7 @@ def corrected(x1, x2, x3, T):
     """The corrected law at a point.
 
     Written so that delaycomp.fmu.translate traces it: the three sets are chosen with
-    :func:`~delaycomp.paper.models.unicycle.select` (``np.where`` for symbols), not ``if``, and
+    ``select`` (``np.where`` for symbols), not ``if``, and
     ``min`` is a ``select`` too; ``math``'s functions stay. Every set's values are computed
     as before (``1 - cos a``, the first set's denominator, is replaced by 1 where that set
     is not taken: ``x2 = 0`` must not divide by zero): the set taken gives the same
@@ -70,7 +70,7 @@ def corrected(x1, x2, x3, T):
 def printed(x1, x2, x3, T):
     """(4.9) in the order C3, C2, C1 with a scaled tolerance; then (4.10)-(4.11).
 
-    The sets are chosen with :func:`~delaycomp.paper.models.unicycle.select`, not ``if``, so
+    The sets are chosen with ``select``, not ``if``, so
     that delaycomp.fmu.translate traces it; C2's denominator is replaced by 1 where C2 is not
     taken (``x1 = x3 = 0`` must not divide by zero): the set taken gives the same numbers
     as the former ``if`` version, bit for bit."""
@@ -86,7 +86,7 @@ def printed(x1, x2, x3, T):
 
 
 def corrected_batch(x1, x2, x3, T):
-    """:func:`corrected` for arrays of points (the same sets, chosen with ``np.where``)."""
+    """``corrected`` for arrays of points (the same sets, chosen with ``np.where``)."""
     tol = SET_TOL * np.maximum(1.0, np.sqrt(x1 * x1 + x2 * x2 + x3 * x3))
     c1 = np.abs(x2) > tol
     c2 = ~c1 & (np.abs(x1) > tol)
@@ -98,7 +98,7 @@ def corrected_batch(x1, x2, x3, T):
 
 
 def printed_batch(x1, x2, x3, T):
-    """:func:`printed` for arrays of points."""
+    """``printed`` for arrays of points."""
     sq = x1 * x1 + x2 * x2 + x3 * x3
     lin, quad = SET_TOL * np.maximum(1.0, np.sqrt(sq)), SET_TOL * np.maximum(1.0, sq)
     c3 = np.abs(2 * x2 - x1 * x3) <= quad
