@@ -21,6 +21,7 @@ Each PNG gets the text chunks ``delaycomp command`` (the command, as a user type
 from __future__ import annotations
 
 import argparse
+import ast
 import contextlib
 import hashlib
 import os
@@ -103,12 +104,19 @@ VERSION_KEY = "delaycomp version"
 
 
 def plotting_digest(root: Path = REPO) -> str:
-    """SHA-256 of ``DRAWING_SOURCES`` (each file's path and its text with ``\\n``
-    line ends, so a checkout's line-end conversion does not change it)."""
+    """SHA-256 of the code of ``DRAWING_SOURCES``: each file's path and its syntax tree
+    without docstrings (``ast.dump``), so a change of what is drawn changes it and a
+    change of the words around it (docstrings, comments, layout, line ends) does not."""
     digest = hashlib.sha256()
     for rel in DRAWING_SOURCES:
-        text = (root / rel).read_bytes().replace(b"\r\n", b"\n")
-        digest.update(rel.encode() + b"\0" + text + b"\0")
+        tree = ast.parse((root / rel).read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            body = getattr(node, "body", None)
+            if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                    and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str):
+                node.body = body[1:] or [ast.Pass()]  # type: ignore[attr-defined]
+        digest.update(rel.encode() + b"\0" + ast.dump(tree).encode() + b"\0")
     return digest.hexdigest()
 
 

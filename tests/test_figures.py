@@ -80,7 +80,8 @@ def test_the_hero_figure_is_the_first_commands_run():
 
 
 def test_the_digest_follows_the_plotting_code(tmp_path):
-    """Any change of a drawing source changes the digest; line ends do not."""
+    """Any change of a drawing source's code changes the digest; line ends, comments and
+    docstrings do not."""
     for rel in figures.DRAWING_SOURCES:
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_bytes((REPO / rel).read_bytes())
@@ -91,6 +92,10 @@ def test_the_digest_follows_the_plotting_code(tmp_path):
     source.write_bytes(text.replace(b"\n", b"\r\n"))
     assert figures.plotting_digest(tmp_path) == today
     source.write_bytes(text + b"# one more line\n")
+    assert figures.plotting_digest(tmp_path) == today
+    source.write_bytes(text.replace(b'"""', b'"""Reworded. ', 1))
+    assert figures.plotting_digest(tmp_path) == today
+    source.write_bytes(text + b"LINEAR_RATIO = 5.0\n")
     assert figures.plotting_digest(tmp_path) != today
 
 
