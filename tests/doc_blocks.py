@@ -4,7 +4,9 @@ A page's fenced blocks, in order, each one of:
 
 - ``python``: executed, the page's blocks sharing one namespace, in a work folder that
   holds the repository's ``docs/examples`` (paths on the pages are from the checkout's
-  root) and, as ``myloop.toml``, ``docs/examples/myloop.toml`` (the pages' "your loop");
+  root), as ``myloop.toml``, ``docs/examples/myloop.toml`` (the pages' "your loop"),
+  and as ``.venv`` the running interpreter's environment (the README's
+  ``.venv/bin/delaycomp``);
 - ``sh`` / ``bash``: run by bash (``set -e``) in the same folder, with the ``delaycomp``
   and ``python`` of the running interpreter first on ``PATH`` (and OMSimulator's
   ``bin/`` where ``DELAYCOMP_OMSIMULATOR`` names it);
@@ -148,6 +150,8 @@ def run_page(page: Path, work: Path) -> dict:
     shutil.copytree(REPO / "docs" / "examples", work / "docs" / "examples",
                     dirs_exist_ok=True)
     shutil.copy(REPO / "docs" / "examples" / "myloop.toml", work / "myloop.toml")
+    if not (work / ".venv").exists():  # the README's commands: .venv/bin/delaycomp
+        (work / ".venv").symlink_to(Path(sys.prefix), target_is_directory=True)
     namespace: dict = {"__name__": "__doc_page__"}
     printed = None
     summary: dict = {"run": [], "skipped": [], "outputs": 0}

@@ -69,3 +69,23 @@ def test_a_page_that_drifted_fails(tmp_path):
         "double *y", "const double *y"), encoding="utf-8")
     (tmp_path / "right").mkdir()
     assert run_page(page, tmp_path / "right")["outputs"] == 1
+
+
+@pytest.mark.fmu
+def test_the_readmes_path_runs_as_a_new_user_would_take_it(tmp_path, monkeypatch):
+    """The README's code (issue 27: README -> first command -> own loop file -> own
+    controller FMU): the loop file it shows is ``docs/examples/myloop.toml``, and every
+    command after the set-up runs on it (build, export-c, run --compare, critical-delay,
+    sweep, ssp, the Python example). The first command runs in ``.ci/wheel-smoke``."""
+    monkeypatch.setenv("DELAYCOMP_PLATFORMS", "")
+    readme = REPO / "README.md"
+    toml = next(b for b in blocks(readme) if b.lang == "toml")
+    assert toml.mark == "file" and toml.arg == "myloop.toml"
+    assert toml.body == (REPO / "docs" / "examples" / "myloop.toml").read_text(encoding="utf-8")
+    summary = run_page(readme, tmp_path)
+    assert [w for w, _ in summary["skipped"]] == [
+        b.where for b in blocks(readme) if b.mark == "skip"]
+    assert len(summary["skipped"]) == 3
+    assert (tmp_path / "fmus" / "myloop_controller.fmu").is_file()
+    assert (tmp_path / "firmware" / "ctl.c").is_file()
+    assert (tmp_path / "both.png").is_file() and (tmp_path / "own_plant.png").is_file()
