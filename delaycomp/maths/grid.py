@@ -262,23 +262,27 @@ def zoh_alternatives(value: float, period: float) -> str:
     return text + f", or T = {' or '.join(periods_near)} (tau/l)"
 
 
-def periods(value: float, period: float, name: str = "tau", padding: bool = False) -> int:
+def periods(value: float, period: float, name: str = "tau", padding: bool = False,
+            hints: bool = False) -> int:
     """``l`` with ``value = l period``, ``l >= 0``: under zero-order hold the input delay
     is a whole number of sampling periods (Theorem 3.2, ``tau = l T``), up to round-off as
     ``split`` decides it.
 
     The rule and its message, written once: the typed loop
     (``delaycomp.system.loop.check_zoh_delay``), the scenarios, the batch engine and
-    the controllers (the FMUs, whose C twins log the first words) call it. The message
-    is one line that tells the fix: the nearest allowed ``tau`` (multiples of ``T``) and
-    ``T`` (``tau / l``, for a sweep over ``T``), and where the caller can pad, that
-    ``pad = true`` accepts ``tau`` as it is.
+    the controllers (the FMUs) call it. The message is one line; with ``hints`` (the
+    typed loop's and the batch engine's checks, which the commands report) it tells the
+    fix: the nearest allowed ``tau`` (multiples of ``T``) and ``T`` (``tau / l``, for a
+    sweep over ``T``), and where the caller can pad, that ``pad = true`` accepts ``tau``
+    as it is. The FMUs log the short form, word for word what their C twins log.
 
     Parameters
     ----------
     padding : bool
         The caller could pad the delay up (Remark 3.3(b)): the message says how, and to
         what.
+    hints : bool
+        Name the nearest allowed values and how to pad (else the FMUs' short form).
 
     Raises
     ------
@@ -292,7 +296,7 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
     3
     >>> for padding in (False, True):
     ...     try:
-    ...         periods(2.5, 1.0, padding=padding)
+    ...         periods(2.5, 1.0, padding=padding, hints=True)
     ...     except ValueError as exc:
     ...         for part in re.split(r"(?<=:) (?=the)|; | (?=accepts)", str(exc)):
     ...             print(part)
@@ -310,6 +314,10 @@ def periods(value: float, period: float, name: str = "tau", padding: bool = Fals
             return q
     text = (f"{name} = {value!r} is not allowed: zero-order hold needs a multiple l*T "
             f"(l >= 0) of T = {period!r}")
+    if not hints:
+        if padding and usable:
+            text += f"; pad = true pads it up to {(q + 1) * period!r} (Remark 3.3(b))"
+        raise ValueError(text)
     if usable:
         text += f": {zoh_alternatives(value, period)}"
     if padding and usable:

@@ -522,7 +522,7 @@ def _lti_plan(d: LtiBatch, N: int, stop: float) -> _LtiPlan:
     Dt = _ticks("tau_true", d.tau_true, h)
     for p in _unique_rows(d.tau, T)[0]:
         try:
-            zoh_periods(float(d.tau[p]), float(T[p]))
+            zoh_periods(float(d.tau[p]), float(T[p]), hints=True)
         except ValueError as exc:
             raise BatchError(f"{exc} (point {p})") from None
     # exact discretization, once per distinct (A, B, h)
@@ -992,7 +992,7 @@ def _model_plan(model, pts: ModelBatch, N: int, stop: float, pad: bool) -> _Mode
         if not pad and np.any(tau_eff != tau):
             i = int(np.flatnonzero(tau_eff != tau)[0])
             try:
-                zoh_periods(float(tau[i]), float(T[i]), padding=True)
+                zoh_periods(float(tau[i]), float(T[i]), padding=True, hints=True)
             except ValueError as exc:
                 raise BatchError(str(exc)) from None
         Dpad = _ticks("padding", tau_eff - tau, h)

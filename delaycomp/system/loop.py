@@ -433,7 +433,7 @@ def check_zoh_delay(tau: float, T: float, padding: bool = False) -> None:
     a model with ``control = "zoh"`` unless it pads); ``padding``: the message says what
     ``pad = true`` gives."""
     try:
-        grid.periods(tau, T, "parameter tau", padding)
+        grid.periods(tau, T, "parameter tau", padding, hints=True)
     except ValueError as exc:
         raise ParameterError(str(exc)) from None
 
