@@ -272,13 +272,14 @@ def _children_with(folder: Path, marker: str) -> list[int]:
     return found
 
 
-def interrupt(args, cwd: Path, started, after: float = 0.0, timeout: float = 120):
-    """Start ``delaycomp ARGS`` in a process group of its own, wait until ``started()``
-    says it has (polled), then ``after`` seconds more, and send SIGINT to the group as a
-    terminal's Ctrl-C does; the exit status and standard error."""
+def interrupt(args, cwd: Path, started, after: float = 0.0, timeout: float = 120,
+              env: dict | None = None):
+    """Start ``delaycomp ARGS`` in a process group of its own (with ``env``), wait until
+    ``started()`` says it has (polled), then ``after`` seconds more, and send SIGINT to the
+    group as a terminal's Ctrl-C does; the exit status and standard error."""
     proc = subprocess.Popen([sys.executable, "-m", "delaycomp", *args], cwd=cwd,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, env=env)
     try:
         deadline = time.monotonic() + timeout
         while not started() and time.monotonic() < deadline:
@@ -413,20 +414,9 @@ def test_ctrl_c_during_a_build_is_one_line(tmp_path):
     out = tmp_path / "fmus"
     env_cache = tmp_path / "cache"
     proc_env = {**os.environ, "DELAYCOMP_CACHE_DIR": str(env_cache)}
-    proc = subprocess.Popen([sys.executable, "-m", "delaycomp", "build", "--out", str(out)],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True, env=proc_env)
-    try:
-        deadline = time.monotonic() + 120
-        while not (out.exists() and any(out.iterdir())) and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.01)
-        assert proc.poll() is None, proc.communicate()  # the first FMU is out, more to come
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, err
+    # interrupted once the first FMU is out, more to come
+    returncode, err = interrupt(["build", "--out", str(out)], tmp_path,
+                                lambda: out.exists() and any(out.iterdir()), env=proc_env)
+    assert returncode == 130, err
     assert "Traceback" not in err and "error" not in err, err
     assert err.strip().splitlines()[-1] == "delaycomp: interrupted"
