@@ -303,8 +303,16 @@ def _fmu_kind(fmus: str) -> None:
                              f"{', '.join(FMU_KINDS)}")
 
 
+def _fmi_version(fmi) -> int:
+    if fmi not in (2, 3) or isinstance(fmi, bool):
+        raise ParameterError(f"fmi = {short(fmi)} is not allowed: must be 2 or 3 (the FMI "
+                             "version of delaycomp's FMUs)")
+    return int(fmi)
+
+
 def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None = None,
-                engine: str = "fmu") -> tuple[dict[str, Path] | None, str | None]:
+                engine: str = "fmu", fmi: int = 2
+                ) -> tuple[dict[str, Path] | None, str | None]:
     """The FMU files a run of ``loop`` uses, and why not the native ones where it could
     have: ``(files, why)``, ``files`` ``None`` for the Python FMUs of the build cache.
 
@@ -314,6 +322,10 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     ``python`` the Python ones. ``engine="inprocess"`` runs no FMU files. Native FMUs are
     built into ``fmu_dir/native``; ``run`` and the command line choose through here.
 
+    ``fmi=3``: FMI 3.0 native FMUs (``delaycomp.fmu.fmi3``; native only: ``auto`` is
+    ``native``), built into ``fmu_dir/native/fmi3``; a user's FMU file of the loop (another
+    tool's FMI 2.0 plant) runs beside them as it is.
+
     Examples
     --------
     >>> loop = lti([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, x0=[1.0])
@@ -321,7 +333,13 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     (None, None)
     """
     _fmu_kind(fmus)
+    fmi = _fmi_version(fmi)
     loop = _as_loop(loop)
+    if fmi == 3 and (engine != "fmu" or fmus == "python"):
+        raise ParameterError(f"fmi = 3 is not allowed with "
+                             f"{'fmus = python' if engine == 'fmu' else 'engine = ' + engine}"
+                             ": delaycomp's FMI 3.0 FMUs are the native C ones (engine = "
+                             "fmu, fmus = native or auto)")
     if engine != "fmu":
         if fmus == "native":
             raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
@@ -332,8 +350,8 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     from delaycomp.fmu.native import native_fmus, native_or_why
 
     native_dir = Path(fmu_dir) / "native" if fmu_dir else None
-    if fmus == "native":
-        return native_fmus(loop, native_dir), None
+    if fmus == "native" or fmi == 3:
+        return native_fmus(loop, native_dir, fmi), None
     return native_or_why(loop, native_dir)
 
 
@@ -341,7 +359,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         fmu_dir: str | Path | None = None, fmus: str | Mapping[str, Path] = "auto",
         every: int = 1, sink=None, keep: bool = True, progress=None,
         watchdog: float | None = None,
-        sets: Sequence[str] | Mapping[str, object] = ()) -> Result:
+        sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (``FMU_KINDS``): with the FMU engine, the native C
@@ -364,6 +382,9 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     ``loop`` is a ``Loop``, a loop file's path or a scenario's name, with ``sets``
     (``["r=0.4"]`` or ``{"r": 0.4}``) as ``load`` takes them.
 
+    ``fmi=3`` runs delaycomp's FMUs as FMI 3.0 native FMUs (``choose_fmus``): the same
+    numbers, bit for bit, as the FMI 2.0 ones.
+
     Examples
     --------
     >>> res = run("example-3.6", 5.0, engine="inprocess", sets={"r": 0.5})
@@ -384,7 +405,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     if isinstance(fmus, Mapping):
         chosen, why = dict(fmus), None
     else:
-        chosen, why = choose_fmus(loop, fmus, fmu_dir, engine)
+        chosen, why = choose_fmus(loop, fmus, fmu_dir, engine, fmi)
     result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine,
                       fmus=chosen, every=every, sink=sink, keep=keep, progress=progress,
                       watchdog=watchdog)
@@ -406,7 +427,7 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
 
 def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
           fmus: str = "auto", info: Callable[[str], None] | None = None,
-          sets: Sequence[str] | Mapping[str, object] = ()):
+          sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2):
     """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
     (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
     ``<name>_input_delay.fmu``) with the loop's values as their start values, and
@@ -430,6 +451,9 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
         Hears what is being built, one line at a time (the command line's ``-v``).
     sets : sequence of str or mapping, optional
         Overrides, as ``load`` takes them.
+    fmi : int, optional
+        2 (default) or 3: FMI 3.0 FMUs (native C only, ``delaycomp.fmu.fmi3``: the
+        matrices and vectors as arrays sized by structural parameters).
 
     Returns
     -------
@@ -448,7 +472,11 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     """
     from delaycomp.formats.loopbuild import build_loop
 
-    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info)
+    fmi = _fmi_version(fmi)
+    if fmi == 3 and fmus == "python":
+        raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
+                             "FMUs are the native C ones")
+    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info, fmi=fmi)
 
 
 def export_c(loop: LoopLike, out: str | Path, prefix: str, *,

@@ -272,6 +272,8 @@ def _build_parser(sub) -> None:
     b.add_argument("--model", type=Path, default=None, metavar="FILE.py",
                    help="build plant, controller and delay FMUs for this model module "
                         "(docs: reference/model-files)")
+    _fmi_flag(b, "build FMI 3.0 FMUs (native C only; without LOOP.toml the FMUs alone, no "
+                 "SSP archives)")
 
 
 def _run_parser(sub) -> None:
@@ -309,6 +311,8 @@ def _run_parser(sub) -> None:
     _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
                  "runs them where it can); with --fmu-dir DIR they are built into "
                  "DIR/native")
+    _fmi_flag(r, "run delaycomp's FMUs as FMI 3.0 FMUs (native C only; a loop's own FMU "
+                 "file, e.g. another tool's FMI 2.0 plant, runs beside them as it is)")
     r.add_argument("--watchdog", type=float, default=None, metavar="SECONDS",
                    help="an FMU file of another tool (run in a child process) may take "
                         "this long per call before the run is stopped (default: 10 s, or "
@@ -476,6 +480,22 @@ def _fmu_kind(p: argparse.ArgumentParser, native_help: str) -> None:
                            "reference/native) instead of the native default")
 
 
+def _fmi_flag(p: argparse.ArgumentParser, what: str) -> None:
+    """``--fmi {2,3}``: the FMI version of delaycomp's FMUs (docs: reference/fmi3)."""
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help=f"the FMI version of delaycomp's FMUs (default 2); 3: {what}; "
+                        "docs: reference/fmi3")
+
+
+def _fmi_of(args) -> int:
+    """The ``--fmi`` of a command, checked against ``--python``."""
+    fmi = getattr(args, "fmi", 2)
+    if fmi == 3 and getattr(args, "python", False):
+        raise UsageError("--fmi 3 is not allowed with --python: delaycomp's FMI 3.0 FMUs are "
+                         "the native C ones")
+    return fmi
+
+
 def _chosen_fmus(args, loop) -> dict | None:
     """The FMUs a command uses for ``loop`` (``_fmu_kind``): native ones, or ``None`` for
     the Python FMUs of the build cache."""
@@ -486,7 +506,7 @@ def _chosen_fmus(args, loop) -> dict | None:
 
     kind = "python" if args.python else "native" if args.native else "auto"
     try:
-        fmus, why = choose_fmus(loop, kind, args.fmu_dir)
+        fmus, why = choose_fmus(loop, kind, args.fmu_dir, fmi=_fmi_of(args))
     except ValueError as exc:  # --native for a loop without native twins
         raise UsageError(str(exc)) from None
     if why:
@@ -538,7 +558,7 @@ def _cmd_build_loop(args) -> int:
     kind = "python" if args.python else "native" if args.native else "auto"
     built = build(loop, args.out if args.out is not None else Path.cwd(),
                   only=args.only or None, fmus=kind,
-                  info=lambda text: info(text, args.verbosity))
+                  info=lambda text: info(text, args.verbosity), fmi=_fmi_of(args))
     for path in built.paths:
         print(path)
     return 0
@@ -566,11 +586,12 @@ def _cmd_build(args) -> int:
              args.verbosity)
 
     paths: list[Path] | None = None
-    if args.native:
+    fmi = _fmi_of(args)
+    if args.native or fmi == 3:
         # no compiler: one line naming what to install; a model that does not translate:
         # one line naming the function, the operation and the line
-        paths = build_native_model(args.model, args.out) if args.model else \
-            build_native(args.out)
+        paths = build_native_model(args.model, args.out, fmi) if args.model else \
+            build_native(args.out, fmi)
     elif args.model:
         from delaycomp.maths.model import load_model
 
@@ -715,8 +736,9 @@ def _cmd_run(args) -> int:
     from delaycomp.plotting import UNITS_BY_LOOP
 
     if args.engine != "fmu":  # the Python FMUs' slaves, called in this process
-        if args.native:
-            raise UsageError("--native runs FMUs: --engine inprocess is not allowed with it")
+        if args.native or args.fmi == 3:
+            raise UsageError(f"{'--native' if args.native else '--fmi 3'} runs FMUs: "
+                             "--engine inprocess is not allowed with it")
         fmus = None
         other_fmus = {}
     else:

@@ -1,13 +1,22 @@
-"""An FMI 2.0 co-simulation FMU as a master component, through fmpy."""
+"""An FMI 2.0 or FMI 3.0 co-simulation FMU as a master component, through fmpy.
+
+FMI 3.0 (``fmiVersion="3.0"``, fmpy's ``FMU3Slave``): the master addresses variables by
+their FMI 2.0 names as everywhere else. Inputs and outputs are scalar ``Float64``
+variables (an FMU with array inputs or outputs is refused, naming one); a parameter named
+as an element of an array variable (``A[2,1]``: row 2, column 1, from 1, as FMI 2.0 FMUs
+name their scalars) is set with the rest of its array in one ``fmi3SetFloat64`` (the
+elements not given keep their start values); ``Integer`` is ``Int32``.
+"""
 
 from __future__ import annotations
 
 import atexit
 import itertools
+import re
 import shutil
 import weakref
 from collections.abc import Callable, Sequence
-from ctypes import byref, c_double, c_int, c_size_t, c_void_p
+from ctypes import byref, c_bool, c_double, c_int, c_size_t, c_void_p
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -24,7 +33,7 @@ from fmpy.fmi2 import (
     fmi2ValueReference,
 )
 
-from delaycomp.errors import DelaycompError
+from delaycomp.errors import DelaycompError, ParameterError
 from delaycomp.orchestrator.master import ComponentBase, interrupt_held
 from delaycomp.tmpfiles import mkdtemp
 from delaycomp.unpack import extract
@@ -34,6 +43,7 @@ if TYPE_CHECKING:
 
 FATAL = 4
 _TRUE = c_int(1)  # fmi2True
+_TRUE3 = c_bool(True)  # fmi3True
 #: Callback structures handed to FMUs. The pythonfmu runtime outlives ``fmi2FreeInstance``
 #: (it keeps a thread and its interpreter state until the library is unloaded at exit), so a
 #: callback freed with its component can be called after the fact: keep them all alive.
@@ -42,6 +52,8 @@ _KEEPALIVE: list = []
 #: to their component by the componentEnvironment pointer the FMU passes back.
 _COMPONENTS: dict[int, weakref.ReferenceType] = {}
 _ENV_IDS = itertools.count(1)
+#: FMI 2.0 names whose FMI 3.0 function is named otherwise
+_FMI3_NAMES = {"GetReal": "GetFloat64", "SetReal": "SetFloat64"}
 #: An FMI function of one instance as ``FmuComponent._raw`` returns it: the bare ctypes
 #: function (it returns the fmi2Status) and the instance pointer to pass it first.
 _RawCall = tuple[Callable[..., int], c_void_p]
@@ -64,6 +76,24 @@ def _route(env, instance_name, status, category, message):
 
 
 _DISPATCH = fmi2CallbackLoggerTYPE(_route)
+
+
+def _route3(env, status, category, message):
+    _route(env, None, status, category, message)
+
+
+def _dispatch3():
+    from fmpy.fmi3 import fmi3LogMessageCallback
+
+    global _DISPATCH3
+    if _DISPATCH3 is None:
+        _DISPATCH3 = fmi3LogMessageCallback(_route3)
+    return _DISPATCH3
+
+
+_DISPATCH3 = None
+#: an element of an array variable, as FMI 2.0 FMUs name their scalars: A[2,1]
+_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
 
 
 #: FMUs unpacked in this process, by (path, modification time, size): unpacking costs
@@ -120,8 +150,13 @@ def interface(md: ModelDescription, path: Path
     Raises ``ValueError`` for an FMU without co-simulation."""
     if md.coSimulation is None:
         raise ValueError(f"{path.name} is not a co-simulation FMU")
-    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
-    outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    ports = [v for v in md.modelVariables if v.causality in ("input", "output")]
+    arrays = [v.name for v in ports if getattr(v, "dimensions", None)]
+    if arrays:
+        raise ValueError(f"{path.name}: {arrays[0]} is an array input or output: the master "
+                         "connects scalar ports only (FMI 3.0 arrays as parameters are fine)")
+    inputs = [v.name for v in ports if v.causality == "input"]
+    outputs = [v.name for v in ports if v.causality == "output"]
     feedthrough = frozenset(
         u.variable.name for u in md.outputs
         if u.dependencies is None or any(d.causality == "input" for d in u.dependencies))
@@ -150,6 +185,8 @@ class FmuComponent(ComponentBase):
         (self.input_names, self.output_names, self.feedthrough_outputs,
          self.runs_python) = interface(self.md, self.path)
         self._vars = {v.name: v for v in self.md.modelVariables}
+        #: an FMI 3.0 FMU (fmpy's FMU3Slave; the FMI calls under their 3.0 names)
+        self.fmi3 = (self.md.fmiVersion or "").startswith("3")
         self.messages: list[str] = []
         self.last_message: str | None = None
         #: worst status an FMI call of this instance returned (0 = ok .. 4 = fatal)
@@ -162,6 +199,10 @@ class FmuComponent(ComponentBase):
         self._do_step_fn: _RawCall | Literal[False] | None = None
         self._env_id = next(_ENV_IDS)
         _COMPONENTS[self._env_id] = weakref.ref(self)
+
+    def _fn(self, name: str) -> str:
+        """The FMI function ``name`` (FMI 2.0's: ``GetReal``) of this FMU's version."""
+        return "fmi3" + _FMI3_NAMES.get(name, name) if self.fmi3 else "fmi2" + name
 
     # -- logging -----------------------------------------------------------------------
     def _logger(self, status, message):
@@ -195,12 +236,19 @@ class FmuComponent(ComponentBase):
         """Instantiate the FMU, set up the experiment from ``start_time`` to ``stop_time``
         (with ``tolerance`` where one is given: ``toleranceDefined = true``), enter
         initialization mode and set the ``parameters`` (by variable name)."""
-        fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                        modelIdentifier=self.md.coSimulation.modelIdentifier,
-                        instanceName=self.name)
+        if self.fmi3:
+            from fmpy.fmi3 import FMU3Slave as Slave
+        else:
+            Slave = FMU2Slave
+        fmu = Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                    modelIdentifier=self.md.coSimulation.modelIdentifier,
+                    instanceName=self.name)
         try:
             with interrupt_held():
-                fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+                if self.fmi3:
+                    self._instantiate3(fmu)
+                else:
+                    fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
         except Exception:
             fmu.freeLibrary()
             self.worst_status = FATAL
@@ -208,6 +256,11 @@ class FmuComponent(ComponentBase):
         self.fmu = fmu
         self._do_step_fn = None
         try:
+            if self.fmi3:
+                fmu.enterInitializationMode(tolerance=self.tolerance, startTime=start_time,
+                                            stopTime=stop_time)
+                self._set_parameters3(parameters)
+                return
             fmu.setupExperiment(tolerance=self.tolerance, startTime=start_time,
                                 stopTime=stop_time)
             fmu.enterInitializationMode()
@@ -217,10 +270,79 @@ class FmuComponent(ComponentBase):
             self._failed(exc)
             raise
 
+    def _instantiate3(self, fmu) -> None:
+        """An FMI 3.0 FMU instantiated for co-simulation without event mode, its log routed
+        to this component (the instance environment: fmpy's ``instantiate`` passes none)."""
+        from fmpy.fmi3 import (
+            fmi3Boolean,
+            fmi3InstanceEnvironment,
+            fmi3IntermediateUpdateCallback,
+            fmi3ValueReference,
+        )
+
+        resources = str(Path(self._unzipdir) / "resources") + "/"
+        fmu.component = fmu.fmi3InstantiateCoSimulation(
+            self.name.encode("utf-8"), self.md.guid.encode("utf-8"), resources.encode("utf-8"),
+            fmi3Boolean(False), fmi3Boolean(True), fmi3Boolean(False), fmi3Boolean(False),
+            (fmi3ValueReference * 0)(), 0, fmi3InstanceEnvironment(self._env_id),
+            _dispatch3(), fmi3IntermediateUpdateCallback())
+        if not fmu.component:
+            raise FmuRefused(self.last_message or f"{self.path.name}: "
+                             "fmi3InstantiateCoSimulation failed")
+
+    def _set_parameters3(self, parameters: dict) -> None:
+        """An FMI 3.0 FMU's parameters: an element of an array (``A[2,1]``) goes into its
+        array (the others keep their start values), set whole in one call."""
+        arrays: dict[str, list] = {}
+        for pname, value in parameters.items():
+            element = _ELEMENT.match(pname)
+            var = self._vars.get(element.group(1)) if element else None
+            if element and var is not None and var.dimensions:
+                values = arrays.setdefault(var.name, self._array_start(var))
+                values[self._flat_index(var, element.group(2), pname)] = value
+            else:
+                self._set_parameter(pname, value)
+        for aname, values in arrays.items():
+            self._set_parameter(aname, values)
+
+    @staticmethod
+    def _array_start(var) -> list:
+        count = 1
+        for extent in var.shape:
+            count *= extent
+        start = (var.start or "").split()
+        return [float(v) for v in start] if len(start) == count else [0.0] * count
+
+    def _flat_index(self, var, indices: str, name: str) -> int:
+        """The row-major position of ``name``'s element in the array ``var``."""
+        index = [int(i) for i in indices.split(",")]
+        if len(index) != len(var.shape) or not all(1 <= i <= e for i, e in
+                                                    zip(index, var.shape)):
+            raise ParameterError(f"{self.name}.{name} is not allowed: {var.name} has shape "
+                                 f"{' x '.join(map(str, var.shape))} (indices from 1)")
+        flat = 0
+        for i, extent in zip(index, var.shape):
+            flat = flat * extent + (i - 1)
+        return flat
+
     def _set_parameter(self, name: str, value) -> None:
         var = self._var(name)
         vr = [var.valueReference]
         assert self.fmu is not None  # called by setup() once it is instantiated
+        if self.fmi3:
+            values = value if isinstance(value, list) else [value]
+            setter = {"Float64": self.fmu.setFloat64, "Float32": self.fmu.setFloat32,
+                      "Int32": self.fmu.setInt32, "Int64": self.fmu.setInt64,
+                      "Enumeration": self.fmu.setInt64, "Boolean": self.fmu.setBoolean,
+                      "String": self.fmu.setString}.get(var.type)
+            if setter is None:
+                raise ParameterError(f"{self.name}.{name} is not allowed: a {var.type} "
+                                     "variable (the master sets Float, Int32, Int64, "
+                                     "Boolean and String parameters)")
+            cast_to = {"Boolean": bool, "String": str}.get(
+                var.type, float if var.type.startswith("Float") else int)
+            setter(vr, [cast_to(v) for v in values])
+            return
         if var.type == "Real":
             self.fmu.setReal(vr, [float(value)])
         elif var.type in ("Integer", "Enumeration"):
@@ -282,18 +404,19 @@ class FmuComponent(ComponentBase):
 
         def read():
             if not raw:
-                raw.append(self._raw("fmi2GetReal"))
+                raw.append(self._raw(self._fn("GetReal")))
             fast = raw[0]
             if fast is None:
                 try:
-                    out = self.fmu.getReal(vrs)
+                    out = (self.fmu.getFloat64 if self.fmi3 else self.fmu.getReal)(vrs)
                 except FMICallException as exc:
                     self._failed(exc)
                     raise
             else:
-                status = fast[0](fast[1], vr_array, count, values)
+                status = (fast[0](fast[1], vr_array, count, values, count) if self.fmi3
+                          else fast[0](fast[1], vr_array, count, values))
                 if status > 1:
-                    self._raise("fmi2GetReal", status)
+                    self._raise(self._fn("GetReal"), status)
                 out = list(values)
             if self.worst_status >= 3:  # it logged an error computing them: do not use them
                 raise FmuRefused(self.last_message or "the FMU logged an error")
@@ -312,43 +435,79 @@ class FmuComponent(ComponentBase):
 
         def write(values):
             if not raw:
-                raw.append(self._raw("fmi2SetReal"))
+                raw.append(self._raw(self._fn("SetReal")))
             fast = raw[0]
             if fast is None:
                 try:
-                    self.fmu.setReal(vrs, values)
+                    (self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal)(vrs, values)
                 except FMICallException as exc:
                     self._failed(exc)
                     raise
                 return
             buffer[:] = values
-            status = fast[0](fast[1], vr_array, count, buffer)
+            status = (fast[0](fast[1], vr_array, count, buffer, count) if self.fmi3
+                      else fast[0](fast[1], vr_array, count, buffer))
             if status > 1:
-                self._raise("fmi2SetReal", status)
+                self._raise(self._fn("SetReal"), status)
         return write
 
     def do_step(self, t: float, h: float) -> None:
-        """``fmi2DoStep`` from ``t`` to ``t + h`` (through the bare function where it can)."""
+        """``fmi2DoStep`` (``fmi3DoStep``) from ``t`` to ``t + h`` (through the bare
+        function where it can). An FMI 3.0 FMU that asks to end the simulation
+        (``terminateSimulation``) or returns early is refused (the master's ticks are
+        exact)."""
         fast = self._do_step_fn
         if fast is None:
-            fast = self._do_step_fn = self._raw("fmi2DoStep") or False
+            fast = self._do_step_fn = self._raw(self._fn("DoStep")) or False
         if fast is False:
             assert self.fmu is not None  # after setup()
             try:
-                self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+                out = self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
             except FMICallException as exc:
                 self._failed(exc)
                 raise
+            if self.fmi3:
+                self._step3_flags(t, h, out[1], out[2])
+            return
+        if self.fmi3:
+            refs = self._flag_refs
+            flags = self._flags
+            status = fast[0](fast[1], c_double(t), c_double(h), _TRUE3, *refs)
+            if status > 1:
+                self._raise("fmi3DoStep", status)
+            if flags[1].value or flags[2].value:
+                self._step3_flags(t, h, flags[1].value, flags[2].value)
             return
         status = fast[0](fast[1], c_double(t), c_double(h), _TRUE)
         if status > 1:
             self._raise("fmi2DoStep", status)
+
+    @property
+    def _flag_refs(self):
+        refs = getattr(self, "_flag_refs_cache", None)
+        if refs is None:
+            self._flags = (c_bool(), c_bool(), c_bool(), c_double())
+            refs = self._flag_refs_cache = tuple(byref(f) for f in self._flags)
+        return refs
+
+    def _step3_flags(self, t: float, h: float, terminate: bool, early: bool) -> None:
+        if terminate or early:
+            self.worst_status = max(self.worst_status, 3)
+            raise FmuRefused(self.last_message or (
+                f"fmi3DoStep from t = {t!r} (step {h!r}) "
+                f"{'asked to terminate the simulation' if terminate else 'returned early'}"))
 
     # -- FMU state (canGetAndSetFMUstate, canSerializeFMUstate) ------------------------
     def get_state(self) -> bytes:
         """The instance's complete state, serialized (``fmi2GetFMUstate`` and
         ``fmi2SerializeFMUstate``; the FMU-side state is freed again)."""
         assert self.fmu is not None  # after setup()
+        if self.fmi3:
+            state = self._call(self.fmu.getFMUState)
+            try:
+                return bytes(self._call(self.fmu.serializeFMUState, state))
+            finally:
+                self._call(self.fmu.freeFMUState, state)
         state = self._call(self.fmu.getFMUstate)
         try:
             return bytes(self._call(self.fmu.serializeFMUstate, state))
@@ -358,11 +517,14 @@ class FmuComponent(ComponentBase):
     def set_state(self, data: bytes) -> None:
         """Restore a state from ``get_state``, possibly of another instance."""
         assert self.fmu is not None  # after setup()
-        state = self._call(self.fmu.deSerializeFMUstate, data)
+        names = (("deserializeFMUState", "setFMUState", "freeFMUState") if self.fmi3
+                 else ("deSerializeFMUstate", "setFMUstate", "freeFMUstate"))
+        deserialize, set_state, free_state = (getattr(self.fmu, n) for n in names)
+        state = self._call(deserialize, data)
         try:
-            self._call(self.fmu.setFMUstate, state)
+            self._call(set_state, state)
         finally:
-            self._call(self.fmu.freeFMUstate, state)
+            self._call(free_state, state)
         if self.worst_status >= 3:
             raise FmuRefused(self.last_message or "the FMU refused the state")
 

@@ -90,7 +90,7 @@ def linalg(tmp_path_factory):
         "int model_setup(Instance *c) { (void)c; return 0; }\n"
         "int model_step(Instance *c, double t, double h) { (void)c; (void)t; (void)h; "
         "return 0; }\n"
-        "int model_output(Instance *c, fmi2ValueReference vr, double *v) { (void)c; "
+        "int model_output(Instance *c, ValueRef vr, double *v) { (void)c; "
         "(void)vr; *v = 0; return 0; }\n"
         "void model_input_set(Instance *c) { (void)c; }\n"
         "int model_state_ok(const StateView *v) { return v->nbuf == 0; }\n")
@@ -323,7 +323,8 @@ def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind)
     assert not cs.needsExecutionTool and cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
     # the FMI layer, the shared sources of the model's manifest, the model's own C
     uses = [] if kind == "delay" else ["linalg.c"]
-    assert _source_files(nat) == ["fmi2.c", "native.c", "pyrepr.c", *uses, NATIVE_KINDS[kind]]
+    assert _source_files(nat) == ["fmi2.c", "core.c", "native.c", "pyrepr.c", *uses,
+                                  NATIVE_KINDS[kind]]
     assert nat.guid != py.guid
     assert "-fvisibility=hidden" in CFLAGS and "-Werror" in CFLAGS
 

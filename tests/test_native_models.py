@@ -267,7 +267,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     assert nat.coSimulation.modelIdentifier == py.coSimulation.modelIdentifier
     assert not nat.coSimulation.needsExecutionTool and nat.guid != py.guid
     files = nat.buildConfigurations[0].sourceFileSets[0].sourceFiles
-    assert files == ["fmi2.c", "native.c", "pyrepr.c", "ode.c", "model_common.c",
+    assert files == ["fmi2.c", "core.c", "native.c", "pyrepr.c", "ode.c", "model_common.c",
                      "model_plant.c", "model.c"]
     with zipfile.ZipFile(nat_path) as zf:
         zf.extractall(tmp_path / "unzipped")

@@ -37,7 +37,7 @@ import shutil
 import subprocess
 import tempfile
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 from xml.etree.ElementTree import Element, SubElement, tostring
@@ -48,6 +48,7 @@ from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS, mod
 from delaycomp.tmpfiles import zip_folder
 
 if TYPE_CHECKING:
+    from delaycomp.fmu.fmi3 import Fmi3Table
     from delaycomp.fmu.translate import Translation
 
 try:
@@ -72,9 +73,13 @@ MODEL_KINDS: dict[str, str] = {kind: f"{spec.native}.c" for kind, spec in FMUS.i
                                if spec.native and spec.template}
 #: the FMI layer, in every native FMU, and its headers (``native.h`` declares what
 #: ``fmi2.c`` and ``native.c`` share with the models)
-COMMON_SOURCES = ("fmi2.c", "native.c", "pyrepr.c")
-COMMON_HEADERS = ("native.h", "pyrepr.h")
+COMMON_SOURCES = ("fmi2.c", "core.c", "native.c", "pyrepr.c")
+COMMON_HEADERS = ("native.h", "core.h", "pyrepr.h")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: the FMI 3.0 headers (``build --fmi 3``: fmi3.c in place of fmi2.c)
+FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
+#: the FMI versions a native FMU is built for
+FMI_VERSIONS = (2, 3)
 CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
           "-Werror")
 
@@ -117,15 +122,21 @@ class NativeTwin:
     name: str
     uses: tuple[str, ...]
     value_references: dict[str, str]
+    #: FMI 3.0 (``[fmi3]``): structural parameters (name -> description) and the arrays
+    #: (name -> its dimensions, each a structural parameter)
+    structural: dict[str, str] = field(default_factory=dict)
+    arrays: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def files(self) -> tuple[Path, ...]:
         """The model's own files: its C, its header and its manifest."""
         return tuple(self.folder / f"{self.name}{ext}" for ext in (".c", ".h", ".toml"))
 
-    def sources(self) -> list[str]:
-        """The ``.c`` files of an FMU of this kind (model.c, generated, last)."""
-        return [*COMMON_SOURCES, *self.uses, f"{self.name}.c",
+    def sources(self, fmi: int = 2) -> list[str]:
+        """The ``.c`` files of an FMU of this kind (model.c, generated, last), with the
+        FMI layer of version ``fmi`` (``fmi3.c`` in place of ``fmi2.c`` for 3)."""
+        common = [f"fmi{fmi}.c", *COMMON_SOURCES[1:]]
+        return [*common, *self.uses, f"{self.name}.c",
                 *(["model.c"] if FMUS[self.kind].template else [])]
 
     def headers(self) -> list[str]:
@@ -156,12 +167,21 @@ def native_twin(kind: str) -> NativeTwin:
     manifest = spec.folder / f"{spec.native}.toml"
     data = tomllib.loads(manifest.read_text(encoding="utf-8"))
     uses, vrs = data.get("uses", []), data.get("value_references", {})
-    if (set(data) - {"uses", "value_references"}
+    fmi3 = data.get("fmi3", {})
+    structural, arrays = fmi3.get("structural", {}), fmi3.get("arrays", {})
+    if (set(data) - {"uses", "value_references", "fmi3"}
             or not all(isinstance(u, str) and u.endswith(".c") for u in uses)
-            or not all(isinstance(v, str) for v in vrs.values())):
+            or not all(isinstance(v, str) for v in vrs.values())
+            or set(fmi3) - {"structural", "arrays"}
+            or not all(isinstance(v, str) for v in structural.values())
+            or not all(isinstance(d, list) and all(x in structural for x in d)
+                       for d in arrays.values())):
         raise ValueError(f"{manifest}: a native manifest has `uses` (a list of .c files of "
-                         "fmus/native/) and `value_references` (macro = variable name)")
-    return NativeTwin(kind, spec.folder, spec.native, tuple(uses), dict(vrs))
+                         "fmus/native/), `value_references` (macro = variable name) and "
+                         "`[fmi3]`: `structural` (name = description) and `arrays` (name = "
+                         "its dimensions, structural parameters)")
+    return NativeTwin(kind, spec.folder, spec.native, tuple(uses), dict(vrs),
+                      dict(structural), {k: list(v) for k, v in arrays.items()})
 
 
 def _note(text: str) -> None:
@@ -326,9 +346,12 @@ def _variables(root: Element) -> list[dict]:
     return out
 
 
-def _config_h(twin: NativeTwin, config: dict, root: Element, guid: str) -> str:
+def _config_h(twin: NativeTwin, config: dict, root: Element, guid: str,
+              table3: Fmi3Table | None = None) -> str:
     """config.h of one build: the Python twin's variable table as C, the model's header
-    (``MODEL_HEADER``), and the value reference of each macro of its manifest."""
+    (``MODEL_HEADER``), and the value reference of each macro of its manifest; with
+    ``table3``, an FMI 3.0 build's (``FMI_MAJOR 3`` and the FMI 3.0 variables of
+    ``delaycomp.fmu.fmi3.config_block``)."""
     variables = _variables(root)
     ins = [v for v in variables if v["causality"] == "input"]
     outs = [v for v in variables if v["causality"] == "output"]
@@ -339,6 +362,7 @@ def _config_h(twin: NativeTwin, config: dict, root: Element, guid: str) -> str:
         "/* Generated by `delaycomp build --native` from the Python FMU's variable table:",
         f" * {root.get('modelName')}, configuration {json.dumps(config, sort_keys=True)}. */",
         "#ifndef DELAYCOMP_CONFIG_H", "#define DELAYCOMP_CONFIG_H", "",
+        f"#define FMI_MAJOR {2 if table3 is None else 3}",
         f"#define MODEL_HEADER {_c_string(twin.name + '.h')}",
         f"#define INSTANTIATION_TOKEN {_c_string(guid)}",
         f"#define NIN {len(ins)}",
@@ -382,6 +406,10 @@ def _config_h(twin: NativeTwin, config: dict, root: Element, guid: str) -> str:
         lines += ["};", "static const int STRING_SLOT[NVR] = {"]
         lines += [f"    {slots.get(v['vr'], -1)}," for v in variables]
         lines += ["};"]
+    if table3 is not None:
+        from delaycomp.fmu.fmi3 import config_block
+
+        lines += ["", *config_block(table3)]
     lines += ["", "#endif", ""]
     return "\n".join(lines)
 
@@ -460,7 +488,7 @@ def _native_description(kind: str, root: Element, ident: str, guid: str,
 
 
 def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
-                     file_name: str | None = None) -> Path:
+                     file_name: str | None = None, fmi: int = 2) -> Path:
     """Build the native FMU ``kind`` (``delay``, ``plant`` or ``controller``) into
     ``out_dir`` and return its path.
 
@@ -477,6 +505,10 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         ``n``, ``m``; names; an optional ``start`` table). Default: the scalar loop.
     file_name : str, optional
         Default ``<modelIdentifier>.fmu``.
+    fmi : int, optional
+        The FMI version, 2 (default) or 3 (``delaycomp.fmu.fmi3``: the vectors and
+        matrices as arrays sized by structural parameters, the binaries in FMI 3.0's
+        platform folders, ``sources/buildDescription.xml``).
 
     Raises
     ------
@@ -489,16 +521,27 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     """
     from delaycomp.fmu.slave import pinned_guid
 
+    if fmi not in FMI_VERSIONS:
+        raise ValueError(f"fmi = {fmi!r} is not allowed: must be 2 or 3 (the FMI version)")
     twin = native_twin(kind)
     cc = compiler()
     crosses = cross_compilers()
     config, translation, ident = _native_config(kind, config)
     root = _python_table(kind, config)
     _exact_starts(root, config.get("start") or {})
-    full = {**config, "version": delaycomp.__version__}
-    guid = "{" + str(pinned_guid(f"{ident}/native", full)) + "}"
-    sources = twin.sources()
-    description = _native_description(kind, root, ident, guid, sources)
+    full = {**config, "version": delaycomp.__version__, **({"fmi": 3} if fmi == 3 else {})}
+    guid = "{" + str(pinned_guid(f"{ident}/native" + ("/fmi3" if fmi == 3 else ""),
+                                 full)) + "}"
+    sources = twin.sources(fmi)
+    table3 = None
+    if fmi == 3:
+        from delaycomp.fmu import fmi3
+
+        table3 = fmi3.fmi3_table(root, twin.structural, twin.arrays)
+        description = fmi3.model_description(
+            root, table3, ident, guid, f"delaycomp {delaycomp.__version__} (native C)")
+    else:
+        description = _native_description(kind, root, ident, guid, sources)
     import fmpy
 
     out_dir = Path(out_dir).resolve()
@@ -506,21 +549,36 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     target = out_dir / (file_name or f"{ident}.fmu")
     from delaycomp.progress import detail
 
-    detail(f"building {ident} (native, {' '.join([fmpy.platform, *crosses])}) into "
-           f"{out_dir} ...")
+    folder = _platform_folder(fmi)
+    detail(f"building {ident} (native{', FMI 3.0' if fmi == 3 else ''}, "
+           f"{' '.join([folder(fmpy.platform), *map(folder, crosses)])}) into {out_dir} ...")
     with tempfile.TemporaryDirectory(prefix="delaycomp-native-") as tmp:
         stage = Path(tmp) / "fmu"
         src = stage / "sources"
         src.mkdir(parents=True)
-        _write_sources(src, twin, translation, root)
-        (src / "config.h").write_text(_config_h(twin, config, root, guid), encoding="utf-8")
-        targets = [(fmpy.platform, cc, ".so", ())] + [
-            (platform, argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
+        _write_sources(src, twin, translation, root, fmi)
+        (src / "config.h").write_text(_config_h(twin, config, root, guid, table3),
+                                      encoding="utf-8")
+        if fmi == 3:
+            from delaycomp.fmu.fmi3 import build_description
+
+            (src / "buildDescription.xml").write_bytes(build_description(ident, sources))
+        targets = [(folder(fmpy.platform), cc, ".so", ())] + [
+            (folder(platform), argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
             for platform, argv in crosses.items()]
         _compile_binaries(kind, stage, src, ident, sources, targets)
         _write_metadata(kind, stage, description, full)
         zip_folder(stage, target)
     return target
+
+
+def _platform_folder(fmi: int):
+    """FMI 2.0 platform folder -> the folder of version ``fmi`` (FMI 3.0's tuples)."""
+    if fmi == 2:
+        return lambda platform: platform
+    from delaycomp.fmu.fmi3 import PLATFORMS
+
+    return lambda platform: PLATFORMS.get(platform, platform)
 
 
 def _native_config(kind: str, config: dict | None
@@ -547,19 +605,19 @@ def _native_config(kind: str, config: dict | None
 
 
 def _write_sources(src: Path, twin: NativeTwin, translation: Translation | None,
-                   root: Element) -> None:
+                   root: Element, fmi: int = 2) -> None:
     """The twin's C sources and headers (a model's translated to C) and the FMI headers
     into ``src``."""
     generated = {}
     if translation is not None:
         generated = {**translation.c_files(),
                      "model_config.h": _model_config_h(translation, root)}
-    for name in (*twin.sources(), *twin.headers()):
+    for name in (*twin.sources(fmi), *twin.headers()):
         if name in generated:
             (src / name).write_text(generated[name], encoding="utf-8")
         else:
             shutil.copy2(twin.path_of(name), src / name)
-    for name in FMI_HEADERS:
+    for name in FMI_HEADERS if fmi == 2 else FMI3_HEADERS:
         shutil.copy2(fmi_header_dir() / name, src / name)
 
 
@@ -599,12 +657,13 @@ def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> N
     shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
 
 
-def build_native(out_dir: Path) -> list[Path]:
-    """Build the three native FMUs of the scalar LTI loop (default dimensions)."""
-    return [build_native_fmu(kind, out_dir) for kind in NATIVE_KINDS]
+def build_native(out_dir: Path, fmi: int = 2) -> list[Path]:
+    """Build the three native FMUs of the scalar LTI loop (default dimensions), for FMI
+    version ``fmi`` (2 or 3)."""
+    return [build_native_fmu(kind, out_dir, fmi=fmi) for kind in NATIVE_KINDS]
 
 
-def build_native_model(model_path: str | Path, out_dir: Path) -> list[Path]:
+def build_native_model(model_path: str | Path, out_dir: Path, fmi: int = 2) -> list[Path]:
     """The native twins of ``delaycomp.fmu.build.build_model``: the model's plant and
     predictor-controller as C FMUs (``f``, ``k`` and ``step`` translated by
     ``delaycomp.fmu.translate``), and native delays of the model's widths (same file names
@@ -621,41 +680,52 @@ def build_native_model(model_path: str | Path, out_dir: Path) -> list[Path]:
     from delaycomp.maths.model import load_model
 
     model = load_model(model_path)  # checks the interface before any build
-    paths = [build_native_fmu(kind, out_dir, {"model": str(model_path)})
+    paths = [build_native_fmu(kind, out_dir, {"model": str(model_path)}, fmi=fmi)
              for kind in MODEL_KINDS]
     for width in sorted({model.n, model.m}):
         cfg = {"n": width}
         name = None if cfg == DEFAULT_CONFIG["delay"] else f"DelaycompDelay_n{width}.fmu"
-        paths.append(build_native_fmu("delay", out_dir, cfg, name))
+        paths.append(build_native_fmu("delay", out_dir, cfg, name, fmi=fmi))
     return paths
 
 
-def native_fmu_dir() -> Path:
-    """Build cache of native FMUs, beside the Python FMUs' cache, per source digest."""
+def native_fmu_dir(fmi: int = 2) -> Path:
+    """Build cache of native FMUs, beside the Python FMUs' cache, per source digest (the
+    FMI 3.0 ones in a folder of their own: same file names)."""
     from delaycomp.fmu.cache import default_fmu_dir
 
     return default_fmu_dir().parent / (f"native-{delaycomp.__version__}-{sources_digest()}-"
-                                       f"{platforms_tag()}")
+                                       f"{platforms_tag()}" + ("-fmi3" if fmi == 3 else ""))
 
 
-def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
-    """The native FMU for ``kind`` and ``config`` in ``fmu_dir`` (default: the cache),
-    built there if missing; an FMU already there is checked as
-    ``delaycomp.fmu.cache.check_fmu`` does, and must be native."""
+def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None,
+                    fmi: int = 2) -> Path:
+    """The native FMU for ``kind`` and ``config`` in ``fmu_dir`` (default: the cache;
+    FMI 3.0 FMUs in its subfolder ``fmi3``), built there if missing; an FMU already there
+    is checked as ``delaycomp.fmu.cache.check_fmu`` does, and must be native, of FMI
+    version ``fmi``."""
     from delaycomp.errors import BadFileError
     from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
 
-    fmu_dir = Path(fmu_dir) if fmu_dir is not None else native_fmu_dir()
+    if fmu_dir is None:
+        fmu_dir = native_fmu_dir(fmi)
+    elif fmi == 3:
+        fmu_dir = Path(fmu_dir) / "fmi3"
+    fmu_dir = Path(fmu_dir)
     path = fmu_dir / fmu_file_name(kind, config)
     if not path.exists():
-        build_native_fmu(kind, fmu_dir, config, path.name)
+        build_native_fmu(kind, fmu_dir, config, path.name, fmi=fmi)
         cache_hit(path, model_identifier(kind, config), built=True)
         return path
     check_fmu(path, kind, config)
     with zipfile.ZipFile(path) as zf:
-        if not json.loads(zf.read(f"resources/{CONFIG_NAME}")).get("native"):
-            raise BadFileError(path, "is a Python FMU, not a native one (use another "
-                                     "--fmu-dir, or delete it to rebuild)")
+        built = json.loads(zf.read(f"resources/{CONFIG_NAME}"))
+    if not built.get("native"):
+        raise BadFileError(path, "is a Python FMU, not a native one (use another "
+                                 "--fmu-dir, or delete it to rebuild)")
+    if built.get("fmi", 2) != fmi:
+        raise BadFileError(path, f"is an FMI {built.get('fmi', 2)}.0 FMU, this run needs FMI "
+                                 f"{fmi}.0 (use another --fmu-dir, or delete it to rebuild)")
     cache_hit(path, model_identifier(kind, config))
     return path
 
@@ -838,8 +908,8 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
     return kind, config
 
 
-def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | None,
-                                                                str | None]:
+def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2
+                  ) -> tuple[dict[str, Path] | None, str | None]:
     """The native FMUs of ``loop`` where they can be had here (``native_fmus``), else
     ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
     or a model that does not translate (or CasADi missing). The commands' default: native
@@ -847,31 +917,36 @@ def native_or_why(loop, fmu_dir: Path | None = None) -> tuple[dict[str, Path] | 
     from delaycomp.maths.model import ModelError
 
     try:
-        return native_fmus(loop, fmu_dir), None
+        return native_fmus(loop, fmu_dir, fmi), None
     except (ValueError, NativeBuildError, ModelError) as exc:
         return None, str(exc).splitlines()[0].removeprefix(
             "--native is not allowed for this loop: ")
 
 
-def native_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path]:
+def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2) -> dict[str, Path]:
     """Native FMU files for every instance of ``loop`` (a
     ``Loop``), to pass as ``fmus=`` to
-    ``delaycomp.orchestrator.simulate.run_loop``.
+    ``delaycomp.orchestrator.simulate.run_loop``; FMI 3.0 ones with ``fmi=3``, where a
+    user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant) keeps its file: a
+    mixed loop.
 
     Raises
     ------
     ValueError
         An instance has no native twin (a user model's plant or controller, a user's FMU).
     """
-    from delaycomp.system.loop import BuiltinFmu, ModelFmu
+    from delaycomp.system.loop import BuiltinFmu, FmuFile, ModelFmu
 
     for inst in loop.instances:
         src = inst.source
+        if fmi == 3 and isinstance(src, FmuFile):
+            continue
         if not ((isinstance(src, BuiltinFmu) and src.kind in NATIVE_KINDS)
                 or (isinstance(src, ModelFmu) and src.kind in MODEL_KINDS)):
             what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
             raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
                              f"is {what}; native FMUs exist for the delay, the LTI plant and "
                              "controller, and a model file's plant and controller")
-    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir)
-            for inst in loop.instances}
+    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir,
+                                       fmi)
+            for inst in loop.instances if not isinstance(inst.source, FmuFile)}

@@ -40,6 +40,9 @@ from delaycomp.names import FMU_KINDS, LOOP_GROUPS
 from delaycomp.system.loop import ROLES, FmuFile, Instance, Loop, ModelFmu, Role
 from delaycomp.tmpfiles import write_text
 
+#: an element of an array variable of an FMI 3.0 FMU, as the loop names it: A[2,1]
+_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
+
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
              "controller": "the predictor-controller", "input_delay": "the input delay (tau)"}
@@ -93,7 +96,7 @@ def roles_of(only: Iterable[str] | None) -> tuple[Role, ...]:
 
 
 def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = None,
-               fmus: str = "auto", info=None) -> LoopBuild:
+               fmus: str = "auto", info=None, fmi: int = 2) -> LoopBuild:
     """Build the FMUs of ``loop`` into ``out_dir`` with the loop's values as their start
     values, and write its wiring sheet.
 
@@ -111,6 +114,8 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
         ``native`` (an error where it cannot) or ``python``.
     info : callable, optional
         ``info(text)`` receives each note as it arises.
+    fmi : int
+        2, or 3 for FMI 3.0 FMUs (native only: ``fmus`` ``auto`` is ``native``).
 
     Returns
     -------
@@ -130,7 +135,8 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     given, todo = _chosen(loop, roles, note)
     out_dir.mkdir(parents=True, exist_ok=True)
     with temp_dir("delaycomp-loopbuild-") as tmp:
-        staged, native = _stage_fmus(loop, todo, name, fmus, Path(tmp), note)
+        staged, native = _stage_fmus(loop, todo, name, "native" if fmi == 3 else fmus,
+                                     Path(tmp), note, fmi)
         for inst in todo:
             check_starts(staged[inst.role], inst.parameters, f"{name}_{inst.role}.fmu")
         written: dict[str, Path] = {}
@@ -142,7 +148,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     wiring = out_dir / f"{name}_wiring.txt"
     others: dict[str, Path | None] = {i.role: None for i in loop.instances
                                       if i.role not in files}
-    write_text(wiring, wiring_sheet(loop, {**others, **files}, roles, native, name))
+    write_text(wiring, wiring_sheet(loop, {**others, **files}, roles, native, name, fmi))
     return LoopBuild(name, written, wiring, native, given, tuple(notes))
 
 
@@ -177,7 +183,7 @@ def _chosen(loop: Loop, roles: tuple[Role, ...], note: Callable[[str], None]
 
 
 def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Path,
-                note: Callable[[str], None]) -> tuple[dict[str, Path], bool]:
+                note: Callable[[str], None], fmi: int = 2) -> tuple[dict[str, Path], bool]:
     """Build the FMUs of ``todo`` under ``tmp``: native ones unless ``fmus`` says python
     (``auto`` falls back to Python with a note); role -> FMU and whether they are
     native."""
@@ -188,7 +194,7 @@ def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Pat
     staged: dict[str, Path] = {}
     if native:
         try:
-            staged = _build_all(todo, name, True, tmp / "native")
+            staged = _build_all(todo, name, True, tmp / "native", fmi)
         except (NativeBuildError, ModelError, ValueError) as exc:
             why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
             if fmus == "native":
@@ -207,7 +213,7 @@ def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Pat
 
 
 def _build_all(todo: list[Instance], name: str, native: bool,
-               stage: Path) -> dict[str, Path]:
+               stage: Path, fmi: int = 2) -> dict[str, Path]:
     """Build each instance of ``todo`` (native or Python) into ``stage``, with its
     parameters as start values; role -> FMU."""
     from delaycomp.fmu.build import build_fmu
@@ -221,7 +227,7 @@ def _build_all(todo: list[Instance], name: str, native: bool,
         config = {**config, "start": dict(inst.parameters)}
         file_name = f"{name}_{inst.role}.fmu"
         if native:
-            built[inst.role] = build_native_fmu(kind, stage, config, file_name)
+            built[inst.role] = build_native_fmu(kind, stage, config, file_name, fmi=fmi)
         else:
             built[inst.role] = build_fmu(kind, stage, config, file_name)
     return built
@@ -235,12 +241,23 @@ def check_starts(fmu: Path, parameters: Mapping, label: str) -> None:
     variables = {v.name: v for v in read_model_description(str(fmu)).modelVariables}
     for key, value in parameters.items():
         var = variables.get(key)
-        if var is None or var.start is None:
+        start = var.start if var is not None else None
+        element = _ELEMENT.match(key)
+        array = variables.get(element.group(1)) if element else None
+        if (var is None and element is not None and array is not None and array.dimensions
+                and array.start):
+            # FMI 3.0: an element of an array, its start the array's (row-major)
+            index = [int(i) - 1 for i in element.group(2).split(",")]
+            flat = 0
+            for i, extent in zip(index, array.shape):
+                flat = flat * extent + i
+            starts = array.start.split()
+            var, start = array, starts[flat] if flat < len(starts) else None
+        if var is None or start is None:
             raise RuntimeError(f"{label}: no parameter {key!r} with a start value")
-        start = var.start
-        if var.type == "Real":
+        if var.type in ("Real", "Float64"):
             same = float(start) == float(value)
-        elif var.type == "Integer":
+        elif var.type in ("Integer", "Int32"):
             same = int(start) == int(value)
         elif var.type == "Boolean":
             same = (str(start).lower() in ("true", "1")) == bool(value)
@@ -281,9 +298,10 @@ def _vector(parameters: Mapping, base: str) -> list:
 
 
 def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[str],
-                 native: bool, name: str) -> str:
+                 native: bool, name: str, fmi: int = 2) -> str:
     """The wiring sheet of ``loop`` (text): ``files`` maps each role to its FMU file
-    (``None``: not built this time); ``built`` are the roles asked for."""
+    (``None``: not built this time); ``built`` are the roles asked for; ``fmi`` the FMI
+    version they were built for."""
     from delaycomp.orchestrator.master import feedthrough_order
 
     built = list(built)
@@ -291,7 +309,7 @@ def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[s
     ports = {r: _ports(files.get(r)) for r in by_role}
     ctrl = by_role.get("controller")
     cp = dict(ctrl.parameters) if ctrl is not None else {}
-    L = _sheet_timing(loop, by_role, cp, native)
+    L = _sheet_timing(loop, by_role, cp, native, fmi)
     L += ["", "FMUs"]
     L += _sheet_fmus(by_role, ports, files, built, name)
     L += ["", "Connections (output -> input)"]
@@ -317,7 +335,7 @@ def wiring_sheet(loop: Loop, files: Mapping[str, Path | None], built: Iterable[s
     return "\n".join(L) + "\n"
 
 
-def _sheet_timing(loop: Loop, by_role, cp, native: bool) -> list[str]:
+def _sheet_timing(loop: Loop, by_role, cp, native: bool, fmi: int = 2) -> list[str]:
     """The sheet's title, what the FMUs are, and its timing section."""
     T, h = loop.T, loop.h
     kind = ("native C: no Python in the host" if native else
@@ -325,7 +343,7 @@ def _sheet_timing(loop: Loop, by_role, cp, native: bool) -> list[str]:
     L = [f"Wiring sheet of loop {loop.name} (delaycomp {delaycomp.__version__})", ""]
     if loop.title:
         L += [loop.title, ""]
-    L += [f"FMI 2.0 co-simulation FMUs ({kind}). Their start values are the",
+    L += [f"FMI {fmi}.0 co-simulation FMUs ({kind}). Their start values are the",
           "loop's: a host that sets no parameter runs this loop.", "",
           "Timing",
           f"  sampling period       T = {_num(T)} s: the controller samples at t0 + i T",

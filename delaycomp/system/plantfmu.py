@@ -163,8 +163,9 @@ def read_interface(path: str | Path) -> FmuInterface:
                            ) from None
     version = root.get("fmiVersion", "")
     if version != "2.0":
-        raise BadFileError(path, f"is an FMI {version or '?'} FMU: delaycomp's master takes "
-                                 "FMI 2.0")
+        raise BadFileError(path, f"is an FMI {version or '?'} FMU: a loop file's plant FMU "
+                                 "must be FMI 2.0 (delaycomp's own FMUs run as FMI 3.0 beside "
+                                 "it with --fmi 3)")
     cs, me = root.find("CoSimulation"), root.find("ModelExchange")
     variables: dict[str, Variable] = {}
     ordered: list[Variable] = []

@@ -230,7 +230,7 @@ static int output(Instance *c, const double **u) {
     return 0;
 }
 
-int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+int model_output(Instance *c, ValueRef vr, double *value) {
     const double *u;
     int rc = output(c, &u);
     *value = u[vr - VR_UOUT];
@@ -246,7 +246,7 @@ static int unbuilt_ok(const StateView *v) {
     const char *why = "an unbuilt controller: built = 0";
     if (state_in(v, StateStepComplete))
         return state_refuse(v, "built = 0: must be 1 in state 'step complete' (the predictor "
-                            "is built at fmi2ExitInitializationMode)");
+                            "is built at " FMI_FN("ExitInitializationMode") ")");
     return state_nbuf(v, 0, "no predictor and no input history: built = 0") &&
            state_long_is(v, "l", m->l, 0, why) && state_long_is(v, "q", m->q, 0, why) &&
            state_long_is(v, "L", m->L, 0, why) && state_long_is(v, "next", m->next, 0, why) &&

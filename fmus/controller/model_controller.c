@@ -43,7 +43,7 @@ static int same_input(const double *a, const double *b) {
     return 1;
 }
 
-static const char *string_of(const Instance *c, fmi2ValueReference vr) {
+static const char *string_of(const Instance *c, ValueRef vr) {
     return c->d.string[STRING_SLOT[vr]];
 }
 
@@ -104,7 +104,7 @@ static size_t buffer_size(long W, long D) {
     return (size_t)(W + D) * NU + ode_work_size(NX) + 2 * (size_t)NX;
 }
 
-static int check_finite(Instance *c, fmi2ValueReference vr) {
+static int check_finite(Instance *c, ValueRef vr) {
     double v = c->d.real[vr];
     if (isfinite(v)) return 0;
     log_error(c, "%s = %s is not allowed: must be a finite number", VAR_NAME[vr], num(v).s);
@@ -415,7 +415,7 @@ static int output(Instance *c, const double **u) {
     return 0;
 }
 
-int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+int model_output(Instance *c, ValueRef vr, double *value) {
     const double *u;
     int rc = output(c, &u);
     *value = u != NULL ? u[vr - VR_UOUT] : NAN;
@@ -495,7 +495,7 @@ static int unbuilt_ok(const StateView *v) {
     const char *why = "an unbuilt controller: built = 0";
     if (state_in(v, StateStepComplete))
         return state_refuse(v, "built = 0: must be 1 in state 'step complete' (the controller "
-                            "is built at fmi2ExitInitializationMode)");
+                            "is built at " FMI_FN("ExitInitializationMode") ")");
     return state_nbuf(v, 0, "no input history and no padding line: built = 0") &&
            state_range(v, "branch", m->branch, 0, MODEL_NBRANCH - 1) &&
            state_long_is(v, "zoh", m->zoh, 0, why) &&

@@ -29,7 +29,7 @@ int model_setup(Instance *c) {
     return alloc_buf(c, 0);
 }
 
-int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+int model_output(Instance *c, ValueRef vr, double *value) {
     size_t i = vr - VR_Y;
     const ModelData *m = &c->d.m;
     if (m->has_line)
@@ -68,7 +68,7 @@ int model_state_ok(const StateView *v) {
                 state_parameters(v, no_line_ok, NULL, "state 'step complete'"));
     }
     if (state_in(v, StateInstantiated | StateInitializationMode))
-        return state_refuse(v, "has_line = 1: must be 0 before fmi2ExitInitializationMode");
+        return state_refuse(v, "has_line = 1: must be 0 before " FMI_FN("ExitInitializationMode"));
     if (!state_positive(v, "h", m->h) || !state_range(v, "D", m->D, 0, (long)MAX_STEPS))
         return 0;
     long D = -1;

@@ -1,4 +1,4 @@
-/* What the FMI layer (fmi2.c) and the models share, defined once (declared in native.h):
+/* What the FMI layers (fmi2.c, fmi3.c) and the models share, defined once (declared in native.h):
  * logging, the checks whose messages are the Python FMUs' own, the rule of a step on an
  * FMU's own grid (same_step) and the model buffer. Knows no model: it reads only the
  * generated variable table of config.h. */
@@ -14,19 +14,20 @@
 /* ---- logging ------------------------------------------------------------------------ */
 /* The message is formatted on the stack (nothing allocated; a message longer than the
  * buffer is cut and ends in "..."). */
-static void vlog(Instance *c, fmi2Status status, const char *category, const char *fmt,
+static void vlog(Instance *c, int status, const char *category, const char *fmt,
                  va_list ap) {
     char text[TEXT_MAX + 2048];
+    if (c->logger == NULL) return;
     int len = vsnprintf(text, sizeof text, fmt, ap);
-    if (len < 0 || c->cb.logger == NULL) return;
+    if (len < 0) return;
     if ((size_t)len >= sizeof text) memcpy(text + sizeof text - 4, "...", 4);
-    c->cb.logger(c->cb.componentEnvironment, c->instance_name, status, category, "%s", text);
+    c->logger(c, status, category, text);
 }
 
 void log_error(Instance *c, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
-    vlog(c, fmi2Error, "logStatusError", fmt, ap);
+    vlog(c, STATUS_ERROR, "logStatusError", fmt, ap);
     va_end(ap);
 }
 
@@ -34,7 +35,7 @@ void log_info(Instance *c, const char *fmt, ...) {
     if (!c->logging_on) return;
     va_list ap;
     va_start(ap, fmt);
-    vlog(c, fmi2OK, "logAll", fmt, ap);
+    vlog(c, STATUS_OK, "logAll", fmt, ap);
     va_end(ap);
 }
 
@@ -59,8 +60,8 @@ void join_choices(const char *const *choices, int count, char *buf, size_t size)
     }
 }
 
-int resolve_choice_index(Instance *c, const char *name, fmi2ValueReference vr_string,
-                         fmi2ValueReference vr_index, const char *const *choices,
+int resolve_choice_index(Instance *c, const char *name, ValueRef vr_string,
+                         ValueRef vr_index, const char *const *choices,
                          int count) {
     int k = c->d.integer[vr_index];
     if (k == 0) return 0;
@@ -101,7 +102,7 @@ int check_step(Instance *c, double t, double h) {
     return -1;
 }
 
-int check_inputs_finite(Instance *c, fmi2ValueReference first, size_t count, double t) {
+int check_inputs_finite(Instance *c, ValueRef first, size_t count, double t) {
     for (size_t k = 0; k < count; k++) {
         double v = c->d.real[first + k];
         if (!isfinite(v)) {
@@ -227,17 +228,12 @@ typedef struct {
     char text[TEXT_MAX];
 } Captured;
 
-static void capture(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
-                    fmi2String category, fmi2String message, ...) {
-    Captured *cap = env;
-    (void)name;
+static void capture(Instance *c, int status, const char *category, const char *text) {
+    Captured *cap = c->log_env;
     (void)status;
     (void)category;
     if (cap->text[0] != '\0') return;
-    va_list ap;
-    va_start(ap, message);
-    vsnprintf(cap->text, sizeof cap->text, message, ap);
-    va_end(ap);
+    snprintf(cap->text, sizeof cap->text, "%s", text);
 }
 
 /* A String that initialization would set from its _index twin, not set in the state. */
@@ -268,7 +264,7 @@ Instance *state_scratch(const StateView *v, int with_buffer) {
     if (buf != NULL) memcpy(buf, v->buf, v->nbuf * sizeof(double));
     s->buf = buf;
     s->nbuf = buf != NULL ? v->nbuf : 0;
-    s->instance_name = v->c->instance_name;  /* cb.logger NULL: nothing is logged */
+    s->instance_name = v->c->instance_name;  /* logger NULL: nothing is logged */
     return s;
 }
 
@@ -283,8 +279,8 @@ int state_parameters(const StateView *v, int (*check)(Instance *c, void *out), v
     Instance *scratch = state_scratch(v, 0);
     if (scratch == NULL) return 0;
     Captured cap = {{0}};
-    scratch->cb.logger = capture;
-    scratch->cb.componentEnvironment = &cap;
+    scratch->logger = capture;
+    scratch->log_env = &cap;
     int rc = check(scratch, out), changed = -1;
 #if NSTRING > 0
     for (size_t k = 0; k < NSTRING && rc == 0 && changed < 0; k++)

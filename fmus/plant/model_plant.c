@@ -51,7 +51,7 @@ int model_setup(Instance *c) {
     return alloc_buf(c, buffer_size());
 }
 
-int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+int model_output(Instance *c, ValueRef vr, double *value) {
     *value = c->d.real[vr];
     return 0;
 }
@@ -65,7 +65,7 @@ int model_state_ok(const StateView *v) {
     if (!state_range(v, "branch", branch, 0, MODEL_NBRANCH - 1)) return 0;
     if ((v->nbuf != 0 || state_in(v, StateStepComplete)) &&
         !state_nbuf(v, buffer_size(), "the work memory of the ODE solver, from "
-                    "fmi2ExitInitializationMode on"))
+                    FMI_FN("ExitInitializationMode") " on"))
         return 0;
     if (v->nbuf == 0) return 1;
     int expected = 0;

@@ -24,7 +24,7 @@ int model_setup(Instance *c) {
     return alloc_buf(c, buffer_size());
 }
 
-int model_output(Instance *c, fmi2ValueReference vr, double *value) {
+int model_output(Instance *c, ValueRef vr, double *value) {
     *value = c->d.real[vr];
     return 0;
 }
@@ -40,7 +40,7 @@ static int parameters_ok(Instance *c, void *out) {
  * are computed (has_h) for the step h at the first step. */
 int model_state_ok(const StateView *v) {
     const ModelData *m = &v->d->m;
-    const char *built = "Ad, Bd and the work memory of flow, from fmi2ExitInitializationMode on";
+    const char *built = "Ad, Bd and the work memory of flow, from " FMI_FN("ExitInitializationMode") " on";
     if (!state_flag(v, "has_h", m->has_h)) return 0;
     if ((v->nbuf != 0 || state_in(v, StateStepComplete) || m->has_h) &&
         !state_nbuf(v, buffer_size(), built))

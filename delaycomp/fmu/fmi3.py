@@ -1,0 +1,311 @@
+"""The FMI 3.0 face of a native FMU: its variable table, modelDescription and config.h.
+
+``delaycomp build --fmi 3`` compiles the same C model as the FMI 2.0 twin behind the FMI
+3.0 layer (``fmus/native/fmi3.c``). The variables are the FMI 2.0 table's, regrouped:
+
+- each vector or matrix the model's manifest lists under ``[fmi3.arrays]`` (``A[i,j]``,
+  ``x0[i]``, ...) is one ``Float64`` array, row-major, whose ``<Dimension>``\\ s name
+  structural parameters (``[fmi3.structural]``: ``n``, ``m``), and whose value reference
+  is its first element's FMI 2.0 value reference, so that every other variable (the
+  scalar parameters, the inputs and outputs) keeps its FMI 2.0 value reference;
+- the structural parameters are ``UInt64``, ``causality="structuralParameter"``,
+  ``variability="fixed"``, with value references after the table's, and after them the
+  independent variable ``time`` (FMI 3.0 requires one);
+- ``Real`` is ``Float64``, ``Integer`` ``Int32``; Strings carry their start value as a
+  ``<Start>`` element.
+
+The inputs and outputs stay scalar (``y1 .. yn``, ``u1 .. um``): the loop is wired port
+by port as with FMI 2.0 FMUs (SSP 1.0 connectors are scalar), and an FMI 3.0 controller
+connects to another tool's FMI 2.0 plant unchanged.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from xml.etree.ElementTree import Element, SubElement, tostring
+
+from delaycomp.errors import DelaycompError
+
+__all__ = ["PLATFORMS", "Fmi3Table", "Fmi3TableError", "Fmi3Variable", "build_description",
+           "config_block", "fmi3_table", "model_description"]
+
+#: FMI 2.0 platform folder -> FMI 3.0 platform tuple (FMI 3.0, 2.5.1.1)
+PLATFORMS = {"linux64": "x86_64-linux", "win64": "x86_64-windows",
+             "aarch64-linux": "aarch64-linux", "darwin64": "x86_64-darwin"}
+
+_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
+_CODE = {"Float64": "r", "Int32": "i", "Boolean": "b", "String": "s", "UInt64": "n"}
+_CAUSALITY = {"parameter": "p", "input": "i", "output": "o", "structuralParameter": "s",
+              "independent": "t"}
+_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
+
+
+class Fmi3TableError(DelaycompError, ValueError):
+    """The FMI 2.0 table and the manifest's ``[fmi3]`` section do not fit together."""
+
+
+@dataclass
+class Fmi3Variable:
+    """One variable of the FMI 3.0 table."""
+
+    name: str
+    vr: int  #: FMI 3.0 value reference (an array's: its first element's slot)
+    first: int  #: first slot of the shared table (FMI 2.0 value reference); -1: structural
+    count: int  #: elements (1 for a scalar)
+    type: str  #: Float64, Int32, Boolean, String, UInt64
+    causality: str
+    variability: str
+    description: str | None = None
+    starts: list[str] = field(default_factory=list)  #: start values, row-major
+    dims: tuple[str, ...] = ()  #: the structural parameters of its dimensions
+    attrib: dict[str, str] = field(default_factory=dict)  #: initial, unit, declaredType, ...
+    value: int = 0  #: a structural parameter's value
+
+
+@dataclass
+class Fmi3Table:
+    """The FMI 3.0 variables of one FMU, in modelDescription order, over the ``nslots``
+    scalars of its FMI 2.0 table (the C code's slots)."""
+
+    variables: list[Fmi3Variable]
+    nslots: int  #: variables of the FMI 2.0 table (slots)
+
+    def by_name(self) -> dict[str, Fmi3Variable]:
+        """name -> variable."""
+        return {v.name: v for v in self.variables}
+
+
+def _indices(name: str) -> tuple[str, tuple[int, ...]] | None:
+    m = _ELEMENT.match(name)
+    return (m.group(1), tuple(int(i) for i in m.group(2).split(","))) if m else None
+
+
+def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list[str]]
+               ) -> Fmi3Table:
+    """The FMI 3.0 table of the FMI 2.0 table tree ``root`` (the Python twin's
+    modelDescription), grouping the manifest's ``arrays`` (name -> its dimensions, each a
+    key of ``structural``: name -> description).
+
+    Raises
+    ------
+    Fmi3TableError
+        An array of the manifest is not in the table, or not a full row-major block of
+        consecutive value references, or a structural parameter has two extents.
+    """
+    variables = root.find("ModelVariables")
+    assert variables is not None
+    scalars = list(variables)
+    names = {sv.get("name") for sv in scalars}
+    blocks: dict[str, list[tuple[tuple[int, ...], Element]]] = {a: [] for a in arrays}
+    for sv in scalars:
+        parsed = _indices(sv.get("name", ""))
+        if parsed and parsed[0] in blocks:
+            blocks[parsed[0]].append((parsed[1], sv))
+    extents: dict[str, int] = {}
+    out: list[Fmi3Variable] = []
+    grouped: dict[str, Fmi3Variable] = {}
+    for name, dims in arrays.items():
+        elements = blocks[name]
+        if not elements:
+            raise Fmi3TableError(f"array {name!r} of the manifest is no variable of "
+                                 f"{root.get('modelName')}")
+        shape = tuple(max(ix[d] for ix, _ in elements) for d in range(len(dims)))
+        if any(len(ix) != len(dims) for ix, _ in elements):
+            raise Fmi3TableError(f"array {name!r}: its elements have {len(elements[0][0])} "
+                                 f"indices, the manifest gives {len(dims)} dimensions")
+        for dim, extent in zip(dims, shape):
+            if dim not in structural:
+                raise Fmi3TableError(f"array {name!r}: dimension {dim!r} is no structural "
+                                     "parameter of the manifest")
+            if extents.setdefault(dim, extent) != extent:
+                raise Fmi3TableError(f"structural parameter {dim!r} is {extents[dim]} and "
+                                     f"{extent} (array {name!r})")
+        order = sorted(elements, key=lambda e: e[0])
+        vrs = [int(sv.get("valueReference", "-1")) for _, sv in order]
+        count = 1
+        for extent in shape:
+            count *= extent
+        if len(order) != count or vrs != list(range(vrs[0], vrs[0] + count)):
+            raise Fmi3TableError(f"array {name!r}: its elements are not a full row-major "
+                                 "block of consecutive value references")
+        first = order[0][1]
+        typed = next(iter(first))
+        description = _joined([sv.get("description") or "" for _, sv in order])
+        grouped[name] = Fmi3Variable(
+            name=name, vr=vrs[0], first=vrs[0], count=count, type=_TYPES[typed.tag],
+            causality=first.get("causality", "local"),
+            variability=first.get("variability", "continuous"), description=description,
+            starts=[next(iter(sv)).get("start") or "0" for _, sv in order], dims=tuple(dims),
+            attrib=_attributes(first, typed))
+    unused = set(structural) - set(extents)
+    if unused:
+        raise Fmi3TableError(f"structural parameter {sorted(unused)[0]!r} sizes no array")
+    taken = {n for n in names if n is not None} | set(arrays)
+    rename: dict[str, str] = {}
+    for dim in structural:  # a model's own parameter may be called n: keep it, rename ours
+        unique = dim
+        while unique in taken:
+            unique += "_dim"
+        rename[dim] = unique
+        taken.add(unique)
+    nslots = len(scalars)
+    for k, (dim, description) in enumerate(structural.items()):
+        out.append(Fmi3Variable(
+            name=rename[dim], vr=nslots + k, first=-1, count=1, type="UInt64",
+            causality="structuralParameter", variability="fixed", description=description,
+            starts=[str(extents[dim])], value=extents[dim]))
+    time = "time"
+    while time in taken:
+        time += "_"
+    out.append(Fmi3Variable(name=time, vr=nslots + len(structural), first=-1, count=1,
+                            type="Float64", causality="independent",
+                            variability="continuous", description="simulation time"))
+    for var in grouped.values():
+        var.dims = tuple(rename[d] for d in var.dims)
+    done: set[str] = set()
+    for sv in scalars:
+        parsed = _indices(sv.get("name", ""))
+        if parsed and parsed[0] in grouped:
+            if parsed[0] not in done:
+                out.append(grouped[parsed[0]])
+                done.add(parsed[0])
+            continue
+        typed = next(iter(sv))
+        vr = int(sv.get("valueReference", "-1"))
+        start = typed.get("start")
+        out.append(Fmi3Variable(
+            name=sv.get("name", ""), vr=vr, first=vr, count=1, type=_TYPES[typed.tag],
+            causality=sv.get("causality", "local"),
+            variability=sv.get("variability", "continuous"),
+            description=sv.get("description"), starts=[] if start is None else [start],
+            attrib=_attributes(sv, typed)))
+    return Fmi3Table(out, nslots)
+
+
+def _joined(descriptions: list[str]) -> str | None:
+    """One description for an array's elements: theirs if they agree, else their common
+    words and each element's rest (``initial state x1(t0), x2(t0)``)."""
+    if len(set(descriptions)) <= 1:
+        return descriptions[0] or None
+    words = [d.split(" ") for d in descriptions]
+    common = 0
+    while all(len(w) > common + 1 and w[common] == words[0][common] for w in words):
+        common += 1
+    return " ".join([*words[0][:common], ", ".join(" ".join(w[common:]) for w in words)])
+
+
+def _attributes(sv: Element, typed: Element) -> dict[str, str]:
+    keep = {k: v for k, v in sv.attrib.items() if k == "initial"}
+    keep.update({k: v for k, v in typed.attrib.items()
+                 if k in ("unit", "declaredType", "quantity", "displayUnit", "min", "max",
+                          "nominal")})
+    return keep
+
+
+def config_block(table: Fmi3Table) -> list[str]:
+    """The lines of config.h that give ``fmi3.c`` its variables (``VAR3``) and the index
+    of each FMI 3.0 value reference (``VAR3_INDEX``: -1 where none starts)."""
+    nvr3 = table.nslots + sum(v.first < 0 for v in table.variables)
+    index = [-1] * nvr3
+    for k, var in enumerate(table.variables):
+        index[var.vr] = k
+    lines = [f"#define NV3 {len(table.variables)}", f"#define NVR3 {nvr3}",
+             "static const Var3 VAR3[NV3] = {"]
+    for var in table.variables:
+        lines.append(f"    {{{max(var.first, 0)}u, {var.count}u, '{_CODE[var.type]}', "
+                     f"'{_CAUSALITY[var.causality]}', \"{var.name}\", {var.value}ull}},")
+    lines += ["};", "static const int VAR3_INDEX[NVR3] = {"]
+    lines += [f"    {i}," for i in index]
+    lines += ["};"]
+    return lines
+
+
+def model_description(root: Element, table: Fmi3Table, ident: str, token: str,
+                      generation_tool: str) -> bytes:
+    """The FMI 3.0 modelDescription.xml of the table, its header taken from the FMI 2.0
+    tree ``root`` (co-simulation only, no event mode, FMU state and its serialization)."""
+    md = Element("fmiModelDescription", attrib={"fmiVersion": "3.0"})
+    for key in ("modelName", "description", "author", "version", "copyright", "license"):
+        if root.get(key) is not None:
+            md.set(key, root.get(key, ""))
+    md.set("instantiationToken", token)
+    md.set("generationTool", generation_tool)
+    md.set("variableNamingConvention", "structured")
+    cs2 = root.find("CoSimulation")
+    assert cs2 is not None
+    SubElement(md, "CoSimulation", attrib={
+        "modelIdentifier": ident, "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true",
+        "canHandleVariableCommunicationStepSize":
+            cs2.get("canHandleVariableCommunicationStepSize", "false"),
+        "hasEventMode": "false"})
+    units = root.find("UnitDefinitions")
+    if units is not None:
+        md.append(units)
+    types = root.find("TypeDefinitions")
+    if types is not None:
+        out_types = SubElement(md, "TypeDefinitions")
+        for simple in types:
+            typed = next(iter(simple))
+            SubElement(out_types, f"{_TYPES[typed.tag]}Type",
+                       attrib={"name": simple.get("name", ""), **typed.attrib})
+    categories = root.find("LogCategories")
+    if categories is not None:
+        cats = SubElement(md, "LogCategories")
+        for cat in categories:
+            SubElement(cats, "Category", attrib={
+                k: v.replace("fmi2", "fmi3") for k, v in cat.attrib.items()})
+    experiment = root.find("DefaultExperiment")
+    if experiment is not None:
+        md.append(experiment)
+    variables = SubElement(md, "ModelVariables")
+    for var in table.variables:
+        attrib = {"name": var.name, "valueReference": str(var.vr)}
+        if var.description:
+            attrib["description"] = var.description
+        attrib["causality"] = var.causality
+        attrib["variability"] = var.variability
+        attrib.update(var.attrib)
+        if var.starts and var.type != "String":
+            attrib["start"] = " ".join(var.starts)
+        element = SubElement(variables, var.type, attrib=attrib)
+        if var.type == "String":
+            for start in var.starts:
+                SubElement(element, "Start", attrib={"value": start})
+        by_name = table.by_name()
+        for dim in var.dims:
+            SubElement(element, "Dimension", attrib={"valueReference": str(by_name[dim].vr)})
+    structure = SubElement(md, "ModelStructure")
+    scalars = list(root.find("ModelVariables") or [])
+    slot_owner = {}
+    for var in table.variables:
+        for e in range(var.count if var.first >= 0 else 0):
+            slot_owner[var.first + e] = var.vr
+    ms2 = root.find("ModelStructure")
+
+    def vr_of(index: str) -> int:  # an FMI 2.0 index (1-based) -> its FMI 3.0 variable
+        return slot_owner[int(scalars[int(index) - 1].get("valueReference", "-1"))]
+
+    for kind, tag in (("Outputs", "Output"), ("InitialUnknowns", "InitialUnknown")):
+        block = ms2.find(kind) if ms2 is not None else None
+        for unknown in block if block is not None else ():
+            attrib = {"valueReference": str(vr_of(unknown.get("index", "0")))}
+            deps = unknown.get("dependencies")
+            if deps is not None:
+                attrib["dependencies"] = " ".join(
+                    dict.fromkeys(str(vr_of(i)) for i in deps.split()))
+            SubElement(structure, tag, attrib=attrib)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(md, encoding="utf-8")
+
+
+def build_description(ident: str, sources: list[str]) -> bytes:
+    """``sources/buildDescription.xml`` (FMI 3.0, 2.5.1.2): the C files to compile, with
+    ``sources/`` on the include path."""
+    root = Element("fmiBuildDescription", attrib={"fmiVersion": "3.0"})
+    config = SubElement(root, "BuildConfiguration", attrib={"modelIdentifier": ident})
+    files = SubElement(config, "SourceFileSet", attrib={"language": "C99"})
+    for name in sources:
+        SubElement(files, "SourceFile", attrib={"name": name})
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
