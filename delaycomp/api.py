@@ -311,7 +311,7 @@ def _fmi_version(fmi) -> int:
 
 
 def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None = None,
-                engine: str = "fmu", fmi: int = 2
+                engine: str = "fmu", fmi: int = 2, clocked: bool = False
                 ) -> tuple[dict[str, Path] | None, str | None]:
     """The FMU files a run of ``loop`` uses, and why not the native ones where it could
     have: ``(files, why)``, ``files`` ``None`` for the Python FMUs of the build cache.
@@ -324,7 +324,9 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
 
     ``fmi=3``: FMI 3.0 native FMUs (``delaycomp.fmu.fmi3``; native only: ``auto`` is
     ``native``), built into ``fmu_dir/native/fmi3``; a user's FMU file of the loop (another
-    tool's FMI 2.0 plant) runs beside them as it is.
+    tool's FMI 2.0 plant) runs beside them as it is. ``clocked=True`` (with ``fmi=3``):
+    the LTI controller's clocked variant, its sampling driven by an FMI 3.0 clock of
+    interval T (``docs/reference/fmi3.md``).
 
     Examples
     --------
@@ -350,8 +352,11 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     from delaycomp.fmu.native import native_fmus, native_or_why
 
     native_dir = Path(fmu_dir) / "native" if fmu_dir else None
+    if clocked and fmi != 3:
+        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
+                             "controller is an FMI 3.0 FMU (fmi = 3)")
     if fmus == "native" or fmi == 3:
-        return native_fmus(loop, native_dir, fmi), None
+        return native_fmus(loop, native_dir, fmi, clocked), None
     return native_or_why(loop, native_dir)
 
 
@@ -359,7 +364,8 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         fmu_dir: str | Path | None = None, fmus: str | Mapping[str, Path] = "auto",
         every: int = 1, sink=None, keep: bool = True, progress=None,
         watchdog: float | None = None,
-        sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2) -> Result:
+        sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2,
+        clocked: bool = False) -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (``FMU_KINDS``): with the FMU engine, the native C
@@ -383,7 +389,8 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     (``["r=0.4"]`` or ``{"r": 0.4}``) as ``load`` takes them.
 
     ``fmi=3`` runs delaycomp's FMUs as FMI 3.0 native FMUs (``choose_fmus``): the same
-    numbers, bit for bit, as the FMI 2.0 ones.
+    numbers, bit for bit, as the FMI 2.0 ones; with ``clocked=True`` the controller is the
+    clocked one, its ticks scheduled in event mode (the same numbers again).
 
     Examples
     --------
@@ -405,7 +412,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     if isinstance(fmus, Mapping):
         chosen, why = dict(fmus), None
     else:
-        chosen, why = choose_fmus(loop, fmus, fmu_dir, engine, fmi)
+        chosen, why = choose_fmus(loop, fmus, fmu_dir, engine, fmi, clocked)
     result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine,
                       fmus=chosen, every=every, sink=sink, keep=keep, progress=progress,
                       watchdog=watchdog)
@@ -427,7 +434,8 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
 
 def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
           fmus: str = "auto", info: Callable[[str], None] | None = None,
-          sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2):
+          sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2,
+          clocked: bool = False):
     """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
     (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
     ``<name>_input_delay.fmu``) with the loop's values as their start values, and
@@ -454,6 +462,9 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     fmi : int, optional
         2 (default) or 3: FMI 3.0 FMUs (native C only, ``delaycomp.fmu.fmi3``: the
         matrices and vectors as arrays sized by structural parameters).
+    clocked : bool, optional
+        With ``fmi=3``: the controller's clocked variant (its sampling driven by an FMI 3.0
+        clock of interval T; LTI controllers).
 
     Returns
     -------
@@ -476,7 +487,11 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     if fmi == 3 and fmus == "python":
         raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
                              "FMUs are the native C ones")
-    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info, fmi=fmi)
+    if clocked and fmi != 3:
+        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
+                             "controller is an FMI 3.0 FMU (fmi = 3)")
+    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info, fmi=fmi,
+                      clocked=clocked)
 
 
 def export_c(loop: LoopLike, out: str | Path, prefix: str, *,

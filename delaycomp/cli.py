@@ -481,10 +481,15 @@ def _fmu_kind(p: argparse.ArgumentParser, native_help: str) -> None:
 
 
 def _fmi_flag(p: argparse.ArgumentParser, what: str) -> None:
-    """``--fmi {2,3}``: the FMI version of delaycomp's FMUs (docs: reference/fmi3)."""
+    """``--fmi {2,3}``: the FMI version of delaycomp's FMUs (docs: reference/fmi3), and
+    ``--clocked``: with 3, the controller driven by a clock."""
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2,
                    help=f"the FMI version of delaycomp's FMUs (default 2); 3: {what}; "
                         "docs: reference/fmi3")
+    p.add_argument("--clocked", action="store_true",
+                   help="with --fmi 3: the LTI controller's clocked variant, whose sampling "
+                        "an FMI 3.0 clock of interval T drives (the host schedules its ticks "
+                        "in event mode); docs: reference/fmi3")
 
 
 def _fmi_of(args) -> int:
@@ -493,6 +498,9 @@ def _fmi_of(args) -> int:
     if fmi == 3 and getattr(args, "python", False):
         raise UsageError("--fmi 3 is not allowed with --python: delaycomp's FMI 3.0 FMUs are "
                          "the native C ones")
+    if getattr(args, "clocked", False) and fmi != 3:
+        raise UsageError("--clocked is not allowed without --fmi 3: the clocked controller "
+                         "is an FMI 3.0 FMU")
     return fmi
 
 
@@ -506,7 +514,8 @@ def _chosen_fmus(args, loop) -> dict | None:
 
     kind = "python" if args.python else "native" if args.native else "auto"
     try:
-        fmus, why = choose_fmus(loop, kind, args.fmu_dir, fmi=_fmi_of(args))
+        fmus, why = choose_fmus(loop, kind, args.fmu_dir, fmi=_fmi_of(args),
+                                clocked=getattr(args, "clocked", False))
     except ValueError as exc:  # --native for a loop without native twins
         raise UsageError(str(exc)) from None
     if why:
@@ -558,7 +567,8 @@ def _cmd_build_loop(args) -> int:
     kind = "python" if args.python else "native" if args.native else "auto"
     built = build(loop, args.out if args.out is not None else Path.cwd(),
                   only=args.only or None, fmus=kind,
-                  info=lambda text: info(text, args.verbosity), fmi=_fmi_of(args))
+                  info=lambda text: info(text, args.verbosity), fmi=_fmi_of(args),
+                  clocked=args.clocked)
     for path in built.paths:
         print(path)
     return 0
@@ -590,8 +600,11 @@ def _cmd_build(args) -> int:
     if args.native or fmi == 3:
         # no compiler: one line naming what to install; a model that does not translate:
         # one line naming the function, the operation and the line
+        if args.model and args.clocked:
+            raise UsageError("--clocked is not allowed with --model: the clocked controller "
+                             "is the LTI controller's variant")
         paths = build_native_model(args.model, args.out, fmi) if args.model else \
-            build_native(args.out, fmi)
+            build_native(args.out, fmi, args.clocked)
     elif args.model:
         from delaycomp.maths.model import load_model
 

@@ -6,14 +6,24 @@ variables (an FMU with array inputs or outputs is refused, naming one); a parame
 as an element of an array variable (``A[2,1]``: row 2, column 1, from 1, as FMI 2.0 FMUs
 name their scalars) is set with the rest of its array in one ``fmi3SetFloat64`` (the
 elements not given keep their start values); ``Integer`` is ``Int32``.
+
+A clocked FMI 3.0 FMU (an input ``Clock``, time-based and periodic, ``intervalVariability``
+fixed or constant, shift 0: delaycomp's clocked controller) runs with event mode: its
+clocked inputs are kept by the component between ticks and handed to the FMU at each tick
+``t0 + i T`` (event mode, the inputs, ``fmi3SetClock``, ``fmi3UpdateDiscreteStates``,
+step mode) when the master writes them there, or at the latest before its step from that
+instant; its clocked outputs hold their values between ticks.
 """
 
 from __future__ import annotations
 
 import atexit
 import itertools
+import json
+import math
 import re
 import shutil
+import struct
 import weakref
 from collections.abc import Callable, Sequence
 from ctypes import byref, c_bool, c_double, c_int, c_size_t, c_void_p
@@ -150,7 +160,8 @@ def interface(md: ModelDescription, path: Path
     Raises ``ValueError`` for an FMU without co-simulation."""
     if md.coSimulation is None:
         raise ValueError(f"{path.name} is not a co-simulation FMU")
-    ports = [v for v in md.modelVariables if v.causality in ("input", "output")]
+    ports = [v for v in md.modelVariables
+             if v.causality in ("input", "output") and v.type != "Clock"]
     arrays = [v.name for v in ports if getattr(v, "dimensions", None)]
     if arrays:
         raise ValueError(f"{path.name}: {arrays[0]} is an array input or output: the master "
@@ -187,6 +198,20 @@ class FmuComponent(ComponentBase):
         self._vars = {v.name: v for v in self.md.modelVariables}
         #: an FMI 3.0 FMU (fmpy's FMU3Slave; the FMI calls under their 3.0 names)
         self.fmi3 = (self.md.fmiVersion or "").startswith("3")
+        #: a clocked FMI 3.0 FMU: its input clock, the inputs it clocks (names), and the
+        #: schedule (interval, start, index of the next tick, in event mode, time)
+        self._clock = next((v for v in self.md.modelVariables
+                            if v.type == "Clock" and v.causality == "input"), None)
+        if self._clock is not None and not self.fmi3:
+            self._clock = None
+        self._clocked = {v.name for v in self.md.modelVariables
+                         if self._clock is not None and v.causality == "input"
+                         and v.type != "Clock" and v.clocks}
+        self._pending: dict[str, float] = {}
+        self._interval = 0.0
+        self._t0 = self._time = 0.0
+        self._tick = 0
+        self._in_event = False
         self.messages: list[str] = []
         self.last_message: str | None = None
         #: worst status an FMI call of this instance returned (0 = ok .. 4 = fatal)
@@ -257,6 +282,7 @@ class FmuComponent(ComponentBase):
         self._do_step_fn = None
         try:
             if self.fmi3:
+                self._t0 = self._time = float(start_time)
                 fmu.enterInitializationMode(tolerance=self.tolerance, startTime=start_time,
                                             stopTime=stop_time)
                 self._set_parameters3(parameters)
@@ -283,7 +309,8 @@ class FmuComponent(ComponentBase):
         resources = str(Path(self._unzipdir) / "resources") + "/"
         fmu.component = fmu.fmi3InstantiateCoSimulation(
             self.name.encode("utf-8"), self.md.guid.encode("utf-8"), resources.encode("utf-8"),
-            fmi3Boolean(False), fmi3Boolean(True), fmi3Boolean(False), fmi3Boolean(False),
+            fmi3Boolean(False), fmi3Boolean(True), fmi3Boolean(self._clock is not None),
+            fmi3Boolean(False),
             (fmi3ValueReference * 0)(), 0, fmi3InstanceEnvironment(self._env_id),
             _dispatch3(), fmi3IntermediateUpdateCallback())
         if not fmu.component:
@@ -363,12 +390,59 @@ class FmuComponent(ComponentBase):
         error (it would refuse to step)."""
         assert self.fmu is not None  # after setup()
         try:
+            if self._clock is not None:
+                self._interval = self._clock_interval()
             self.fmu.exitInitializationMode()
         except FMICallException as exc:
             self._failed(exc)
             raise
         if self.worst_status >= 3:  # it logged an error: it will refuse to step
             raise FmuRefused(self.last_message or "the FMU logged an error")
+        if self._clock is not None:  # in event mode: the tick at t0 comes first
+            self._tick, self._in_event = 0, True
+
+    # -- a clocked FMI 3.0 FMU ------------------------------------------------------------
+    def _clock_interval(self) -> float:
+        """The clock's interval (``fmi3GetIntervalDecimal``; its XML value where constant);
+        its shift must be 0 (the first tick at the start time)."""
+        from ctypes import c_uint
+
+        assert self.fmu is not None and self._clock is not None
+        vr = (c_uint * 1)(self._clock.valueReference)
+        interval, qualifier, shift = (c_double * 1)(), (c_int * 1)(), (c_double * 1)()
+        if self._clock.intervalVariability == "constant" and self._clock.intervalDecimal:
+            interval[0] = float(self._clock.intervalDecimal)
+        else:
+            self.fmu.getIntervalDecimal(vr, interval, qualifier)
+        self.fmu.getShiftDecimal(vr, shift)
+        if not (math.isfinite(interval[0]) and interval[0] > 0) or shift[0] != 0.0:
+            raise FmuRefused(f"{self.name}: clock {self._clock.name} has interval "
+                             f"{interval[0]!r} and shift {shift[0]!r}: the master schedules "
+                             "periodic clocks of interval > 0 and shift 0")
+        return interval[0]
+
+    def _tick_if_due(self) -> None:
+        """At the next tick's instant: the event iteration that hands the FMU the clocked
+        inputs written since the last tick and latches its clocked outputs."""
+        t_tick = self._t0 + self._tick * self._interval
+        if abs(self._time - t_tick) > 1e-7 * self._interval:
+            return
+        fmu = self.fmu
+        assert fmu is not None and self._clock is not None
+        try:
+            if not self._in_event:
+                fmu.enterEventMode()
+            if self._pending:
+                names = list(self._pending)
+                fmu.setFloat64(self._vrs(names), [self._pending[n] for n in names])
+            fmu.setClock([self._clock.valueReference], [True])
+            fmu.updateDiscreteStates()
+            fmu.enterStepMode()
+        except FMICallException as exc:
+            self._failed(exc)
+            raise
+        self._in_event = False
+        self._tick += 1
 
     def _raw(self, fname: str) -> _RawCall | None:
         """``(fn, component)``: the FMU's function ``fname`` as a bare ctypes pointer (no
@@ -424,7 +498,22 @@ class FmuComponent(ComponentBase):
         return read
 
     def writer(self, names: Sequence[str]) -> Callable[[Sequence[float]], None]:
-        """``(values) -> None`` setting the inputs ``names``: the master's hot path."""
+        """``(values) -> None`` setting the inputs ``names``: the master's hot path (a
+        clocked FMU's clocked inputs are kept until their tick)."""
+        clocked = [n for n in names if n in self._clocked]
+        if clocked:
+            others = [n for n in names if n not in self._clocked]
+            write_others = self.writer(others) if others else None
+            at = [names.index(n) for n in clocked]
+            rest = [names.index(n) for n in others]
+
+            def write_clocked(values):
+                for n, i in zip(clocked, at):
+                    self._pending[n] = float(values[i])
+                if write_others is not None:
+                    write_others([values[i] for i in rest])
+                self._tick_if_due()
+            return write_clocked
         vrs = self._vrs(names)
         n = len(vrs)
         vr_array = (fmi2ValueReference * n)(*vrs)
@@ -456,6 +545,9 @@ class FmuComponent(ComponentBase):
         function where it can). An FMI 3.0 FMU that asks to end the simulation
         (``terminateSimulation``) or returns early is refused (the master's ticks are
         exact)."""
+        if self._clock is not None:  # its tick first, if none came at this instant
+            self._tick_if_due()
+            self._time = t + h
         fast = self._do_step_fn
         if fast is None:
             fast = self._do_step_fn = self._raw(self._fn("DoStep")) or False
@@ -505,9 +597,17 @@ class FmuComponent(ComponentBase):
         if self.fmi3:
             state = self._call(self.fmu.getFMUState)
             try:
-                return bytes(self._call(self.fmu.serializeFMUState, state))
+                data = bytes(self._call(self.fmu.serializeFMUState, state))
             finally:
                 self._call(self.fmu.freeFMUState, state)
+            if self._clock is None:
+                return data
+            # a clocked FMU: the schedule and the inputs kept for the next tick go along
+            head = json.dumps({"time": self._time.hex(), "tick": self._tick,
+                               "in_event": self._in_event,
+                               "pending": {n: v.hex() for n, v in self._pending.items()}}
+                              ).encode()
+            return struct.pack("<q", len(head)) + head + data
         state = self._call(self.fmu.getFMUstate)
         try:
             return bytes(self._call(self.fmu.serializeFMUstate, state))
@@ -517,6 +617,13 @@ class FmuComponent(ComponentBase):
     def set_state(self, data: bytes) -> None:
         """Restore a state from ``get_state``, possibly of another instance."""
         assert self.fmu is not None  # after setup()
+        if self._clock is not None:
+            (size,) = struct.unpack_from("<q", data)
+            head = json.loads(data[8:8 + size])
+            data = data[8 + size:]
+            self._time, self._tick = float.fromhex(head["time"]), int(head["tick"])
+            self._in_event = bool(head["in_event"])
+            self._pending = {n: float.fromhex(v) for n, v in head["pending"].items()}
         names = (("deserializeFMUState", "setFMUState", "freeFMUState") if self.fmi3
                  else ("deSerializeFMUstate", "setFMUstate", "freeFMUstate"))
         deserialize, set_state, free_state = (getattr(self.fmu, n) for n in names)

@@ -377,3 +377,145 @@ def test_the_reference_pages_table_is_the_fmus(built):
                       if v.get("causality") == "structuralParameter"]
         assert rows[ident][0] == arrays, ident
         assert re.findall(r"`(\w+)`", rows[ident][1]) == structural, ident
+
+
+# -- item 3: a controller on a clock -------------------------------------------------------
+@pytest.fixture(scope="module")
+def clocked(tmp_path_factory) -> Path:
+    """The clocked LTI controller, n = 3, m = 2."""
+    return build_native_fmu("controller", tmp_path_factory.mktemp("clocked"),
+                            {**DIMS["controller"], "clocked": True}, fmi=3)
+
+
+def test_the_clocked_controller_declares_its_clock(clocked):
+    """An input Clock, its interval the parameter T (fixed), every input and output
+    clocked by it; event mode; valid for fmpy."""
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(clocked)) == []
+    root = _root(clocked)
+    assert root.find("CoSimulation").get("hasEventMode") == "true"
+    variables = {v.get("name"): v for v in root.find("ModelVariables")}
+    clock = variables["sample"]
+    assert (clock.tag, clock.get("causality"), clock.get("intervalVariability")) == (
+        "Clock", "input", "fixed")
+    ports = [v for v in variables.values() if v.get("causality") in ("input", "output")
+             and v.tag != "Clock"]
+    assert sorted(v.get("name") for v in ports) == ["u1", "u2", "y1", "y2", "y3"]
+    assert {(v.get("clocks"), v.get("variability")) for v in ports} == {
+        (clock.get("valueReference"), "discrete")}
+
+
+@pytest.mark.parametrize("source, sets", [
+    ("example-3.6", {"r": 0.3, "u0": 4}),
+    ("corollary-3.7", {}),
+    (str(MYLOOP), {}),
+])
+def test_the_clocked_controller_reproduces_the_unclocked_loop(source, sets, tmp_path):
+    """Our master schedules its ticks (event mode, the inputs, fmi3SetClock,
+    fmi3UpdateDiscreteStates, step mode at each t0 + i T): the loop equals the unclocked
+    one bit for bit."""
+    plain = api.run(source, sets=sets, fmi=3, fmu_dir=tmp_path)
+    ticked = api.run(source, sets=sets, fmi=3, clocked=True, fmu_dir=tmp_path)
+    assert ticked.names == plain.names
+    assert np.array_equal(ticked.data, plain.data)
+    chosen, _ = api.choose_fmus(source if not sets else api.load(source, sets=sets), fmi=3,
+                                clocked=True, fmu_dir=tmp_path)
+    assert _root(chosen["controller"]).find("CoSimulation").get("hasEventMode") == "true"
+
+
+def _event_slave(path: Path, messages: list[str], event_mode: bool = True):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi3 import FMU3Slave
+
+    md = read_model_description(str(path))
+    slave = FMU3Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="t")
+    slave.instantiate(eventModeUsed=event_mode,
+                      logMessage=lambda env, st, cat, msg: messages.append(msg.decode()))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave.enterInitializationMode(startTime=0.0)
+    slave.setFloat64([vr["T"], vr["K"]], [0.2, *[-0.1] * 6])
+    return slave, vr
+
+
+def test_a_host_without_clocks_gets_a_refusal_not_a_wrong_loop(clocked):
+    """No event mode asked for: no instance. A step from a tick instant whose tick did not
+    come, a tick at another instant, a clocked input set in step mode: each refused with a
+    message saying what the host must do."""
+    from ctypes import c_double, c_int, c_uint
+
+    from fmpy.fmi1 import FMICallException
+
+    messages: list[str] = []
+    with pytest.raises(Exception, match="Failed to instantiate"):
+        _event_slave(clocked, messages, event_mode=False)
+    assert messages[-1].startswith("eventModeUsed = false is not allowed: this controller "
+                                   "samples at the ticks of its clock sample")
+    slave, vr = _event_slave(clocked, messages)
+    interval, qualifier = (c_double * 1)(), (c_int * 1)()
+    slave.getIntervalDecimal((c_uint * 1)(vr["sample"]), interval, qualifier)
+    assert (interval[0], qualifier[0]) == (0.2, 2)  # T, fmi3IntervalChanged
+    slave.exitInitializationMode()  # event mode: the tick at t0 is due
+    slave.enterStepMode()
+    with pytest.raises(FMICallException):
+        slave.doStep(0.0, 0.05)
+    assert messages[-1] == (
+        "fmi3DoStep from t = 0.0 is not allowed: sample ticks there (t0 + 0 T) and did not "
+        "(enter event mode, set the inputs, fmi3SetClock, fmi3UpdateDiscreteStates, "
+        "fmi3EnterStepMode)")
+    slave.freeInstance()
+    slave, vr = _event_slave(clocked, messages)
+    slave.exitInitializationMode()
+    slave.setFloat64([vr["y1"], vr["y2"], vr["y3"]], [1.0, 2.0, 3.0])
+    slave.setClock([vr["sample"]], [True])
+    slave.updateDiscreteStates()
+    u = slave.getFloat64([vr["u1"], vr["u2"]])
+    slave.enterStepMode()
+    slave.doStep(0.0, 0.05)
+    with pytest.raises(FMICallException):
+        slave.setFloat64([vr["y1"]], [9.0])
+    assert messages[-1] == ("fmi3SetFloat64: y1 is not allowed in step mode: it is clocked "
+                            "by sample (set it in event mode, at the clock's tick)")
+    assert slave.getFloat64([vr["u1"], vr["u2"]]) == u  # held between ticks
+    slave.enterEventMode()
+    with pytest.raises(FMICallException):
+        slave.setClock([vr["sample"]], [True])
+    assert messages[-1] == ("fmi3SetClock: sample ticking at t = 0.05 is not allowed: its "
+                            "next tick is at t0 + 1 T = 0.2 (interval T = 0.2)")
+    slave.freeInstance()
+
+
+def test_a_clocked_run_restored_mid_period_continues_bit_identically(clocked, tmp_path):
+    """The master's state (every component's, the clocked one's schedule and the inputs
+    kept for its next tick with it) taken between ticks and restored: the run goes on as
+    before."""
+    from delaycomp.orchestrator.simulate import make_master
+
+    loop = api.load(MYLOOP)
+    fmus, _ = api.choose_fmus(loop, fmi=3, clocked=True, fmu_dir=tmp_path)
+    master, rec = make_master(loop, fmus=fmus)
+    master.setup(loop.stop_time, loop.parameters())
+    master.initialize()
+    master.run_until(137)  # T = 20 base steps: 17 steps into a period
+    state = master.get_state()
+    master.run_until(400)
+    first = np.array(rec.rows[-263:])
+    master.set_state(state)
+    master.run_until(400)
+    assert np.array_equal(np.array(rec.rows[-263:]), first)
+    master.terminate()
+
+
+def test_clocked_asks_for_fmi_3_on_the_command_line(tmp_path):
+    proc = cli("run", "example-3.6", "--clocked")
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == ("delaycomp: error: --clocked is not allowed without --fmi "
+                                   "3: the clocked controller is an FMI 3.0 FMU")
+    proc = cli("build", MYLOOP, "--fmi", "3", "--clocked", "--only", "controller", "--out",
+               tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert _root(tmp_path / "myloop_controller.fmu").find(
+        "CoSimulation").get("hasEventMode") == "true"
+    proc = cli("run", MYLOOP, "--fmi", "3", "--clocked", "--fmu-dir", tmp_path / "cache")
+    assert proc.returncode == 0, proc.stderr

@@ -17,6 +17,12 @@
 The inputs and outputs stay scalar (``y1 .. yn``, ``u1 .. um``): the loop is wired port
 by port as with FMI 2.0 FMUs (SSP 1.0 connectors are scalar), and an FMI 3.0 controller
 connects to another tool's FMI 2.0 plant unchanged.
+
+A clocked build (``clock``: the manifest's ``[fmi3.clock]``, the controller's) adds an
+input ``Clock``, time-based and periodic, its interval the parameter it names
+(``intervalVariability="fixed"``), and clocks every input and output with it
+(``clocks``; the inputs ``variability="discrete"``); the FMU then has event mode
+(``fmus/native/fmi3.c``).
 """
 
 from __future__ import annotations
@@ -35,7 +41,8 @@ PLATFORMS = {"linux64": "x86_64-linux", "win64": "x86_64-windows",
              "aarch64-linux": "aarch64-linux", "darwin64": "x86_64-darwin"}
 
 _TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
-_CODE = {"Float64": "r", "Int32": "i", "Boolean": "b", "String": "s", "UInt64": "n"}
+_CODE = {"Float64": "r", "Int32": "i", "Boolean": "b", "String": "s", "UInt64": "n",
+         "Clock": "k"}
 _CAUSALITY = {"parameter": "p", "input": "i", "output": "o", "structuralParameter": "s",
               "independent": "t"}
 _ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
@@ -61,6 +68,7 @@ class Fmi3Variable:
     dims: tuple[str, ...] = ()  #: the structural parameters of its dimensions
     attrib: dict[str, str] = field(default_factory=dict)  #: initial, unit, declaredType, ...
     value: int = 0  #: a structural parameter's value
+    clocks: int | None = None  #: the value reference of the clock of a clocked variable
 
 
 @dataclass
@@ -70,6 +78,9 @@ class Fmi3Table:
 
     variables: list[Fmi3Variable]
     nslots: int  #: variables of the FMI 2.0 table (slots)
+    #: a clocked build: the clock's variable and the slot of the parameter its interval is
+    clock: Fmi3Variable | None = None
+    interval_slot: int = -1
 
     def by_name(self) -> dict[str, Fmi3Variable]:
         """name -> variable."""
@@ -81,11 +92,12 @@ def _indices(name: str) -> tuple[str, tuple[int, ...]] | None:
     return (m.group(1), tuple(int(i) for i in m.group(2).split(","))) if m else None
 
 
-def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list[str]]
-               ) -> Fmi3Table:
+def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list[str]],
+               clock: dict[str, str] | None = None) -> Fmi3Table:
     """The FMI 3.0 table of the FMI 2.0 table tree ``root`` (the Python twin's
     modelDescription), grouping the manifest's ``arrays`` (name -> its dimensions, each a
-    key of ``structural``: name -> description).
+    key of ``structural``: name -> description); with ``clock`` (``name``, ``interval``:
+    the parameter that gives it, ``description``), a clocked build's.
 
     Raises
     ------
@@ -161,6 +173,22 @@ def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list
     out.append(Fmi3Variable(name=time, vr=nslots + len(structural), first=-1, count=1,
                             type="Float64", causality="independent",
                             variability="continuous", description="simulation time"))
+    clock_var, interval_slot = None, -1
+    if clock is not None:
+        by_name = {sv.get("name"): sv for sv in scalars}
+        interval = by_name.get(clock["interval"])
+        if interval is None or next(iter(interval)).tag != "Real":
+            raise Fmi3TableError(f"the clock's interval {clock['interval']!r} is no Real "
+                                 f"parameter of {root.get('modelName')}")
+        if clock["name"] in taken or clock["name"] == time:
+            raise Fmi3TableError(f"the clock's name {clock['name']!r} is taken")
+        interval_slot = int(interval.get("valueReference", "-1"))
+        clock_var = Fmi3Variable(
+            name=clock["name"], vr=nslots + len(structural) + 1, first=-1, count=1,
+            type="Clock", causality="input", variability="discrete",
+            description=clock.get("description"),
+            attrib={"intervalVariability": "fixed"})
+        out.append(clock_var)
     for var in grouped.values():
         var.dims = tuple(rename[d] for d in var.dims)
     done: set[str] = set()
@@ -180,7 +208,12 @@ def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list
             variability=sv.get("variability", "continuous"),
             description=sv.get("description"), starts=[] if start is None else [start],
             attrib=_attributes(sv, typed)))
-    return Fmi3Table(out, nslots)
+    if clock_var is not None:  # every input and output ticks with the clock
+        for var in out:
+            if var.causality in ("input", "output") and var is not clock_var:
+                var.clocks = clock_var.vr
+                var.variability = "discrete"
+    return Fmi3Table(out, nslots, clock_var, interval_slot)
 
 
 def _joined(descriptions: list[str]) -> str | None:
@@ -210,8 +243,12 @@ def config_block(table: Fmi3Table) -> list[str]:
     index = [-1] * nvr3
     for k, var in enumerate(table.variables):
         index[var.vr] = k
-    lines = [f"#define NV3 {len(table.variables)}", f"#define NVR3 {nvr3}",
-             "static const Var3 VAR3[NV3] = {"]
+    lines = [f"#define NV3 {len(table.variables)}", f"#define NVR3 {nvr3}"]
+    if table.clock is not None:
+        lines += ["#define CLOCKED 1", f"#define CLOCK_NAME \"{table.clock.name}\"",
+                  f"#define CLOCK_VR {table.clock.vr}",
+                  f"#define CLOCK_INTERVAL_SLOT {table.interval_slot}"]
+    lines += ["static const Var3 VAR3[NV3] = {"]
     for var in table.variables:
         lines.append(f"    {{{max(var.first, 0)}u, {var.count}u, '{_CODE[var.type]}', "
                      f"'{_CAUSALITY[var.causality]}', \"{var.name}\", {var.value}ull}},")
@@ -240,7 +277,7 @@ def model_description(root: Element, table: Fmi3Table, ident: str, token: str,
         "canSerializeFMUState": "true",
         "canHandleVariableCommunicationStepSize":
             cs2.get("canHandleVariableCommunicationStepSize", "false"),
-        "hasEventMode": "false"})
+        "hasEventMode": "false" if table.clock is None else "true"})
     units = root.find("UnitDefinitions")
     if units is not None:
         md.append(units)
@@ -268,6 +305,8 @@ def model_description(root: Element, table: Fmi3Table, ident: str, token: str,
         attrib["causality"] = var.causality
         attrib["variability"] = var.variability
         attrib.update(var.attrib)
+        if var.clocks is not None:
+            attrib["clocks"] = str(var.clocks)
         if var.starts and var.type != "String":
             attrib["start"] = " ".join(var.starts)
         element = SubElement(variables, var.type, attrib=attrib)
@@ -288,10 +327,14 @@ def model_description(root: Element, table: Fmi3Table, ident: str, token: str,
     def vr_of(index: str) -> int:  # an FMI 2.0 index (1-based) -> its FMI 3.0 variable
         return slot_owner[int(scalars[int(index) - 1].get("valueReference", "-1"))]
 
+    clocked = {v.vr for v in table.variables if v.clocks is not None}
     for kind, tag in (("Outputs", "Output"), ("InitialUnknowns", "InitialUnknown")):
         block = ms2.find(kind) if ms2 is not None else None
         for unknown in block if block is not None else ():
-            attrib = {"valueReference": str(vr_of(unknown.get("index", "0")))}
+            vr = vr_of(unknown.get("index", "0"))
+            if tag == "InitialUnknown" and vr in clocked:
+                continue  # a clocked output has its value from the first tick
+            attrib = {"valueReference": str(vr)}
             deps = unknown.get("dependencies")
             if deps is not None:
                 attrib["dependencies"] = " ".join(

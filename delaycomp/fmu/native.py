@@ -126,6 +126,9 @@ class NativeTwin:
     #: (name -> its dimensions, each a structural parameter)
     structural: dict[str, str] = field(default_factory=dict)
     arrays: dict[str, list[str]] = field(default_factory=dict)
+    #: FMI 3.0 (``[fmi3.clock]``): the clock of a clocked build (``name``, ``interval``:
+    #: the parameter that gives it, ``description``); empty: no clocked variant
+    clock: dict[str, str] = field(default_factory=dict)
 
     @property
     def files(self) -> tuple[Path, ...]:
@@ -169,19 +172,23 @@ def native_twin(kind: str) -> NativeTwin:
     uses, vrs = data.get("uses", []), data.get("value_references", {})
     fmi3 = data.get("fmi3", {})
     structural, arrays = fmi3.get("structural", {}), fmi3.get("arrays", {})
+    clock = fmi3.get("clock", {})
     if (set(data) - {"uses", "value_references", "fmi3"}
+            or set(clock) - {"name", "interval", "description"}
+            or (clock and not {"name", "interval"} <= set(clock))
             or not all(isinstance(u, str) and u.endswith(".c") for u in uses)
             or not all(isinstance(v, str) for v in vrs.values())
-            or set(fmi3) - {"structural", "arrays"}
+            or set(fmi3) - {"structural", "arrays", "clock"}
             or not all(isinstance(v, str) for v in structural.values())
             or not all(isinstance(d, list) and all(x in structural for x in d)
                        for d in arrays.values())):
         raise ValueError(f"{manifest}: a native manifest has `uses` (a list of .c files of "
                          "fmus/native/), `value_references` (macro = variable name) and "
-                         "`[fmi3]`: `structural` (name = description) and `arrays` (name = "
-                         "its dimensions, structural parameters)")
+                         "`[fmi3]`: `structural` (name = description), `arrays` (name = "
+                         "its dimensions, structural parameters) and `clock` (name, interval, "
+                         "description)")
     return NativeTwin(kind, spec.folder, spec.native, tuple(uses), dict(vrs),
-                      dict(structural), {k: list(v) for k, v in arrays.items()})
+                      dict(structural), {k: list(v) for k, v in arrays.items()}, dict(clock))
 
 
 def _note(text: str) -> None:
@@ -508,7 +515,9 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     fmi : int, optional
         The FMI version, 2 (default) or 3 (``delaycomp.fmu.fmi3``: the vectors and
         matrices as arrays sized by structural parameters, the binaries in FMI 3.0's
-        platform folders, ``sources/buildDescription.xml``).
+        platform folders, ``sources/buildDescription.xml``). With 3, ``config`` may
+        say ``"clocked": True`` for a kind whose manifest has ``[fmi3.clock]`` (the LTI
+        controller): its sampling driven by an FMI 3.0 clock of interval T.
 
     Raises
     ------
@@ -524,10 +533,18 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if fmi not in FMI_VERSIONS:
         raise ValueError(f"fmi = {fmi!r} is not allowed: must be 2 or 3 (the FMI version)")
     twin = native_twin(kind)
+    clocked = bool((config or {}).get("clocked"))
+    if clocked and (fmi != 3 or not twin.clock):
+        raise ValueError(f"clocked = true is not allowed for {'FMI 2.0' if fmi != 3 else kind}: "
+                         "a clocked controller is an FMI 3.0 LTI controller (fmi = 3, kind "
+                         f"{', '.join(k for k in NATIVE_KINDS if native_twin(k).clock)})")
     cc = compiler()
     crosses = cross_compilers()
-    config, translation, ident = _native_config(kind, config)
-    root = _python_table(kind, config)
+    config, translation, ident = _native_config(
+        kind, {k: v for k, v in config.items() if k != "clocked"} if config else config)
+    if clocked:
+        config = {**config, "clocked": True}
+    root = _python_table(kind, {k: v for k, v in config.items() if k != "clocked"})
     _exact_starts(root, config.get("start") or {})
     full = {**config, "version": delaycomp.__version__, **({"fmi": 3} if fmi == 3 else {})}
     guid = "{" + str(pinned_guid(f"{ident}/native" + ("/fmi3" if fmi == 3 else ""),
@@ -537,7 +554,8 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if fmi == 3:
         from delaycomp.fmu import fmi3
 
-        table3 = fmi3.fmi3_table(root, twin.structural, twin.arrays)
+        table3 = fmi3.fmi3_table(root, twin.structural, twin.arrays,
+                                 twin.clock if clocked else None)
         description = fmi3.model_description(
             root, table3, ident, guid, f"delaycomp {delaycomp.__version__} (native C)")
     else:
@@ -657,10 +675,16 @@ def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> N
     shutil.copy2(SOURCE_DIR / "README.md", doc / "native.md")
 
 
-def build_native(out_dir: Path, fmi: int = 2) -> list[Path]:
+def build_native(out_dir: Path, fmi: int = 2, clocked: bool = False) -> list[Path]:
     """Build the three native FMUs of the scalar LTI loop (default dimensions), for FMI
-    version ``fmi`` (2 or 3)."""
-    return [build_native_fmu(kind, out_dir, fmi=fmi) for kind in NATIVE_KINDS]
+    version ``fmi`` (2 or 3); ``clocked`` (FMI 3.0): the controller driven by a clock."""
+    return [build_native_fmu(kind, out_dir, _clocked({}, kind, clocked) or None, fmi=fmi)
+            for kind in NATIVE_KINDS]
+
+
+def _clocked(config: dict, kind: str, clocked: bool) -> dict:
+    """``config`` with ``clocked`` where asked and the kind has a clocked variant."""
+    return {**config, "clocked": True} if clocked and native_twin(kind).clock else config
 
 
 def build_native_model(model_path: str | Path, out_dir: Path, fmi: int = 2) -> list[Path]:
@@ -923,12 +947,14 @@ def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2
             "--native is not allowed for this loop: ")
 
 
-def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2) -> dict[str, Path]:
+def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
+                clocked: bool = False) -> dict[str, Path]:
     """Native FMU files for every instance of ``loop`` (a
     ``Loop``), to pass as ``fmus=`` to
     ``delaycomp.orchestrator.simulate.run_loop``; FMI 3.0 ones with ``fmi=3``, where a
     user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant) keeps its file: a
-    mixed loop.
+    mixed loop; ``clocked`` (FMI 3.0): the controller driven by a clock (the LTI
+    controller's variant; ``ValueError`` for a loop whose controller has none).
 
     Raises
     ------
@@ -947,6 +973,15 @@ def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2) -> dict[str, Pa
             raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
                              f"is {what}; native FMUs exist for the delay, the LTI plant and "
                              "controller, and a model file's plant and controller")
-    return {inst.name: native_fmu_path(inst.source.kind, dict(inst.source.config), fmu_dir,
-                                       fmi)
+    if clocked:
+        ctrl = loop.by_role("controller")
+        if ctrl is None or isinstance(ctrl.source, FmuFile) or not native_twin(
+                ctrl.source.kind).clock or fmi != 3:
+            raise ValueError("clocked = true is not allowed for this loop: a clocked "
+                             "controller is the FMI 3.0 LTI controller (fmi = 3, an LTI "
+                             "loop's controller)")
+    return {inst.name: native_fmu_path(
+                inst.source.kind,
+                _clocked(dict(inst.source.config), inst.source.kind,
+                         clocked and inst.role == "controller"), fmu_dir, fmi)
             for inst in loop.instances if not isinstance(inst.source, FmuFile)}

@@ -96,7 +96,8 @@ def roles_of(only: Iterable[str] | None) -> tuple[Role, ...]:
 
 
 def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = None,
-               fmus: str = "auto", info=None, fmi: int = 2) -> LoopBuild:
+               fmus: str = "auto", info=None, fmi: int = 2,
+               clocked: bool = False) -> LoopBuild:
     """Build the FMUs of ``loop`` into ``out_dir`` with the loop's values as their start
     values, and write its wiring sheet.
 
@@ -116,6 +117,8 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
         ``info(text)`` receives each note as it arises.
     fmi : int
         2, or 3 for FMI 3.0 FMUs (native only: ``fmus`` ``auto`` is ``native``).
+    clocked : bool
+        With ``fmi=3``: the LTI controller's clocked variant.
 
     Returns
     -------
@@ -136,7 +139,7 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     out_dir.mkdir(parents=True, exist_ok=True)
     with temp_dir("delaycomp-loopbuild-") as tmp:
         staged, native = _stage_fmus(loop, todo, name, "native" if fmi == 3 else fmus,
-                                     Path(tmp), note, fmi)
+                                     Path(tmp), note, fmi, clocked)
         for inst in todo:
             check_starts(staged[inst.role], inst.parameters, f"{name}_{inst.role}.fmu")
         written: dict[str, Path] = {}
@@ -183,7 +186,8 @@ def _chosen(loop: Loop, roles: tuple[Role, ...], note: Callable[[str], None]
 
 
 def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Path,
-                note: Callable[[str], None], fmi: int = 2) -> tuple[dict[str, Path], bool]:
+                note: Callable[[str], None], fmi: int = 2, clocked: bool = False
+                ) -> tuple[dict[str, Path], bool]:
     """Build the FMUs of ``todo`` under ``tmp``: native ones unless ``fmus`` says python
     (``auto`` falls back to Python with a note); role -> FMU and whether they are
     native."""
@@ -194,7 +198,7 @@ def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Pat
     staged: dict[str, Path] = {}
     if native:
         try:
-            staged = _build_all(todo, name, True, tmp / "native", fmi)
+            staged = _build_all(todo, name, True, tmp / "native", fmi, clocked)
         except (NativeBuildError, ModelError, ValueError) as exc:
             why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
             if fmus == "native":
@@ -213,7 +217,7 @@ def _stage_fmus(loop: Loop, todo: list[Instance], name: str, fmus: str, tmp: Pat
 
 
 def _build_all(todo: list[Instance], name: str, native: bool,
-               stage: Path, fmi: int = 2) -> dict[str, Path]:
+               stage: Path, fmi: int = 2, clocked: bool = False) -> dict[str, Path]:
     """Build each instance of ``todo`` (native or Python) into ``stage``, with its
     parameters as start values; role -> FMU."""
     from delaycomp.fmu.build import build_fmu
@@ -224,7 +228,8 @@ def _build_all(todo: list[Instance], name: str, native: bool,
         source = inst.source
         assert not isinstance(source, FmuFile)  # todo holds the instances to build
         kind, config = source.build_key()
-        config = {**config, "start": dict(inst.parameters)}
+        config = {**config, "start": dict(inst.parameters),
+                  **({"clocked": True} if clocked and inst.role == "controller" else {})}
         file_name = f"{name}_{inst.role}.fmu"
         if native:
             built[inst.role] = build_native_fmu(kind, stage, config, file_name, fmi=fmi)

@@ -20,6 +20,7 @@ const char *state_name(FsmState s) {
     case StateTerminated: return "terminated";
     case StateError: return "error";
     case StateConfigurationMode: return "configuration mode";
+    case StateEventMode: return "event mode";
     }
     return "unknown";
 }
@@ -92,7 +93,7 @@ int core_exit_initialization(Instance *c, const char *fn) {
  * before, and its model's destructor called fmi2Terminate and fmi2FreeInstance on those
  * again (a use-after-free and a double free in the host, seen with valgrind). */
 int core_terminate(Instance *c, const char *fn) {
-    if (!allowed(c, fn, StateStepComplete | StateError)) return STATUS_ERROR;
+    if (!allowed(c, fn, StateStepComplete | StateError | StateEventMode)) return STATUS_ERROR;
     c->d.state = StateTerminated;
     return STATUS_OK;
 }
@@ -312,10 +313,17 @@ static int data_ok(const StateView *v) {
     const Data *d = v->d;
     int st = d->state;
     if (st != StateInstantiated && st != StateInitializationMode && st != StateStepComplete &&
-        st != StateTerminated && st != StateError)
+        st != StateTerminated && st != StateError && !(CLOCKED && st == StateEventMode))
         return state_refuse(v, "state = %d: must be one of 1 (instantiated), 2 "
                             "(initialization mode), 4 (step complete), 8 (terminated), 16 "
-                            "(error)", st);
+                            "(error)%s", st, CLOCKED ? ", 64 (event mode)" : "");
+#if CLOCKED
+    if (!state_range(v, "tick_next", d->tick_next, 0, 2147483647L) ||
+        !state_flag(v, "clock_active", d->clock_active))
+        return 0;
+    if (d->clock_active && st != StateEventMode)
+        return state_refuse(v, "clock_active = 1: must be 0 outside event mode");
+#endif
     if (!isfinite(d->t0) || !isfinite(d->time))
         return state_refuse(v, "%s = %s: must be a finite number", isfinite(d->t0) ? "time"
                             : "t0", num(isfinite(d->t0) ? d->time : d->t0).s);

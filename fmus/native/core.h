@@ -7,8 +7,9 @@
 #include "native.h"
 
 #define ANY_STATE (StateInstantiated | StateInitializationMode | StateStepComplete | \
-                   StateTerminated | StateError)
-#define MASK_GET (StateInitializationMode | StateStepComplete | StateTerminated | StateError)
+                   StateTerminated | StateError | StateEventMode)
+#define MASK_GET (StateInitializationMode | StateStepComplete | StateTerminated | StateError | \
+                  StateEventMode)
 #define MASK_SET_PARAMETER (StateInstantiated | StateInitializationMode)
 #define MASK_SET_INPUT (StateInstantiated | StateInitializationMode | StateStepComplete)
 #define MASK_STATE (ANY_STATE)

@@ -23,6 +23,19 @@
  * fmi3Error and puts the instance into the error state. Model Exchange and Scheduled
  * Execution are not provided: their functions exist (every FMI 3.0 function is exported,
  * as importers resolve them all) and refuse with a logged message.
+ *
+ * A clocked build (config.h's CLOCKED: `build --fmi 3 --clocked`, the controller) has
+ * event mode and an input Clock CLOCK_NAME, time-based and periodic, whose interval is
+ * the parameter at CLOCK_INTERVAL_SLOT (T: intervalVariability = "fixed", read with
+ * fmi3GetIntervalDecimal from initialization mode on) and shift 0: it ticks at
+ * t0 + i T. The host schedules each tick: at t0 + i T it enters event mode (the FMU is in
+ * event mode after fmi3ExitInitializationMode, for the tick at t0), sets the inputs, sets
+ * the clock active (fmi3SetClock) and calls fmi3UpdateDiscreteStates, which samples the
+ * inputs and latches the outputs; fmi3EnterStepMode, then steps. The inputs and outputs
+ * are clocked: the inputs are set only in event mode, the outputs hold their latched
+ * values between ticks. A host that does not schedule the clock gets a refusal, not a
+ * silently wrong loop: eventModeUsed = false at instantiation, a tick at another time, a
+ * step from a tick instant whose tick did not come, an input set in step mode.
  */
 #include <math.h>
 #include <stdbool.h>
@@ -52,6 +65,30 @@ static void refuse_instantiation(fmi3LogMessageCallback log, fmi3InstanceEnviron
     if (log != NULL) log(env, fmi3Error, "logStatusError", text);
 }
 
+/* ---- the clock (CLOCKED builds) -------------------------------------------------------- */
+#if CLOCKED
+/* The clock's interval (the parameter T) and the time of its next tick, t0 + i T. */
+static double clock_interval(const Instance *c) { return c->d.real[CLOCK_INTERVAL_SLOT]; }
+
+static double next_tick(const Instance *c) {
+    return c->d.t0 + (double)c->d.tick_next * clock_interval(c);
+}
+
+/* Is t the next tick's instant, up to the grid's tolerance and a host clock's drift? (A
+ * host's communication points are at least T / MAX_STEPS apart: far more than this.) */
+static int at_next_tick(const Instance *c, double t) {
+    double T = clock_interval(c);
+    return fabs(t - next_tick(c)) <= GRID_RTOL * T + drift(t, T * 1e-3, c->d.t0);
+}
+
+/* The latched outputs: each output's value of the tick (the model's, at the tick). */
+static int latch_outputs(Instance *c) {
+    for (ValueRef vr = 0; vr < NVR; vr++)
+        if (VAR_CAUSALITY[vr] == 'o' && model_output(c, vr, &c->d.real[vr]) != 0) return -1;
+    return 0;
+}
+#endif
+
 /* ---- the FMI 3.0 variables (config.h: VAR3, VAR3_INDEX) ------------------------------ */
 static const char *type_name(char type) {
     switch (type) {
@@ -60,6 +97,7 @@ static const char *type_name(char type) {
     case 'b': return "Boolean";
     case 's': return "String";
     case 'n': return "UInt64";
+    case 'k': return "Clock";
     }
     return "?";
 }
@@ -113,6 +151,13 @@ static int check_settable(Instance *c, const char *fn, const Var3 *v) {
         }
         return 1;
     }
+#if CLOCKED
+    if (v->causality == 'i' && c->d.state == StateStepComplete) {
+        log_error(c, "%s: %s is not allowed in step mode: it is clocked by %s (set it in "
+                  "event mode, at the clock's tick)", fn, v->name, CLOCK_NAME);
+        return 0;
+    }
+#endif
     if (v->causality == 'p' && !(c->d.state & MASK_SET_PARAMETER)) {
         log_error(c, "%s: %s is a fixed parameter: it can be set only before "
                   "fmi3ExitInitializationMode (state is '%s')", fn, v->name,
@@ -133,7 +178,7 @@ static int check_set(Instance *c, const char *fn, const fmi3ValueReference vr[],
     return 1;
 }
 
-#define MASK_SET3 (MASK_SET_INPUT | StateConfigurationMode)
+#define MASK_SET3 (MASK_SET_INPUT | StateConfigurationMode | StateEventMode)
 
 /* Structural parameters are readable in every state but configuration's peers; the others
  * from initialization mode on (MASK_GET). */
@@ -203,11 +248,21 @@ fmi3Instance fmi3InstantiateCoSimulation(
         refuse_instantiation(logMessage, instanceEnvironment, text);
         return NULL;
     }
+#if CLOCKED
+    if (!eventModeUsed) {
+        refuse_instantiation(logMessage, instanceEnvironment, "eventModeUsed = false is not "
+                             "allowed: this controller samples at the ticks of its clock "
+                             CLOCK_NAME ", which the host schedules in event mode (a host "
+                             "without clocks takes the unclocked FMU)");
+        return NULL;
+    }
+#else
     if (eventModeUsed) {
         refuse_instantiation(logMessage, instanceEnvironment, "eventModeUsed = true is not "
                              "allowed: this FMU has no event mode (hasEventMode = false)");
         return NULL;
     }
+#endif
     if (nRequiredIntermediateVariables > 0) {
         refuse_instantiation(logMessage, instanceEnvironment, "requiredIntermediateVariables "
                              "is not allowed: this FMU provides no intermediate update");
@@ -246,7 +301,16 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
 }
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
-    return (fmi3Status)core_exit_initialization(instance, "fmi3ExitInitializationMode");
+    Instance *c = instance;
+    fmi3Status status = (fmi3Status)core_exit_initialization(c, "fmi3ExitInitializationMode");
+#if CLOCKED
+    if (status == fmi3OK) {  /* event mode: the tick at t0 comes first */
+        c->d.state = StateEventMode;
+        c->d.tick_next = 0;
+        c->d.clock_active = 0;
+    }
+#endif
+    return status;
 }
 
 static fmi3Status refuse(fmi3Instance instance, const char *text) {
@@ -256,8 +320,16 @@ static fmi3Status refuse(fmi3Instance instance, const char *text) {
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
+#if CLOCKED
+    Instance *c = instance;
+    if (!allowed(c, "fmi3EnterEventMode", StateStepComplete)) return fmi3Error;
+    c->d.state = StateEventMode;
+    c->d.clock_active = 0;
+    return fmi3OK;
+#else
     return refuse(instance, "fmi3EnterEventMode is not allowed: this FMU has no event mode "
                   "(hasEventMode = false)");
+#endif
 }
 
 fmi3Status fmi3Terminate(fmi3Instance instance) {
@@ -285,6 +357,12 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
             values[at++] = c->d.time;
             continue;
         }
+#if CLOCKED
+        if (v->causality == 'o') {  /* clocked: the values latched at the last tick */
+            for (size_t e = 0; e < v->count; e++) values[at++] = c->d.real[v->first + e];
+            continue;
+        }
+#endif
         for (size_t e = 0; e < v->count; e++)
             if (core_get_real(c, v->first + (ValueRef)e, &values[at++]) != STATUS_OK)
                 return fmi3Error;
@@ -458,16 +536,50 @@ fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference vr[], s
     return nvr == 0 ? fmi3OK : refuse_type(instance, "fmi3SetBinary", vr[0], "Binary");
 }
 
+#if CLOCKED
+/* Every value reference the clock's, else 0 (logged). */
+static int clock_refs(Instance *c, const char *fn, const fmi3ValueReference vr[], size_t nvr) {
+    for (size_t k = 0; k < nvr; k++)
+        if (var_of(c, fn, vr[k], 'k') == NULL) return 0;
+    return nvr == 0 || vr != NULL;
+}
+#endif
+
 fmi3Status fmi3GetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
                         fmi3Clock values[]) {
+#if CLOCKED
+    Instance *c = instance;
+    if (!allowed(c, "fmi3GetClock", StateEventMode | StateStepComplete)) return fmi3Error;
+    if (!clock_refs(c, "fmi3GetClock", vr, nvr)) return fmi3Error;
+    for (size_t k = 0; k < nvr; k++) values[k] = c->d.clock_active ? fmi3ClockActive
+                                                                   : fmi3ClockInactive;
+    return fmi3OK;
+#else
     (void)values;
     return nvr == 0 ? fmi3OK : refuse_type(instance, "fmi3GetClock", vr[0], "Clock");
+#endif
 }
 
 fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
                         const fmi3Clock values[]) {
+#if CLOCKED
+    Instance *c = instance;
+    if (!allowed(c, "fmi3SetClock", StateEventMode)) return fmi3Error;
+    if (!clock_refs(c, "fmi3SetClock", vr, nvr)) return fmi3Error;
+    for (size_t k = 0; k < nvr; k++) {
+        if (values[k] && !at_next_tick(c, c->d.time)) {
+            log_error(c, "fmi3SetClock: %s ticking at t = %s is not allowed: its next tick is "
+                      "at t0 + %ld T = %s (interval T = %s)", CLOCK_NAME, num(c->d.time).s,
+                      c->d.tick_next, num(next_tick(c)).s, num(clock_interval(c)).s);
+            return fmi3Error;
+        }
+        c->d.clock_active = values[k] ? 1 : 0;
+    }
+    return fmi3OK;
+#else
     (void)values;
     return nvr == 0 ? fmi3OK : refuse_type(instance, "fmi3SetClock", vr[0], "Clock");
+#endif
 }
 
 /* ---- dependencies ------------------------------------------------------------------ */
@@ -570,8 +682,28 @@ fmi3Status fmi3ExitConfigurationMode(fmi3Instance instance) {
 fmi3Status fmi3GetIntervalDecimal(fmi3Instance instance, const fmi3ValueReference vr[],
                                   size_t nvr, fmi3Float64 intervals[],
                                   fmi3IntervalQualifier qualifiers[]) {
+#if CLOCKED
+    /* intervalVariability = "fixed": T, known once the parameters are (initialization
+     * mode on); reported as changed there, unchanged after */
+    Instance *c = instance;
+    if (!allowed(c, "fmi3GetIntervalDecimal", MASK_GET)) return fmi3Error;
+    if (!clock_refs(c, "fmi3GetIntervalDecimal", vr, nvr)) return fmi3Error;
+    double T = clock_interval(c);
+    if (!(isfinite(T) && T > 0)) {
+        log_error(c, "fmi3GetIntervalDecimal: the interval of %s is T = %s, which is not "
+                  "allowed: must be a finite number > 0", CLOCK_NAME, num(T).s);
+        return fmi3Error;
+    }
+    for (size_t k = 0; k < nvr; k++) {
+        intervals[k] = T;
+        qualifiers[k] = c->d.state == StateInitializationMode ? fmi3IntervalChanged
+                                                              : fmi3IntervalUnchanged;
+    }
+    return fmi3OK;
+#else
     (void)vr; (void)nvr; (void)intervals; (void)qualifiers;
     return refuse(instance, "fmi3GetIntervalDecimal " NO_CLOCKS);
+#endif
 }
 
 fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReference vr[],
@@ -584,8 +716,16 @@ fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReferen
 
 fmi3Status fmi3GetShiftDecimal(fmi3Instance instance, const fmi3ValueReference vr[],
                                size_t nvr, fmi3Float64 shifts[]) {
+#if CLOCKED
+    Instance *c = instance;  /* the first tick at t0: shift 0 */
+    if (!allowed(c, "fmi3GetShiftDecimal", MASK_GET)) return fmi3Error;
+    if (!clock_refs(c, "fmi3GetShiftDecimal", vr, nvr)) return fmi3Error;
+    for (size_t k = 0; k < nvr; k++) shifts[k] = 0.0;
+    return fmi3OK;
+#else
     (void)vr; (void)nvr; (void)shifts;
     return refuse(instance, "fmi3GetShiftDecimal " NO_CLOCKS);
+#endif
 }
 
 fmi3Status fmi3GetShiftFraction(fmi3Instance instance, const fmi3ValueReference vr[],
@@ -633,10 +773,29 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance,
                                     fmi3Boolean *valuesOfContinuousStatesChanged,
                                     fmi3Boolean *nextEventTimeDefined,
                                     fmi3Float64 *nextEventTime) {
+#if CLOCKED
+    /* the tick: the model samples the inputs set in this event mode, the outputs latch */
+    Instance *c = instance;
+    if (!allowed(c, "fmi3UpdateDiscreteStates", StateEventMode)) return fmi3Error;
+    if (c->d.clock_active) {
+        if (latch_outputs(c) != 0) return model_fault(c);
+        c->d.tick_next += 1;
+        c->d.clock_active = 0;
+    }
+    if (discreteStatesNeedUpdate != NULL) *discreteStatesNeedUpdate = fmi3False;
+    if (terminateSimulation != NULL) *terminateSimulation = fmi3False;
+    if (nominalsOfContinuousStatesChanged != NULL)
+        *nominalsOfContinuousStatesChanged = fmi3False;
+    if (valuesOfContinuousStatesChanged != NULL) *valuesOfContinuousStatesChanged = fmi3False;
+    if (nextEventTimeDefined != NULL) *nextEventTimeDefined = fmi3True;
+    if (nextEventTime != NULL) *nextEventTime = next_tick(c);
+    return fmi3OK;
+#else
     (void)discreteStatesNeedUpdate; (void)terminateSimulation;
     (void)nominalsOfContinuousStatesChanged; (void)valuesOfContinuousStatesChanged;
     (void)nextEventTimeDefined; (void)nextEventTime;
     return refuse(instance, "fmi3UpdateDiscreteStates " NO_EVENTS);
+#endif
 }
 
 /* ---- Model Exchange: not provided --------------------------------------------------- */
@@ -702,7 +861,19 @@ fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nConti
 
 /* ---- co-simulation ------------------------------------------------------------------ */
 fmi3Status fmi3EnterStepMode(fmi3Instance instance) {
+#if CLOCKED
+    Instance *c = instance;
+    if (!allowed(c, "fmi3EnterStepMode", StateEventMode)) return fmi3Error;
+    if (c->d.clock_active) {
+        log_error(c, "fmi3EnterStepMode is not allowed: %s is active and not yet updated "
+                  "(call fmi3UpdateDiscreteStates)", CLOCK_NAME);
+        return fmi3Error;
+    }
+    c->d.state = StateStepComplete;
+    return fmi3OK;
+#else
     return refuse(instance, "fmi3EnterStepMode " NO_EVENTS);
+#endif
 }
 
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueReference vr[],
@@ -724,6 +895,16 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     if (eventHandlingNeeded != NULL) *eventHandlingNeeded = fmi3False;
     if (terminateSimulation != NULL) *terminateSimulation = fmi3False;
     if (earlyReturn != NULL) *earlyReturn = fmi3False;
+#if CLOCKED
+    if (at_next_tick(c, currentCommunicationPoint)) {
+        log_error(c, "fmi3DoStep from t = %s is not allowed: %s ticks there (t0 + %ld T) and "
+                  "did not (enter event mode, set the inputs, fmi3SetClock, "
+                  "fmi3UpdateDiscreteStates, fmi3EnterStepMode)",
+                  num(currentCommunicationPoint).s, CLOCK_NAME, c->d.tick_next);
+        if (lastSuccessfulTime != NULL) *lastSuccessfulTime = c->d.time;
+        return (fmi3Status)model_fault(c);
+    }
+#endif
     fmi3Status status = (fmi3Status)core_do_step(c, currentCommunicationPoint,
                                                  communicationStepSize);
     if (lastSuccessfulTime != NULL) *lastSuccessfulTime = c->d.time;

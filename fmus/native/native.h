@@ -45,6 +45,10 @@ typedef unsigned int ValueRef;
 /* Statuses, as FMI 2.0 and 3.0 number them (fmi2OK = fmi3OK = 0, ... Error = 3). */
 enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3 };
 
+#ifndef CLOCKED
+#define CLOCKED 0  /* config.h: 1 for an FMI 3.0 build whose sampling a clock drives */
+#endif
+
 #ifndef FMI_MAJOR
 #define FMI_MAJOR 2  /* config.h says which FMI layer a build compiles: 2 or 3 */
 #endif
@@ -60,15 +64,18 @@ enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3 }
 
 /* The co-simulation states (FMI 2.0.4, 4.2.4; FMI 3.0, 5.2: step mode is step complete),
  * as bits for the call masks. Configuration mode is FMI 3.0's only, never in an FMU state
- * (fmi3GetFMUState is refused in it). */
+ * (fmi3GetFMUState is refused in it); event mode is FMI 3.0's with a clock (fmi3.c,
+ * CLOCKED builds). */
 typedef enum {
     StateInstantiated = 1 << 0,
     StateInitializationMode = 1 << 1,
     StateStepComplete = 1 << 2,
     StateTerminated = 1 << 3,
     StateError = 1 << 4,
-    StateConfigurationMode = 1 << 5
+    StateConfigurationMode = 1 << 5,
+    StateEventMode = 1 << 6  /* FMI 3.0 with a clock (CLOCKED builds): the clock's ticks */
 } FsmState;
+
 
 /* Everything an FMU state holds, except the model's buffer (Instance.buf). */
 typedef struct {
@@ -80,6 +87,10 @@ typedef struct {
     int integer[NVR];            /* Integer variables by value reference */
 #if NSTRING > 0
     char string[NSTRING][STRING_MAX];  /* String variables, in value-reference order */
+#endif
+#if CLOCKED
+    long tick_next;              /* the index i of the clock's next tick, t0 + i T */
+    int clock_active;            /* set active in this event mode, not yet updated */
 #endif
     ModelData m;
 } Data;
