@@ -67,7 +67,9 @@ True
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -536,17 +538,30 @@ def export_c(loop: LoopLike, out: str | Path, prefix: str, *,
 def to_ssp(loop: LoopLike, out: str | Path, *, jacobi: bool = False,
            fmu_dir: str | Path | None = None, fmus: str = "auto",
            notes: list[str] | None = None,
-           sets: Sequence[str] | Mapping[str, object] = ()) -> Path:
+           sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2,
+           clocked: bool = False) -> Path:
     """Pack ``loop`` with its FMUs into the SSP archive ``out``; ``jacobi=True`` packs the
     variant that libcosim and Ecos run exactly (see ``delaycomp.system.jacobi``).
     ``fmus`` as for ``run``: the native C FMUs where they exist (``auto``: where they
     do not, the Python ones, and ``notes`` hears why), only native ones, or the Python
     ones. ``delaycomp ssp`` on the command line. ``loop``: a ``Loop``, a loop file's
-    path or a scenario's name, with ``sets`` as ``load`` takes them."""
+    path or a scenario's name, with ``sets`` as ``load`` takes them.
+
+    ``fmi=3``: the archive carries FMI 3.0 native FMUs (``clocked``: the controller's
+    clocked variant), each with its instance's values as start values (and so a file of
+    its own, ``resources/<instance>.fmu``); the SSD and the parameter sets are SSP 1.0 as
+    before, the parameter sets with the scalar parameters only (SSP 1.0 knows no arrays:
+    ``A``, ``B``, ``K``, ``x0``, ``u0`` are the FMUs' start values)."""
     from delaycomp.formats import ssp
     _fmu_kind(fmus)
+    fmi = _fmi_version(fmi)
     loop = _as_loop(loop, sets)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
+    if fmi == 3:
+        return _to_ssp3(loop, out, jacobi, fmus, clocked)
+    if clocked:
+        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
+                             "controller is an FMI 3.0 FMU (fmi = 3)")
     if jacobi:
         from delaycomp.verify.thirdparty import pack_jacobi
 
@@ -567,6 +582,36 @@ def to_ssp(loop: LoopLike, out: str | Path, *, jacobi: bool = False,
                 notes.append("the archive holds the Python FMUs (no native ones here: "
                              f"{str(exc).splitlines()[0]})")
     return path
+
+
+def _to_ssp3(loop: Loop, out: str | Path, jacobi: bool, fmus: str, clocked: bool) -> Path:
+    """``to_ssp`` with FMI 3.0 FMUs: built with the loop's values as start values, packed
+    beside the same SSD and parameter sets."""
+    from delaycomp.formats import ssp
+    from delaycomp.formats.loopbuild import native_with_starts
+    from delaycomp.tmpfiles import temp_dir
+
+    if fmus == "python":
+        raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
+                             "FMUs are the native C ones")
+    spec, info = ssp.loop_system(loop)
+    if jacobi:
+        from delaycomp.verify.thirdparty import jacobi_variant
+
+        spec, info = jacobi_variant(spec), ssp.jacobi_info(info)
+    with temp_dir("delaycomp-ssp3-") as tmp:
+        try:
+            built = native_with_starts(spec, Path(tmp), fmi=3, clocked=clocked)
+        except ValueError as exc:  # no native twin, or no clocked variant
+            raise ParameterError(f"{str(exc).splitlines()[0]} (ssp with fmi = 3)") from None
+        # SSP 1.0 knows no arrays: the parameter sets hold the scalars, the arrays travel
+        # as the FMUs' start values (an element such as A[1,1] names no FMI 3.0 variable)
+        element = re.compile(r"^\w+\[\d+(?:,\d+)*\]$")
+        scalars = spec.with_instances(
+            dataclasses.replace(i, parameters={k: v for k, v in i.parameters.items()
+                                               if not element.match(k)})
+            if i.name in built else i for i in spec.instances)
+        return ssp.pack(scalars, info, out, fmus=built, own_files=True)
 
 
 def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,

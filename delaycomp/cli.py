@@ -465,6 +465,8 @@ def _ssp_parser(sub) -> None:
                        help="pack the Jacobi variant, for libcosim and Ecos (docs: reference/ssp)")
     _fmu_kind(p_ssp, "pack the native C FMUs, an error where the loop has none (the "
                      "default packs them where it can)")
+    _fmi_flag(p_ssp, "pack FMI 3.0 FMUs (native C only), each with the loop's values as start "
+                     "values; the SSD and parameter sets stay SSP 1.0")
     p_ssp.add_argument("--out", type=Path, required=True, metavar="DIR|FILE.ssp",
                        help="a FILE.ssp for one scenario, else a folder for all of them")
 
@@ -652,9 +654,10 @@ def _native_archives(archives, verbosity: int) -> None:
 
 def _cmd_ssp(args) -> int:
     if args.scenario is None:
-        if args.set or args.jacobi or args.native or args.python:
-            raise UsageError("--set, --jacobi, --native and --python need a scenario to "
-                             "pack")
+        if args.set or args.jacobi or args.native or args.python or args.fmi == 3 or \
+                args.clocked:
+            raise UsageError("--set, --jacobi, --native, --python, --fmi and --clocked need a "
+                             "scenario to pack")
         from delaycomp.formats import ssp
         for path in ssp.write_all(args.out):
             print(path.parent)
@@ -672,7 +675,7 @@ def _cmd_ssp(args) -> int:
     kind = "python" if args.python else "native" if args.native else "auto"
     try:
         path = to_ssp(loop, args.out, jacobi=args.jacobi, fmu_dir=args.fmu_dir, fmus=kind,
-                      notes=notes)
+                      notes=notes, fmi=_fmi_of(args), clocked=args.clocked)
     except CompensationError as exc:
         raise UsageError(str(exc)) from None
     except (ValueError, NativeBuildError) as exc:  # --native without native twins

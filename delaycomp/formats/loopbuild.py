@@ -238,6 +238,18 @@ def _build_all(todo: list[Instance], name: str, native: bool,
     return built
 
 
+def native_with_starts(loop: Loop, stage: Path, fmi: int = 2,
+                       clocked: bool = False) -> dict[str, Path]:
+    """The native FMU of each instance of ``loop`` but a user's FMU file, built into
+    ``stage`` with the instance's parameters as start values (FMI version ``fmi``;
+    ``clocked``: the controller's clocked variant); instance name -> path. What ``delaycomp
+    ssp --fmi 3`` packs: an importer that cannot apply an array element of the archive's
+    parameter sets (SSP 1.0 knows no arrays) still runs the loop."""
+    todo = [i for i in loop.instances if not isinstance(i.source, FmuFile)]
+    by_role = _build_all(todo, file_stem(loop.name), True, Path(stage), fmi, clocked)
+    return {i.name: by_role[i.role] for i in todo}
+
+
 def check_starts(fmu: Path, parameters: Mapping, label: str) -> None:
     """Every parameter of the loop is a variable of ``fmu`` whose start value reads back
     as the loop's value, exactly (a String as text, an Integer and a Boolean as such)."""

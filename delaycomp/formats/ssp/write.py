@@ -151,10 +151,13 @@ def _write(tree: etree._ElementTree, path: Path) -> None:
                                     pretty_print=True))
 
 
-def write_system(spec: Loop, info: SystemInfo, folder: str | Path) -> Path:
-    """Write ``SystemStructure.ssd`` and ``resources/<instance>.ssv`` into ``folder``."""
+def write_system(spec: Loop, info: SystemInfo, folder: str | Path,
+                 names: dict[str, str] | None = None) -> Path:
+    """Write ``SystemStructure.ssd`` and ``resources/<instance>.ssv`` into ``folder``
+    (``names``: instance -> its FMU's file name in ``resources/``, default one file per
+    build key)."""
     folder = Path(folder)
-    _write(ssd_document(spec, info, _fmu_file_names(spec)), folder / SSD_NAME)
+    _write(ssd_document(spec, info, names or _fmu_file_names(spec)), folder / SSD_NAME)
     for inst in spec.instances:
         ssv = foreign_parameters(inst.parameters, parameter_choices(inst.source.build_key()))
         _write(ssv_document(info.parameter_set, ssv), folder / RESOURCES / f"{inst.name}.ssv")
@@ -162,19 +165,25 @@ def write_system(spec: Loop, info: SystemInfo, folder: str | Path) -> Path:
 
 
 def pack(spec: Loop, info: SystemInfo, out: str | Path,
-         fmu_dir: Path | None = None, fmus: dict[str, Path] | None = None) -> Path:
+         fmu_dir: Path | None = None, fmus: dict[str, Path] | None = None,
+         own_files: bool = False) -> Path:
     """Write the archive ``out`` (``.ssp``): the SSD, its SSVs and the FMUs.
 
     The FMUs are taken from ``fmus`` (instance -> path) where given, else from
     ``delaycomp.fmu.cache.source_fmu`` (built into ``fmu_dir`` or the cache if missing).
+    Instances of one build key share one file, unless ``own_files``: then each of
+    ``fmus`` is ``resources/<instance>.fmu`` (FMUs that carry their instance's values as
+    start values).
     """
     from delaycomp.fmu.cache import source_fmu
 
     out = Path(out)
     names = _fmu_file_names(spec)
+    if own_files:
+        names.update({name: f"{name}.fmu" for name in fmus or {}})
     with tempfile.TemporaryDirectory(prefix="delaycomp-ssp-") as tmp:
         folder = Path(tmp)
-        write_system(spec, info, folder)
+        write_system(spec, info, folder, names)
         for inst in spec.instances:
             src = (fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir)
             target = folder / RESOURCES / names[inst.name]
