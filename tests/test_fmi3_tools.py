@@ -44,7 +44,8 @@ what it is built to do for a host that cannot schedule its clock.
 **FMPy** (``fmpy.simulate_fmu``, FMI 3.0 co-simulation; its loop is fmusim's, in Python)
 runs the delay and the controller alone from a structured numpy input: equal to our
 driver's outputs bit for bit (``np.array_equal``: doubles in, doubles out) and so to
-fmusim's at 16 digits.
+fmusim's at 16 digits. It cannot tick the clocked controller either (fmpy 0.3.32 has no
+input of type Clock).
 
 **OMSimulator** (v3.0.0-111; FMI 3.0 co-simulation is a prototype there): its Python API
 cannot read an FMI 3.0 model description with structural parameters; its command line
@@ -343,6 +344,29 @@ def test_fmpy_simulate_fmu_agrees_with_our_master_and_fmusim(fmus, kind, tmp_pat
     fmusim_rows, _, _, proc = _case(fmus, kind, tmp_path)
     assert proc.returncode == 0, proc.stdout
     _assert_same(fmusim_rows, _at_16_digits(got), f"fmusim against fmpy, {kind}")
+
+
+def test_fmpy_simulate_fmu_cannot_tick_the_clocked_controller(fmus):
+    """fmpy 0.3.32's input signals know no Clock variable (a ``sample`` column: KeyError
+    'Clock' while it reads them); without it, it sets the clocked y in step mode, which the
+    FMU refuses, as in fmusim."""
+    from fmpy import simulate_fmu
+    from fmpy.fmi1 import FMICallException
+
+    rows = [(k * H, *v, float(k % 20 == 0))
+            for k, v in enumerate(_signals(["y1", "y2", "y3"], 40))]
+    signal = np.array(rows, dtype=[(n, float) for n in ("time", "y1", "y2", "y3", "sample")])
+    run = dict(fmi_type="CoSimulation", stop_time=0.4, output_interval=H, use_event_mode=True,
+               start_values=_as_arrays(_params(MYLOOP, "controller")))
+    with pytest.raises(KeyError, match="'Clock'"):
+        simulate_fmu(str(fmus["clocked"]), input=signal, **run)
+    messages: list[bytes] = []
+    with pytest.raises(FMICallException, match="fmi3SetFloat64 failed with status 3"):
+        simulate_fmu(str(fmus["clocked"]), input=signal[["time", "y1", "y2", "y3"]],
+                     logger=lambda *args: messages.append(args[-1]), **run)
+    assert messages[-1].decode() == (
+        "fmi3SetFloat64: y1 is not allowed in step mode: it is clocked by sample (set it in "
+        "event mode, at the clock's tick)")
 
 
 # -- OMSimulator -------------------------------------------------------------------------------
