@@ -91,7 +91,7 @@ def _fmusim_cli() -> Path:
     """fmusim, or a failed test saying how to build it (never a skip)."""
     try:
         return fmusim_tool.locate()
-    except fmusim_tool.NotInstalled as exc:
+    except fmusim_tool.FmusimNotInstalled as exc:
         pytest.fail(str(exc), pytrace=False)
 
 
@@ -213,7 +213,7 @@ def _assert_same(got: np.ndarray, want: np.ndarray, what: str) -> None:
 def test_fmusim_is_found_or_named_with_how_to_build_it(monkeypatch, tmp_path):
     assert _fmusim_cli().name == "fmusim"
     monkeypatch.setenv(fmusim_tool.ENV, str(tmp_path))
-    with pytest.raises(fmusim_tool.NotInstalled) as info:
+    with pytest.raises(fmusim_tool.FmusimNotInstalled) as info:
         fmusim_tool.locate()
     message = str(info.value)
     assert message.startswith(f"fmusim not found: {fmusim_tool.ENV}={tmp_path} holds no "

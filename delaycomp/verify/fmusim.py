@@ -32,7 +32,7 @@ BUILD_HINT = ("build it from modelica/Reference-FMUs v0.0.39, the last release w
               "<repository>/../shared/tools/fmusim)")
 
 
-class NotInstalled(DelaycompError, RuntimeError):
+class FmusimNotInstalled(DelaycompError, RuntimeError):
     """fmusim was not found (one-line message with the build hint)."""
 
 
@@ -41,7 +41,7 @@ def locate() -> Path:
 
     Raises
     ------
-    NotInstalled
+    FmusimNotInstalled
         The folder holds no executable ``bin/fmusim``; the message names the folder, where
         it came from and how to build fmusim.
     """
@@ -50,6 +50,6 @@ def locate() -> Path:
     cli = root / CLI_SUBPATH
     if not (cli.is_file() and os.access(cli, os.X_OK)):
         where = f"{ENV}={folder}" if folder else f"{root} ({ENV} is not set)"
-        raise NotInstalled(f"fmusim not found: {where} holds no executable "
+        raise FmusimNotInstalled(f"fmusim not found: {where} holds no executable "
                            f"{CLI_SUBPATH.as_posix()}: {BUILD_HINT}")
     return cli.resolve()
