@@ -594,6 +594,10 @@ def _to_ssp3(loop: Loop, out: str | Path, jacobi: bool, fmus: str, clocked: bool
     if fmus == "python":
         raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
                              "FMUs are the native C ones")
+    if jacobi and clocked:
+        raise ParameterError("clocked = true is not allowed with jacobi = true: the Jacobi "
+                             "variant samples the step before each tick, a clocked controller "
+                             "samples at the tick (pack one or the other)")
     spec, info = ssp.loop_system(loop)
     if jacobi:
         from delaycomp.verify.thirdparty import jacobi_variant

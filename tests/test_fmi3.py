@@ -608,3 +608,14 @@ def test_omsimulator_refuses_an_fmi3_controller_whose_dependencies_it_misreads(o
     assert res.message == ("omsimulator: error:   [initializeDependencyGraph_outputs] "
                            "controller: erroneous dependencies detected in "
                            "modelDescription.xml")
+
+
+def test_a_clocked_jacobi_archive_is_refused_in_one_line(tmp_path):
+    proc = cli("ssp", "example-3.6", "--fmi", "3", "--jacobi", "--clocked", "--out",
+               tmp_path / "x.ssp")
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        "delaycomp: error: clocked = true is not allowed with jacobi = true: the Jacobi "
+        "variant samples the step before each tick, a clocked controller samples at the "
+        "tick (pack one or the other)")
+    assert not (tmp_path / "x.ssp").exists()
