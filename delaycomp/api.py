@@ -69,7 +69,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -83,7 +82,7 @@ from delaycomp.errors import (
     short,
 )
 from delaycomp.maths.model import ModelError
-from delaycomp.names import FMU_KINDS
+from delaycomp.names import FMU_KINDS, array_element
 from delaycomp.orchestrator.simulate import Result
 from delaycomp.system import Loop, Origin
 from delaycomp.system import lti_loop as _lti_loop
@@ -610,10 +609,9 @@ def _to_ssp3(loop: Loop, out: str | Path, jacobi: bool, fmus: str, clocked: bool
             raise ParameterError(f"{str(exc).splitlines()[0]} (ssp with fmi = 3)") from None
         # SSP 1.0 knows no arrays: the parameter sets hold the scalars, the arrays travel
         # as the FMUs' start values (an element such as A[1,1] names no FMI 3.0 variable)
-        element = re.compile(r"^\w+\[\d+(?:,\d+)*\]$")
         scalars = spec.with_instances(
             dataclasses.replace(i, parameters={k: v for k, v in i.parameters.items()
-                                               if not element.match(k)})
+                                               if array_element(k) is None})
             if i.name in built else i for i in spec.instances)
         return ssp.pack(scalars, info, out, fmus=built, own_files=True)
 

@@ -21,7 +21,6 @@ import atexit
 import itertools
 import json
 import math
-import re
 import shutil
 import struct
 import weakref
@@ -44,6 +43,7 @@ from fmpy.fmi2 import (
 )
 
 from delaycomp.errors import DelaycompError, ParameterError
+from delaycomp.names import array_element, flat_index
 from delaycomp.orchestrator.master import ComponentBase, interrupt_held
 from delaycomp.tmpfiles import mkdtemp
 from delaycomp.unpack import extract
@@ -102,8 +102,6 @@ def _dispatch3():
 
 
 _DISPATCH3 = None
-#: an element of an array variable, as FMI 2.0 FMUs name their scalars: A[2,1]
-_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
 
 
 #: FMUs unpacked in this process, by (path, modification time, size): unpacking costs
@@ -198,6 +196,10 @@ class FmuComponent(ComponentBase):
         self._vars = {v.name: v for v in self.md.modelVariables}
         #: an FMI 3.0 FMU (fmpy's FMU3Slave; the FMI calls under their 3.0 names)
         self.fmi3 = (self.md.fmiVersion or "").startswith("3")
+        #: fmi3DoStep's outputs (eventHandlingNeeded, terminateSimulation, earlyReturn,
+        #: lastSuccessfulTime) and their pointers, made once for the hot path
+        self._flags = (c_bool(), c_bool(), c_bool(), c_double())
+        self._flag_refs = tuple(byref(f) for f in self._flags)
         #: a clocked FMI 3.0 FMU: its input clock, the inputs it clocks (names), and the
         #: schedule (interval, start, index of the next tick, in event mode, time)
         self._clock = next((v for v in self.md.modelVariables
@@ -322,11 +324,11 @@ class FmuComponent(ComponentBase):
         array (the others keep their start values), set whole in one call."""
         arrays: dict[str, list] = {}
         for pname, value in parameters.items():
-            element = _ELEMENT.match(pname)
-            var = self._vars.get(element.group(1)) if element else None
+            element = array_element(pname)
+            var = self._vars.get(element[0]) if element else None
             if element and var is not None and var.dimensions:
                 values = arrays.setdefault(var.name, self._array_start(var))
-                values[self._flat_index(var, element.group(2), pname)] = value
+                values[self._flat_index(var, element[1], pname)] = value
             else:
                 self._set_parameter(pname, value)
         for aname, values in arrays.items():
@@ -340,16 +342,12 @@ class FmuComponent(ComponentBase):
         start = (var.start or "").split()
         return [float(v) for v in start] if len(start) == count else [0.0] * count
 
-    def _flat_index(self, var, indices: str, name: str) -> int:
+    def _flat_index(self, var, index: tuple[int, ...], name: str) -> int:
         """The row-major position of ``name``'s element in the array ``var``."""
-        index = [int(i) for i in indices.split(",")]
-        if len(index) != len(var.shape) or not all(1 <= i <= e for i, e in
-                                                    zip(index, var.shape)):
+        flat = flat_index(index, var.shape)
+        if flat is None:
             raise ParameterError(f"{self.name}.{name} is not allowed: {var.name} has shape "
                                  f"{' x '.join(map(str, var.shape))} (indices from 1)")
-        flat = 0
-        for i, extent in zip(index, var.shape):
-            flat = flat * extent + (i - 1)
         return flat
 
     def _set_parameter(self, name: str, value) -> None:
@@ -562,9 +560,8 @@ class FmuComponent(ComponentBase):
                 self._step3_flags(t, h, out[1], out[2])
             return
         if self.fmi3:
-            refs = self._flag_refs
             flags = self._flags
-            status = fast[0](fast[1], c_double(t), c_double(h), _TRUE3, *refs)
+            status = fast[0](fast[1], c_double(t), c_double(h), _TRUE3, *self._flag_refs)
             if status > 1:
                 self._raise("fmi3DoStep", status)
             if flags[1].value or flags[2].value:
@@ -573,14 +570,6 @@ class FmuComponent(ComponentBase):
         status = fast[0](fast[1], c_double(t), c_double(h), _TRUE)
         if status > 1:
             self._raise("fmi2DoStep", status)
-
-    @property
-    def _flag_refs(self):
-        refs = getattr(self, "_flag_refs_cache", None)
-        if refs is None:
-            self._flags = (c_bool(), c_bool(), c_bool(), c_double())
-            refs = self._flag_refs_cache = tuple(byref(f) for f in self._flags)
-        return refs
 
     def _step3_flags(self, t: float, h: float, terminate: bool, early: bool) -> None:
         if terminate or early:

@@ -27,11 +27,11 @@ input ``Clock``, time-based and periodic, its interval the parameter it names
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 from delaycomp.errors import DelaycompError
+from delaycomp.names import array_element
 
 __all__ = ["PLATFORMS", "Fmi3Table", "Fmi3TableError", "Fmi3Variable", "build_description",
            "config_block", "fmi3_table", "model_description"]
@@ -45,7 +45,6 @@ _CODE = {"Float64": "r", "Int32": "i", "Boolean": "b", "String": "s", "UInt64": 
          "Clock": "k"}
 _CAUSALITY = {"parameter": "p", "input": "i", "output": "o", "structuralParameter": "s",
               "independent": "t"}
-_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
 
 
 class Fmi3TableError(DelaycompError, ValueError):
@@ -87,11 +86,6 @@ class Fmi3Table:
         return {v.name: v for v in self.variables}
 
 
-def _indices(name: str) -> tuple[str, tuple[int, ...]] | None:
-    m = _ELEMENT.match(name)
-    return (m.group(1), tuple(int(i) for i in m.group(2).split(","))) if m else None
-
-
 def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list[str]],
                clock: dict[str, str] | None = None) -> Fmi3Table:
     """The FMI 3.0 table of the FMI 2.0 table tree ``root`` (the Python twin's
@@ -111,7 +105,7 @@ def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list
     names = {sv.get("name") for sv in scalars}
     blocks: dict[str, list[tuple[tuple[int, ...], Element]]] = {a: [] for a in arrays}
     for sv in scalars:
-        parsed = _indices(sv.get("name", ""))
+        parsed = array_element(sv.get("name", ""))
         if parsed and parsed[0] in blocks:
             blocks[parsed[0]].append((parsed[1], sv))
     extents: dict[str, int] = {}
@@ -193,7 +187,7 @@ def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list
         var.dims = tuple(rename[d] for d in var.dims)
     done: set[str] = set()
     for sv in scalars:
-        parsed = _indices(sv.get("name", ""))
+        parsed = array_element(sv.get("name", ""))
         if parsed and parsed[0] in grouped:
             if parsed[0] not in done:
                 out.append(grouped[parsed[0]])

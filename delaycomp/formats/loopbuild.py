@@ -36,12 +36,9 @@ from pathlib import Path
 
 import delaycomp
 from delaycomp.errors import ParameterError
-from delaycomp.names import FMU_KINDS, LOOP_GROUPS
+from delaycomp.names import FMU_KINDS, LOOP_GROUPS, array_element, flat_index
 from delaycomp.system.loop import ROLES, FmuFile, Instance, Loop, ModelFmu, Role
 from delaycomp.tmpfiles import write_text
-
-#: an element of an array variable of an FMI 3.0 FMU, as the loop names it: A[2,1]
-_ELEMENT = re.compile(r"^(\w+)\[(\d+(?:,\d+)*)\]$")
 
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
@@ -259,17 +256,14 @@ def check_starts(fmu: Path, parameters: Mapping, label: str) -> None:
     for key, value in parameters.items():
         var = variables.get(key)
         start = var.start if var is not None else None
-        element = _ELEMENT.match(key)
-        array = variables.get(element.group(1)) if element else None
+        element = array_element(key)
+        array = variables.get(element[0]) if element else None
         if (var is None and element is not None and array is not None and array.dimensions
                 and array.start):
             # FMI 3.0: an element of an array, its start the array's (row-major)
-            index = [int(i) - 1 for i in element.group(2).split(",")]
-            flat = 0
-            for i, extent in zip(index, array.shape):
-                flat = flat * extent + i
+            flat = flat_index(element[1], array.shape)
             starts = array.start.split()
-            var, start = array, starts[flat] if flat < len(starts) else None
+            var, start = array, starts[flat] if flat is not None else None
         if var is None or start is None:
             raise RuntimeError(f"{label}: no parameter {key!r} with a start value")
         if var.type in ("Real", "Float64"):
