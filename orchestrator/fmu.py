@@ -43,6 +43,7 @@ from fmpy.fmi2 import (
 )
 
 from delaycomp.errors import DelaycompError, ParameterError
+from delaycomp.maths.grid import on_tick
 from delaycomp.names import array_element, flat_index
 from delaycomp.orchestrator.master import ComponentBase, interrupt_held
 from delaycomp.tmpfiles import mkdtemp
@@ -422,8 +423,8 @@ class FmuComponent(ComponentBase):
     def _tick_if_due(self) -> None:
         """At the next tick's instant: the event iteration that hands the FMU the clocked
         inputs written since the last tick and latches its clocked outputs."""
-        t_tick = self._t0 + self._tick * self._interval
-        if abs(self._time - t_tick) > 1e-7 * self._interval:
+        if not on_tick(self._time, self._t0 + self._tick * self._interval, self._interval,
+                       self._t0):
             return
         fmu = self.fmu
         assert fmu is not None and self._clock is not None

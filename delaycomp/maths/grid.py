@@ -144,6 +144,19 @@ def drift(t: float, h: float, t0: float = 0.0) -> float:
     return min((abs(t - t0) / h + 8) * _EPS * scale, DRIFT_RTOL * h)
 
 
+def on_tick(t: float, t_tick: float, T: float, t0: float = 0.0) -> bool:
+    """Is a host's time ``t`` the tick ``t_tick`` of a periodic clock of interval ``T``
+    started at ``t0``: within ``GRID_RTOL T`` and the ``drift`` of a host clock kept in
+    steps of ``T / 1000`` or more (its communication points lie ``T / MAX_STEPS`` apart at
+    least: far more)? The clocked native FMUs use the same arithmetic (``at_next_tick`` of
+    ``fmus/native/fmi3.c``), and our master decides so when a clocked FMU ticks.
+
+    >>> on_tick(0.2 + 1e-15, 0.2, 0.2), on_tick(0.21, 0.2, 0.2)
+    (True, False)
+    """
+    return abs(t - t_tick) <= GRID_RTOL * T + drift(t, T * 1e-3, t0)
+
+
 def grid_step(t: float, step: float, h: float, t0: float) -> bool:
     """Is ``[t, t + step]`` one step of the grid ``t0 + k h``, each end within
     ``GRID_RTOL h +`` ``drift`` of consecutive grid points?

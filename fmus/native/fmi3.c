@@ -75,7 +75,8 @@ static double next_tick(const Instance *c) {
 }
 
 /* Is t the next tick's instant, up to the grid's tolerance and a host clock's drift? (A
- * host's communication points are at least T / MAX_STEPS apart: far more than this.) */
+ * host's communication points are at least T / MAX_STEPS apart: far more than this.)
+ * delaycomp.maths.grid.on_tick, the same arithmetic. */
 static int at_next_tick(const Instance *c, double t) {
     double T = clock_interval(c);
     return fabs(t - next_tick(c)) <= GRID_RTOL * T + drift(t, T * 1e-3, c->d.t0);
