@@ -1,11 +1,16 @@
 """delaycomp's FMI 3.0 FMUs in others' tools (issue 28, item 4): fmusim, FMPy, OMSimulator.
 
-**fmusim** (Reference-FMUs v0.0.39, the FMI standard's reference importer; found by
-``delaycomp.verify.fmusim.locate``: ``DELAYCOMP_FMUSIM``, else ``../shared/tools/fmusim``;
-missing, these tests fail with how to build it) runs each FMI 3.0 FMU alone, its arrays
-given as start values (``--start-value A '0 1 0 ...'``) and its inputs from a CSV; our
-master's ``FmuComponent`` drives the same FMU with the same inputs. What had to be allowed
-for, and why the comparison is still exact:
+**fmusim** (Reference-FMUs v0.0.39, the FMI standard's reference importer) runs each FMI 3.0
+FMU alone, its arrays given as start values (``--start-value A '0 1 0 ...'``) and its
+inputs from a CSV; our master's ``FmuComponent`` drives the same FMU with the same inputs.
+fmusim is in no package registry, so its runs are **recorded** (``reference/fmusim/``, by
+``scripts/record_fmusim.py``: the FMU's build, the parameters, fmusim's options, the input
+CSV, fmusim's output CSV or log) and every machine checks our master against the records;
+where fmusim is found (``delaycomp.verify.fmusim.locate``: ``DELAYCOMP_FMUSIM``, else
+``../shared/tools/fmusim``) it also runs again on the FMUs built here and must reproduce
+the records and our master exactly; where it is not, those tests are skipped saying so (a
+``DELAYCOMP_FMUSIM`` that names no fmusim fails them). What had to be allowed for, and why
+the comparison is still exact:
 
 - **When outputs are read.** fmusim records the outputs at ``t0`` after initialization
   (the inputs at ``t0`` set in initialization mode) and at each ``t_{k+1}`` right after
@@ -30,16 +35,17 @@ for, and why the comparison is still exact:
   is given, so there it moves by round-off (measured 6.5 EPS of the state's peak; bound
   asserted: ``sum |h_k - h|`` times the largest rate, plus 4 EPS of the peak).
 - **Digits.** fmusim writes ``%.16g``, which does not always round-trip a double; our
-  values are printed the same way (``_at_16_digits``) and then compared **exactly**
-  (``np.array_equal``): a difference in the last bit of a double shows wherever it
-  changes the 16th digit, anything larger always shows.
+  values are printed the same way (``_at_16_digits``). fmusim run here on the FMUs built
+  here is compared **exactly** (``np.array_equal``: a difference in the last bit of a
+  double shows wherever it changes the 16th digit, anything larger always shows); the
+  records, made on another machine, to ``RECORD_ULPS``.
 
 **The clocked controller** cannot be driven by fmusim v0.0.39: its clock ticks at ``t0``
 (shift 0), and fmusim never sets an input clock at the start time (not in initialization
 mode, not in the event iteration after ``fmi3ExitInitializationMode``; an input event at
 the current time is never "next"), and it sets discrete (clocked) inputs in step mode
-before each step that was no event. The FMU refuses both (its messages, asserted below):
-what it is built to do for a host that cannot schedule its clock.
+before each step that was no event. The FMU refuses both (its messages, recorded and
+asserted below): what it is built to do for a host that cannot schedule its clock.
 
 **FMPy** (``fmpy.simulate_fmu``, FMI 3.0 co-simulation; its loop is fmusim's, in Python)
 runs the delay and the controller alone from a structured numpy input: equal to our
@@ -61,6 +67,9 @@ Its CSV has 12 significant digits: 5e-12 of the signal's peak.
 from __future__ import annotations
 
 import csv
+import importlib.util
+import json
+import os
 import re
 import subprocess
 import sys
@@ -71,129 +80,107 @@ import numpy as np
 import pytest
 
 from delaycomp import api
-from delaycomp.fmu.native import build_native_fmu, build_native_model
+from delaycomp.fmu.native import build_native_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
-from delaycomp.paper import models as paper_models
 from delaycomp.verify import fmusim as fmusim_tool
 
-from .roundoff import EPS
+from .roundoff import EPS, SAME_ARITHMETIC_ULPS, assert_columns_close
 from .test_loopbuild import cli
 
 pytestmark = pytest.mark.fmu
 
 REPO = Path(__file__).resolve().parents[1]
-MYLOOP = REPO / "docs" / "examples" / "myloop.toml"
-EXAMPLE_3_8 = Path(paper_models.__file__).parent / "example_3_8.py"
-H = 0.01  # the communication step of every run here (myloop's and example 3.8's T/N)
+RECORDS = REPO / "reference" / "fmusim"
+_spec = importlib.util.spec_from_file_location("record_fmusim",
+                                               REPO / "scripts" / "record_fmusim.py")
+assert _spec is not None and _spec.loader is not None
+recorder = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(recorder)
+H = recorder.H  # the communication step of every case (myloop's and example 3.8's T/N)
+
+#: the cases fmusim runs to the end (``<case>_out.csv`` holds the whole run)
+RUNS = ["plant", "delay", "controller", "model_plant", "model_controller"]
+#: the clocked controller's cases, which fmusim cannot run (exit 3 at t0)
+CLOCKED = ["clocked_held", "clocked_ticks"]
+
+#: A record made on another machine against our master here: the same FMU's arithmetic
+#: (the same C, compiled and linked elsewhere: another libm may round ``exp`` otherwise),
+#: at most ``SAME_ARITHMETIC_ULPS`` of a column's peak apart, then both printed to 16
+#: digits (``%.16g``): each rounding at most half a unit of the 16th digit, 5e-16 of the
+#: value, under 2.5 EPS of the peak. On the recording machine the two are equal.
+RECORD_ULPS = SAME_ARITHMETIC_ULPS + 5
 
 
-def _fmusim_cli() -> Path:
-    """fmusim, or a failed test saying how to build it (never a skip)."""
-    try:
-        return fmusim_tool.locate()
-    except fmusim_tool.FmusimNotInstalled as exc:
-        pytest.fail(str(exc), pytrace=False)
+def _record(case: str) -> dict:
+    """The JSON entry of a recorded case."""
+    return json.loads((RECORDS / f"{case}.json").read_text())
+
+
+def _held_inputs(case: str) -> np.ndarray:
+    """The held input values of a recorded case, one row per communication point: the
+    input CSV holds ``(t0, v0)`` then ``(t_k, v_{k-1}), (t_k, v_k)``, so rows 0, 2, 4, ...
+    (whose times are exactly ``k H``, written with 17 digits)."""
+    rec = _record(case)
+    data = np.loadtxt(RECORDS / f"{case}_in.csv", delimiter=",", skiprows=1, ndmin=2)
+    held = data[0::2, :1 + len(rec["inputs"])]  # without a clock column
+    assert held.shape == (rec["steps"] + 1, 1 + len(rec["inputs"]))
+    assert np.array_equal(held[:, 0], np.arange(rec["steps"] + 1) * rec["step"])
+    # each step edge: the old values, then the new
+    assert np.array_equal(data[1::2, 1:held.shape[1]], held[:-1, 1:])
+    return held[:, 1:]
 
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory) -> dict[str, Path]:
-    """The FMI 3.0 FMUs: delay (n = 3), LTI plant and controller (n = 3, m = 2), the
-    clocked controller, example 3.8's model plant and controller."""
+    """The FMI 3.0 FMUs of the records, built here: delay (n = 3), LTI plant and
+    controller (n = 3, m = 2), the clocked controller, example 3.8's model plant and
+    controller."""
     out = tmp_path_factory.mktemp("fmi3")
-    built = {kind: build_native_fmu(kind, out, config, fmi=3) for kind, config in {
-        "delay": {"n": 3}, "plant": {"n": 3, "m": 2}, "controller": {"n": 3, "m": 2}}.items()}
-    built["clocked"] = build_native_fmu("controller", out / "clocked",
-                                        {"n": 3, "m": 2, "clocked": True}, fmi=3)
-    model = build_native_model(EXAMPLE_3_8, out / "model", fmi=3)
-    built["model_plant"], built["model_controller"] = model[:2]
+    built = {case: recorder.build(_record(case)["fmu"], out) for case in RUNS}
+    built["clocked"] = recorder.build(_record("clocked_held")["fmu"], out)
+    assert built["clocked"] == recorder.build(_record("clocked_ticks")["fmu"], out)
     return built
 
 
-def _params(source, role: str) -> dict:
-    """The parameters a loop gives ``role`` (our master's names: ``A[2,1]``, ...)."""
-    return dict(api.load(source).parameters()[role])
-
-
-def _as_arrays(params: dict) -> dict:
-    """``A[1,1] .. A[3,3]`` (row-major, as a loop lists them) -> ``A: [9 values]``."""
-    out: dict = {}
-    for name, value in params.items():
-        element = re.fullmatch(r"(\w+)\[[\d,]+\]", name)
-        if element:
-            out.setdefault(element.group(1), []).append(float(value))
-        else:
-            out[name] = value
-    return out
-
-
-def _literal(value) -> str:
-    """A start value as fmusim reads it: 17 digits, an array's elements spaced."""
-    if isinstance(value, list):
-        return " ".join(repr(float(v)) for v in value)
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return repr(value) if isinstance(value, float) else str(value)
-
-
-def _signals(names: list[str], steps: int) -> np.ndarray:
-    """(steps + 1) x len(names) values, one row per communication point, held over the
-    step that starts there: smooth, different per channel, none exactly representable."""
-    k = np.arange(steps + 1)[:, None]
-    j = np.arange(len(names))[None, :]
-    return np.sin(0.37 * (j + 1) * k * H + 0.3 * j) + 0.1 * (j - 1) + k * H / 7
-
-
-def _piecewise_rows(values: np.ndarray) -> list[tuple[float, np.ndarray]]:
-    """The held signal as CSV rows: ``(t0, v0)``, then ``(t_k, v_{k-1}), (t_k, v_k)``."""
-    rows = [(0.0, values[0])]
-    for k in range(1, len(values)):
-        rows += [(k * H, values[k - 1]), (k * H, values[k])]
-    return rows
-
-
-def _run_fmusim(fmu: Path, tmp: Path, starts: dict, names: list[str], values: np.ndarray,
-                extra: tuple[str, ...] = (), clock: str | None = None
-                ) -> tuple[list[str], np.ndarray, subprocess.CompletedProcess]:
-    """fmusim's co-simulation of ``fmu`` alone over ``len(values) - 1`` steps of ``H``:
-    the header and the numbers of its output CSV, and the process."""
-    steps = len(values) - 1
-    infile, outfile = tmp / f"{fmu.stem}_in.csv", tmp / f"{fmu.stem}_out.csv"
-    with open(infile, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["time", *names] + ([clock] if clock else []))
-        for t, v in _piecewise_rows(values):
-            writer.writerow([repr(t), *(repr(float(x)) for x in v)] + (
-                [int(round(t / H) % 20 == 0)] if clock else []))  # T = 20 H
-    argv = [str(_fmusim_cli()), "--interface-type", "cs", "--stop-time", repr(steps * H),
-            "--output-interval", repr(H), "--input-file", str(infile), "--output-file",
-            str(outfile), *extra]
-    for name, value in starts.items():
-        argv += ["--start-value", name, _literal(value)]
-    proc = subprocess.run([*argv, str(fmu)], capture_output=True, text=True, timeout=120)
-    with open(outfile, newline="") as fh:
-        rows = list(csv.reader(fh))
-    return rows[0], np.array(rows[1:], dtype=float).reshape(len(rows) - 1, len(rows[0])), proc
+@pytest.fixture(scope="module")
+def fmusim_cli() -> Path:
+    """fmusim, to run again; skipped saying so where it is not found and not asked for (a
+    ``DELAYCOMP_FMUSIM`` that names no fmusim fails the test with how to build it)."""
+    try:
+        return fmusim_tool.locate()
+    except fmusim_tool.FmusimNotInstalled as exc:
+        if os.environ.get(fmusim_tool.ENV):
+            pytest.fail(str(exc), pytrace=False)
+        pytest.skip(f"fmusim not run again ({exc}); our master is checked against its "
+                    "records in reference/fmusim on every machine")
 
 
 def _ours(fmu: Path, params: dict, names: list[str], values: np.ndarray,
-          outputs: list[str], fmusim_steps: bool = True) -> np.ndarray:
+          outputs: list[str], fmusim_steps: bool = True, h: float = H) -> np.ndarray:
     """Our master's ``FmuComponent`` making fmusim's calls: the inputs of ``t0`` in
     initialization mode, the outputs at ``t0``; per step the inputs of ``t_k``, the step
-    from ``t_k = k H`` to ``t_{k+1}`` (by ``t_{k+1} - t_k`` as fmusim steps, or by ``H`` as
+    from ``t_k = k h`` to ``t_{k+1}`` (by ``t_{k+1} - t_k`` as fmusim steps, or by ``h`` as
     our master steps), the outputs at ``t_{k+1}``. Rows ``[t, outputs...]``."""
     steps = len(values) - 1
     comp = FmuComponent("ours", fmu)
-    comp.setup(0.0, steps * H, params)
+    comp.setup(0.0, steps * h, params)
     write, read = comp.writer(names), comp.reader(outputs)
     write(list(values[0]))
     comp.initialize()
     rows = [[0.0, *read()]]
     for k in range(steps):
         write(list(values[k]))
-        comp.do_step(k * H, (k + 1) * H - k * H if fmusim_steps else H)
-        rows.append([(k + 1) * H, *read()])
+        comp.do_step(k * h, (k + 1) * h - k * h if fmusim_steps else h)
+        rows.append([(k + 1) * h, *read()])
     comp.terminate()
     return np.array(rows)
+
+
+def _ours_as_recorded(fmus, case: str, fmusim_steps: bool = True) -> np.ndarray:
+    """Our driver on the FMU built here, with a record's parameters and inputs."""
+    rec = _record(case)
+    return _ours(fmus[case], rec["parameters"], rec["inputs"], _held_inputs(case),
+                 rec["outputs"], fmusim_steps, rec["step"])
 
 
 def _at_16_digits(values: np.ndarray) -> np.ndarray:
@@ -209,9 +196,12 @@ def _assert_same(got: np.ndarray, want: np.ndarray, what: str) -> None:
         f"(relative {np.max(diff / np.maximum(np.abs(want), 1e-300)):.3g})")
 
 
-# -- the locator ------------------------------------------------------------------------------
-def test_fmusim_is_found_or_named_with_how_to_build_it(monkeypatch, tmp_path):
-    assert _fmusim_cli().name == "fmusim"
+def _recorded_output(case: str) -> tuple[list[str], np.ndarray]:
+    return fmusim_tool.read_output(RECORDS / f"{case}_out.csv")
+
+
+# -- the locator and the records --------------------------------------------------------------
+def test_locate_names_the_folder_and_how_to_build_fmusim(monkeypatch, tmp_path):
     monkeypatch.setenv(fmusim_tool.ENV, str(tmp_path))
     with pytest.raises(fmusim_tool.FmusimNotInstalled) as info:
         fmusim_tool.locate()
@@ -219,154 +209,186 @@ def test_fmusim_is_found_or_named_with_how_to_build_it(monkeypatch, tmp_path):
     assert message.startswith(f"fmusim not found: {fmusim_tool.ENV}={tmp_path} holds no "
                               "executable bin/fmusim: build it from modelica/Reference-FMUs "
                               "v0.0.39")
-    assert "build.sh" in message and "\n" not in message
+    assert "build.py x86_64-linux" in message and "\n" not in message
 
 
-# -- fmusim runs each FMU alone -----------------------------------------------------------
-CASES = {
-    # kind: (loop, role, inputs, outputs, steps)
-    "plant": (MYLOOP, "plant", ["u1", "u2"], ["x1", "x2", "x3"], 300),
-    "delay": (MYLOOP, "meas_delay", ["u1", "u2", "u3"], ["y1", "y2", "y3"], 150),
-    "controller": (MYLOOP, "controller", ["y1", "y2", "y3"], ["u1", "u2"], 300),
-    "model_plant": ("example-3.8", "plant", ["u"], ["x1", "x2"], 300),
-    "model_controller": ("example-3.8", "controller", ["y_x1", "y_x2"], ["u"], 300),
-}
+@pytest.mark.parametrize("case", RUNS + CLOCKED)
+def test_a_record_is_what_the_recorder_gives_fmusim(case):
+    """Each record's options are its parameters as fmusim reads them (arrays spaced, 17
+    digits), over its steps; its input CSV is the recorder's signal for its form."""
+    rec = _record(case)
+    spec, loop, role, inputs, outputs, steps, extra, form = recorder.CASES[case]
+    assert (rec["fmu"], rec["loop"], rec["role"], rec["inputs"], rec["outputs"],
+            rec["steps"], rec["step"]) == (spec, loop, role, inputs, outputs, steps, H)
+    starts = [a for name, value in recorder.as_arrays(rec["parameters"]).items()
+              for a in ("--start-value", name, recorder.literal(value))]
+    assert rec["options"] == ["--interface-type", "cs", "--stop-time", repr(steps * H),
+                              "--output-interval", repr(H), *extra, *starts]
+    with open(RECORDS / f"{case}_in.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    want = recorder.input_rows(form, inputs, recorder.signals(len(inputs), steps))
+    assert [r[0] for r in rows] == [r[0] for r in want] and rows[0] == want[0]
+    got = np.array([[float(c) if c else np.nan for c in r[1:]] for r in rows[1:]])
+    ref = np.array([[float(c) if c else np.nan for c in r[1:]] for r in want[1:]])
+    assert_columns_close(got, ref, ulps=4, what=f"{case} inputs")  # sin of another libm
 
 
-def _case(fmus, kind: str, tmp: Path):
-    """fmusim's and our driver's runs of one FMU: (fmusim's rows, ours, header, process)."""
-    source, role, inputs, outputs, steps = CASES[kind]
-    params = _params(source, role)
-    values = _signals(inputs, steps)
-    header, got, proc = _run_fmusim(fmus[kind], tmp, _as_arrays(params), inputs, values)
-    ours = _ours(fmus[kind], params, inputs, values, outputs)
-    return got, ours, header, proc
-
-
-@pytest.mark.parametrize("kind", list(CASES))
-def test_fmusim_runs_each_fmu_alone_as_our_master_does(fmus, kind, tmp_path):
+# -- fmusim's records against our master, on every machine ------------------------------------
+@pytest.mark.parametrize("case", RUNS)
+def test_our_master_reproduces_fmusims_recorded_run(fmus, case):
     """The plant (A, B, x0 arrays; u piecewise constant), the delay (3 channels, 0.36 s =
     36 steps, u0 an array), the LTI controller (myloop's T, r, tau, A, B, K), example 3.8's
-    model plant and controller (its loop's parameters): fmusim's CSV equals our outputs
-    at 16 digits, time included, at every communication point."""
-    got, ours, header, proc = _case(fmus, kind, tmp_path)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert header == ["time", *CASES[kind][3]]
-    _assert_same(got, _at_16_digits(ours), f"fmusim against our master, {kind}")
+    model plant and controller (its loop's parameters): fmusim's recorded CSV against our
+    driver on the FMU built here, with the record's parameters and inputs, at every
+    communication point, time included."""
+    rec = _record(case)
+    assert rec["returncode"] == 0 and rec["log"] == [], rec["log"]
+    header, recorded = _recorded_output(case)
+    assert header == ["time", *rec["outputs"]]
+    ours = _ours_as_recorded(fmus, case)
+    assert_columns_close(_at_16_digits(ours), recorded, ulps=RECORD_ULPS,
+                         what=f"fmusim's record against our master, {case}")
     moving = np.ptp(ours[:, 1:], axis=0)
-    assert np.all(moving > 1e-3), f"{kind}: an output that does not move: {moving}"
-    # our master's own steps (H each): the same numbers where the FMU keys on its grid;
-    # the model plant's exact step takes the step it is given, so it moves by the steps'
-    # last bits: at most sum |h_k - H| times the largest rate, plus the rounding
-    source, role, inputs, outputs, steps = CASES[kind]
-    master = _ours(fmus[kind], _params(source, role), inputs, _signals(inputs, steps),
-                   outputs, fmusim_steps=False)
-    if kind != "model_plant":
-        _assert_same(master, ours, f"steps t_(k+1) - t_k against H, {kind}")
+    assert np.all(moving > 1e-3), f"{case}: an output that does not move: {moving}"
+
+
+@pytest.mark.parametrize("case", RUNS)
+def test_our_masters_own_steps_give_what_fmusims_steps_give(fmus, case):
+    """Our master's own steps (h each) against fmusim's ``t_{k+1} - t_k``: the same
+    numbers where the FMU keys on its grid; the model plant's exact step takes the step it
+    is given, so it moves by the steps' last bits: at most ``sum |h_k - h|`` times the
+    largest rate, plus the rounding."""
+    ours = _ours_as_recorded(fmus, case)
+    master = _ours_as_recorded(fmus, case, fmusim_steps=False)
+    if case != "model_plant":
+        _assert_same(master, ours, f"steps t_(k+1) - t_k against h, {case}")
         return
-    slack = np.abs(np.diff(np.arange(steps + 1) * H) - H).sum()
-    rate = np.abs(np.diff(ours[:, 1:], axis=0)).max(axis=0) / H
+    rec = _record(case)
+    slack = np.abs(np.diff(np.arange(rec["steps"] + 1) * rec["step"]) - rec["step"]).sum()
+    rate = np.abs(np.diff(ours[:, 1:], axis=0)).max(axis=0) / rec["step"]
     bound = slack * rate + 4 * EPS * np.abs(ours[:, 1:]).max(axis=0)
     assert np.all(np.abs(master - ours)[:, 1:].max(axis=0) <= bound)
     assert not np.array_equal(master, ours)  # the difference this allows for is real
 
 
-def test_the_delay_in_fmusim_is_the_input_36_steps_late(fmus, tmp_path):
-    """What the delay run compares: y(t_k) = u(t_{k-36}), the history u0 before."""
-    got, _, _, _ = _case(fmus, "delay", tmp_path)
-    values = _signals(["u1", "u2", "u3"], 150)
-    u0 = _as_arrays(_params(MYLOOP, "meas_delay"))["u0"]
-    want = np.vstack([np.tile(u0, (36, 1)), values[:-36]])
+def test_the_delay_in_fmusims_record_is_the_input_36_steps_late():
+    """What the delay record holds: y(t_k) = u(t_{k-36}), the history u0 before (fmusim's
+    numbers against the inputs it was given, at 16 digits: exactly)."""
+    rec = _record("delay")
+    _, got = _recorded_output("delay")
+    values = _held_inputs("delay")
+    u0 = recorder.as_arrays(rec["parameters"])["u0"]
+    lag = round(rec["parameters"]["delay"] / rec["step"])
+    assert lag == 36
+    want = np.vstack([np.tile(u0, (lag, 1)), values[:-lag]])
     _assert_same(got[:, 1:], _at_16_digits(want), "delay")
 
 
 # -- the clocked controller ---------------------------------------------------------------
-@pytest.mark.parametrize("empty_between_ticks, message", [
-    (False, "[Error] fmi3SetFloat64: y1 is not allowed in step mode: it is clocked by sample "
-            "(set it in event mode, at the clock's tick)"),
-    (True, "[Error] fmi3DoStep from t = 0.0 is not allowed: sample ticks there (t0 + 0 T) "
-           "and did not (enter event mode, set the inputs, fmi3SetClock, "
-           "fmi3UpdateDiscreteStates, fmi3EnterStepMode)"),
-])
-def test_fmusim_cannot_tick_the_clocked_controller_at_t0(fmus, tmp_path, empty_between_ticks,
-                                                         message):
+CLOCKED_REFUSALS = {
+    "clocked_held": ("fmi3SetFloat64: y1 is not allowed in step mode: it is clocked by "
+                     "sample (set it in event mode, at the clock's tick)"),
+    "clocked_ticks": ("fmi3DoStep from t = 0.0 is not allowed: sample ticks there (t0 + 0 T) "
+                      "and did not (enter event mode, set the inputs, fmi3SetClock, "
+                      "fmi3UpdateDiscreteStates, fmi3EnterStepMode)"),
+}
+
+
+@pytest.mark.parametrize("case", CLOCKED)
+def test_fmusims_record_shows_it_cannot_tick_the_clocked_controller_at_t0(case):
     """``--event-mode-used`` and a clock column ``sample`` (1 at each t0 + i T). fmusim
     sets the CSV's y in step mode before the first step (the row at t0 is no event for
-    it), which the FMU refuses; with y only in the tick rows (cells empty between, so
-    nothing is set in step mode) the first step comes without the tick at t0 (fmusim sets
-    no clock in initialization mode nor after fmi3ExitInitializationMode), which the FMU
-    refuses too. Exit status 3 (Error) and one row, t0, where u is still its start value
-    0 (no tick has sampled y)."""
-    params = _as_arrays(_params(MYLOOP, "controller"))
-    values = _signals(["y1", "y2", "y3"], 40)
-    if empty_between_ticks:  # a first row without values, then the ticks' rows only
-        infile = tmp_path / "in.csv"
-        lines = ["time,y1,y2,y3,sample", "0.0,,,,0"]
-        for k in range(41):
-            cells = ",".join(repr(float(v)) for v in values[k]) if k % 20 == 0 else ",,"
-            lines.append(f"{k * H!r},{cells},{int(k % 20 == 0)}")
-        infile.write_text("\n".join(lines) + "\n")
-        argv = [str(_fmusim_cli()), "--interface-type", "cs", "--event-mode-used",
-                "--stop-time", "0.4", "--output-interval", repr(H), "--input-file",
-                str(infile), "--output-file", str(tmp_path / "out.csv")]
-        for name, value in params.items():
-            argv += ["--start-value", name, _literal(value)]
-        proc = subprocess.run([*argv, str(fmus["clocked"])], capture_output=True, text=True,
-                              timeout=120)
-        rows = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, ndmin=2)
-    else:
-        _, rows, proc = _run_fmusim(fmus["clocked"], tmp_path, params, ["y1", "y2", "y3"],
-                                    values, extra=("--event-mode-used",), clock="sample")
-    assert proc.returncode == 3
-    assert proc.stdout.strip().splitlines() == [message]
-    assert rows.tolist() == [[0.0, 0.0, 0.0]]
+    it), which the FMU refuses (``clocked_held``); with y only in the tick rows (cells
+    empty between, so nothing is set in step mode) the first step comes without the tick
+    at t0 (fmusim sets no clock in initialization mode nor after
+    fmi3ExitInitializationMode), which the FMU refuses too (``clocked_ticks``). Exit status
+    3 (Error) and one row, t0, where u is still its start value 0 (no tick has sampled y).
+    That the FMU built here still says so: the FMPy tests below."""
+    rec = _record(case)
+    assert rec["returncode"] == 3
+    assert rec["log"] == [f"[Error] {CLOCKED_REFUSALS[case]}"]
+    header, rows = _recorded_output(case)
+    assert header == ["time", "u1", "u2"] and rows.tolist() == [[0.0, 0.0, 0.0]]
+
+
+# -- fmusim again, where it is found ----------------------------------------------------------
+@pytest.mark.parametrize("case", RUNS)
+def test_fmusim_runs_each_fmu_built_here_as_recorded(fmusim_cli, fmus, case, tmp_path):
+    """fmusim now, on the FMUs built here, with the record's options and input CSV: our
+    driver's outputs exactly (at 16 digits), and the record to ``RECORD_ULPS``."""
+    rec = _record(case)
+    out = tmp_path / "out.csv"
+    proc = fmusim_tool.simulate(fmus[case], rec["options"], RECORDS / f"{case}_in.csv", out,
+                                cli=fmusim_cli)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    header, got = fmusim_tool.read_output(out)
+    assert header == ["time", *rec["outputs"]]
+    _assert_same(got, _at_16_digits(_ours_as_recorded(fmus, case)),
+                 f"fmusim against our master, {case}")
+    assert_columns_close(got, _recorded_output(case)[1], ulps=RECORD_ULPS,
+                         what=f"fmusim against its record, {case}")
+
+
+@pytest.mark.parametrize("case", CLOCKED)
+def test_fmusim_still_cannot_tick_the_clocked_controller_built_here(fmusim_cli, fmus, case,
+                                                                   tmp_path):
+    rec = _record(case)
+    out = tmp_path / "out.csv"
+    proc = fmusim_tool.simulate(fmus["clocked"], rec["options"], RECORDS / f"{case}_in.csv",
+                                out, cli=fmusim_cli)
+    assert (proc.returncode, (proc.stdout + proc.stderr).strip().splitlines()) == (
+        rec["returncode"], rec["log"])
+    assert fmusim_tool.read_output(out)[1].tolist() == [[0.0, 0.0, 0.0]]
 
 
 # -- FMPy --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("kind", ["delay", "controller"])
-def test_fmpy_simulate_fmu_agrees_with_our_master_and_fmusim(fmus, kind, tmp_path):
+@pytest.mark.parametrize("case", ["delay", "controller"])
+def test_fmpy_simulate_fmu_agrees_with_our_master_and_fmusims_record(fmus, case):
     """``fmpy.simulate_fmu`` (FMI 3.0 co-simulation) with the inputs as a structured numpy
-    array (the same held rows as fmusim's CSV): our driver's doubles exactly, fmusim's
-    CSV at 16 digits."""
+    array (the rows of the record's input CSV): our driver's doubles exactly, fmusim's
+    recorded CSV at 16 digits (to ``RECORD_ULPS``)."""
     from fmpy import simulate_fmu
 
-    source, role, inputs, outputs, steps = CASES[kind]
-    params = _params(source, role)
-    values = _signals(inputs, steps)
-    signal = np.array([(t, *v) for t, v in _piecewise_rows(values)],
-                      dtype=[("time", float)] + [(n, float) for n in inputs])
-    res = simulate_fmu(str(fmus[kind]), fmi_type="CoSimulation", start_time=0.0,
-                       stop_time=steps * H, output_interval=H, input=signal,
-                       start_values=_as_arrays(params), output=outputs)
-    got = np.column_stack([res["time"], *(res[n] for n in outputs)])
-    ours = _ours(fmus[kind], params, inputs, values, outputs)
-    _assert_same(got, ours, f"fmpy against our master, {kind}")
-    fmusim_rows, _, _, proc = _case(fmus, kind, tmp_path)
-    assert proc.returncode == 0, proc.stdout
-    _assert_same(fmusim_rows, _at_16_digits(got), f"fmusim against fmpy, {kind}")
+    rec = _record(case)
+    data = np.loadtxt(RECORDS / f"{case}_in.csv", delimiter=",", skiprows=1, ndmin=2)
+    signal = np.array([tuple(row) for row in data],
+                      dtype=[("time", float)] + [(n, float) for n in rec["inputs"]])
+    res = simulate_fmu(str(fmus[case]), fmi_type="CoSimulation", start_time=0.0,
+                       stop_time=rec["steps"] * rec["step"], output_interval=rec["step"],
+                       input=signal, start_values=recorder.as_arrays(rec["parameters"]),
+                       output=rec["outputs"])
+    got = np.column_stack([res["time"], *(res[n] for n in rec["outputs"])])
+    _assert_same(got, _ours_as_recorded(fmus, case), f"fmpy against our master, {case}")
+    assert_columns_close(_at_16_digits(got), _recorded_output(case)[1], ulps=RECORD_ULPS,
+                         what=f"fmusim's record against fmpy, {case}")
 
 
 def test_fmpy_simulate_fmu_cannot_tick_the_clocked_controller(fmus):
     """fmpy 0.3.32's input signals know no Clock variable (a ``sample`` column: KeyError
     'Clock' while it reads them); without it, it sets the clocked y in step mode, which the
-    FMU refuses, as in fmusim."""
+    FMU refuses as fmusim's record says (``clocked_held``); with no inputs at all it steps
+    from t0 without the tick there, refused as in fmusim's ``clocked_ticks``."""
     from fmpy import simulate_fmu
     from fmpy.fmi1 import FMICallException
 
-    rows = [(k * H, *v, float(k % 20 == 0))
-            for k, v in enumerate(_signals(["y1", "y2", "y3"], 40))]
+    rec = _record("clocked_held")
+    h = rec["step"]
+    rows = [(k * h, *v, float(k % recorder.TICK == 0))
+            for k, v in enumerate(_held_inputs("clocked_held"))]
     signal = np.array(rows, dtype=[(n, float) for n in ("time", "y1", "y2", "y3", "sample")])
-    run = dict(fmi_type="CoSimulation", stop_time=0.4, output_interval=H, use_event_mode=True,
-               start_values=_as_arrays(_params(MYLOOP, "controller")))
+    run = dict(fmi_type="CoSimulation", stop_time=rec["steps"] * h, output_interval=h,
+               use_event_mode=True, start_values=recorder.as_arrays(rec["parameters"]))
     with pytest.raises(KeyError, match="'Clock'"):
         simulate_fmu(str(fmus["clocked"]), input=signal, **run)
     messages: list[bytes] = []
-    with pytest.raises(FMICallException, match="fmi3SetFloat64 failed with status 3"):
-        simulate_fmu(str(fmus["clocked"]), input=signal[["time", "y1", "y2", "y3"]],
-                     logger=lambda *args: messages.append(args[-1]), **run)
-    assert messages[-1].decode() == (
-        "fmi3SetFloat64: y1 is not allowed in step mode: it is clocked by sample (set it in "
-        "event mode, at the clock's tick)")
+    for case, given in (("clocked_held", signal[["time", "y1", "y2", "y3"]]),
+                        ("clocked_ticks", None)):
+        messages.clear()
+        call = "fmi3SetFloat64" if case == "clocked_held" else "fmi3DoStep"
+        with pytest.raises(FMICallException, match=f"{call} failed with status 3"):
+            simulate_fmu(str(fmus["clocked"]), input=given,
+                         logger=lambda *args: messages.append(args[-1]), **run)
+        assert [f"[Error] {messages[-1].decode()}"] == _record(case)["log"]
 
 
 # -- OMSimulator -------------------------------------------------------------------------------
