@@ -429,6 +429,11 @@ def _export_loop_parser(sub) -> None:
                    help="the container FMU to write")
     _fmu_kind(e, "the container holds the native C FMUs, an error where the loop has "
                  "none (the default holds them where it can)")
+    e.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help="the FMI version of the container FMU and of delaycomp's FMUs inside "
+                        "it (default 2); 3: an FMI 3.0 container of the FMI 3.0 native FMUs, "
+                        "built with the loop's values (a loop's own FMU goes in as it is); "
+                        "docs: reference/fmi3")
 
 
 def _export_c_parser(sub) -> None:
@@ -1164,11 +1169,12 @@ def _cmd_export_loop(args) -> int:
 
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {short(str(args.out))} is not allowed: must end in .fmu")
+    fmi = _fmi_of(args)
     _outputs(args)
     _, _, loop = _loop(args)
-    fmus = _chosen_fmus(args, loop)
+    fmus = _chosen_fmus(args, loop) if fmi == 2 else None  # 3: built with the loop's values
     _undriven_note(loop, args.verbosity)
-    path = export_loop(loop, args.out, args.fmu_dir, fmus)
+    path = export_loop(loop, args.out, args.fmu_dir, fmus, fmi=fmi)
     print(path)
     return 0
 

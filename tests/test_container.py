@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import subprocess
 import sys
 
@@ -103,8 +104,86 @@ def test_without_the_timing_fixes_the_container_is_off(tmp_path):
     assert err.max() > 1e-2
 
 
+#: an LTI scenario, a dead-beat one (n = 3) and a model file's loop (translated to C)
+FMI3_CASES = ["example-3.6/fig3", "corollary-3.7/n2", "example-3.8/delayed"]
+
+
+def _fmi_versions(path) -> tuple[str, list[str]]:
+    """The container's ``fmiVersion`` and those of the FMUs it holds."""
+    import zipfile
+
+    def version(text: bytes) -> str:
+        found = re.search(rb'fmiVersion="([^"]+)"', text)
+        assert found is not None
+        return found.group(1).decode()
+
+    with zipfile.ZipFile(path) as zf:
+        inner = sorted(n for n in zf.namelist()
+                       if re.fullmatch(r"resources/\d+/modelDescription\.xml", n))
+        return version(zf.read("modelDescription.xml")), [version(zf.read(n)) for n in inner]
+
+
+@pytest.mark.parametrize("case_id", FMI3_CASES)
+def test_fmi3_container_is_the_fmi2_container_bit_for_bit(case_id, tmp_path):
+    """``export_loop(..., fmi=3)``: an FMI 3.0 container holding the four FMI 3.0 native
+    FMUs, built with the loop's values as start values (the container sets no array),
+    gives the FMI 2.0 container of the FMI 2.0 native FMUs at every sampling instant bit
+    for bit (the same C arithmetic in the same order, on this machine), and so meets the
+    reference within check's tolerances."""
+    from delaycomp.fmu.native import native_fmus
+
+    c = check.case(case_id)
+    spec = _spec(c)
+    three = container.export_loop(spec, tmp_path / "three.fmu", fmi=3)
+    assert _fmi_versions(three) == ("3.0", ["3.0"] * 4)
+    two = container.export_loop(spec, tmp_path / "two.fmu",
+                                fmus=native_fmus(spec, tmp_path / "native"))
+    assert _fmi_versions(two) == ("2.0", ["2.0"] * 4)
+    names, times, data = container._simulate_in_child(three, c)
+    names2, times2, data2 = container._simulate_in_child(two, c)
+    assert names == names2 and np.array_equal(times, times2)
+    assert np.array_equal(data, data2), np.abs(data - data2).max()
+    assert len(times) == round(c.stop_time() / spec.T) + 1
+    cmp = check.compare(c, names, times, data, ref_stride=spec.N)
+    assert cmp.passed, (cmp.max_error, cmp.tolerance)
+
+
+def test_export_loop_fmi3_cli_writes_an_fmi3_fmu_that_fmpy_validates(tmp_path):
+    from fmpy import read_model_description
+
+    out = tmp_path / "example-3.6.fmu"
+    proc = cli("export-loop", "example-3.6", "--set", "u0=4", "--fmi", "3", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == str(out)
+    md = read_model_description(str(out), validate=True)
+    assert md.fmiVersion == "3.0" and md.coSimulation.modelIdentifier == "example_3_6"
+    assert sorted(v.name for v in md.modelVariables if v.causality == "output") == ["u", "x"]
+    assert float(md.defaultExperiment.stepSize) == pytest.approx(0.01)
+    assert _fmi_versions(out) == ("3.0", ["3.0"] * 4)
+
+
+def test_export_loop_refuses_another_fmi_version_and_fmus_with_fmi3(tmp_path):
+    from delaycomp.errors import ParameterError
+
+    spec = _spec(check.case("example-3.6/fig3"))
+    for fmi in (1, 4, True, "3"):
+        with pytest.raises(ParameterError, match=re.escape(
+                f"fmi = {fmi!r} is not allowed: must be 2 or 3")):
+            container.export_loop(spec, tmp_path / "x.fmu", fmi=fmi)  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match=re.escape(
+            "fmus is not allowed with fmi = 3: the container holds delaycomp's FMI 3.0 FMUs")):
+        container.export_loop(spec, tmp_path / "x.fmu", fmus={"plant": tmp_path / "p.fmu"},
+                              fmi=3)
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("args, message", [
     (["export-loop", "example-9.9", "--out", "x.fmu"], "unknown scenario 'example-9.9'"),
+    (["export-loop", "example-3.6", "--fmi", "3", "--python", "--out", "x.fmu"],
+     "--fmi 3 is not allowed with --python: delaycomp's FMI 3.0 FMUs are the native C ones"),
+    (["export-loop", "example-3.6", "--fmi", "3", "--set", "r=0", "--out", "x.fmu"],
+     "r = 0.0 is not allowed for export-loop: the measurement delay must be at least one "
+     "base step"),
     (["export-loop", "example-3.6", "--out", "x.zip"], "--out 'x.zip' is not allowed: must "
                                                        "end in .fmu"),
     (["export-loop", "example-3.6", "--set", "r=0", "--out", "x.fmu"],

@@ -254,6 +254,34 @@ def test_container_reproduces_our_master(folder, ours, tmp_path):
     assert np.all(np.abs(data - ours.data[idx]) <= 1e-12 * (1 + np.abs(ours.data[idx])))
 
 
+def test_fmi3_container_holds_the_users_fmi2_plant_as_it_is(folder, tmp_path):
+    """``export_loop(..., fmi=3)`` of a loop with a user's FMI 2.0 plant: the FMI 3.0
+    container holds it as it is (its start values set element by element) beside the FMI
+    3.0 native delays and controller, and gives the FMI 2.0 container of the FMI 2.0 native
+    ones bit for bit (the same arithmetic in the same order, on this machine)."""
+    import re
+
+    from delaycomp.formats.loopbuild import native_with_starts
+    from delaycomp.verify import container
+    loop = read_loop(folder / "osc.toml")
+    three = container.export_loop(loop, tmp_path / "three.fmu", fmi=3)
+    two = container.export_loop(loop, tmp_path / "two.fmu",
+                                fmus=native_with_starts(loop, tmp_path / "native"))
+    with zipfile.ZipFile(three) as zf:
+        inner = [zf.read(n).decode() for n in sorted(zf.namelist())
+                 if re.fullmatch(r"resources/\d+/modelDescription\.xml", n)]
+        outer = zf.read("modelDescription.xml").decode()
+    assert 'fmiVersion="3.0"' in outer
+    versions = sorted(re.search(r'fmiVersion="([^"]+)"', t).group(1)  # type: ignore[union-attr]
+                      for t in inner)
+    assert versions == ["2.0", "3.0", "3.0", "3.0"]
+    assert sum('modelName="Oscillator"' in t for t in inner) == 1
+    names, times, data = container.simulate_loop(three, loop, 3.0)
+    names2, times2, data2 = container.simulate_loop(two, loop, 3.0)
+    assert names == names2 and np.array_equal(times, times2)
+    assert np.array_equal(data, data2), np.abs(data - data2).max()
+
+
 def test_sweep_over_the_measurement_delay(folder):
     from delaycomp.studies.axes import parse_grid
     from delaycomp.studies.sweep import run_sweep

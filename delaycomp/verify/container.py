@@ -37,6 +37,15 @@ What is exact instead:
 
 The measurement delay must be at least one base step (``r >= h``): with ``r = 0`` the
 controller needs ``x(t_i)`` before ``t_i`` is reached, which only direct feedthrough gives.
+
+FMI 3.0 (``export-loop --fmi 3``, ``export_loop(..., fmi=3)``): the container's own
+interface is FMI 3.0 (the toolbox's ``fmi_version=3``) and it holds delaycomp's FMI 3.0
+native FMUs, each built with its instance's values as start values
+(``delaycomp.formats.loopbuild.native_with_starts``): the container sets scalar start
+values only (an array's elements are not its ports), so it sets the scalars the order needs
+(``delay``, ``held_sample``) and the arrays come with the FMUs. A user's FMU file (another
+tool's FMI 2.0 plant) goes in as it is, its start values set element by element. The loop
+inside is the FMI 2.0 container's, bit for bit (``tests/test_container.py``).
 """
 
 from __future__ import annotations
@@ -49,12 +58,13 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from pathlib import Path
 from typing import cast
 
 from delaycomp.child import module_argv
 from delaycomp.errors import DelaycompError, ParameterError
+from delaycomp.names import array_element
 from delaycomp.system import Loop, Role
 from delaycomp.verify.cases import CheckRow, RefCase, compare
 
@@ -106,16 +116,9 @@ def _ordered(spec: Loop) -> list:
     return cast(list, members)
 
 
-def _text(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (str, int)):
-        return str(value)
-    return repr(float(value))
-
-
-def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
-    """The container's JSON description (fmu-manipulation-toolbox's format)."""
+def _checked(spec: Loop) -> list:
+    """The loop's instances in the container's order, once the loop is one the
+    container runs exactly (the four roles, ``r >= h``); else ``ParameterError``."""
     members = _ordered(spec)
     h = spec.h
     meas = members[ORDER.index("meas_delay")].parameters["delay"]
@@ -124,6 +127,24 @@ def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
             f"parameter r = {meas!r} is not allowed for export-loop: the measurement delay "
             f"must be at least one base step h = T/N = {h!r} (the container reads outputs "
             "before it sets inputs, so r = 0 would need direct feedthrough)")
+    return members
+
+
+def _text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (str, int)):
+        return str(value)
+    return repr(float(value))
+
+
+def description(spec: Loop, fmu_files: dict[str, str], name: str,
+                arrays_in_fmu: Collection[str] = ()) -> dict:
+    """The container's JSON description (fmu-manipulation-toolbox's format). The
+    instances named in ``arrays_in_fmu`` are FMI 3.0 FMUs that carry their arrays as
+    start values: the container sets only their scalars."""
+    members = _checked(spec)
+    h = spec.h
     start = []
     for inst in members:
         params = dict(inst.parameters)
@@ -131,6 +152,8 @@ def description(spec: Loop, fmu_files: dict[str, str], name: str) -> dict:
             params["delay"] = params["delay"] + ADDED_STEPS[inst.role] * h
         if inst.role == "controller":
             params["held_sample"] = True
+        if inst.name in arrays_in_fmu:
+            params = {k: v for k, v in params.items() if array_element(k) is None}
         start += [[f"{inst.name}.fmu", key, _text(value)] for key, value in params.items()]
     links = [[f"{c.src.instance}.fmu", c.src.variable, f"{c.dst.instance}.fmu",
               c.dst.variable] for c in spec.connections]
@@ -169,28 +192,67 @@ class _UndrivenInputs(logging.Filter):
 
 
 def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
-                fmus: dict[str, Path] | None = None) -> Path:
-    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``. ``fmus``
-    gives the FMU file of some instances (e.g. the native ones of
-    ``delaycomp.fmu.native.native_fmus``); the others come from their sources."""
+                fmus: dict[str, Path] | None = None, fmi: int = 2) -> Path:
+    """Write the loop ``spec`` as one container FMU to ``out``; return ``out``.
+
+    Parameters
+    ----------
+    spec : Loop
+        The loop: the four roles, ``r >= h``.
+    out : Path
+        The ``.fmu`` file to write (replaced whole, never through a link).
+    fmu_dir : Path, optional
+        Folder of built Python FMUs (default: the per-version cache).
+    fmus : dict, optional
+        The FMU file of some instances (e.g. the native ones of
+        ``delaycomp.fmu.native.native_fmus``); the others come from their sources. Not
+        with ``fmi=3``, which builds its own.
+    fmi : {2, 3}
+        The FMI version of the container's interface and of delaycomp's FMUs inside it:
+        3 holds the FMI 3.0 native FMUs, built with the loop's values as start values
+        (a user's FMU file goes in as it is).
+
+    Raises
+    ------
+    ParameterError
+        ``fmi`` other than 2 or 3, ``fmus`` with ``fmi=3``, ``r < h``, a loop without the
+        four roles.
+    ContainerError
+        fmu-manipulation-toolbox is missing or refused the description.
+    """
     from delaycomp.fmu.cache import source_fmu
     from delaycomp.tmpfiles import replacing_path
     from delaycomp.unpack import Budget, measure
 
+    if isinstance(fmi, bool) or fmi not in (2, 3):
+        raise ParameterError(f"fmi = {fmi!r} is not allowed: must be 2 or 3")
+    if fmi == 3 and fmus:
+        raise ParameterError("fmus is not allowed with fmi = 3: the container holds "
+                             "delaycomp's FMI 3.0 FMUs built with the loop's values as start "
+                             "values (it sets no array)")
     Assembly = _toolbox()
     out = Path(out)
     ident = _identifier(out)
     with tempfile.TemporaryDirectory(prefix="delaycomp-loop-") as tmp:
         work = Path(tmp)
+        if fmi == 3:
+            from delaycomp.formats.loopbuild import native_with_starts
+
+            _checked(spec)  # the loop's own refusals before any build
+            fmus = native_with_starts(spec, work / "fmi3", fmi=3)
+        arrays_in_fmu = set(fmus or ()) if fmi == 3 else set()
         files = {}
         for inst in _ordered(spec):
             src = Path((fmus or {}).get(inst.name) or source_fmu(inst.source, fmu_dir))
             # the container's tool unpacks it, with no limit of its own: ours first
             measure(src, Budget(src))
-            if not (work / src.name).exists():
-                shutil.copy2(src, work / src.name)
-            files[inst.name] = src.name
-        desc = description(spec, files, f"{ident}.fmu")
+            name = src.name
+            if fmi == 3 and inst.name in arrays_in_fmu:  # one per instance: its own starts
+                name = f"{inst.name}_{src.name}"
+            if not (work / name).exists():
+                shutil.copy2(src, work / name)
+            files[inst.name] = name
+        desc = description(spec, files, f"{ident}.fmu", arrays_in_fmu)
         (work / "loop.json").write_text(json.dumps(desc, indent=1), encoding="utf-8")
         log = logging.getLogger("fmu_manipulation_toolbox")
         level, propagate = log.level, log.propagate
@@ -199,7 +261,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
         undriven = _UndrivenInputs(spec)
         log.addFilter(undriven)
         try:
-            Assembly("loop.json", fmu_directory=work).make_fmu()
+            Assembly("loop.json", fmu_directory=work).make_fmu(fmi_version=fmi)
         except Exception as exc:
             raise ContainerError(f"fmu-manipulation-toolbox: {exc}") from exc
         finally:
