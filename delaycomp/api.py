@@ -304,10 +304,17 @@ def _fmu_kind(fmus: str) -> None:
                              f"{', '.join(FMU_KINDS)}")
 
 
-def _fmi_version(fmi) -> int:
+def _fmi_version(fmi, clocked=False) -> int:
+    """``fmi`` checked (2 or 3), and ``clocked`` with it (a bool, true only with 3)."""
     if fmi not in (2, 3) or isinstance(fmi, bool):
         raise ParameterError(f"fmi = {short(fmi)} is not allowed: must be 2 or 3 (the FMI "
                              "version of delaycomp's FMUs)")
+    if not isinstance(clocked, bool):
+        raise ParameterError(f"clocked = {short(clocked)} is not allowed: must be true or "
+                             "false")
+    if clocked and fmi != 3:
+        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
+                             "controller is an FMI 3.0 FMU (fmi = 3)")
     return int(fmi)
 
 
@@ -336,7 +343,7 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     (None, None)
     """
     _fmu_kind(fmus)
-    fmi = _fmi_version(fmi)
+    fmi = _fmi_version(fmi, clocked)
     loop = _as_loop(loop)
     if fmi == 3 and (engine != "fmu" or fmus == "python"):
         raise ParameterError(f"fmi = 3 is not allowed with "
@@ -353,9 +360,6 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     from delaycomp.fmu.native import native_fmus, native_or_why
 
     native_dir = Path(fmu_dir) / "native" if fmu_dir else None
-    if clocked and fmi != 3:
-        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
-                             "controller is an FMI 3.0 FMU (fmi = 3)")
     if fmus == "native" or fmi == 3:
         return native_fmus(loop, native_dir, fmi, clocked), None
     return native_or_why(loop, native_dir)
@@ -402,6 +406,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     from delaycomp.orchestrator.isolated import check_watchdog
     from delaycomp.orchestrator.simulate import run_loop
 
+    _fmi_version(fmi, clocked)  # also where ``fmus`` names the files
     loop = _as_loop(loop, sets)
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
@@ -484,13 +489,10 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     """
     from delaycomp.formats.loopbuild import build_loop
 
-    fmi = _fmi_version(fmi)
+    fmi = _fmi_version(fmi, clocked)
     if fmi == 3 and fmus == "python":
         raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
                              "FMUs are the native C ones")
-    if clocked and fmi != 3:
-        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
-                             "controller is an FMI 3.0 FMU (fmi = 3)")
     return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info, fmi=fmi,
                       clocked=clocked)
 
@@ -553,14 +555,11 @@ def to_ssp(loop: LoopLike, out: str | Path, *, jacobi: bool = False,
     ``A``, ``B``, ``K``, ``x0``, ``u0`` are the FMUs' start values)."""
     from delaycomp.formats import ssp
     _fmu_kind(fmus)
-    fmi = _fmi_version(fmi)
+    fmi = _fmi_version(fmi, clocked)
     loop = _as_loop(loop, sets)
     fmu_dir = Path(fmu_dir) if fmu_dir else None
     if fmi == 3:
         return _to_ssp3(loop, out, jacobi, fmus, clocked)
-    if clocked:
-        raise ParameterError("clocked = true is not allowed with fmi = 2: the clocked "
-                             "controller is an FMI 3.0 FMU (fmi = 3)")
     if jacobi:
         from delaycomp.verify.thirdparty import pack_jacobi
 

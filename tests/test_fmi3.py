@@ -619,3 +619,33 @@ def test_a_clocked_jacobi_archive_is_refused_in_one_line(tmp_path):
         "variant samples the step before each tick, a clocked controller samples at the "
         "tick (pack one or the other)")
     assert not (tmp_path / "x.ssp").exists()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"fmi": 4}, "fmi = int 4 is not allowed: must be 2 or 3 (the FMI version of delaycomp's FMUs)"),
+    ({"fmi": True}, "fmi = bool True is not allowed: must be 2 or 3"),
+    ({"fmi": "3"}, "fmi = '3' is not allowed: must be 2 or 3"),
+    ({"fmi": 3, "clocked": "yes"}, "clocked = 'yes' is not allowed: must be true or false"),
+    ({"fmi": 3, "clocked": 1}, "clocked = int 1 is not allowed: must be true or false"),
+    ({"clocked": True}, "clocked = true is not allowed with fmi = 2: the clocked controller "
+                        "is an FMI 3.0 FMU (fmi = 3)"),
+])
+def test_the_api_refuses_a_bad_fmi_or_clocked_before_anything_is_built(kwargs, message,
+                                                                       tmp_path):
+    """``run`` (also with the FMU files given, where it used to ignore both),
+    ``choose_fmus`` (also with the in-process engine, which used to return before it
+    looked at ``clocked``), ``build`` and ``to_ssp``: one ``ParameterError`` naming the
+    parameter and what is allowed, nothing written."""
+    from delaycomp.errors import ParameterError
+
+    calls = [lambda: api.run("example-3.6", fmu_dir=tmp_path / "c", **kwargs),
+             lambda: api.run("example-3.6", fmus={}, **kwargs),  # files given: checked too
+             lambda: api.choose_fmus("example-3.6", "auto", tmp_path / "c", **kwargs),
+             lambda: api.choose_fmus("example-3.6", "auto", engine="inprocess", **kwargs),
+             lambda: api.build("example-3.6", tmp_path / "fmus", **kwargs),
+             lambda: api.to_ssp("example-3.6", tmp_path / "x.ssp", **kwargs)]
+    for call in calls:
+        with pytest.raises(ParameterError) as info:
+            call()
+        assert str(info.value).startswith(message), str(info.value)
+    assert not list(tmp_path.iterdir())
