@@ -622,7 +622,8 @@ def test_a_clocked_jacobi_archive_is_refused_in_one_line(tmp_path):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"fmi": 4}, "fmi = int 4 is not allowed: must be 2 or 3 (the FMI version of delaycomp's FMUs)"),
+    ({"fmi": 4}, "fmi = int 4 is not allowed: must be 2 or 3 (the FMI version of "
+                 "delaycomp's FMUs)"),
     ({"fmi": True}, "fmi = bool True is not allowed: must be 2 or 3"),
     ({"fmi": "3"}, "fmi = '3' is not allowed: must be 2 or 3"),
     ({"fmi": 3, "clocked": "yes"}, "clocked = 'yes' is not allowed: must be true or false"),
