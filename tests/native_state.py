@@ -125,6 +125,8 @@ def layout_of(fmu: Path) -> Layout:
               ("integer", ctypes.c_int * nvr)]
     if nstring:
         fields.append(("string", (ctypes.c_char * STRING_MAX) * nstring))
+    if defines.get("CLOCKED") == "1":  # an FMI 3.0 clocked build: the clock's schedule
+        fields += [("tick_next", ctypes.c_long), ("clock_active", ctypes.c_int)]
     fields.append(("m", model))
     data = type("Data", (ctypes.Structure,), {"_fields_": fields})
     snapshot = type("Snapshot", (ctypes.Structure,), {"_fields_": [("h", Header),

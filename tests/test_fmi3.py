@@ -621,6 +621,67 @@ def test_a_clocked_jacobi_archive_is_refused_in_one_line(tmp_path):
     assert not (tmp_path / "x.ssp").exists()
 
 
+def test_a_restored_state_must_hold_the_clock_schedule_of_its_time(clocked):
+    """A state of the clocked controller holds the index of the clock's next tick
+    (``tick_next``) beside the time. A crafted one whose index does not belong to its time
+    would let a host step on without the ticks, or refuse every tick it sets: restored, it
+    is refused with one message naming it; the true index restores, and at a tick instant
+    both the handled tick's (i + 1) and the unhandled one's (i) do, the latter asking for
+    the tick again before the next step."""
+    from fmpy.fmi1 import FMICallException
+
+    from .native_state import decode, encode, layout_of
+
+    layout = layout_of(clocked)
+    messages: list[str] = []
+    slave, vr = _event_slave(clocked, messages)  # T = 0.2, steps of h = 0.01
+    y = [vr["y1"], vr["y2"], vr["y3"]]
+
+    def tick(k: int) -> None:
+        slave.setFloat64(y, [1.0 + k, 2.0, 3.0])
+        slave.setClock([vr["sample"]], [True])
+        slave.updateDiscreteStates()
+        slave.enterStepMode()
+
+    slave.exitInitializationMode()
+    tick(0)
+    blobs = {}
+    for k in range(30):  # t = 0 .. 0.3, the tick at 0.2 (k = 20) in between
+        if k == 20:
+            slave.enterEventMode()
+            tick(k)
+            blobs["at the tick"] = slave.serializeFMUState(slave.getFMUState())
+        slave.doStep(k * 0.01, 0.01)
+    blobs["between"] = slave.serializeFMUState(slave.getFMUState())
+
+    def restore(blob: bytes, tick_next: int) -> bool:
+        snap, buf = decode(layout, blob)
+        snap.d.tick_next = tick_next
+        try:
+            slave.setFMUState(slave.deserializeFMUState(encode(snap, buf)))
+        except FMICallException:
+            return False
+        return True
+
+    assert decode(layout, blobs["between"])[0].d.tick_next == 2  # the tick at 0.4 is next
+    for wrong in (0, 1, 3, 50, 10**6):
+        assert not restore(blobs["between"], wrong)
+        assert messages[-1] == (
+            f"fmi3DeserializeFMUState: FMU state is not allowed: tick_next = {wrong}: must "
+            "be the index i of the clock's next tick t0 + i T at or after time = 0.3 (t0 = "
+            "0.0, T = 0.2)"), messages[-1]
+    assert restore(blobs["between"], 2)
+    slave.doStep(0.3, 0.01)  # on from the restored state
+    assert decode(layout, blobs["at the tick"])[0].d.tick_next == 2
+    assert not restore(blobs["at the tick"], 3)
+    assert restore(blobs["at the tick"], 1)  # as before the tick at 0.2 was handled
+    with pytest.raises(FMICallException):
+        slave.doStep(0.2, 0.01)
+    assert messages[-1].startswith("fmi3DoStep from t = 0.2 is not allowed: sample ticks "
+                                   "there (t0 + 1 T) and did not")
+    slave.freeInstance()
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"fmi": 4}, "fmi = int 4 is not allowed: must be 2 or 3 (the FMI version of "
                  "delaycomp's FMUs)"),

@@ -183,6 +183,28 @@ static int data_ok(const StateView *v);
 /* A snapshot to install: this FMU's (magic, instantiation token, sizeof(Data)), and its
  * data and buffer checked in full (data_ok, model_state_ok); else 0 and the refusal
  * logged. */
+/* The clock's schedule against the time (CLOCKED builds), once initialization has ended:
+ * the next tick is the first one at or after the time, or the one after a tick at the time
+ * that was handled, t0 + (tick_next - 1) T <= time <= t0 + tick_next T, each end within the
+ * grid's tolerance (fmi3.c's at_next_tick). Another index would let the host step on
+ * without the ticks, or refuse every tick it sets. */
+static int clock_ok(const StateView *v) {
+#if CLOCKED
+    const Data *d = v->d;
+    if (!(d->state & (StateStepComplete | StateEventMode))) return 1;
+    double T = d->real[CLOCK_INTERVAL_SLOT];
+    double next = d->t0 + (double)d->tick_next * T;
+    double tol = GRID_RTOL * T + drift(d->time, T * 1e-3, d->t0);
+    if (!(d->time <= next + tol && d->time >= next - T - tol))
+        return state_refuse(v, "tick_next = %ld: must be the index i of the clock's next tick "
+                            "t0 + i T at or after time = %s (t0 = %s, T = %s)", d->tick_next,
+                            num(d->time).s, num(d->t0).s, num(T).s);
+#else
+    (void)v;
+#endif
+    return 1;
+}
+
 static int snapshot_valid(Instance *c, const Snapshot *s, const char *fn) {
     if (memcmp(s->h.magic, MAGIC, 8) != 0 || strcmp(s->h.token, INSTANTIATION_TOKEN) != 0) {
         log_error(c, "%s: FMU state is not allowed: it is not a consistent state of this FMU "
@@ -196,7 +218,7 @@ static int snapshot_valid(Instance *c, const Snapshot *s, const char *fn) {
         return 0;
     }
     StateView v = {c, fn, &s->d, s->h.nbuf ? s->buf : NULL, (size_t)s->h.nbuf};
-    return data_ok(&v) && model_state_ok(&v);
+    return data_ok(&v) && model_state_ok(&v) && clock_ok(&v);
 }
 
 int core_set_state(Instance *c, const char *fn, const void *state) {
