@@ -204,6 +204,18 @@ def steps_of(value: float, step: float, name: str, what: str | None = None) -> i
     return k
 
 
+def steps_up(value: float, step: float) -> int:
+    """The first grid point at or after ``value``: the least ``k`` with ``k step >= value``,
+    a whole multiple up to ``GRID_RTOL`` taken as it is (a packet delayed by ``0.36`` on
+    ``h = 0.01`` is seen 36 steps later, not 37). ``value`` finite and ``>= 0``.
+
+    >>> steps_up(0.36, 0.01), steps_up(0.361, 0.01), steps_up(0.0, 0.01)
+    (36, 37, 0)
+    """
+    k = nearest_multiple(value, step)
+    return k if k is not None else math.ceil(value / step)
+
+
 def split(value: float, period: float) -> tuple[int, float]:
     """``(q, rest)`` with ``q = [value / period]`` and ``rest = value - q period`` in
     ``[0, period)``.
