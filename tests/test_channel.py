@@ -184,7 +184,7 @@ def test_the_policies_against_a_whole_run_computation(channel, policy):
         values, stamp = line.step(u[k])
         j = shown[k]
         if j is None:
-            assert values == (9.0, -9.0) and stamp == min(k * H - channel.delay, -H)
+            assert values == (9.0, -9.0) and stamp == min(k * H - channel.delay, 0.0)
         else:
             assert values == tuple(u[j * P]) and stamp == j * P * H
         overtaken += j is not None and k > 0 and shown[k - 1] is not None and j < shown[k - 1]
@@ -200,10 +200,13 @@ def test_in_order_waits_where_drop_stale_moves_on():
     offset = ChannelLine(channel, 1, H, [0.0]).offset
     channel = Channel(**{**channel.__dict__, "trace": tuple(np.roll(channel.trace, offset))})
     for policy, first in (("drop_stale", 6), ("in_order", 20)):
-        line = ChannelLine(Channel(**{**channel.__dict__, "policy": policy}), 1, H, [0.0])
-        stamps = [line.step([float(k)])[1] for k in range(30)]
-        shown = next(k for k, s in enumerate(stamps) if s >= 0)
-        assert shown == first, (policy, stamps)
+        line = ChannelLine(Channel(**{**channel.__dict__, "policy": policy}), 1, H, [-1.0])
+        outs = [line.step([float(k)]) for k in range(30)]
+        shown = next(k for k, (values, _) in enumerate(outs) if values[0] >= 0)
+        assert shown == first, (policy, outs)
+        # drop_stale: packet 1, sent at 0.01; in_order: packet 0 releases packets 1 to 15,
+        # which arrived meanwhile (each 5 steps after it left), and the newest shows
+        assert outs[shown][1] == (1 if policy == "drop_stale" else 15) * H
 
 
 def test_a_trace_is_replayed_in_order_from_an_offset_drawn_from_the_seed():

@@ -25,9 +25,9 @@ and its send time ``t_{s_j}`` (the **time stamp**). Its fate is drawn from the s
 
 The output at ``t_k`` is the value of the last packet delivered at or before ``t_k`` and
 its time stamp; before the first delivery, the initial history ``u_init`` stamped
-``t_k - delay``, at most ``t0 - h`` (the history holds before ``t0``). With a constant
-delay ``D h``, no loss and a packet every step this is ``DelayLine`` exactly: ``y_k =
-u_{k-D}``, ``u_init`` before ``t0 + D h``.
+``t_k - delay``, at most ``t0`` (the history holds up to ``t0``: in a loop, the plant's
+initial state). With a constant delay ``D h``, no loss and a packet every step this is
+``DelayLine`` exactly: ``y_k = u_{k-D}``, ``u_init`` before ``t0 + D h``.
 
 **Random numbers** are counter-based (no generator state to carry): the ``i``-th draw of
 packet ``j`` is ``mix(key + (j 2^32 + i + 1) G)`` (``G`` the golden-ratio increment and
@@ -302,9 +302,8 @@ class ChannelLine:
         return current, keep, bad
 
     def _seen(self, current: Packet | None) -> tuple[tuple[float, ...], float]:
-        if current is None:  # the history, which holds before t0
-            return self.u_init, min((self.t0 + self.k * self.h) - self.channel.delay,
-                                    self.t0 - self.h)
+        if current is None:  # the history, which holds up to t0
+            return self.u_init, min((self.t0 + self.k * self.h) - self.channel.delay, self.t0)
         return current.values, self.t0 + current.sent * self.h
 
     def output(self, u) -> tuple[tuple[float, ...], float]:
