@@ -109,8 +109,10 @@ def test_rebuild_is_reproducible(fmu_dir, kind, tmp_path):
 def test_dependencies_declare_feedthrough(fmu_dir):
     ft = {kind: FmuComponent(kind, fmu_file(fmu_dir, kind)).feedthrough_outputs
           for kind in KINDS}
+    # the channel's y is its input where a packet is seen in the step it is sent (no
+    # delay); its stamp is a time, never an input
     assert ft == {"plant": frozenset(), "delay": frozenset({"y"}),
-                  "controller": frozenset({"u"})}
+                  "channel": frozenset({"y"}), "controller": frozenset({"u"})}
 
 
 def test_bundles_its_config_and_version(fmu_dir):

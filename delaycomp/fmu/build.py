@@ -95,6 +95,9 @@ FMUS: dict[str, FmuSpec] = {
                      native="plant_lti"),
     "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay", _FIXED_STEP + _STATE,
                      native="delay"),
+    # a network channel in a delay's place (issue 29); its folder is the delay's
+    "channel": FmuSpec("delay", "delaycomp_channel.py", "DelaycompChannel",
+                       _FIXED_STEP + _STATE),
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
                           "DelaycompControllerLTI", _FIXED_STEP + _STATE,
                           native="controller_lti"),
@@ -108,7 +111,10 @@ FMUS: dict[str, FmuSpec] = {
 #: Dimensions of the default build: the scalar loop of Example 3.6.
 DEFAULT_CONFIG: dict[str, dict[str, Any]] = {
     "plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
-    "controller": {"n": 1, "m": 1}}
+    "channel": {"n": 1}, "controller": {"n": 1, "m": 1}}
+
+#: the LTI loop's FMUs, which ``build_all`` builds
+LOOP_KINDS = ("plant", "delay", "controller")
 
 
 def model_identifier(kind: str, config: dict) -> str:
@@ -299,7 +305,7 @@ def build_model(model_path: str | Path, out_dir: Path) -> list[Path]:
 
 def build_all(out_dir: Path) -> list[Path]:
     """Build the LTI loop's FMUs (plant, delay, controller) with default dimensions."""
-    return [build_fmu(kind, out_dir) for kind, spec in FMUS.items() if not spec.template]
+    return [build_fmu(kind, out_dir) for kind in LOOP_KINDS]
 
 
 #: What ``probe_instantiation`` runs in a fresh interpreter: what pythonfmu's binary does

@@ -200,6 +200,31 @@ class Channel:
             return max(finite) if finite else self.delay
         return self.delay  # constant, or no jitter
 
+    def key(self) -> int:
+        """The key of the seed's draws."""
+        return stream_key(self.seed)
+
+    def offset(self) -> int:
+        """Where a trace starts (draw 0 of the seed's stream); 0 without a trace."""
+        if self.distribution != "trace":
+            return 0
+        return int(draw(self.key(), 0) * len(self.trace))
+
+    def draw_fate(self, key: int, j: int, bad: bool, offset: int = 0
+                  ) -> tuple[bool, float, bool]:
+        """Packet ``j``'s draws ``(lost, delay, bad)`` given the Gilbert-Elliott chain's
+        state before it (``bad``): lost by the loss model or not, its delay [s] (NaN: lost
+        in the trace), the chain's state after it (before the timeout, which needs the
+        grid)."""
+        lost = False
+        if self.loss_model == "bernoulli":
+            lost = packet_draw(key, j, DRAW_LOSS) < self.loss
+        elif self.loss_model == "gilbert_elliott":
+            u = packet_draw(key, j, DRAW_STATE)
+            bad = (u >= self.p_bg) if bad else (u < self.p_gb)
+            lost = packet_draw(key, j, DRAW_LOSS) < (self.loss_bad if bad else self.loss_good)
+        return lost, self.delay_of(key, j, offset), bad
+
     def delay_of(self, key: int, j: int, offset: int = 0) -> float:
         """Packet ``j``'s delay [s] (NaN: lost in the trace)."""
         dist = self.distribution
@@ -249,9 +274,8 @@ class ChannelLine:
         grid.check_steps("max_delay" if channel.max_delay is not None else "delay", bound,
                          bound / h, f"steps of the communication step {h!r}")
         self.Q = grid.steps_up(bound, h)
-        self.key = stream_key(channel.seed)
-        self.offset = (int(draw(self.key, 0) * len(channel.trace))
-                       if channel.distribution == "trace" else 0)
+        self.key = channel.key()
+        self.offset = channel.offset()
         self.k = 0
         self.inflight: list[Packet] = []
         self.current: Packet | None = None
@@ -260,15 +284,7 @@ class ChannelLine:
     def fate(self, j: int, bad: bool) -> tuple[bool, int, bool]:
         """Packet ``j``'s fate ``(lost, q, bad)`` given the chain's state before it: lost
         or not, the steps until it is seen (until its timeout, lost), the chain's state."""
-        ch = self.channel
-        lost = False
-        if ch.loss_model == "bernoulli":
-            lost = packet_draw(self.key, j, DRAW_LOSS) < ch.loss
-        elif ch.loss_model == "gilbert_elliott":
-            u = packet_draw(self.key, j, DRAW_STATE)
-            bad = (u >= ch.p_bg) if bad else (u < ch.p_gb)
-            lost = packet_draw(self.key, j, DRAW_LOSS) < (ch.loss_bad if bad else ch.loss_good)
-        d = ch.delay_of(self.key, j, self.offset)
+        lost, d, bad = self.channel.draw_fate(self.key, j, bad, self.offset)
         if lost or math.isnan(d):
             return True, self.Q, bad
         q = grid.steps_up(d, self.h)

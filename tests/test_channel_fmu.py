@@ -1,0 +1,179 @@
+"""The network channel FMU (issue 29, item 1): ``fmus/delay/delaycomp_channel.py``.
+
+Run by our master's FMU driver (``FmuComponent``, fmpy underneath): with a constant delay
+and no loss it is the delay FMU, the same doubles; with jitter, loss, a period, a trace and
+either policy it is ``delaycomp.maths.channel.ChannelLine`` called directly (tested on its
+own in ``tests/test_channel.py``); its state restores the run; bad parameters and crafted
+states are refused naming the field.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from delaycomp.fmu.build import build_fmu
+from delaycomp.maths.channel import Channel, ChannelLine
+from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
+
+pytestmark = pytest.mark.fmu
+
+H = 0.01
+N_SIG = 2
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    out = tmp_path_factory.mktemp("channel")
+    return {kind: build_fmu(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
+
+
+def _inputs(steps: int) -> np.ndarray:
+    return np.random.default_rng(3).normal(size=(steps, N_SIG))
+
+
+def _drive(path, params: dict, u: np.ndarray, outputs: list[str], state_at: int | None = None):
+    """Rows of ``outputs`` at t_0 .. t_steps (inputs of t_k set before reading), and the
+    state taken after ``state_at`` steps."""
+    comp = FmuComponent("c", path)
+    comp.setup(0.0, len(u) * H, params)
+    write, read = comp.writer([f"u{i + 1}" for i in range(N_SIG)]), comp.reader(outputs)
+    write(list(u[0]))
+    comp.initialize()
+    rows, state = [], None
+    for k in range(len(u)):
+        write(list(u[k]))
+        rows.append(read())
+        if k == state_at:
+            state = comp.get_state()
+        comp.do_step(k * H, H)
+    comp.terminate()
+    return np.array(rows), state
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.01, 0.36])
+def test_a_constant_channel_is_the_delay_fmu(fmus, delay):
+    """The same doubles as the delay FMU at every step; the stamp is ``t - delay``."""
+    u = _inputs(120)
+    u0 = {"u0[1]": 0.5, "u0[2]": -1.5}
+    want, _ = _drive(fmus["delay"], {"delay": delay, **u0}, u, ["y1", "y2"])
+    got, _ = _drive(fmus["channel"], {"delay": delay, **u0}, u, ["y1", "y2", "stamp"])
+    assert np.array_equal(got[:, :2], want)
+    t = np.arange(len(u)) * H
+    assert np.allclose(got[:, 2], t - delay, rtol=0, atol=1e-15)  # t_(k-D), or t_k - delay
+
+
+CASES = {
+    "uniform-bernoulli": {"delay": 0.02, "distribution": "uniform", "jitter": 0.3,
+                          "loss_model": "bernoulli", "loss": 0.3, "seed": 1},
+    "gamma-gilbert-period": {"delay": 0.01, "distribution": "gamma", "jitter": 0.2,
+                             "shape": 2.0, "max_delay": 0.6,
+                             "loss_model": "gilbert_elliott", "p_gb": 0.1, "p_bg": 0.4,
+                             "seed": 5, "period": 0.03, "policy": "drop_stale"},
+    "exponential": {"distribution": "exponential", "jitter": 0.05, "max_delay": 0.2,
+                    "seed": 12},
+    "trace": {"delay": 0.03, "distribution": "trace", "trace": "0.03 0.2 nan 0.07, 0.11",
+              "seed": 6, "policy": "drop_stale"},
+}
+
+
+def _channel(params: dict) -> Channel:
+    fields = {k: v for k, v in params.items() if not k.startswith("u0")}
+    if "trace" in fields:
+        fields["trace"] = tuple(float(w) for w in fields["trace"].replace(",", " ").split())
+    return Channel(**fields)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_fmu_is_the_channel_line(fmus, case):
+    """Values and stamps at every step as ``ChannelLine`` gives them for the same
+    parameters and inputs, exactly; and the run holds losses and reordering."""
+    params = {**CASES[case], "u0[1]": 3.0, "u0[2]": -3.0}
+    u = _inputs(300)
+    got, _ = _drive(fmus["channel"], params, u, ["y1", "y2", "stamp"])
+    line = ChannelLine(_channel(params), N_SIG, H, [3.0, -3.0])
+    want = np.array([[*v, s] for v, s in (line.step(u[k]) for k in range(len(u)))])
+    assert np.array_equal(got, want)
+    age = np.arange(len(u)) * H - got[:, 2]
+    assert len(np.unique(np.round(age, 9))) > 3  # the delays vary
+
+
+def test_the_state_restores_the_run(fmus):
+    params = {**CASES["gamma-gilbert-period"], "u0[1]": 1.0}
+    u = _inputs(200)
+    whole, state = _drive(fmus["channel"], params, u, ["y1", "y2", "stamp"], state_at=80)
+    comp = FmuComponent("again", fmus["channel"])
+    comp.setup(0.0, len(u) * H, params)
+    write, read = comp.writer(["u1", "u2"]), comp.reader(["y1", "y2", "stamp"])
+    write(list(u[0]))
+    comp.initialize()
+    comp.set_state(state)
+    comp.do_step(80 * H, H)
+    rows = []
+    for k in range(81, len(u)):
+        write(list(u[k]))
+        rows.append(read())
+        comp.do_step(k * H, H)
+    comp.terminate()
+    assert np.array_equal(np.array(rows), whole[81:])
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"distribution": "exponential", "jitter": 0.1},
+     "max_delay is required for distribution = 'exponential'"),
+    ({"loss_model": "bernoulli", "loss": 1.5},
+     "loss = 1.5 is not allowed: must be a finite number >= 0.0 and <= 1.0"),
+    ({"distribution": "trace", "trace": "0.1 x"},
+     "trace entry 2 = 'x' is not allowed: must be a number (a delay [s]) or nan"),
+    ({"distribution": "trace", "delay": 0.2, "trace": "0.1"},
+     "trace[1] = 0.1 is not allowed: must be a delay >= delay = 0.2 [s], or NaN (lost)"),
+    ({"seed": -4}, "seed = -4 is not allowed: must be an integer in 0 .. 2147483647"),
+    ({"period": 0.015}, "period = 0.015 is not allowed: must be a multiple of the "
+                        "communication step 0.01"),
+    ({"distribution": "pareto"}, "distribution = 'pareto' is not allowed: must be one of"),
+])
+def test_a_bad_parameter_is_refused_naming_it(fmus, params, message):
+    """At initialization (the parameters alone) or at the first step (the period against
+    the step): refused, the FMU's message naming the parameter and what is allowed."""
+    from fmpy.fmi1 import FMICallException
+
+    comp = FmuComponent("bad", fmus["channel"])
+    with pytest.raises((FmuRefused, FMICallException)):
+        comp.setup(0.0, 1.0, params)
+        comp.initialize()
+        comp.do_step(0.0, H)
+    assert comp.last_message is not None and message in comp.last_message, comp.messages
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda line: line["inflight"][0].__setitem__(2, 10**6),
+     "FMU state is not allowed: hidden.line.inflight[0].ready = 1000000: must be in"),
+    (lambda line: line["inflight"][0].__setitem__(1, 7),
+     "FMU state is not allowed: hidden.line.inflight[0].sent = 7: must be"),
+    (lambda line: line["inflight"].reverse(),
+     "FMU state is not allowed: hidden.line.inflight = "),
+    (lambda line: line["inflight"][0].__setitem__(4, [1.0]),
+     "FMU state is not allowed: hidden.line.inflight[0].values = [1.0]: must be a list of 2 "
+     "finite numbers"),
+    (lambda line: line.__setitem__("bad", 1),
+     "FMU state is not allowed: hidden.line.bad = 1: must be true or false"),
+    (lambda line: line.__setitem__("inflight", [[k, k, k, False, [0.0, 0.0]]
+                                                for k in range(99, 160)]),
+     "FMU state is not allowed: hidden.line.inflight = "),
+])
+def test_a_crafted_state_is_refused_naming_the_field(fmus, mutate, message):
+    """The channel's part of a state (its packets in flight, the one shown, the chain),
+    altered: refused naming the field and what it must be, never restored."""
+    import json
+
+    params = dict(CASES["uniform-bernoulli"])
+    _, state = _drive(fmus["channel"], params, _inputs(100), ["y1"], state_at=60)
+    data = json.loads(state)
+    assert len(data["hidden"]["line"]["inflight"]) >= 2
+    mutate(data["hidden"]["line"])
+    comp = FmuComponent("crafted", fmus["channel"])
+    comp.setup(0.0, 1.0, params)
+    comp.initialize()
+    with pytest.raises(FmuRefused) as info:
+        comp.set_state(json.dumps(data).encode())
+    assert message in str(info.value), str(info.value)
