@@ -9,6 +9,8 @@ states are refused naming the field.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -24,8 +26,11 @@ N_SIG = 2
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
+    """The delay and the channel for two signals, and the channel with a trace of 5."""
     out = tmp_path_factory.mktemp("channel")
-    return {kind: build_fmu(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
+    built = {kind: build_fmu(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
+    built["traced"] = build_fmu("channel", out / "traced", {"n": N_SIG, "L": 5})
+    return built
 
 
 def _inputs(steps: int) -> np.ndarray:
@@ -72,15 +77,18 @@ CASES = {
                              "seed": 5, "period": 0.03, "policy": "drop_stale"},
     "exponential": {"distribution": "exponential", "jitter": 0.05, "max_delay": 0.2,
                     "seed": 12},
-    "trace": {"delay": 0.03, "distribution": "trace", "trace": "0.03 0.2 nan 0.07, 0.11",
-              "seed": 6, "policy": "drop_stale"},
+    "trace": {"delay": 0.03, "distribution": "trace", "trace[1]": 0.03, "trace[2]": 0.2,
+              "trace[3]": -1.0, "trace[4]": 0.07, "trace[5]": 0.11, "seed": 6,
+              "policy": "drop_stale"},
 }
 
 
 def _channel(params: dict) -> Channel:
-    fields = {k: v for k, v in params.items() if not k.startswith("u0")}
-    if "trace" in fields:
-        fields["trace"] = tuple(float(w) for w in fields["trace"].replace(",", " ").split())
+    """The maths' channel of FMU parameters (a negative trace entry: NaN, lost)."""
+    fields = {k: v for k, v in params.items() if not k.startswith(("u0", "trace["))}
+    trace = [v for k, v in params.items() if k.startswith("trace[")]
+    if trace:
+        fields["trace"] = tuple(math.nan if d < 0 else d for d in trace)
     return Channel(**fields)
 
 
@@ -90,7 +98,8 @@ def test_the_fmu_is_the_channel_line(fmus, case):
     parameters and inputs, exactly; and the run holds losses and reordering."""
     params = {**CASES[case], "u0[1]": 3.0, "u0[2]": -3.0}
     u = _inputs(300)
-    got, _ = _drive(fmus["channel"], params, u, ["y1", "y2", "stamp"])
+    got, _ = _drive(fmus["traced" if case == "trace" else "channel"], params, u,
+                    ["y1", "y2", "stamp"])
     line = ChannelLine(_channel(params), N_SIG, H, [3.0, -3.0])
     want = np.array([[*v, s] for v, s in (line.step(u[k]) for k in range(len(u)))])
     assert np.array_equal(got, want)
@@ -123,10 +132,9 @@ def test_the_state_restores_the_run(fmus):
      "max_delay is required for distribution = 'exponential'"),
     ({"loss_model": "bernoulli", "loss": 1.5},
      "loss = 1.5 is not allowed: must be a finite number >= 0.0 and <= 1.0"),
-    ({"distribution": "trace", "trace": "0.1 x"},
-     "trace entry 2 = 'x' is not allowed: must be a number (a delay [s]) or nan"),
-    ({"distribution": "trace", "delay": 0.2, "trace": "0.1"},
-     "trace[1] = 0.1 is not allowed: must be a delay >= delay = 0.2 [s], or NaN (lost)"),
+    ({"distribution": "trace"}, "distribution = 'trace' is not allowed: this channel FMU is "
+                                "built without a trace (L = 0): build it with the trace's "
+                                "length L >= 1"),
     ({"seed": -4}, "seed = -4 is not allowed: must be an integer in 0 .. 2147483647"),
     ({"period": 0.015}, "period = 0.015 is not allowed: must be a multiple of the "
                         "communication step 0.01"),
@@ -177,3 +185,35 @@ def test_a_crafted_state_is_refused_naming_the_field(fmus, mutate, message):
     with pytest.raises(FmuRefused) as info:
         comp.set_state(json.dumps(data).encode())
     assert message in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"distribution": "trace", "delay": 0.2, "trace[2]": 0.1},
+     "trace[2] = 0.1 is not allowed: must be a delay >= delay = 0.2 [s], or negative (a lost "
+     "packet)"),
+    ({"trace[4]": float("inf")}, "trace[4] = inf is not allowed: must be a finite number"),
+])
+def test_a_bad_trace_entry_is_refused_naming_it(fmus, params, message):
+    """The trace of a build with L = 5: an entry shorter than ``delay`` (where the trace is
+    used), or not finite (always)."""
+    full = {f"trace[{i}]": 0.3 for i in range(1, 6)} | params
+    comp = FmuComponent("bad", fmus["traced"])
+    with pytest.raises(FmuRefused):
+        comp.setup(0.0, 1.0, full)
+        comp.initialize()
+    assert comp.last_message is not None and message in comp.last_message, comp.messages
+
+
+def test_the_trace_entries_are_parameters_of_the_build(fmus):
+    """``L`` is the build's: ``trace[1..L]`` Real parameters (none for L = 0), and a
+    length out of range is refused before anything is built."""
+    from fmpy import read_model_description
+
+    names = [v.name for v in read_model_description(str(fmus["traced"])).modelVariables]
+    assert [n for n in names if n.startswith("trace")] == [f"trace[{i}]" for i in range(1, 6)]
+    plain = [v.name for v in read_model_description(str(fmus["channel"])).modelVariables]
+    assert not [n for n in plain if n.startswith("trace")]
+    for bad in (-1, 10_001, 2.0):
+        with pytest.raises(ValueError, match=r"L = .* is not allowed: must be an integer "
+                                             r"from 0 to 10000"):
+            build_fmu("channel", fmus["channel"].parent / "x", {"n": 1, "L": bad})

@@ -113,6 +113,9 @@ DEFAULT_CONFIG: dict[str, dict[str, Any]] = {
     "plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
     "channel": {"n": 1}, "controller": {"n": 1, "m": 1}}
 
+#: the longest delay trace a channel FMU is built for (config ``L``: ``trace[1..L]``)
+TRACE_MAX = 10_000
+
 #: the LTI loop's FMUs, which ``build_all`` builds
 LOOP_KINDS = ("plant", "delay", "controller")
 
@@ -140,6 +143,9 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
         if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
             raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
                              "from 1 to 1000 (a dimension of the FMU)")
+    if "L" in config and not (type(config["L"]) is int and 0 <= config["L"] <= TRACE_MAX):
+        raise ValueError(f"L = {config['L']!r} is not allowed: must be an integer from 0 to "
+                         f"{TRACE_MAX} (the length of the channel's delay trace)")
     config["version"] = delaycomp.__version__
     ident = model_identifier(kind, config)
     out_dir = Path(out_dir).resolve()

@@ -2,7 +2,8 @@
 
 The maths is ``delaycomp.maths.channel.ChannelLine``: packets every ``period`` stamped with
 their send time, each delayed by ``delay`` plus a draw of ``distribution`` (``jitter``,
-``shape``, a ``trace``), lost by ``loss_model`` or after ``max_delay``, delivered by
+``shape``, or the delays ``trace[1..L]`` of a measured trace, ``L`` the build's, a negative
+entry a lost packet), lost by ``loss_model`` or after ``max_delay``, delivered by
 ``policy``; ``seed`` fixes the draws. Outputs: the last delivered packet's values ``y`` and
 its send time ``stamp``. With ``distribution = constant`` and no loss it is the delay FMU
 (``delaycomp_delay.py``), the same numbers. See README.md beside this file.
@@ -54,23 +55,6 @@ _REALS = (
 )
 
 
-def parse_trace(text: str) -> tuple[float, ...]:
-    """The delays of a ``trace`` parameter: numbers separated by spaces, commas or
-    semicolons (``nan``: a lost packet); ``ValueError`` naming the first that is not one.
-
-    >>> parse_trace("0.1, 0.25 nan;0.3")
-    (0.1, 0.25, nan, 0.3)
-    """
-    out = []
-    for i, word in enumerate(text.replace(",", " ").replace(";", " ").split()):
-        try:
-            out.append(float(word))
-        except ValueError:
-            raise ValueError(f"trace entry {i + 1} = {word!r} is not allowed: must be a "
-                             "number (a delay [s]) or nan (a lost packet)") from None
-    return tuple(out)
-
-
 class DelaycompChannel(TableSlave):
     """A network channel: per-packet delays, loss and a delivery policy, time stamps."""
 
@@ -88,7 +72,8 @@ class DelaycompChannel(TableSlave):
         self.distribution = "constant"
         self.loss_model = "none"
         self.policy = "in_order"
-        self.trace = ""
+        self.L = int(self.config.get("L", 0))
+        self.trace = [0.0] * self.L
         self.seed = 0
         self.values = {name: start for name, start, _ in _REALS}
         self.line: ChannelLine | None = None  # made at the first step, when h is known
@@ -103,10 +88,6 @@ class DelaycompChannel(TableSlave):
         for name, _, text in _REALS:
             self.parameter(name, (lambda a=name: self.values[a]),
                            (lambda v, a=name: self.values.__setitem__(a, v)), text)
-        self.string_parameter("trace", lambda: self.trace, lambda v: setattr(self, "trace", v),
-                              "distribution = trace: the delays [s] of a measured trace, "
-                              "separated by spaces (nan: lost), replayed in order from an "
-                              "offset drawn from the seed")
         self.string_parameter("loss_model", lambda: self.loss_model,
                               lambda v: setattr(self, "loss_model", v),
                               "none, bernoulli (loss) or gilbert_elliott (p_gb, p_bg, "
@@ -120,6 +101,11 @@ class DelaycompChannel(TableSlave):
             "seed", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
             getter=lambda: self.seed, setter=lambda v: setattr(self, "seed", int(v)),
             description=f"the draws' seed, 0 .. {SEED_MAX}"))
+        for i in range(self.L):
+            self.parameter(f"trace[{i + 1}]", (lambda i=i: self.trace[i]),
+                           (lambda v, i=i: self.trace.__setitem__(i, v)),
+                           "distribution = trace: a measured delay [s], >= delay, replayed in "
+                           "order from an offset drawn from the seed; negative: a lost packet")
         for i in range(n):
             self.parameter(f"u0[{i + 1}]", (lambda i=i: self.u0[i]),
                            (lambda v, i=i: self.u0.__setitem__(i, v)),
@@ -139,10 +125,15 @@ class DelaycompChannel(TableSlave):
 
     def _make_channel(self) -> Channel:
         v = self.values
-        try:
-            trace = parse_trace(self.trace)
-        except ValueError as exc:
-            self.fail(str(exc))
+        if self.distribution == "trace" and not self.trace:
+            self.fail("distribution = 'trace' is not allowed: this channel FMU is built "
+                      "without a trace (L = 0): build it with the trace's length L >= 1")
+        for i, d in enumerate(self.trace):
+            check_finite(f"trace[{i + 1}]", d)
+            if self.distribution == "trace" and 0 <= d < self.delay:
+                self.fail(f"trace[{i + 1}] = {d!r} is not allowed: must be a delay >= delay "
+                          f"= {self.delay!r} [s], or negative (a lost packet)")
+        trace = tuple(math.nan if d < 0 else d for d in self.trace)
         channel = Channel(delay=self.delay, distribution=self.distribution,
                           jitter=v["jitter"], shape=v["shape"], trace=trace,
                           max_delay=v["max_delay"] or None, loss_model=self.loss_model,
