@@ -19,7 +19,7 @@ moves exactly as
 so the prediction and the plant are closed-form (checked against ``solve_ivp`` at
 rtol = atol = 1e-12 in ``check()``: agreement to ~1e-13).
 
-Law: the CORRECTED zero-order-hold law for ``(v, omega)`` of /work/shared/ERRATA.md,
+Law: the CORRECTED zero-order-hold law for ``(v, omega)`` of ../shared/ERRATA.md,
 item 2 ("A zero-order-hold law for (v, omega) itself"), in the coordinates (4.2) of the
 predicted state ``x1 = X cos + Y sin``, ``x2 = X sin - Y cos``, ``x3 = Theta``:
 
