@@ -24,7 +24,8 @@ from collections.abc import Callable, Sequence
 from delaycomp.child import parent_death_signal
 
 __all__ = ["Progress", "end_with_parent", "end_workers", "on_dask", "on_processes",
-           "start_resource_tracker", "watch_parent", "worker_init"]
+           "quiet_cancelled_futures", "start_resource_tracker", "watch_parent",
+           "worker_init"]
 
 #: seconds the terminated workers get to end before they are killed
 END_GRACE = 1.0
@@ -113,6 +114,8 @@ def end_workers(pool, grace: float = END_GRACE) -> None:
     # (ProcessPoolExecutor.terminate_workers of Python 3.14 does the same)
     processes = list((getattr(pool, "_processes", None) or {}).values())
     manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:
+        quiet_cancelled_futures(manager)
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         with contextlib.suppress(OSError, ValueError):  # already gone, or closed
@@ -126,6 +129,43 @@ def end_workers(pool, grace: float = END_GRACE) -> None:
                 proc.join(grace)
     if manager is not None:
         manager.join(grace)
+
+
+def quiet_cancelled_futures(manager: threading.Thread) -> None:
+    """Keep the pool's manager thread from printing a traceback for futures it finds
+    cancelled: on Python 3.11, when workers die (a SIGHUP or SIGTERM to the process group
+    reaches them too) after ``shutdown(cancel_futures=True)``, the manager marks the pool
+    broken and sets an exception on every pending future, a cancelled one included, which
+    raises ``InvalidStateError`` in that thread: 15 lines on stderr after the one line of
+    SIGHUP (seen once, in a CI run of ``tests/test_sweep_orphans.py``). Nothing is lost (the futures were cancelled on
+    purpose); only that exception of that thread is silenced, anything else is reported
+    by the hook installed before.
+
+    Examples
+    --------
+    >>> import threading
+    >>> from concurrent.futures import InvalidStateError
+    >>> seen = []
+    >>> before, threading.excepthook = threading.excepthook, lambda a: seen.append(a.exc_type)
+    >>> manager = threading.Thread(target=lambda: None)
+    >>> quiet_cancelled_futures(manager)
+    >>> threading.excepthook(threading.ExceptHookArgs(
+    ...     (InvalidStateError, InvalidStateError(), None, manager)))
+    >>> threading.excepthook(threading.ExceptHookArgs((ValueError, ValueError(), None, manager)))
+    >>> seen
+    [<class 'ValueError'>]
+    >>> threading.excepthook = before
+    """
+    from concurrent.futures import InvalidStateError
+
+    earlier = threading.excepthook
+
+    def hook(args) -> None:
+        if args.thread is manager and issubclass(args.exc_type, InvalidStateError):
+            return
+        earlier(args)
+
+    threading.excepthook = hook
 
 
 def worker_init(parent: int | None = None) -> None:
