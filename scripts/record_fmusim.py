@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import re
 import subprocess
 import tempfile
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 
 from delaycomp import api
 from delaycomp.fmu.native import build_native_fmu, build_native_model
+from delaycomp.names import array_element
 from delaycomp.paper import models as paper_models
 from delaycomp.verify import fmusim
 
@@ -102,9 +102,9 @@ def as_arrays(params: dict) -> dict:
     """``A[1,1] .. A[3,3]`` (row-major, as a loop lists them) -> ``A: [9 values]``."""
     out: dict = {}
     for name, value in params.items():
-        element = re.fullmatch(r"(\w+)\[[\d,]+\]", name)
+        element = array_element(name)
         if element:
-            out.setdefault(element.group(1), []).append(float(value))
+            out.setdefault(element[0], []).append(float(value))
         else:
             out[name] = value
     return out

@@ -280,6 +280,9 @@ class ChannelLine:
         self.inflight: list[Packet] = []
         self.current: Packet | None = None
         self.bad = False  # the Gilbert-Elliott chain's state
+        #: this step's deliveries for its input (step, input, result): an FMU reads every
+        #: output and then pushes, one step's draws and deliveries are made once
+        self._memo: tuple | None = None
 
     def fate(self, j: int, bad: bool) -> tuple[bool, int, bool]:
         """Packet ``j``'s fate ``(lost, q, bad)`` given the chain's state before it: lost
@@ -293,11 +296,15 @@ class ChannelLine:
     def _deliver(self, u) -> tuple[Packet | None, list[Packet], bool]:
         """``(current, in flight, bad)`` after the deliveries of this step."""
         k = self.k
+        values = tuple(float(v) for v in u)
+        memo = self._memo
+        if memo is not None and memo[0] == k and memo[1] == values:
+            return memo[2]
         pending = list(self.inflight)
         bad = self.bad
         if k % self.P == 0:
             lost, q, bad = self.fate(k // self.P, bad)
-            pending.append(Packet(k // self.P, k, k + q, lost, tuple(float(v) for v in u)))
+            pending.append(Packet(k // self.P, k, k + q, lost, values))
         current = self.current
         keep: list[Packet] = []
         if self.channel.policy == "in_order":
@@ -315,6 +322,7 @@ class ChannelLine:
                     current = p
             keep = [p for p in pending if not p.lost and p.ready > k
                     and (current is None or p.seq > current.seq)]
+        self._memo = (k, values, (current, keep, bad))
         return current, keep, bad
 
     def _seen(self, current: Packet | None) -> tuple[tuple[float, ...], float]:
@@ -331,6 +339,7 @@ class ChannelLine:
         """Take this step's input ``u_k``; the grid advances to ``t_{k+1}``."""
         self.current, self.inflight, self.bad = self._deliver(u)
         self.k += 1
+        self._memo = None
 
     def step(self, u) -> tuple[tuple[float, ...], float]:
         """``output(u)`` then ``push(u)``."""
@@ -350,6 +359,7 @@ class ChannelLine:
         def packet(row):
             return None if row is None else Packet(int(row[0]), int(row[1]), int(row[2]),
                                                     bool(row[3]), tuple(map(float, row[4])))
+        self._memo = None
         self.k = int(state["k"])
         self.bad = bool(state["bad"])
         self.current = packet(state["current"])

@@ -137,9 +137,9 @@ def quiet_cancelled_futures(manager: threading.Thread) -> None:
     reaches them too) after ``shutdown(cancel_futures=True)``, the manager marks the pool
     broken and sets an exception on every pending future, a cancelled one included, which
     raises ``InvalidStateError`` in that thread: 15 lines on stderr after the one line of
-    SIGHUP (seen once, in a CI run of ``tests/test_sweep_orphans.py``). Nothing is lost (the futures were cancelled on
-    purpose); only that exception of that thread is silenced, anything else is reported
-    by the hook installed before.
+    SIGHUP (seen once, in a CI run of ``tests/test_sweep_orphans.py``). Nothing is lost
+    (the futures were cancelled on purpose); only that exception of that thread is
+    silenced, anything else is reported by the hook installed before.
 
     Examples
     --------

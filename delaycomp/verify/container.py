@@ -247,7 +247,8 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
             # the container's tool unpacks it, with no limit of its own: ours first
             measure(src, Budget(src))
             name = src.name
-            if fmi == 3 and inst.name in arrays_in_fmu:  # one per instance: its own starts
+            if fmi == 3 and inst.name in arrays_in_fmu:  # its own starts: never a file of
+                # the same name that another instance brings (a user's plant FMU)
                 name = f"{inst.name}_{src.name}"
             if not (work / name).exists():
                 shutil.copy2(src, work / name)

@@ -196,7 +196,7 @@ class DelaycompChannel(TableSlave):
         if seqs != sorted(set(seqs)) or (cur is not None and any(s <= cur.seq for s in seqs)):
             raise state_refused("hidden.line.inflight", rows, "packets in the order sent, "
                                 "each newer than the one shown")
-        line.k, line.bad, line.current, line.inflight = k, bad, cur, flight
+        line.set_state({"k": k, "bad": bad, "current": current, "inflight": rows})
         self.line, self._h = line, h
 
     def _packet(self, field: str, row, k: int, line: ChannelLine) -> Packet:
