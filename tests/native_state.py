@@ -38,6 +38,11 @@ MODEL_DATA: dict[str, list[tuple[str, Any, str | None]]] = {
     "model_plant.h": [("branch", ctypes.c_int, None)],
     "delay.h": [("has_line", ctypes.c_int, None), ("D", ctypes.c_long, None),
                 ("h", ctypes.c_double, None), ("head", ctypes.c_long, None)],
+    "channel.h": [("has_line", ctypes.c_int, None), ("h", ctypes.c_double, None),
+                  ("P", ctypes.c_long, None), ("Q", ctypes.c_long, None),
+                  ("cap", ctypes.c_long, None), ("k", ctypes.c_longlong, None),
+                  ("bad", ctypes.c_int, None), ("has_current", ctypes.c_int, None),
+                  ("count", ctypes.c_long, None)],
     "controller_lti.h": [
         ("built", ctypes.c_int, None), ("l", ctypes.c_long, None),
         ("q", ctypes.c_long, None), ("L", ctypes.c_long, None),
@@ -60,7 +65,8 @@ MODEL_DATA: dict[str, list[tuple[str, Any, str | None]]] = {
 }
 #: (NX, NU) of each model from config.h's NIN and NOUT (its <name>.h's #define NX, NU)
 DIMENSIONS = {"plant_lti.h": ("NOUT", "NIN"), "model_plant.h": ("NOUT", "NIN"),
-              "delay.h": ("NIN", "NIN"), "controller_lti.h": ("NIN", "NOUT"),
+              "delay.h": ("NIN", "NIN"), "channel.h": ("NIN", "NIN"),
+              "controller_lti.h": ("NIN", "NOUT"),
               "model_controller.h": ("NIN", "NOUT")}
 STRING_MAX = 256  # fmus/native/native.h
 #: the FMI 2.0 co-simulation states of fmi2.c (FsmState)
@@ -76,7 +82,8 @@ DOUBLES = [0.0, -0.0, 1.0, -1.0, 5e-324, 1.7976931348623157e308, math.inf, -math
            math.nan]
 STRINGS = [b"", b"bogus", b"x" * (STRING_MAX - 1), b"x" * STRING_MAX, b"\xff\n",
            b"compensated", b"uncompensated", b"zoh", b"continuous", b"closed", b"numerical",
-           b"none", b"square", b"sin", b"corrected"]
+           b"none", b"square", b"sin", b"corrected", b"uniform", b"gamma", b"trace",
+           b"bernoulli", b"gilbert_elliott", b"drop_stale"]
 
 
 class Header(ctypes.Structure):

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from delaycomp.fmu.build import build_fmu
+from delaycomp.fmu.native import build_native_fmu
 from delaycomp.maths.channel import Channel, ChannelLine
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
@@ -24,13 +25,42 @@ H = 0.01
 N_SIG = 2
 
 
+_BUILT: dict[str, dict] = {}
+
+
+def _built(impl: str, tmp_path_factory) -> dict:
+    """The delay and the channel for two signals, and the channel with a trace of 5, as
+    Python FMUs or their native twins (``fmus/delay/channel.c``, this platform's binary);
+    built once per module run."""
+    if impl not in _BUILT:
+        out = tmp_path_factory.mktemp(f"channel-{impl}")
+        if impl == "python":
+            build = build_fmu
+        else:
+            def build(kind, folder, config):
+                with pytest.MonkeyPatch.context() as mp:
+                    mp.setenv("DELAYCOMP_PLATFORMS", "")
+                    return build_native_fmu(kind, folder, config)
+        built = {kind: build(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
+        built["traced"] = build("channel", out / "traced", {"n": N_SIG, "L": 5})
+        _BUILT[impl] = built
+    return _BUILT[impl]
+
+
+@pytest.fixture(scope="module", params=["python", "native"])
+def fmus(request, tmp_path_factory):
+    """Each test that takes it runs on the Python FMUs and on their native twins."""
+    return _built(request.param, tmp_path_factory)
+
+
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """The delay and the channel for two signals, and the channel with a trace of 5."""
-    out = tmp_path_factory.mktemp("channel")
-    built = {kind: build_fmu(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
-    built["traced"] = build_fmu("channel", out / "traced", {"n": N_SIG, "L": 5})
-    return built
+def python_fmus(tmp_path_factory):
+    return _built("python", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def native_fmus(tmp_path_factory):
+    return _built("native", tmp_path_factory)
 
 
 def _inputs(steps: int) -> np.ndarray:
@@ -169,11 +199,12 @@ def test_a_bad_parameter_is_refused_naming_it(fmus, params, message):
                                                 for k in range(99, 160)]),
      "FMU state is not allowed: hidden.line.inflight = "),
 ])
-def test_a_crafted_state_is_refused_naming_the_field(fmus, mutate, message):
+def test_a_crafted_state_is_refused_naming_the_field(python_fmus, mutate, message):
     """The channel's part of a state (its packets in flight, the one shown, the chain),
     altered: refused naming the field and what it must be, never restored."""
     import json
 
+    fmus = python_fmus
     params = dict(CASES["uniform-bernoulli"])
     _, state = _drive(fmus["channel"], params, _inputs(100), ["y1"], state_at=60)
     data = json.loads(state)
@@ -187,6 +218,88 @@ def test_a_crafted_state_is_refused_naming_the_field(fmus, mutate, message):
     assert message in str(info.value), str(info.value)
 
 
+def _packet(snap, buf, slot: int) -> list:
+    """Slot ``slot`` of a native state's packet buffer (0: the shown packet, 1 ..: those
+    in flight): seq, sent, ready, lost, values (fmus/delay/channel.h)."""
+    width = 4 + N_SIG
+    return buf[slot * width:(slot + 1) * width]
+
+
+def _set(buf, slot: int, field: int, value: float) -> None:
+    buf[slot * (4 + N_SIG) + field] = value
+
+
+def _swap(buf, a: int, b: int) -> None:
+    w = 4 + N_SIG
+    buf[a * w:(a + 1) * w], buf[b * w:(b + 1) * w] = buf[b * w:(b + 1) * w], buf[a * w:(a + 1) * w]
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda m, b: _set(b, 1, 2, 10.0**6), "inflight[0].ready = 1000000.0: must be an integer in"),
+    (lambda m, b: _set(b, 1, 1, 7.0), "inflight[0].sent = 7.0: must be "),
+    (lambda m, b: _swap(b, 1, 2), "inflight[1].seq = "),
+    (lambda m, b: _set(b, 1, 4, math.nan), "inflight[0].values[0] = nan: must be a finite number"),
+    (lambda m, b: _set(b, 1, 3, 0.5), "inflight[0].lost = 0.5: must be 0.0 or 1.0"),
+    (lambda m, b: setattr(m, "bad", 2), "bad = 2: must be 0 or 1"),
+    (lambda m, b: setattr(m, "count", 99), "count = 99: must be in 0 .. "),
+    (lambda m, b: setattr(m, "Q", 3), "Q = 3: must be "),
+    (lambda m, b: setattr(m, "k", -5), "k = -5: must be >= 0"),
+    (lambda m, b: _set(b, 0, 0, 1.5), "current.seq = 1.5: must be an integer >= 0"),
+    # Q = steps_up(0.02 + 0.3, 0.01) = 32 steps, so 32 + 3 slots in flight: the last one
+    (lambda m, b: _set(b, 35, 0, 1.0), "inflight[34][0] = 1.0: must be 0.0 (beyond count)"),
+    (lambda m, b: b.append(0.0), "nbuf = "),
+])
+def test_a_crafted_native_state_is_refused_naming_the_field(native_fmus, mutate, message):
+    """The native twin's state (``ModelData`` and the packet buffer, laid out as
+    ``tests/native_state.py`` mirrors them), altered: refused naming the field, the
+    instance left as it was."""
+    from fmpy.fmi1 import FMICallException
+
+    from .native_state import decode, encode, layout_of
+
+    fmu = native_fmus["channel"]
+    params = dict(CASES["uniform-bernoulli"])
+    _, state = _drive(fmu, params, _inputs(100), ["y1"], state_at=60)
+    snap, buf = decode(layout_of(fmu), state)
+    assert snap.d.m.count >= 2 and snap.d.m.has_current == 1
+    buf = list(buf)
+    mutate(snap.d.m, buf)
+    comp = FmuComponent("crafted", fmu)
+    comp.setup(0.0, 1.0, params)
+    comp.initialize()
+    before = comp.get_state()
+    with pytest.raises(FMICallException):
+        comp.set_state(encode(snap, buf))
+    text = comp.messages[-1].split("] ", 1)[-1]
+    assert text.startswith("fmi2DeSerializeFMUstate: FMU state is not allowed: " + message), text
+    assert comp.get_state() == before
+    comp.terminate()
+
+
+def test_the_native_state_restores_into_another_instance(native_fmus, python_fmus):
+    """A native state taken mid-run and restored into a fresh instance goes on as the run
+    did, and that run is the Python FMU's (the twins agree after a restore too)."""
+    params = {**CASES["gamma-gilbert-period"], "u0[1]": 1.0}
+    u = _inputs(200)
+    whole, state = _drive(native_fmus["channel"], params, u, ["y1", "y2", "stamp"], state_at=80)
+    python, _ = _drive(python_fmus["channel"], params, u, ["y1", "y2", "stamp"])
+    assert np.array_equal(whole, python)
+    comp = FmuComponent("again", native_fmus["channel"])
+    comp.setup(0.0, len(u) * H, params)
+    write, read = comp.writer(["u1", "u2"]), comp.reader(["y1", "y2", "stamp"])
+    write(list(u[0]))
+    comp.initialize()
+    comp.set_state(state)
+    comp.do_step(80 * H, H)
+    rows = []
+    for k in range(81, len(u)):
+        write(list(u[k]))
+        rows.append(read())
+        comp.do_step(k * H, H)
+    comp.terminate()
+    assert np.array_equal(np.array(rows), whole[81:])
+
+
 @pytest.mark.parametrize("params, message", [
     ({"distribution": "trace", "delay": 0.2, "trace[2]": 0.1},
      "trace[2] = 0.1 is not allowed: must be a delay >= delay = 0.2 [s], or negative (a lost "
@@ -196,9 +309,11 @@ def test_a_crafted_state_is_refused_naming_the_field(fmus, mutate, message):
 def test_a_bad_trace_entry_is_refused_naming_it(fmus, params, message):
     """The trace of a build with L = 5: an entry shorter than ``delay`` (where the trace is
     used), or not finite (always)."""
+    from fmpy.fmi1 import FMICallException
+
     full = {f"trace[{i}]": 0.3 for i in range(1, 6)} | params
     comp = FmuComponent("bad", fmus["traced"])
-    with pytest.raises(FmuRefused):
+    with pytest.raises((FmuRefused, FMICallException)):
         comp.setup(0.0, 1.0, full)
         comp.initialize()
     assert comp.last_message is not None and message in comp.last_message, comp.messages
@@ -217,3 +332,50 @@ def test_the_trace_entries_are_parameters_of_the_build(fmus):
         with pytest.raises(ValueError, match=r"L = .* is not allowed: must be an integer "
                                              r"from 0 to 10000"):
             build_fmu("channel", fmus["channel"].parent / "x", {"n": 1, "L": bad})
+
+
+@pytest.fixture(scope="module")
+def fmi3_fmus(tmp_path_factory):
+    """The native channel as FMI 3.0 FMUs: with a trace of 5 and without one."""
+    out = tmp_path_factory.mktemp("channel-fmi3")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("DELAYCOMP_PLATFORMS", "")
+        return {"channel": build_native_fmu("channel", out, {"n": N_SIG}, fmi=3),
+                "traced": build_native_fmu("channel", out / "traced", {"n": N_SIG, "L": 5},
+                                           fmi=3)}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_fmi3_channel_is_the_fmi2_one(fmi3_fmus, native_fmus, case):
+    """``build --fmi 3``: the same C behind the FMI 3.0 layer, the same doubles at every
+    step; ``trace`` an array sized by the structural parameter ``L`` (a build without a
+    trace has neither), ``u0`` by ``n``; fmpy's validation passes."""
+    from fmpy.validation import validate_fmu
+
+    which = "traced" if case == "trace" else "channel"
+    params = {**CASES[case], "u0[1]": 3.0, "u0[2]": -3.0}
+    u = _inputs(300)
+    two, _ = _drive(native_fmus[which], params, u, ["y1", "y2", "stamp"])
+    three, _ = _drive(fmi3_fmus[which], params, u, ["y1", "y2", "stamp"])
+    assert np.array_equal(three, two)
+    assert validate_fmu(str(fmi3_fmus[which])) == []
+
+
+def test_the_fmi3_trace_is_an_array_sized_by_L(fmi3_fmus):
+    import xml.etree.ElementTree as ET
+    import zipfile
+
+    def variables(fmu):
+        with zipfile.ZipFile(fmu) as zf:
+            root = ET.fromstring(zf.read("modelDescription.xml"))
+        return {v.get("name"): v for v in root.find("ModelVariables")}
+
+    traced = variables(fmi3_fmus["traced"])
+    assert (traced["L"].tag, traced["L"].get("causality"), traced["L"].get("start")) == (
+        "UInt64", "structuralParameter", "5")
+    assert [d.get("valueReference") for d in traced["trace"].findall("Dimension")] == [
+        traced["L"].get("valueReference")]
+    assert [d.get("valueReference") for d in traced["u0"].findall("Dimension")] == [
+        traced["n"].get("valueReference")]
+    plain = variables(fmi3_fmus["channel"])
+    assert "trace" not in plain and "L" not in plain and "u0" in plain

@@ -79,6 +79,11 @@ KINDS = {
                    "x0[1]": 1.0}, {"A[1,1]": NAN}, 0.1, 3, (0.3, -0.1)),
     "delay": Case("delay", {"n": 2}, {"delay": 0.3, "u0[2]": 1.5}, {"delay": -1.0}, 0.1, 4,
                   (0.4, 0.07)),
+    # jitter over several steps and loss: packets in flight, out of order, lost
+    "channel": Case("channel", {"n": 2, "L": 3},
+                    {"delay": 0.1, "distribution": "uniform", "jitter": 0.35,
+                     "loss_model": "bernoulli", "loss": 0.3, "seed": 3, "u0[2]": 1.5},
+                    {"jitter": -1.0}, 0.1, 6, (0.6, 0.07)),
     "controller": Case("controller", {"n": 2, "m": 1},
                        {"T": 1.0, "r": 0.25, "tau": 1.0, "A[1,2]": 1.0, "B[2,1]": 1.0,
                         "K[1,1]": -1.0, "K[1,2]": -1.5, "u0[1]": 0.5, "held_sample": True},
@@ -380,12 +385,14 @@ def _model_slave(base, module):
 def _python_slaves() -> dict:
     from delaycomp.fmus.controller.delaycomp_controller_lti import DelaycompControllerLTI
     from delaycomp.fmus.controller.delaycomp_model_controller import ModelControllerSlave
+    from delaycomp.fmus.delay.delaycomp_channel import DelaycompChannel
     from delaycomp.fmus.delay.delaycomp_delay import DelaycompDelay
     from delaycomp.fmus.plant.delaycomp_model_plant import ModelPlantSlave
     from delaycomp.fmus.plant.delaycomp_plant_lti import DelaycompPlantLTI
 
     return {"plant": (DelaycompPlantLTI, {"n": 2, "m": 1, "state": "x", "input": "u"}),
             "delay": (DelaycompDelay, {"n": 2}),
+            "channel": (DelaycompChannel, {"n": 2, "L": 3}),
             "controller": (DelaycompControllerLTI, {"n": 2, "m": 1}),
             "model_plant": (_model_slave(ModelPlantSlave, "example_3_8"),
                             {"model_name": "example_3_8"}),

@@ -97,7 +97,7 @@ FMUS: dict[str, FmuSpec] = {
                      native="delay"),
     # a network channel in a delay's place (issue 29); its folder is the delay's
     "channel": FmuSpec("delay", "delaycomp_channel.py", "DelaycompChannel",
-                       _FIXED_STEP + _STATE),
+                       _FIXED_STEP + _STATE, native="channel"),
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
                           "DelaycompControllerLTI", _FIXED_STEP + _STATE,
                           native="controller_lti"),
@@ -128,6 +128,18 @@ def model_identifier(kind: str, config: dict) -> str:
     return spec.model_identifier
 
 
+def check_dimensions(config: dict) -> None:
+    """``ValueError`` naming a build's dimension out of its range: ``n``, ``m`` 1 to 1000,
+    the channel's trace length ``L`` 0 to ``TRACE_MAX``."""
+    for key in ("n", "m"):
+        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
+            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
+                             "from 1 to 1000 (a dimension of the FMU)")
+    if "L" in config and not (type(config["L"]) is int and 0 <= config["L"] <= TRACE_MAX):
+        raise ValueError(f"L = {config['L']!r} is not allowed: must be an integer from 0 to "
+                         f"{TRACE_MAX} (the length of the channel's delay trace)")
+
+
 def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
               file_name: str | None = None) -> Path:
     """Build the FMU ``kind`` of ``FMUS`` into ``out_dir``; return the ``.fmu`` path.
@@ -139,13 +151,7 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if config is None:
         config = dict(DEFAULT_CONFIG[kind])
     config = dict(config)
-    for key in ("n", "m"):
-        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
-            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
-                             "from 1 to 1000 (a dimension of the FMU)")
-    if "L" in config and not (type(config["L"]) is int and 0 <= config["L"] <= TRACE_MAX):
-        raise ValueError(f"L = {config['L']!r} is not allowed: must be an integer from 0 to "
-                         f"{TRACE_MAX} (the length of the channel's delay trace)")
+    check_dimensions(config)
     config["version"] = delaycomp.__version__
     ident = model_identifier(kind, config)
     out_dir = Path(out_dir).resolve()

@@ -87,11 +87,14 @@ class Fmi3Table:
 
 
 def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list[str]],
-               clock: dict[str, str] | None = None) -> Fmi3Table:
+               clock: dict[str, str] | None = None, optional: tuple[str, ...] = ()
+               ) -> Fmi3Table:
     """The FMI 3.0 table of the FMI 2.0 table tree ``root`` (the Python twin's
     modelDescription), grouping the manifest's ``arrays`` (name -> its dimensions, each a
     key of ``structural``: name -> description); with ``clock`` (``name``, ``interval``:
-    the parameter that gives it, ``description``), a clocked build's.
+    the parameter that gives it, ``description``), a clocked build's. An array of
+    ``optional`` without elements in this build (the channel's trace of length 0) is left
+    out, and the structural parameters that size only such arrays with it.
 
     Raises
     ------
@@ -108,6 +111,12 @@ def fmi3_table(root: Element, structural: dict[str, str], arrays: dict[str, list
         parsed = array_element(sv.get("name", ""))
         if parsed and parsed[0] in blocks:
             blocks[parsed[0]].append((parsed[1], sv))
+    empty = {a for a in optional if a in blocks and not blocks[a]}
+    dropped = {d for a in empty for d in arrays[a]}
+    arrays = {a: dims for a, dims in arrays.items() if a not in empty}
+    sizing = {d for dims in arrays.values() for d in dims}
+    structural = {d: text for d, text in structural.items()
+                  if d in sizing or d not in dropped}
     extents: dict[str, int] = {}
     out: list[Fmi3Variable] = []
     grouped: dict[str, Fmi3Variable] = {}

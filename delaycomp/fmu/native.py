@@ -44,7 +44,15 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
 from delaycomp.errors import DelaycompError
-from delaycomp.fmu.build import CONFIG_NAME, DEFAULT_CONFIG, FMU_ROOT, FMUS, model_identifier
+from delaycomp.fmu.build import (
+    CONFIG_NAME,
+    DEFAULT_CONFIG,
+    FMU_ROOT,
+    FMUS,
+    LOOP_KINDS,
+    check_dimensions,
+    model_identifier,
+)
 from delaycomp.tmpfiles import zip_folder
 
 if TYPE_CHECKING:
@@ -129,6 +137,9 @@ class NativeTwin:
     #: FMI 3.0 (``[fmi3.clock]``): the clock of a clocked build (``name``, ``interval``:
     #: the parameter that gives it, ``description``); empty: no clocked variant
     clock: dict[str, str] = field(default_factory=dict)
+    #: FMI 3.0 (``[fmi3] optional``): arrays a build may have no elements of (the channel's
+    #: trace of length 0): left out, with the structural parameters that size only them
+    optional: tuple[str, ...] = ()
 
     @property
     def files(self) -> tuple[Path, ...]:
@@ -173,22 +184,25 @@ def native_twin(kind: str) -> NativeTwin:
     fmi3 = data.get("fmi3", {})
     structural, arrays = fmi3.get("structural", {}), fmi3.get("arrays", {})
     clock = fmi3.get("clock", {})
+    optional = fmi3.get("optional", [])
     if (set(data) - {"uses", "value_references", "fmi3"}
             or set(clock) - {"name", "interval", "description"}
             or (clock and not {"name", "interval"} <= set(clock))
             or not all(isinstance(u, str) and u.endswith(".c") for u in uses)
             or not all(isinstance(v, str) for v in vrs.values())
-            or set(fmi3) - {"structural", "arrays", "clock"}
+            or set(fmi3) - {"structural", "arrays", "clock", "optional"}
+            or not all(a in arrays for a in optional)
             or not all(isinstance(v, str) for v in structural.values())
             or not all(isinstance(d, list) and all(x in structural for x in d)
                        for d in arrays.values())):
         raise ValueError(f"{manifest}: a native manifest has `uses` (a list of .c files of "
                          "fmus/native/), `value_references` (macro = variable name) and "
                          "`[fmi3]`: `structural` (name = description), `arrays` (name = "
-                         "its dimensions, structural parameters) and `clock` (name, interval, "
-                         "description)")
+                         "its dimensions, structural parameters), `clock` (name, interval, "
+                         "description) and `optional` (arrays a build may leave empty)")
     return NativeTwin(kind, spec.folder, spec.native, tuple(uses), dict(vrs),
-                      dict(structural), {k: list(v) for k, v in arrays.items()}, dict(clock))
+                      dict(structural), {k: list(v) for k, v in arrays.items()}, dict(clock),
+                      tuple(optional))
 
 
 def _note(text: str) -> None:
@@ -555,7 +569,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         from delaycomp.fmu import fmi3
 
         table3 = fmi3.fmi3_table(root, twin.structural, twin.arrays,
-                                 twin.clock if clocked else None)
+                                 twin.clock if clocked else None, twin.optional)
         description = fmi3.model_description(
             root, table3, ident, guid, f"delaycomp {delaycomp.__version__} (native C)")
     else:
@@ -606,10 +620,7 @@ def _native_config(kind: str, config: dict | None
     if kind in MODEL_KINDS and not (config or {}).get("model"):
         raise ValueError(f"a native {kind} FMU needs config = {{'model': FILE.py}}")
     config = dict(DEFAULT_CONFIG[kind] if config is None else config)
-    for key in ("n", "m"):
-        if key in config and not (type(config[key]) is int and 1 <= config[key] <= 1000):
-            raise ValueError(f"{key} = {config[key]!r} is not allowed: must be an integer "
-                             "from 1 to 1000 (a dimension of the FMU)")
+    check_dimensions(config)
     if kind not in MODEL_KINDS:
         return config, None, FMUS[kind].model_identifier
     from delaycomp.fmu.translate import translate
@@ -679,7 +690,7 @@ def build_native(out_dir: Path, fmi: int = 2, clocked: bool = False) -> list[Pat
     """Build the three native FMUs of the scalar LTI loop (default dimensions), for FMI
     version ``fmi`` (2 or 3); ``clocked`` (FMI 3.0): the controller driven by a clock."""
     return [build_native_fmu(kind, out_dir, _clocked({}, kind, clocked) or None, fmi=fmi)
-            for kind in NATIVE_KINDS]
+            for kind in NATIVE_KINDS if kind in LOOP_KINDS]
 
 
 def _clocked(config: dict, kind: str, clocked: bool) -> dict:

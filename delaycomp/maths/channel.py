@@ -288,7 +288,7 @@ class ChannelLine:
         """Packet ``j``'s fate ``(lost, q, bad)`` given the chain's state before it: lost
         or not, the steps until it is seen (until its timeout, lost), the chain's state."""
         lost, d, bad = self.channel.draw_fate(self.key, j, bad, self.offset)
-        if lost or math.isnan(d):
+        if lost or not d / self.h <= self.Q + 1:  # NaN (lost in the trace), or surely late
             return True, self.Q, bad
         q = grid.steps_up(d, self.h)
         return (True, self.Q, bad) if q > self.Q else (False, q, bad)
