@@ -81,13 +81,20 @@ from delaycomp.errors import (
     SimulationFailed,
     short,
 )
+from delaycomp.maths.channel import Channel
 from delaycomp.maths.model import ModelError
 from delaycomp.names import FMU_KINDS, array_element
 from delaycomp.orchestrator.simulate import Result
 from delaycomp.system import Loop, Origin
 from delaycomp.system import lti_loop as _lti_loop
 from delaycomp.system import model_loop as _model_loop
-from delaycomp.system.loopfile import DEFAULT_N, SignError, check_sign
+from delaycomp.system.loop import refuse_channel
+from delaycomp.system.loopfile import (
+    DEFAULT_N,
+    SignError,
+    check_sign,
+    with_channels,
+)
 
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
            "Result", "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
@@ -203,7 +210,8 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         N: int = DEFAULT_N, x0, u0=None, mode: str = "compensated",
         r_true: float | None = None, tau_true: float | None = None,
         stop_time: float | None = None, name: str = "loop",
-        allow_unstable: bool = False) -> Loop:
+        allow_unstable: bool = False, meas_channel: Channel | None = None,
+        input_channel: Channel | None = None) -> Loop:
     """An LTI loop: plant ``x' = A x + B u(t - tau)``, measured as ``x(t - r)`` every ``T``,
     controlled by ``u = K x`` on the predicted state (``mode="compensated"``) or on the
     sample itself (``"uncompensated"``) through a zero-order hold.
@@ -227,10 +235,28 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
     allow_unstable : bool
         Let through a ``K`` with which the delay-free sampled loop is unstable (otherwise
         ``SignError``, which gives its spectral radius).
+    meas_channel, input_channel : delaycomp.maths.channel.Channel, optional
+        A network channel in the place of the measurement or the input delay (the loop
+        file's ``[meas_delay]`` and ``[input_delay]``): per-packet delays, loss, a
+        delivery policy. Its ``delay`` is the least delay; ``0`` (the ``Channel``
+        default) takes the loop's true delay (``r_true``, ``tau_true``). ``None``: the
+        constant delay, as without a channel.
 
     Returns
     -------
     Loop
+
+    Examples
+    --------
+    >>> from delaycomp.maths.channel import Channel
+    >>> net = Channel(distribution="uniform", jitter=0.1, loss_model="bernoulli", loss=0.1,
+    ...               seed=7)
+    >>> loop = lti([[1.0]], [[1.0]], [[-2.0]], T=1.0, r=0.3, x0=[1.0], meas_channel=net)
+    >>> loop.by_role("meas_delay").source
+    BuiltinFmu(kind='channel', config={'n': 1})
+    >>> res = run(loop, stop_time=20.0, engine="inprocess")
+    >>> bool(abs(res["plant.x"][-1]) < 1e-2)    # still settles: a jitter of 0.1 s, 10% lost
+    True
     """
     A, B = _matrices(plant, B)
     if K is None:
@@ -243,11 +269,41 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         check_sign(A, B, K, T)
     d = loop.lti
     assert d is not None
-    return loop.replace(origin=Origin(_top_data(
+    tables = channel_tables(meas_channel, input_channel)
+    data = _top_data(
         loop, d.r, d.tau, d.r_true, d.tau_true,
         plant={"A": d.A.tolist(), "B": d.B.tolist(), "x0": np.ravel(d.x0).tolist()},
         controller={"K": d.K.tolist(), "u0": np.ravel(d.u0).tolist(), "mode": d.mode,
-                    "allow_unstable": bool(allow_unstable)})))
+                    "allow_unstable": bool(allow_unstable)}, **tables)
+    return with_channels(loop, tables, Path.cwd(), f"loop {name!r}").replace(
+        origin=Origin(data))
+
+
+def channel_tables(meas_channel: Channel | None = None,
+                   input_channel: Channel | None = None) -> dict:
+    """The loop-file tables ``[meas_delay]`` and ``[input_delay]`` of two channels (each
+    ``None`` for none): every field of a ``Channel`` that differs from its default, its
+    trace as a list of delays; a ``delay`` of 0 is left out (the loop's true delay).
+
+    Examples
+    --------
+    >>> channel_tables(Channel(distribution="uniform", jitter=0.1, seed=3))
+    {'meas_delay': {'distribution': 'uniform', 'jitter': 0.1, 'seed': 3}}
+    """
+    tables: dict[str, dict] = {}
+    for role, ch in (("meas_delay", meas_channel), ("input_delay", input_channel)):
+        if ch is None:
+            continue
+        if not isinstance(ch, Channel):
+            raise ParameterError(f"{role.split('_')[0]}_channel = {short(ch)} is not "
+                                 "allowed: must be a delaycomp.maths.channel.Channel")
+        table: dict = {}
+        for f in dataclasses.fields(Channel):
+            value = getattr(ch, f.name)
+            if value != f.default and value is not None:
+                table[f.name] = list(value) if f.name == "trace" else value
+        tables[role] = table
+    return tables
 
 
 def _top_data(loop: Loop, r: float, tau: float, r_true, tau_true, **sections) -> dict:
@@ -265,9 +321,11 @@ def _top_data(loop: Loop, r: float, tau: float, r_true, tau_true, **sections) ->
 def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
           N: int = DEFAULT_N, x0, u0=None, mode: str = "compensated",
           predictor: str | None = None, pad: bool = False,
-          stop_time: float | None = None, **parameters) -> Loop:
+          stop_time: float | None = None, meas_channel: Channel | None = None,
+          input_channel: Channel | None = None, **parameters) -> Loop:
     """A loop around a model file (the plant ``f`` and its delay-free feedback ``k``; see
-    ``delaycomp.maths.model``); ``parameters`` are the model's own.
+    ``delaycomp.maths.model``); ``parameters`` are the model's own. ``meas_channel`` and
+    ``input_channel``: network channels in the delays' places, as for ``lti``.
 
     ``mode="uncompensated"`` applies the feedback to the sample itself instead of the
     prediction (the baseline the predictor is compared with).
@@ -287,10 +345,13 @@ def model(path: str | Path, *, T: float, r: float = 0.0, tau: float = 0.0,
                         "pad": bool(pad), **parameters}
     if predictor is not None:
         controller["predictor"] = predictor
-    return loop.replace(origin=Origin(_top_data(
-        loop, r, tau, None, None,
-        plant={"model": str(path), "x0": np.ravel(np.asarray(x0, dtype=float)).tolist()},
-        controller=controller)))
+    tables = channel_tables(meas_channel, input_channel)
+    return with_channels(loop, tables, Path.cwd(), f"loop {path.stem!r}").replace(
+        origin=Origin(_top_data(
+            loop, r, tau, None, None,
+            plant={"model": str(path),
+                   "x0": np.ravel(np.asarray(x0, dtype=float)).tolist()},
+            controller=controller, **tables)))
 
 
 #: which FMUs ``run`` and ``to_ssp`` use: the native C FMUs where the loop has
@@ -747,6 +808,7 @@ def critical_delay(loop: LoopLike, *,
     from delaycomp.maths.lti import lifted_loop
 
     loop = _as_loop(loop, sets)
+    refuse_channel(loop, "critical_delay (its lifted model has constant delays)")
     d = loop.lti
     if d is None:
         raise ParameterError(f"critical_delay needs an LTI loop; {loop.name} is not")

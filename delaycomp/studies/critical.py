@@ -11,6 +11,7 @@ import numpy as np
 from delaycomp.errors import ParameterError
 from delaycomp.maths.lti import critical_delay, lifted_loop
 from delaycomp.system import Loop, LtiDesign, lti_loop
+from delaycomp.system.loop import refuse_channel
 
 #: Half-width of the bracket confirmed by co-simulation, as a fraction of T.
 CONFIRM_OFFSET = 0.005
@@ -64,6 +65,7 @@ def _design(source, sets: list[str]) -> tuple[Loop, LtiDesign]:
     so a default ``r`` off a new base grid does not stop the search.
     """
     loop = source.loop(["r=0", *sets])
+    refuse_channel(loop, "`critical-delay` (its lifted model has constant delays)")
     if loop.lti is None:
         raise ParameterError(f"critical-delay needs an LTI loop; {source.name} is not")
     return loop, loop.lti

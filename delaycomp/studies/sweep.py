@@ -57,6 +57,7 @@ from delaycomp.paper.scenarios import open_source
 from delaycomp.studies.axes import Axis, base_loop, format_value
 from delaycomp.studies.pool import Progress, on_dask, on_processes
 from delaycomp.system import FmuFile, Loop, LtiBatch, Timing
+from delaycomp.system.loop import refuse_channel
 from delaycomp.system.loopfile import LoopData
 from delaycomp.tmpfiles import new_file
 
@@ -463,6 +464,9 @@ def _checked(scenario: str | LoopData, axes: list[Axis], names: list[str], sets:
     check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
                      exact, held)
     sc = open_source(scenario)
+    if exact:
+        refuse_channel(sc.loop(list(sets)), "`sweep --exact` (its lifted model has constant "
+                       "delays; run the points: --engine inprocess or fmu)")
     if exact and sc.loop(list(sets)).lti is None:
         raise ParameterError(f"--exact needs an LTI scenario or loop file; {_label(sc)} is "
                              "not")

@@ -372,6 +372,24 @@ class Loop:
                                    for i in self.instances)
 
 
+# -- network channels (issue 29) -------------------------------------------------------
+
+def channel_roles(loop: Loop) -> list[str]:
+    """The roles of ``loop`` (``meas_delay``, ``input_delay``) that a network channel
+    fills."""
+    return [i.role for i in loop.instances
+            if isinstance(i.source, BuiltinFmu) and i.source.kind == "channel"]
+
+
+def refuse_channel(loop: Loop, what: str) -> None:
+    """Refuse (``ParameterError``, one line) a ``loop`` with a network channel where
+    ``what`` (a command, an engine) does not handle one yet."""
+    roles = channel_roles(loop)
+    if roles:
+        raise ParameterError(f"loop {loop.name!r}: the [{roles[0]}] channel is not supported "
+                             f"by {what} yet")
+
+
 # -- the standard loop ---------------------------------------------------------------------
 
 def _chain(plant_out: list[str], ctrl_in: list[str], ctrl_out: list[str],

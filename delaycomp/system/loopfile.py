@@ -69,6 +69,7 @@ from delaycomp.errors import BadFileError, ParameterError, shown
 from delaycomp.maths.grid import on_grid
 from delaycomp.names import MODES
 from delaycomp.system.loop import (
+    Instance,
     Loop,
     LtiBatch,
     LtiPoint,
@@ -80,7 +81,7 @@ from delaycomp.system.loop import (
     lti_designs,
     model_loop,
 )
-from delaycomp.system.loopkeys import DEFAULTS, allowed
+from delaycomp.system.loopkeys import CHANNEL_TABLES, DEFAULTS, allowed
 
 #: the keys of each table, required or not, and the defaults: ``.loopkeys``
 TOP_KEYS = allowed("", "lti")
@@ -413,7 +414,7 @@ class LoopFile:
             if section == "":
                 _check_keys(self.where, {name: 0}, TOP_KEYS)
                 data[name] = value
-            elif section in SECTIONS:
+            elif section in SECTIONS or section in CHANNEL_TABLES:
                 table = data.setdefault(section, {})
                 if not isinstance(table, dict):
                     raise ParameterError(f"--set {key}: {section} in {self.where} is "
@@ -431,7 +432,8 @@ class LoopFile:
                 table[name] = value
             else:
                 raise ParameterError(f"--set {key}: unknown section {section!r}: allowed "
-                                     f"are {', '.join(SECTIONS)} (or a top-level key: "
+                                     f"are {', '.join((*SECTIONS, *CHANNEL_TABLES))} (or a "
+                                     "top-level key: "
                                      f"{', '.join(TOP_KEYS)})")
         return data
 
@@ -600,7 +602,7 @@ def _split(assignment: str) -> tuple[str, str]:
 def _top(data: dict, where: str) -> dict:
     """The loop file's top-level values (timing, delays, mode), checked."""
     _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS,
-                OTHER_TABLES)
+                (*OTHER_TABLES, *CHANNEL_TABLES))
     plant = data.get("plant")
     if not isinstance(plant, dict):
         raise ParameterError(f"{where}: a [plant] table is required (A and B, or model)")
@@ -675,6 +677,7 @@ def design(data: dict, where: str = "loop") -> LtiPoint | None:
     plant = top["plant"]
     if "fmu" in plant or "A" not in plant:
         return None
+    refuse_channel_data(data, "the batch engine (use --engine inprocess or fmu)", where)
     return _lti(top, where)[0]
 
 
@@ -698,7 +701,8 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         points = []
         for data in datas:
             top = _top(data, where)
-            if "fmu" in top["plant"] or "A" not in top["plant"]:
+            if "fmu" in top["plant"] or "A" not in top["plant"] or any(
+                    t in data for t in CHANNEL_TABLES):
                 return None
             points.append(_lti_args(top, where, array))
         batch = lti_designs([args for args, _, _ in points])
@@ -710,9 +714,198 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         return None
 
 
+# -- network channels ([meas_delay], [input_delay]; issue 29) -------------------------------
+
+#: the longest delay trace a channel takes (``delaycomp.fmu.build.TRACE_MAX``, the channel
+#: FMU's ``trace[1..L]``, which the tests hold it to)
+TRACE_MAX = 10_000
+#: the loop's true delay that each channel table's ``delay`` defaults to
+_TRUE = {"meas_delay": "r", "input_delay": "tau"}
+_CHANNEL_NUMBERS = ("delay", "jitter", "shape", "max_delay", "loss", "p_gb", "p_bg",
+                    "loss_good", "loss_bad", "period")
+_CHANNEL_WORDS = ("distribution", "loss_model", "policy")
+
+
+def _true_delay(top: dict, table: str) -> float:
+    """The loop's true delay of ``table``'s role: ``r_true`` (else ``r``) or ``tau_true``
+    (else ``tau``)."""
+    name = _TRUE[table]
+    true = top[f"{name}_true"]
+    return float(top[name] if true is None else true)
+
+
+def read_trace(path: Path, where: str) -> tuple[float, ...]:
+    """The delays [s] of a trace CSV: the column headed ``delay`` (else the first; a
+    file whose first row is a number has no header), an empty cell or ``nan`` a lost
+    packet (NaN); at most ``TRACE_MAX`` rows. ``where`` names the key in messages.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "trace.csv"
+    >>> _ = f.write_text("time,delay\\n0,0.02\\n1,\\n2,nan\\n3,0.05\\n")
+    >>> read_trace(f, "meas_delay.trace")
+    (0.02, nan, nan, 0.05)
+    """
+    import csv
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BadFileError(path, f"no such file ({where})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadFileError(path, f"cannot be read ({where}): {exc}") from None
+    rows = [row for row in csv.reader(text.splitlines()) if any(c.strip() for c in row)]
+    if not rows:
+        raise ParameterError(f"{where} = {path.name!r} is not allowed: the file holds no "
+                             "delays")
+    column, first = 0, rows[0]
+    if not _DECIMAL.match(first[0].strip()) and first[0].strip().lower() != "nan":
+        names = [c.strip() for c in first]
+        column = names.index("delay") if "delay" in names else 0
+        rows = rows[1:]
+    if not 1 <= len(rows) <= TRACE_MAX:
+        raise ParameterError(f"{where} = {path.name!r} ({len(rows)} delays) is not allowed: "
+                             f"must hold 1 to {TRACE_MAX} delays")
+    delays = []
+    for i, row in enumerate(rows):
+        cell = row[column].strip() if column < len(row) else ""
+        if cell == "" or cell.lower() == "nan":
+            delays.append(math.nan)
+            continue
+        if not _DECIMAL.match(cell) or float(cell) < 0:
+            raise ParameterError(f"{where} = {path.name!r}: delay {i + 1} ({cell!r}) is not "
+                                 "allowed: must be a finite number >= 0 [s], or empty or nan "
+                                 "(a lost packet)")
+        delays.append(float(cell))
+    return tuple(delays)
+
+
+def channel_of(table: dict, name: str, base: Path, true_delay: float, where: str = "loop"):
+    """The ``delaycomp.maths.channel.Channel`` of a loop file's channel table ``name``
+    (``[meas_delay]`` or ``[input_delay]``): its keys and values checked, each refusal one
+    line naming ``name.key`` and what is allowed; ``delay`` defaults to the loop's true
+    delay ``true_delay`` (with a trace, to the trace's smallest delay).
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> channel_of({"distribution": "uniform", "jitter": 0.05}, "meas_delay", Path("."),
+    ...            0.1).bound()
+    0.15000000000000002
+    >>> channel_of({"loss": 2}, "input_delay", Path("."), 0.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: input_delay.loss = 2.0 is not allowed: must be a ...
+    """
+    from delaycomp.maths.channel import Channel
+
+    if not isinstance(table, dict):
+        raise ParameterError(f"{where}: {name} must be a table ([{name}])")
+    _check_keys(f"{where} [{name}]", table, allowed("channel", "lti"))
+    values: dict[str, Any] = {}
+    for key in _CHANNEL_NUMBERS:
+        if key in table:
+            values[key] = _real(f"{name}.{key}", table[key])
+    for key in _CHANNEL_WORDS:
+        if key in table:
+            if not isinstance(table[key], str):
+                raise ParameterError(f"{name}.{key} = {table[key]!r} is not allowed: must be "
+                                     "a string")
+            values[key] = table[key]
+    if "seed" in table:
+        seed = table["seed"]
+        if isinstance(seed, float) and seed.is_integer():  # --set seed=3 reads 3.0
+            seed = int(seed)
+        values["seed"] = seed
+    if "trace" in table:
+        given = table["trace"]
+        if isinstance(given, (list, tuple)):  # the delays themselves (the API's Channel)
+            trace = tuple(_real(f"{name}.trace[{i + 1}]", d) if not (
+                isinstance(d, float) and math.isnan(d)) else math.nan
+                for i, d in enumerate(given))
+        elif isinstance(given, str):
+            path = Path(given)
+            trace = read_trace(path if path.is_absolute() else base / path, f"{name}.trace")
+        else:
+            raise ParameterError(f"{name}.trace = {given!r} is not allowed: must be a CSV "
+                                 "file's path")
+        values["trace"] = trace
+        if values.get("distribution", "constant") == "trace" and "delay" not in values:
+            finite = [d for d in trace if not math.isnan(d)]
+            values["delay"] = min(finite) if finite else true_delay
+    values.setdefault("delay", float(true_delay))
+    channel = Channel(**values)
+    try:
+        channel.check()
+    except ValueError as exc:
+        raise ParameterError(f"{name}.{exc}") from None
+    if channel.distribution == "trace" and not channel.trace:
+        raise ParameterError(f"{name}.trace is required for distribution = 'trace': a CSV "
+                             "file of measured delays")
+    return channel
+
+
+def channel_parameters(channel, u0_params: dict) -> dict:
+    """The channel FMU's parameter values (``fmus/delay/README.md``) of ``channel``, with
+    the delay's input history ``u0[i]`` (``u0_params``)."""
+    params: dict[str, Any] = {
+        "delay": channel.delay, "distribution": channel.distribution,
+        "jitter": channel.jitter, "shape": channel.shape,
+        "max_delay": 0.0 if channel.max_delay is None else channel.max_delay,
+        "loss_model": channel.loss_model, "loss": channel.loss, "p_gb": channel.p_gb,
+        "p_bg": channel.p_bg, "loss_good": channel.loss_good, "loss_bad": channel.loss_bad,
+        "policy": channel.policy, "seed": channel.seed, "period": channel.period}
+    for i, d in enumerate(channel.trace):
+        params[f"trace[{i + 1}]"] = -1.0 if math.isnan(d) else d
+    return {**params, **u0_params}
+
+
+def with_channels(loop: Loop, data: dict, base: Path, where: str = "loop") -> Loop:
+    """``loop`` with a network channel in the place of each delay whose role names a table
+    of ``data`` (``[meas_delay]``, ``[input_delay]``): the instance becomes the channel
+    FMU (``BuiltinFmu("channel", {"n": n, "L": L})``, ``L`` the trace's length, none
+    without a trace: the registry's default build) with the
+    table's channel and the delay's input history; without those tables, ``loop`` as it
+    is."""
+    from delaycomp.system.loop import BuiltinFmu
+
+    tables = [t for t in CHANNEL_TABLES if t in data]
+    if not tables:
+        return loop
+    instances = []
+    for inst in loop.instances:
+        if inst.role not in tables:
+            instances.append(inst)
+            continue
+        src = inst.source
+        if not (isinstance(src, BuiltinFmu) and src.kind == "delay"):
+            raise ParameterError(f"{where}: [{inst.role}] is not allowed: the loop's "
+                                 f"{inst.role} is not delaycomp's delay FMU")
+        channel = channel_of(data[inst.role], inst.role, base, float(inst.parameters["delay"]),
+                             where)
+        u0 = {k: v for k, v in inst.parameters.items() if k.startswith("u0[")}
+        config = {"n": int(src.config["n"])}
+        if channel.trace:  # the default build (and its file) where there is no trace
+            config["L"] = len(channel.trace)
+        instances.append(Instance(inst.name, inst.role, BuiltinFmu("channel", config),
+                                  channel_parameters(channel, u0)))
+    return loop.with_instances(instances)
+
+
+def refuse_channel_data(data: dict, what: str, where: str = "loop") -> None:
+    """``refuse_channel`` for loop-file ``data`` (before a loop is built)."""
+    for table in CHANNEL_TABLES:
+        if table in data:
+            raise ParameterError(f"{where}: the [{table}] channel is not supported by {what} "
+                                 "yet")
+
+
 def build(data: dict, base: Path, name: str = "loop", title: str = "",
           where: str = "loop") -> Loop:
-    """The ``Loop`` of a loop file's ``data`` (paths relative to ``base``)."""
+    """The ``Loop`` of a loop file's ``data`` (paths relative to ``base``); a
+    ``[meas_delay]`` or ``[input_delay]`` table puts a network channel in that delay's
+    place (``with_channels``)."""
     top = _top(data, where)
     plant, ctrl, T, N, r, tau, mode = (top[k] for k in ("plant", "ctrl", "T", "N", "r",
                                                          "tau", "mode"))
@@ -721,15 +914,15 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
                   stop_time=stop)
     origin = Origin(data, base)
     if "fmu" in plant:
-        return _fmu_tolerance(plant, lambda: _fmu_plant(plant, ctrl, base, where, T, N, r,
-                                                        tau, mode, common)).replace(
-            origin=origin)
-    if "A" in plant:
+        loop = _fmu_tolerance(plant, lambda: _fmu_plant(plant, ctrl, base, where, T, N, r,
+                                                        tau, mode, common))
+    elif "A" in plant:
         point, state, inp = _lti(top, where)
-        return design_loop(point, state, inp, name=name, title=title, stop_time=stop,
-                           origin=origin)
-    model_path, _, args = _model_args(top, base, where)
-    return model_loop(model_path, T, r, tau, N, **args, **common).replace(origin=origin)
+        loop = design_loop(point, state, inp, name=name, title=title, stop_time=stop)
+    else:
+        model_path, _, args = _model_args(top, base, where)
+        loop = model_loop(model_path, T, r, tau, N, **args, **common)
+    return with_channels(loop, data, base, where).replace(origin=origin)
 
 
 def model_value(model, key: str, value, where: str | None = None) -> Any:
@@ -795,7 +988,11 @@ def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
     plant = top["plant"]
     if "fmu" in plant:
         build(data, base, where=where)
-    elif "A" in plant:
+        return
+    for table in CHANNEL_TABLES:
+        if table in data:
+            channel_of(data[table], table, base, _true_delay(top, table))
+    if "A" in plant:
         _lti(top, where)
     else:
         _, model, args = _model_args(top, base, where, model)

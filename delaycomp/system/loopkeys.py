@@ -45,7 +45,7 @@ class Entry:
     written out it builds the same loop), ``None`` where the default is not a value of the
     key (``shown`` says what it is in words), ``required`` where it must be given."""
 
-    table: str              # "" (top level), "plant", "controller", "reference"
+    table: str              # "" (top level), "plant", "controller", "channel", "reference"
     key: str
     kinds: tuple[str, ...]
     meaning: str
@@ -137,6 +137,44 @@ TABLE: tuple[Entry, ...] = (
       "`[plant] tolerance` where given)"),
     E("controller", "(any other key)", MODEL_CONTROLLERS, "a model parameter, by its name "
       "in the module's `PARAMETERS`", shown="the model's value"),
+    # [meas_delay], [input_delay]: a network channel in the delay's place (issue 29)
+    E("channel", "distribution", ALL, "the delay's random part: `\"constant\"` (none), "
+      "`\"uniform\"` on `[0, jitter)`, `\"exponential\"` of mean `jitter`, `\"gamma\"` of mean "
+      "`jitter` and shape `shape`, or `\"trace\"` (the delays of `trace`, replayed in order "
+      "from an offset drawn from the seed)", shown='`"constant"`'),
+    E("channel", "delay", ALL, "the least delay [s]: every packet's delay is `delay` plus "
+      "the draw", shown="`r_true` (`[meas_delay]`), `tau_true` (`[input_delay]`); with a "
+      "trace, its smallest delay"),
+    E("channel", "jitter", ALL, "the random part's scale [s]: uniform's width, "
+      "exponential's and gamma's mean", shown="`0.0`"),
+    E("channel", "shape", ALL, "gamma's shape", shown="`1.0`"),
+    E("channel", "trace", ALL, "a CSV file of measured delays (relative to the loop file's "
+      "folder): one column in seconds, headed `delay` (else the first column); an empty "
+      "cell or `nan` is a lost packet", shown="none", allowed="a CSV file of 1 to 10000 "
+      "delays"),
+    E("channel", "max_delay", ALL, "the timeout [s]: a packet later than this is lost",
+      shown="the distribution's largest delay (required for exponential and gamma with "
+      "jitter)"),
+    E("channel", "loss_model", ALL, "`\"none\"`, `\"bernoulli\"` (`loss`) or "
+      "`\"gilbert_elliott\"` (a good/bad chain: `p_gb`, `p_bg`, `loss_good`, `loss_bad`)",
+      shown='`"none"`'),
+    E("channel", "loss", ALL, "bernoulli: the probability that a packet is lost",
+      shown="`0.0`"),
+    E("channel", "p_gb", ALL, "gilbert_elliott: probability of going from good to bad",
+      shown="`0.0`"),
+    E("channel", "p_bg", ALL, "gilbert_elliott: probability of going from bad to good",
+      shown="`1.0`"),
+    E("channel", "loss_good", ALL, "gilbert_elliott: loss probability in the good state",
+      shown="`0.0`"),
+    E("channel", "loss_bad", ALL, "gilbert_elliott: loss probability in the bad state",
+      shown="`1.0`"),
+    E("channel", "policy", ALL, "`\"in_order\"` (a packet waits for those sent before it) "
+      "or `\"drop_stale\"` (a packet older than the one shown is dropped)",
+      shown='`"in_order"`'),
+    E("channel", "seed", ALL, "the draws' seed: the same seed, the same packets' fates",
+      shown="`0`"),
+    E("channel", "period", ALL, "time between packets [s], a multiple of `h`; 0: every "
+      "base step", shown="`0.0`"),
     # [reference]
     E("reference", "csv", ALL, "a reference trace for `delaycomp check LOOP.toml`: `time`, "
       "then columns named as the run's", required=True),
@@ -145,7 +183,12 @@ TABLE: tuple[Entry, ...] = (
 del E
 
 #: the tables a loop file may hold (``[reference]`` describes something besides the loop)
-TABLES = ("plant", "controller", "reference")
+TABLES = ("plant", "controller", "meas_delay", "input_delay", "reference")
+#: the tables of a network channel in a delay's place (issue 29), each named by the role of
+#: the delay it replaces; their keys are the ``"channel"`` entries of ``TABLE`` (no entry
+#: has a ``default``: a key written out makes the table, and the table the channel, so
+#: their defaults are in words, the channel's, ``delaycomp.maths.channel.Channel``)
+CHANNEL_TABLES = ("meas_delay", "input_delay")
 
 
 def allowed(table: str, kind: str) -> tuple[str, ...]:
@@ -199,6 +242,8 @@ def markdown(allowed_words: dict[str, str] | None = None) -> str:
     ``KEYS``)."""
     words = allowed_words or {}
     titles = {"": "Top level", "plant": "`[plant]`", "controller": "`[controller]`",
+              "channel": "`[meas_delay]` and `[input_delay]` (a network channel in the "
+                         "delay's place)",
               "reference": "`[reference]` (for `delaycomp check LOOP.toml`)"}
     parts = []
     for table, title in titles.items():

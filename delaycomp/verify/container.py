@@ -66,6 +66,7 @@ from delaycomp.child import module_argv
 from delaycomp.errors import DelaycompError, ParameterError
 from delaycomp.names import array_element
 from delaycomp.system import Loop, Role
+from delaycomp.system.loop import refuse_channel
 from delaycomp.verify.cases import CheckRow, RefCase, compare
 
 #: inner order of the container, by role (see the module docstring)
@@ -226,6 +227,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
 
     if isinstance(fmi, bool) or fmi not in (2, 3):
         raise ParameterError(f"fmi = {fmi!r} is not allowed: must be 2 or 3")
+    refuse_channel(spec, "`export-loop`")
     if fmi == 3 and fmus:
         raise ParameterError("fmus is not allowed with fmi = 3: the container holds "
                              "delaycomp's FMI 3.0 FMUs built with the loop's values as start "

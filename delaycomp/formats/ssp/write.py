@@ -202,7 +202,11 @@ def scenario_system(name: str, assignments: list[str] | None = None,
 
 
 def loop_system(loop: Loop, parameter_set: str = DEFAULT_SET) -> tuple[Loop, SystemInfo]:
-    """A loop and the SSD header it gets (its name, title and stop time)."""
+    """A loop and the SSD header it gets (its name, title and stop time); a loop with a
+    network channel is refused (not in an SSP archive yet)."""
+    from delaycomp.system.loop import refuse_channel
+
+    refuse_channel(loop, "`ssp`")
     return loop, SystemInfo(loop.name, loop.title, loop.stop_time, parameter_set)
 
 
