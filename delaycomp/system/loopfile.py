@@ -35,6 +35,10 @@ outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start 
 predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predictor =
 "plant-fmu"`` with ``K`` (the FMU's own Model Exchange derivatives, ``.fmumodel``).
 
+A network channel in a delay's place (issue 29): a ``[meas_delay]`` or ``[input_delay]``
+table with the keys of ``delaycomp.maths.channel.Channel`` (``distribution``, ``jitter``,
+``loss_model``, ``seed``, a ``trace`` CSV file, ...; ``with_channels``).
+
 Relative paths resolve against the loop file's folder. ``--set NAME=VALUE`` overrides take
 the file's keys: ``r=0.4``, ``plant.x0=1,0,0``, ``controller.K=-1,-2,0;0,-1,-1`` (rows by
 ``;``) or ``controller.K=[[-1,-2,0],[0,-1,-1]]``, ``controller.mode=uncompensated``; and
