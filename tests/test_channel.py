@@ -51,7 +51,7 @@ def test_splitmix64_known_answer_and_draws_in_the_unit_interval():
 
 
 @pytest.mark.parametrize("D", [0, 1, 7, 36])
-@pytest.mark.parametrize("policy", ["in_order", "drop_stale"])
+@pytest.mark.parametrize("policy", ["in_order", "drop_stale", "playout"])
 def test_a_constant_channel_is_the_delay_line_bit_for_bit(D, policy):
     """No jitter, no loss, a packet every step: ``y_k = u_{k-D}`` (``u_init`` before), as
     ``DelayLine`` gives it, the same doubles; the stamp is the send time ``t_{k-D}``, and
@@ -142,14 +142,18 @@ def test_gilbert_elliott_stationary_loss_and_burst_length():
     assert abs(rate - (pi_bad * 0.6 + (1 - pi_bad) * 0.1)) <= 0.02
 
 
-def _policy_reference(fates, P: int, steps: int, policy: str) -> list[int | None]:
+def _policy_reference(fates, P: int, steps: int, policy: str, Q: int
+                      ) -> list[int | None]:
     """The packet each step shows, computed over the whole run: packet ``j`` leaves at
-    ``j P`` and is ready at ``j P + q`` (lost: its timeout); ``in_order`` releases it at the
-    running maximum of the ready steps of it and all before it, ``drop_stale`` at its own;
+    ``j P`` and is ready at ``j P + q`` (lost: its timeout; ``playout``: ``j P + Q`` always);
+    ``in_order`` releases it at the running maximum of the ready steps of it and all before
+    it, ``drop_stale`` and ``playout`` at its own;
     a step shows the newest packet not lost released by then (None: the history)."""
     sent = np.arange(len(fates)) * P
     ready = sent + np.array([q for _, q, _ in fates])
     lost = np.array([f[0] for f in fates])
+    if policy == "playout":  # each at its send step + the timeout Q (late ones: lost)
+        ready = sent + Q
     release = np.maximum.accumulate(ready) if policy == "in_order" else ready
     shown: list[int | None] = []
     for k in range(steps):
@@ -158,7 +162,7 @@ def _policy_reference(fates, P: int, steps: int, policy: str) -> list[int | None
     return shown
 
 
-@pytest.mark.parametrize("policy", ["in_order", "drop_stale"])
+@pytest.mark.parametrize("policy", ["in_order", "drop_stale", "playout"])
 @pytest.mark.parametrize("channel", [
     Channel(delay=0.02, distribution="uniform", jitter=0.3, loss_model="bernoulli", loss=0.3,
             seed=1),
@@ -178,7 +182,7 @@ def test_the_policies_against_a_whole_run_computation(channel, policy):
     line = ChannelLine(channel, n, H, [9.0, -9.0])
     P = line.P
     fates = _fates(channel, steps // P + 1)
-    shown = _policy_reference(fates, P, steps, policy)
+    shown = _policy_reference(fates, P, steps, policy, line.Q)
     overtaken = 0
     for k in range(steps):
         values, stamp = line.step(u[k])
@@ -188,8 +192,41 @@ def test_the_policies_against_a_whole_run_computation(channel, policy):
         else:
             assert values == tuple(u[j * P]) and stamp == j * P * H
         overtaken += j is not None and k > 0 and shown[k - 1] is not None and j < shown[k - 1]
-    assert overtaken == 0  # the stamps never go back, by either policy
+    assert overtaken == 0  # the stamps never go back, by any policy
     assert len({s for s in shown if s is not None}) > 10  # the run delivers
+
+
+@pytest.mark.parametrize("loss", [0.0, 0.3])
+def test_a_playout_buffer_makes_the_varying_delay_constant(loss):
+    """Uniform jitter of 30 steps (packets overtake each other): behind a play-out buffer
+    every packet is shown exactly Q = steps_up(delay + jitter, h) steps after it left, so
+    without loss the line is ``DelayLine`` of Q steps, the same doubles; with loss a lost
+    packet's step keeps the value before it (its age grows by one step per lost packet)."""
+    channel = Channel(delay=0.02, distribution="uniform", jitter=0.3, policy="playout",
+                      loss_model="bernoulli", loss=loss, seed=3)
+    n, steps = 2, 400
+    u = _inputs(steps, n)
+    line = ChannelLine(channel, n, H, [1.0, -1.0])
+    Q = line.Q
+    assert Q == 32
+    ref = DelayLine(n, Q, [1.0, -1.0])
+    lost = [f[0] for f in _fates(channel, steps)]
+    ages = []
+    for k in range(steps):
+        want = ref.output(u[k])
+        ref.push(u[k])
+        got, stamp = line.step(u[k])
+        if k < Q:
+            assert got == (1.0, -1.0)
+            continue
+        j = max(i for i in range(k - Q + 1) if not lost[i]) if any(
+            not x for x in lost[:k - Q + 1]) else None
+        if not loss:
+            assert got == want and stamp == (k - Q) * H
+        elif j is not None:
+            assert got == tuple(u[j]) and stamp == j * H
+        ages.append(round(k - stamp / H))
+    assert min(ages) == Q and (max(ages) > Q) == (loss > 0)
 
 
 def test_in_order_waits_where_drop_stale_moves_on():

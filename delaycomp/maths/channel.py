@@ -21,7 +21,10 @@ and its send time ``t_{s_j}`` (the **time stamp**). Its fate is drawn from the s
   they were sent, a packet that arrives early waiting for the ones before it (a lost one
   is waited for until its timeout, ``s_j + steps_up(max_delay, h)``); ``drop_stale``
   delivers a packet when it arrives unless a newer one was delivered before, and drops it
-  then.
+  then; ``playout`` is a receiver's **play-out buffer**: every packet is shown at its send
+  time plus the timeout, ``s_j + Q`` with ``Q = steps_up(max_delay, h)`` (the largest
+  delay), one that arrives later is lost; a varying delay becomes the constant ``Q h``
+  (no loss: ``DelayLine`` of ``Q`` steps exactly).
 
 The output at ``t_k`` is the value of the last packet delivered at or before ``t_k`` and
 its time stamp; before the first delivery, the initial history ``u_init`` stamped
@@ -59,7 +62,7 @@ DISTRIBUTIONS = ("constant", "uniform", "exponential", "gamma", "trace")
 #: the loss models
 LOSS_MODELS = ("none", "bernoulli", "gilbert_elliott")
 #: what becomes of late and reordered packets
-POLICIES = ("in_order", "drop_stale")
+POLICIES = ("in_order", "drop_stale", "playout")
 #: the largest seed (an FMI Integer)
 SEED_MAX = 2**31 - 1
 
@@ -304,10 +307,12 @@ class ChannelLine:
         bad = self.bad
         if k % self.P == 0:
             lost, q, bad = self.fate(k // self.P, bad)
+            if self.channel.policy == "playout":
+                q = self.Q  # the play-out buffer: every packet at send time + the timeout
             pending.append(Packet(k // self.P, k, k + q, lost, values))
         current = self.current
         keep: list[Packet] = []
-        if self.channel.policy == "in_order":
+        if self.channel.policy != "drop_stale":  # in order (play-out: the order sent)
             blocked = False
             for p in pending:  # in the order sent
                 if not blocked and p.ready <= k:

@@ -168,8 +168,9 @@ TABLE: tuple[Entry, ...] = (
       shown="`0.0`"),
     E("channel", "loss_bad", ALL, "gilbert_elliott: loss probability in the bad state",
       shown="`1.0`"),
-    E("channel", "policy", ALL, "`\"in_order\"` (a packet waits for those sent before it) "
-      "or `\"drop_stale\"` (a packet older than the one shown is dropped)",
+    E("channel", "policy", ALL, "`\"in_order\"` (a packet waits for those sent before it), "
+      "`\"drop_stale\"` (a packet older than the one shown is dropped) or `\"playout\"` (a "
+      "play-out buffer: each packet shown at its send time + `max_delay`, a constant delay)",
       shown='`"in_order"`'),
     E("channel", "seed", ALL, "the draws' seed: the same seed, the same packets' fates",
       shown="`0`"),

@@ -15,13 +15,13 @@
 
 enum { DIST_CONSTANT, DIST_UNIFORM, DIST_EXPONENTIAL, DIST_GAMMA, DIST_TRACE, NDIST };
 enum { LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT_ELLIOTT, NLOSS };
-enum { POLICY_IN_ORDER, POLICY_DROP_STALE, NPOLICY };
+enum { POLICY_IN_ORDER, POLICY_DROP_STALE, POLICY_PLAYOUT, NPOLICY };
 
 /* delaycomp.maths.channel.DISTRIBUTIONS, LOSS_MODELS, POLICIES */
 static const char *const DISTRIBUTIONS[NDIST] = {"constant", "uniform", "exponential", "gamma",
                                                  "trace"};
 static const char *const LOSS_MODELS[NLOSS] = {"none", "bernoulli", "gilbert_elliott"};
-static const char *const POLICIES[NPOLICY] = {"in_order", "drop_stale"};
+static const char *const POLICIES[NPOLICY] = {"in_order", "drop_stale", "playout"};
 
 #define SEED_MAX 2147483647L                    /* delaycomp.maths.channel.SEED_MAX */
 #define GOLDEN UINT64_C(0x9E3779B97F4A7C15)     /* SplitMix64's increment */
@@ -339,6 +339,7 @@ static const double *deliver(Instance *c, const Chan *ch, double *fresh, int app
         uint64_t j = (uint64_t)(k / m->P);
         double q;
         int lost = fate(c, ch, j, &bad, &q);
+        if (ch->policy == POLICY_PLAYOUT) q = (double)m->Q;  /* at send time + the timeout */
         fresh[PK_SEQ] = (double)j;
         fresh[PK_SENT] = (double)k;
         fresh[PK_READY] = (double)k + q;
@@ -351,7 +352,7 @@ static const double *deliver(Instance *c, const Chan *ch, double *fresh, int app
 #define PENDING(i) ((i) < stored ? flight + (size_t)(i) * PK_WIDTH : fresh)
     const double *shown = m->has_current ? c->buf : NULL;
     long delivered = 0;  /* in order: the packets delivered, a prefix of those pending */
-    if (ch->policy == POLICY_IN_ORDER) {
+    if (ch->policy != POLICY_DROP_STALE) {  /* in order (play-out: the order sent) */
         for (; delivered < pending; delivered++) {
             const double *p = PENDING(delivered);
             if (p[PK_READY] > now) break;  /* it, and all after it, wait */
@@ -373,7 +374,7 @@ static const double *deliver(Instance *c, const Chan *ch, double *fresh, int app
     long kept = 0;
     for (long i = 0; i < pending; i++) {
         const double *p = PENDING(i);
-        int keep = ch->policy == POLICY_IN_ORDER
+        int keep = ch->policy != POLICY_DROP_STALE
                        ? i >= delivered
                        : p[PK_LOST] == 0.0 && p[PK_READY] > now &&
                              (!m->has_current || p[PK_SEQ] > c->buf[PK_SEQ]);
@@ -405,10 +406,12 @@ int model_output(Instance *c, ValueRef vr, double *value) {
         Chan ch;
         channel_of(c, &ch);
         if (!m->has_line) {
-            /* packet 0 is seen at once where it is not lost and has no delay */
+            /* packet 0 is seen at once where it is not lost and has no delay (a play-out
+             * buffer: where no packet has a delay) */
             int bad = 0;
             double d;
-            now = !draw_fate(c, &ch, 0, &bad, &d) && d == 0;
+            now = !draw_fate(c, &ch, 0, &bad, &d) &&
+                  (ch.policy == POLICY_PLAYOUT ? bound_of(c, &ch) == 0 : d == 0);
             stamp = now ? c->d.t0 : c->d.t0 - ch.delay;
         } else {
             shown = deliver(c, &ch, fresh, 0);

@@ -94,8 +94,10 @@ class DelaycompChannel(TableSlave):
                               "loss_good, loss_bad)", LOSS_MODELS)
         self.string_parameter("policy", lambda: self.policy,
                               lambda v: setattr(self, "policy", v),
-                              "in_order (a packet waits for those sent before it) or "
-                              "drop_stale (a packet older than the one shown is dropped)",
+                              "in_order (a packet waits for those sent before it), "
+                              "drop_stale (a packet older than the one shown is dropped) or "
+                              "playout (each packet shown at its send time + max_delay, a "
+                              "later one lost)",
                               POLICIES)
         self.register_variable(Integer(
             "seed", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
@@ -165,7 +167,8 @@ class DelaycompChannel(TableSlave):
         if ch is None:
             return tuple(self.u0), self.t0 - self.delay
         lost, d, _ = ch.draw_fate(ch.key(), 0, False, ch.offset())
-        if not lost and d == 0:
+        # a play-out buffer shows every packet after the largest delay
+        if not lost and (ch.bound() == 0 if ch.policy == "playout" else d == 0):
             return tuple(self.u), self.t0
         return tuple(self.u0), self.t0 - ch.delay
 
