@@ -176,6 +176,8 @@ class BatchResult:
     message: list[str] = field(default_factory=list)
     states: np.ndarray | None = None
     inputs: np.ndarray | None = None
+    #: ``run_lti_channels``: the quadratic cost ``sum_k h (|x_k|^2 + |v_k|^2)`` per point
+    cost: np.ndarray | None = None
 
     def rows(self) -> list[dict]:
         """One dict per point with the sweep's metric columns (``None`` for never;
@@ -1205,3 +1207,195 @@ def _dot(row, vec):
 def _np_put(a, index, value):
     a[index] = value
     return a
+
+
+# -- LTI loops through network channels (issue 29, item 4) -------------------------------
+
+def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
+    """The send step a constant delay of ``D`` ticks (per point) shows at each step: ``k -
+    D``, ``-1`` before ``D`` (``DelayLine``)."""
+    s = np.arange(steps, dtype=np.int64)[:, None] - D[None, :]
+    return np.where(s >= 0, s, -1)
+
+
+def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
+                     meas_seeds=None, input_seeds=None, record: bool = False) -> BatchResult:
+    """Advance the ``P`` LTI loops of ``design`` to ``stop`` with a network channel
+    (``delaycomp.maths.channel.Channel``) in the place of the measurement delay (``meas``)
+    and/or the input delay (``inp``), each point with its own seed: the loop of
+    ``run_lti`` (zero-order hold, ``compensated`` or ``uncompensated``), numpy.
+
+    The channel's fates are drawn for every point at once
+    (``delaycomp.maths.channel_batch.shown``): at tick ``k`` the controller's
+    measurement is the state at the send step of the packet the measurement channel shows
+    (``x0`` before any), the plant's input the controller output at the send step of the
+    packet the input channel shows (``u0`` before any); a role without a channel keeps the
+    constant delay ``r_true`` or ``tau_true``. A packet is at most ``Q`` ticks old when
+    it is delivered (``Q = steps_up(bound, h)``), so a ring of ``Q + 1`` past states and a
+    latch per point hold what is needed. The arithmetic is ``run_lti``'s, in its order.
+
+    Parameters
+    ----------
+    design : delaycomp.system.LtiBatch
+        The loops; every point with the same ``T`` and ``N`` (one base step ``h``). The
+        controller's ``r`` and ``tau`` are what it assumes (its predictor).
+    stop : float
+        Stop time, a multiple of ``h``.
+    meas, inp : Channel, optional
+        The channels; their ``seed`` is replaced by the points' seeds.
+    meas_seeds, input_seeds : array_like of int, optional
+        One seed per point (default ``0 .. P - 1``).
+    record : bool
+        Keep every tick's state and controller output.
+
+    Returns
+    -------
+    BatchResult
+        The sweep's metrics and ``cost``: ``sum_k h (|x_k|^2 + |v_k|^2)`` over the ticks
+        before ``stop`` (``v`` the plant's input), the rectangle rule of
+        ``int_0^stop x'x + v'v dt`` (``inf`` where the run failed).
+    """
+    from delaycomp.maths.channel_batch import shown, timeout_steps
+
+    bad = [md for md in set(design.mode.tolist()) if md not in MODES]
+    if bad:
+        raise BatchError(f"mode = {bad[0]!r} is not allowed: must be one of {', '.join(MODES)}")
+    P = len(design)
+    if P == 0:
+        raise BatchError("the batch has no points")
+    if not (np.all(design.N == design.N[0]) and np.all(design.T == design.T[0])):
+        raise BatchError("T and N are not allowed to differ between the points of a batch "
+                         "with a channel: must be the same at every point")
+    N = int(design.N[0])
+    plan = _lti_plan(design, N, float(stop))
+    h = float(plan.h[0])
+    kmax = int(plan.stop_k.max())
+
+    def seeds_of(given, name):
+        s = np.arange(P) if given is None else np.broadcast_to(np.asarray(given), (P,))
+        if not np.issubdtype(s.dtype, np.integer) or np.any(s < 0) or np.any(s > 2**31 - 1):
+            raise BatchError(f"{name} are not allowed: must be integers in 0 .. {2**31 - 1}")
+        return s
+
+    def route(channel, seeds, D, name):
+        if channel is None:
+            return _constant_shown(D, kmax + 1), int(D.max())
+        try:
+            return (shown(channel, seeds_of(seeds, name), h, kmax + 1),
+                    timeout_steps(channel, h))
+        except ValueError as exc:
+            raise BatchError(f"{name.split('_')[0]} channel: {exc}") from None
+
+    Sm, Qm = route(meas, meas_seeds, plan.Dr, "meas_seeds")
+    Si, Qi = route(inp, input_seeds, plan.Dt, "input_seeds")
+    run = _ChannelStepper(plan, design, Sm, Qm, Si, Qi, record)
+    acc = _BlockMetrics(get_backend("numpy"), P, N, plan.stop_k, int((plan.stop_k // N).max()))
+    with np.errstate(all="ignore"):
+        for i in range(kmax // N + 1):
+            rows = min(N, kmax - i * N + 1)
+            for row in range(rows):
+                k = i * N + row
+                if row == 0:
+                    badc = run.sample(i)
+                    if badc.any():
+                        acc.cut(badc, k, "the control is not finite (the feedback diverged: "
+                                "overflow)", plan.T, plan.h)
+                run.tick(k, row, k < kmax)
+            acc.block(run.blk[:rows], i * N, plan.T, plan.h)
+    res = acc.finish(plan.T, plan.h)
+    end = np.minimum(acc.cut_at, plan.stop_k + 1)
+    cost = run.cost.copy()
+    cost[~res.success] = np.inf
+    res.cost = cost
+    res.states, res.inputs = _trim(run.states, run.inputs, end)
+    return res
+
+
+class _ChannelStepper:
+    """The stepping of ``run_lti_channels`` (numpy, the points on the last axis): a ring
+    of the last ``Qm + 1`` states and a latch of the measurement, a ring of controller
+    outputs (one per period) and a latch of the plant's input."""
+
+    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Qm: int, Si, Qi: int, record: bool):
+        P, n, m = d.B.shape
+        N = plan.N
+        self.plan, self.N, self.n, self.m, self.P = plan, N, n, m, P
+        self.Sm, self.Si = Sm, Si
+        self.Rx = Qm + 1
+        self.Lmax = plan.QB.shape[0]
+        self.Ru = self.Lmax + Qi // N + 3
+
+        def col(a):
+            return np.ascontiguousarray(a)
+
+        self.Ad = [[col(plan.Ad[:, a, b]) for b in range(n)] for a in range(n)]
+        self.Bd = [[col(plan.Bd[:, a, c]) for c in range(m)] for a in range(n)]
+        self.K = [[col(d.K[:, c, a]) for a in range(n)] for c in range(m)]
+        self.E = [[col(plan.E[:, a, b]) for b in range(n)] for a in range(n)]
+        self.QB = [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
+                   for q in range(self.Lmax)]
+        self.u0 = col(d.u0.T)
+        self.x = col(d.x0.T).copy()  # (n, P)
+        self.xring = np.zeros((self.Rx, n, P))
+        self.y = self.x.copy()  # the measurement latch: x0 before any packet
+        self.v = self.u0.copy()  # the plant-input latch: u0 before any packet
+        self.held = self.u0.copy()
+        self.U = np.zeros((self.Ru, m, P))
+        self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(n)])
+        self.blk = np.zeros((N, n, P))
+        self.cost = np.zeros(P)
+        self.h = plan.h
+        self.prev_m = np.full(P, -1, dtype=np.int64)
+        self.prev_i = np.full(P, -1, dtype=np.int64)
+        K = int(plan.stop_k.max()) + 1
+        self.states = np.full((P, K, n), np.nan) if record else None
+        self.inputs = np.full((P, K, m), np.nan) if record else None
+
+    def sample(self, i: int) -> np.ndarray:
+        """The controller at the sampling tick ``i N`` from the measurement latched by then
+        (the latch is updated first: ``tick`` of this tick runs after); returns where its
+        output is not finite from a finite measurement."""
+        self._latch_meas(i * self.N)
+        y, n, U = self.y, self.n, self.U
+        phi = [_dot(self.E[a], y) for a in range(n)]
+        for q in range(self.Lmax):
+            past = U[(i - q - 1) % self.Ru] if i - q - 1 >= 0 else self.u0
+            for a in range(n):
+                phi[a] = phi[a] + _dot(self.QB[q][a], past)
+        self.held = np.stack([_dot(self.K[c], phi) for c in range(self.m)])
+        self.U[i % self.Ru] = self.held
+        return ~np.all(np.isfinite(self.held), axis=0) & np.all(np.isfinite(y), axis=0)
+
+    def _latch_meas(self, k: int) -> None:
+        self.xring[k % self.Rx] = self.x
+        s = self.Sm[k]
+        new = np.flatnonzero(s != self.prev_m)
+        if new.size:
+            self.y[:, new] = self.xring[s[new] % self.Rx, :, new].T
+            self.prev_m = s
+
+    def tick(self, k: int, row: int, step: bool) -> None:
+        """Tick ``k`` (row ``row`` of its period): the latches, the record and the cost,
+        then (``step``) the plant's exact step to ``k + 1``."""
+        if row:
+            self._latch_meas(k)
+        s = self.Si[k]
+        new = np.flatnonzero(s != self.prev_i)
+        if new.size:
+            self.v[:, new] = self.U[(s[new] // self.N) % self.Ru, :, new].T
+            self.prev_i = s
+            self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
+        x = self.x
+        self.blk[row] = x
+        if self.states is not None and self.inputs is not None:
+            self.states[:, k] = x.T
+            self.inputs[:, k] = self.held.T
+        if not step:
+            return
+        sq = x[0] * x[0]
+        for a in range(1, self.n):
+            sq = sq + x[a] * x[a]
+        for c in range(self.m):
+            sq = sq + self.v[c] * self.v[c]
+        self.cost = self.cost + self.h * sq
+        self.x = np.stack([_dot(self.Ad[a], x) + self.bv[a] for a in range(self.n)])

@@ -1,0 +1,252 @@
+"""The network channel's draws and deliveries for many seeds at once (numpy).
+
+``delaycomp.maths.channel`` draws a packet's fate from a counter-based generator (SplitMix64
+of a key and a counter: no state to carry), so the fates of every packet of every seed can
+be drawn at once: this module gives, for arrays of seeds and packet numbers, the same
+doubles as the scalar code (``packet_draw``, the delay of each distribution, Bernoulli and
+Gilbert-Elliott loss, a trace's offset), bit for bit, and the step at which a run's channel
+shows each packet under every policy, as ``ChannelLine`` delivers them.
+
+**The same doubles.** The integer part is numpy ``uint64`` arithmetic, whose ``*`` and
+``+`` wrap modulo 2^64 as the scalar code's ``& (2^64 - 1)`` does (numpy does not warn on
+wrapping integer arithmetic of arrays). A draw is its top 53 bits times 2^-53, exact in a
+double. ``sqrt`` is correctly rounded everywhere; numpy's own ``log``, ``cos`` and ``pow``
+are not libm's (its SIMD kernels differ from glibc in the last bit for some arguments:
+measured, 0.3 % of ``log`` and 5 % of ``pow`` calls), so those go through ``math`` element
+by element (``_libm``): exact, and paid only by the exponential and gamma distributions.
+
+**What a run's channel shows.** The channel's output at step ``k`` is the value of the
+newest packet delivered by then (``ChannelLine``): with ``drop_stale`` packet ``j`` is
+delivered at its arrival ``a_j = s_j + q_j`` unless lost, and the output is the largest
+``j`` with ``a_j <= k``; with ``in_order`` packet ``j`` is delivered (or, lost, passed) at
+``D_j = max(ready_j, D_{j-1})``, ``ready_j`` its arrival or, lost, its timeout
+``s_j + Q``, and the output is the largest delivered ``j`` with ``D_j <= k``; with
+``playout`` every packet is ``ready`` at ``s_j + Q`` (lost if it arrives later). Either way
+the packet shown is a function of the draws alone, not of the values carried: ``shown``
+gives, per step and run, the send step of the packet shown (``-1``: none yet, the initial
+history), which a batch of loops uses as an index into its stored past (a delivered packet
+is at most ``Q = steps_up(bound, h)`` steps old when it is delivered).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from delaycomp.maths import grid
+from delaycomp.maths.channel import DRAW_DELAY, DRAW_LOSS, DRAW_STATE, Channel
+
+_U = np.uint64
+#: SplitMix64's increment and the key's constant, the scalar module's (its module
+#: docstring; tests/test_channel_batch.py holds the keys and draws equal)
+_GOLDEN = 0x9E3779B97F4A7C15
+_KEY = 0x6A09E667F3BCC909
+_C1 = _U(0xBF58476D1CE4E5B9)
+_C2 = _U(0x94D049BB133111EB)
+
+
+def _libm(fn: Callable[[float], float], a: np.ndarray) -> np.ndarray:
+    """``fn`` (a function of ``math``) of every element of ``a``: libm's doubles, as the
+    scalar code and the C twin compute them."""
+    a = np.asarray(a, dtype=float)
+    return np.fromiter(map(fn, a.ravel().tolist()), dtype=float, count=a.size).reshape(a.shape)
+
+
+def mix(z) -> np.ndarray:
+    """SplitMix64's finalizer of each element (``delaycomp.maths.channel.mix``)."""
+    z = np.asarray(z, dtype=np.uint64)
+    z = (z ^ (z >> _U(30))) * _C1
+    z = (z ^ (z >> _U(27))) * _C2
+    return z ^ (z >> _U(31))
+
+
+def stream_keys(seeds) -> np.ndarray:
+    """The key of each seed's draws (``stream_key``), as ``uint64``."""
+    seeds = np.asarray(seeds, dtype=np.int64)
+    if np.any(seeds < 0):
+        raise ValueError("seeds must be >= 0")
+    return mix(seeds.astype(np.uint64) ^ _U(_KEY))
+
+
+def draws(keys, counters) -> np.ndarray:
+    """Draw ``counter`` of each key (``draw``): doubles in ``[0, 1)``; ``keys`` and
+    ``counters`` broadcast."""
+    k = np.asarray(keys, dtype=np.uint64)
+    c = np.asarray(counters, dtype=np.uint64)
+    return (mix(k + c * _U(_GOLDEN)) >> _U(11)).astype(np.float64) * 2.0 ** -53
+
+
+def packet_draws(keys, j, i) -> np.ndarray:
+    """The ``i``-th draw of packet ``j`` (``packet_draw``); ``keys``, ``j`` and ``i``
+    broadcast (``j < 2^32``)."""
+    j = np.asarray(j, dtype=np.uint64)
+    i = np.asarray(i, dtype=np.uint64)
+    return draws(keys, (j << _U(32)) + i + _U(1))
+
+
+def gamma_draws(keys, j, shape: float) -> np.ndarray:
+    """Gamma variates of shape ``shape``, scale 1 (``gamma_draw``): Marsaglia and Tsang's
+    rejection loop run for every element until all are accepted, each element drawing its
+    own counters as the scalar loop does."""
+    keys, j = np.broadcast_arrays(np.asarray(keys, dtype=np.uint64),
+                                  np.asarray(j, dtype=np.uint64))
+    out_shape = keys.shape
+    keys, j = keys.ravel(), j.ravel()
+    i = np.full(keys.size, DRAW_DELAY, dtype=np.uint64)
+    boost = np.ones(keys.size)
+    a = float(shape)
+    if a < 1.0:
+        boost = _libm(lambda u: math.pow(1.0 - u, 1.0 / a), packet_draws(keys, j, i))
+        i = i + _U(1)
+        a = a + 1.0
+    d = a - 1.0 / 3.0
+    c = 1.0 / math.sqrt(9.0 * d)
+    out = np.empty(keys.size)
+    todo = np.arange(keys.size)
+    while todo.size:
+        kk, jj, ii = keys[todo], j[todo], i[todo]
+        u1 = packet_draws(kk, jj, ii)
+        u2 = packet_draws(kk, jj, ii + _U(1))
+        u3 = packet_draws(kk, jj, ii + _U(2))
+        i[todo] = ii + _U(3)
+        x = np.sqrt(-2.0 * _libm(math.log, 1.0 - u1)) * _libm(math.cos, 2.0 * math.pi * u2)
+        v = 1.0 + c * x
+        pos = v > 0.0
+        v3 = v * v * v
+        with np.errstate(invalid="ignore", divide="ignore"):
+            logv = np.where(pos, _libm(lambda t: math.log(t) if t > 0 else math.nan, v3),
+                            np.nan)
+        ok = pos & (_libm(math.log, 1.0 - u3) < 0.5 * x * x + d - d * v3 + d * logv)
+        out[todo[ok]] = d * v3[ok] * boost[todo[ok]]
+        todo = todo[~ok]
+    return out.reshape(out_shape)
+
+
+def offsets(channel: Channel, keys) -> np.ndarray:
+    """Where each run's trace starts (``Channel.offset``); zeros without a trace."""
+    keys = np.asarray(keys, dtype=np.uint64)
+    if channel.distribution != "trace":
+        return np.zeros(keys.shape, dtype=np.int64)
+    return (draws(keys, 0) * len(channel.trace)).astype(np.int64)
+
+
+def delays(channel: Channel, keys, j, offset=0) -> np.ndarray:
+    """Packet ``j``'s delay [s] for each key (``Channel.delay_of``; NaN: lost in the
+    trace); ``keys``, ``j`` and ``offset`` broadcast."""
+    keys, j, offset = np.broadcast_arrays(np.asarray(keys, dtype=np.uint64),
+                                          np.asarray(j, dtype=np.int64),
+                                          np.asarray(offset, dtype=np.int64))
+    dist = channel.distribution
+    if dist == "constant" or (dist != "trace" and channel.jitter == 0):
+        return np.full(keys.shape, float(channel.delay))
+    if dist == "uniform":
+        return channel.delay + channel.jitter * packet_draws(keys, j, DRAW_DELAY)
+    if dist == "exponential":
+        return channel.delay - channel.jitter * _libm(
+            math.log, 1.0 - packet_draws(keys, j, DRAW_DELAY))
+    if dist == "gamma":
+        return channel.delay + (channel.jitter / channel.shape) * gamma_draws(
+            keys, j, channel.shape)
+    trace = np.asarray(channel.trace, dtype=float)
+    return trace[(offset + j) % len(trace)]
+
+
+def losses(channel: Channel, keys, packets: int) -> np.ndarray:
+    """Whether the loss model loses packet ``j`` of each key: shape ``(packets, R)``
+    (before the timeout, which needs the grid); the Gilbert-Elliott chain starts good and
+    moves once a packet, as in ``Channel.draw_fate``."""
+    keys = np.asarray(keys, dtype=np.uint64).reshape(-1)
+    j = np.arange(packets, dtype=np.uint64)[:, None]
+    if channel.loss_model == "none":
+        return np.zeros((packets, keys.size), dtype=bool)
+    u_loss = packet_draws(keys[None, :], j, DRAW_LOSS)
+    if channel.loss_model == "bernoulli":
+        return u_loss < channel.loss
+    u_state = packet_draws(keys[None, :], j, DRAW_STATE)
+    lost = np.empty((packets, keys.size), dtype=bool)
+    bad = np.zeros(keys.size, dtype=bool)
+    for jj in range(packets):
+        bad = np.where(bad, u_state[jj] >= channel.p_bg, u_state[jj] < channel.p_gb)
+        lost[jj] = u_loss[jj] < np.where(bad, channel.loss_bad, channel.loss_good)
+    return lost
+
+
+def steps_up(values: np.ndarray, step: float) -> np.ndarray:
+    """``delaycomp.maths.grid.steps_up`` elementwise (finite ``values >= 0``)."""
+    ratio = np.asarray(values, dtype=float) / step
+    k = np.rint(ratio)
+    near = np.abs(ratio - k) <= grid.GRID_RTOL * np.maximum(1.0, np.abs(ratio))
+    return np.where(near, k, np.ceil(ratio)).astype(np.int64)
+
+
+def timeout_steps(channel: Channel, h: float) -> int:
+    """``Q``: the steps after which a packet is lost (``ChannelLine.Q``), checked."""
+    bound = channel.bound()
+    grid.check_steps("max_delay" if channel.max_delay is not None else "delay", bound,
+                     bound / h, f"steps of the communication step {h!r}")
+    return grid.steps_up(bound, h)
+
+
+def period_steps(channel: Channel, h: float) -> int:
+    """Steps between packets (``ChannelLine.P``)."""
+    return max(1, grid.steps_of(channel.period, h, "period", f"the communication step {h!r}"))
+
+
+def fates(channel: Channel, seeds, h: float, packets: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(lost, q)`` of packets ``0 .. packets - 1`` of each seed, shape ``(packets, R)``:
+    lost or not (by the loss model, a NaN in the trace, or later than the timeout ``Q``),
+    the steps until it is seen (``Q`` where lost: its timeout), as ``ChannelLine.fate``."""
+    channel.check()
+    keys = stream_keys(np.asarray(seeds).reshape(-1))
+    Q = timeout_steps(channel, h)
+    j = np.arange(packets, dtype=np.int64)[:, None]
+    lost = losses(channel, keys, packets)
+    d = delays(channel, keys[None, :], j, offsets(channel, keys)[None, :])
+    with np.errstate(invalid="ignore"):
+        late = ~(d / h <= Q + 1)  # NaN (lost in the trace), or surely late
+    lost = lost | late
+    q = steps_up(np.where(lost, 0.0, d), h)
+    lost = lost | (q > Q)
+    return lost, np.where(lost, Q, q)
+
+
+def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
+    """The send step of the packet each run's channel shows at steps ``0 .. steps - 1``,
+    shape ``(steps, R)``; ``-1`` where none has been delivered yet (the initial history).
+
+    Examples
+    --------
+    A constant delay of two steps shows packet ``k - 2`` (sent at step ``k - 2``):
+
+    >>> shown(Channel(delay=0.02), [0], 0.01, 5)[:, 0].tolist()
+    [-1, -1, 0, 1, 2]
+    """
+    P = period_steps(channel, h)
+    J = (steps - 1) // P + 1 if steps > 0 else 0
+    lost, q = fates(channel, seeds, h, J)
+    R = lost.shape[1]
+    sent = np.arange(J, dtype=np.int64)[:, None] * P
+    ready = sent + q
+    if channel.policy == "playout":  # the play-out buffer: every packet at s_j + Q
+        ready = sent + np.full_like(q, timeout_steps(channel, h))
+    if channel.policy != "drop_stale":  # in order (play-out: the order sent)
+        ready = np.maximum.accumulate(ready, axis=0)  # D_j = max(ready_j, D_{j-1})
+    best = np.full((steps, R), -1, dtype=np.int64)
+    runs = np.arange(R)
+    for j in range(J):  # the packets in the order sent: a later one is newer
+        at = ready[j]
+        ok = ~lost[j] & (at < steps)
+        best[at[ok], runs[ok]] = j
+    best = np.maximum.accumulate(best, axis=0)
+    return np.where(best >= 0, best * P, -1)
+
+
+def stamps(channel: Channel, sent: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:
+    """The time stamps the channel outputs with the packets ``shown`` gives (``sent``,
+    shape ``(steps, R)``): ``t0 + s h``, or before any delivery ``min(t_k - delay, t0)``
+    (``ChannelLine``'s)."""
+    k = np.arange(sent.shape[0], dtype=float)[:, None]
+    history = np.minimum((t0 + k * h) - channel.delay, t0)
+    return np.where(sent >= 0, t0 + sent * h, history)
