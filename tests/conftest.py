@@ -29,12 +29,14 @@ def machine_blas_settings(environ=None) -> list[str]:
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory) -> Path:
     """Folder with the default FMUs, built by the same code as ``delaycomp build``, and
-    the network channel (every FMU of the registry but the model templates)."""
+    the network channel and the time-stamp controller (every FMU of the registry but the
+    model templates)."""
     from delaycomp.fmu.build import build_all, build_fmu
 
     out = tmp_path_factory.mktemp("fmus")
     build_all(out)
     build_fmu("channel", out)
+    build_fmu("stamped_controller", out)
     return out
 
 

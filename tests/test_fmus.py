@@ -112,7 +112,8 @@ def test_dependencies_declare_feedthrough(fmu_dir):
     # the channel's y is its input where a packet is seen in the step it is sent (no
     # delay); its stamp is a time, never an input
     assert ft == {"plant": frozenset(), "delay": frozenset({"y"}),
-                  "channel": frozenset({"y"}), "controller": frozenset({"u"})}
+                  "channel": frozenset({"y"}), "controller": frozenset({"u"}),
+                  "stamped_controller": frozenset({"u"})}
 
 
 def test_bundles_its_config_and_version(fmu_dir):

@@ -101,6 +101,9 @@ FMUS: dict[str, FmuSpec] = {
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
                           "DelaycompControllerLTI", _FIXED_STEP + _STATE,
                           native="controller_lti"),
+    # the time-stamp controller of an LTI plant (issue 29, item 2); Python only for now
+    "stamped_controller": FmuSpec("controller", "delaycomp_controller_stamped.py",
+                                  "DelaycompControllerStamped", _FIXED_STEP + _STATE),
     "model_plant": FmuSpec("plant", "delaycomp_model_plant.py", "DelaycompPlant", _STATE,
                            template="ModelPlantSlave", native="model_plant"),
     "model_controller": FmuSpec("controller", "delaycomp_model_controller.py",
@@ -111,7 +114,8 @@ FMUS: dict[str, FmuSpec] = {
 #: Dimensions of the default build: the scalar loop of Example 3.6.
 DEFAULT_CONFIG: dict[str, dict[str, Any]] = {
     "plant": {"n": 1, "m": 1, "state": "x", "input": "u"}, "delay": {"n": 1},
-    "channel": {"n": 1}, "controller": {"n": 1, "m": 1}}
+    "channel": {"n": 1}, "controller": {"n": 1, "m": 1},
+    "stamped_controller": {"n": 1, "m": 1}}
 
 #: the longest delay trace a channel FMU is built for (config ``L``: ``trace[1..L]``)
 TRACE_MAX = 10_000

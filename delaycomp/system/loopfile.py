@@ -57,7 +57,7 @@ from __future__ import annotations
 import functools
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -270,6 +270,8 @@ KEYS: dict[str, Key] = {
     "controller.predictor": Key(_predictor, " or ".join(PREDICTORS)),
     "controller.pad": Key(_flag, "true or false"),
     "controller.allow_unstable": Key(_flag, "true or false"),
+    "controller.stamps": Key(_flag, "true or false"),
+    "controller.age_max": Key(_nonneg, "a finite number >= 0 [s]"),
 }
 
 
@@ -926,7 +928,66 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
     else:
         model_path, _, args = _model_args(top, base, where)
         loop = model_loop(model_path, T, r, tau, N, **args, **common)
-    return with_channels(loop, data, base, where).replace(origin=origin)
+    loop = with_stamps(with_channels(loop, data, base, where), data, where)
+    return loop.replace(origin=origin)
+
+
+def _channel_from(params: Mapping[str, Any]):
+    """The ``Channel`` of a channel instance's parameters (``channel_parameters`` read
+    back)."""
+    from delaycomp.maths.channel import Channel
+
+    trace = tuple(math.nan if v < 0 else v for k, v in sorted(
+        ((k, v) for k, v in params.items() if k.startswith("trace[")),
+        key=lambda kv: int(kv[0][6:-1])))
+    names = ("delay", "distribution", "jitter", "shape", "loss_model", "loss", "p_gb", "p_bg",
+             "loss_good", "loss_bad", "policy", "seed", "period")
+    return Channel(**{k: params[k] for k in names}, trace=trace,
+                   max_delay=params["max_delay"] or None)
+
+
+def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
+    """``loop`` with the time-stamp controller where ``[controller] stamps = true``: the
+    LTI controller becomes ``BuiltinFmu("stamped_controller", ...)`` (parameters ``T``,
+    ``tau``, ``age_max``, ``mode``, ``A``, ``B``, ``K``, ``u0``), its input ``stamp``
+    connected to the measurement channel's (a constant channel in the place of a plain
+    measurement delay); otherwise ``loop`` as it is."""
+    from delaycomp.system.loop import BuiltinFmu, Connection, Port
+
+    ctrl_data = data.get("controller") or {}
+    if not check_value("controller.stamps", ctrl_data.get("stamps", False),
+                       f"{where}: controller.stamps"):
+        if "age_max" in ctrl_data:
+            raise ParameterError(f"{where}: controller.age_max is not allowed without "
+                                 "controller.stamps = true")
+        return loop
+    ctrl, meas = loop.by_role("controller"), loop.by_role("meas_delay")
+    if not (ctrl is not None and isinstance(ctrl.source, BuiltinFmu)
+            and ctrl.source.kind == "controller" and meas is not None
+            and isinstance(meas.source, BuiltinFmu)
+            and meas.source.kind in ("delay", "channel")):
+        raise ParameterError(f"{where}: controller.stamps = true is not allowed for this "
+                             "loop: the time-stamp controller is an LTI loop's ([plant] A, B)")
+    if meas.source.kind == "delay":  # a constant channel: the same numbers, and a stamp
+        from delaycomp.maths.channel import Channel
+
+        u0 = {k: v for k, v in meas.parameters.items() if k.startswith("u0[")}
+        meas = Instance(meas.name, meas.role,
+                        BuiltinFmu("channel", {"n": int(meas.source.config["n"])}),
+                        channel_parameters(Channel(delay=float(meas.parameters["delay"])),
+                                           u0))
+    T = float(ctrl.parameters["T"])
+    age_max = ctrl_data.get("age_max")
+    age_max = (_channel_from(meas.parameters).bound() + T if age_max is None
+               else check_value("controller.age_max", age_max, f"{where}: controller.age_max"))
+    params = {k: v for k, v in ctrl.parameters.items() if k != "r"}
+    params["age_max"] = float(age_max)
+    stamped = Instance(ctrl.name, ctrl.role, BuiltinFmu("stamped_controller",
+                                                        dict(ctrl.source.config)), params)
+    instances = [stamped if i.name == ctrl.name else meas if i.name == meas.name else i
+                 for i in loop.instances]
+    wire = Connection(Port(meas.name, "stamp"), Port(ctrl.name, "stamp"))
+    return loop.replace(instances=tuple(instances), connections=(*loop.connections, wire))
 
 
 def model_value(model, key: str, value, where: str | None = None) -> Any:
