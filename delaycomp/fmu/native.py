@@ -928,8 +928,8 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
                      and ident == f"{FMUS[k].model_identifier}_{mid}"), None)
         if kind is None:
             raise ValueError(f"{label} ({ident}) is not allowed in a native archive: native "
-                             "FMUs exist for delaycomp's delay, LTI plant and controller, "
-                             "and a model file's plant and controller")
+                             "FMUs exist for delaycomp's delay, network channel, LTI plant "
+                             "and controller, and a model file's plant and controller")
         folder = models / str(mid)
         folder.mkdir(parents=True, exist_ok=True)
         model_file = folder / f"{name}.py"
@@ -982,8 +982,9 @@ def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
                 or (isinstance(src, ModelFmu) and src.kind in MODEL_KINDS)):
             what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
             raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
-                             f"is {what}; native FMUs exist for the delay, the LTI plant and "
-                             "controller, and a model file's plant and controller")
+                             f"is {what}; native FMUs exist for the delay, the network "
+                             "channel, the LTI plant and controller, and a model file's plant "
+                             "and controller")
     if clocked:
         ctrl = loop.by_role("controller")
         if ctrl is None or isinstance(ctrl.source, FmuFile) or not native_twin(
