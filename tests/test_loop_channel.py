@@ -360,9 +360,6 @@ def test_api_model_takes_the_channels():
 # -- commands that do not take a channel yet ------------------------------------------------
 
 @pytest.mark.parametrize("argv,what", [
-    (["ssp", "{loop}", "--out", "{tmp}/l.ssp", "--python"], "`ssp`"),
-    (["export-loop", "{loop}", "--out", "{tmp}/l.fmu", "--python"], "`export-loop`"),
-    (["build", "{loop}", "--out", "{tmp}/b", "--python"], "`build LOOP.toml`"),
     (["critical-delay", "{loop}"], "`critical-delay`"),
     (["sweep", "{loop}", "--grid", "r=0.36:0.4:2", "--stop-time", "1", "--out",
       "{tmp}/s.csv"], "the batch engine"),
@@ -393,8 +390,6 @@ def test_api_refusals():
     loop = _loop(**LOSSY)
     with pytest.raises(ParameterError, match=r"\[meas_delay\] channel is not supported"):
         api.critical_delay(loop)
-    with pytest.raises(ParameterError, match=r"\[meas_delay\] channel is not supported"):
-        api.to_ssp(loop, "/nonexistent/l.ssp", fmus="python")
 
 
 def test_the_reference_tables_channel_defaults_are_the_readers():

@@ -122,10 +122,8 @@ def build_loop(loop: Loop, out_dir: str | Path, *, only: Iterable[str] | None = 
     LoopBuild
     """
     from delaycomp.fmu.build import publish
-    from delaycomp.system.loop import refuse_channel
     from delaycomp.tmpfiles import temp_dir
 
-    refuse_channel(loop, "`build LOOP.toml`")
     roles, name, out_dir = _build_args(loop, out_dir, only, fmus)
     notes: list[str] = []
 

@@ -8,20 +8,26 @@ A rewrite of the typed loop by roles, never by instance names:
   (``held_sample = true``), so its output no longer depends on its input at the same
   instant;
 - the **measurement delay** is shortened by that one base step ``h``, so the held value is
-  exactly ``x(t_i - r)``; it must keep at least one base step (``r >= 2 h``);
+  exactly ``x(t_i - r)``; it must keep at least one base step (``r >= 2 h``). A network
+  channel there (``delaycomp.maths.channel``) is shortened packet by packet: its least
+  ``delay``, each ``trace`` entry and a ``max_delay`` lose ``h``, so packet ``j`` is seen
+  ``q_j - 1`` steps after it left instead of ``q_j`` (its loss draws and send steps are
+  the same) and the held output is the original channel's at ``t_i``;
 - a **delay with a zero delay** (pure feedthrough, which cannot be shortened) is bypassed:
-  its input connection goes straight to its consumer.
+  its input connection goes straight to its consumer. A channel with delay 0 is refused
+  (its packets seen at once would arrive a step late, and its loss cannot be bypassed).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any, cast
 
 from delaycomp.errors import DelaycompError
 from delaycomp.maths import grid
 from delaycomp.names import indexed
-from delaycomp.system.loop import Connection, Loop
+from delaycomp.system.loop import BuiltinFmu, Connection, Instance, Loop
 
 #: base steps of latency a Jacobi master adds on a connection out of a direct-feedthrough
 #: output (measured, see ``delaycomp.verify.thirdparty``)
@@ -38,6 +44,29 @@ def _delay_input_of(loop: Loop, name: str, output: str) -> str:
     key = cast(tuple, loop.instance(name).source.build_key())  # a delay: built by us
     n = int(key[1]["n"])
     return indexed("u", n)[indexed("y", n).index(output)]
+
+
+def _is_channel(inst: Instance) -> bool:
+    """Is ``inst`` a network channel (``delaycomp.maths.channel``, kind ``channel``)?"""
+    return isinstance(inst.source, BuiltinFmu) and inst.source.kind == "channel"
+
+
+def shifted_delay(params: Mapping[str, Any], shift: float) -> dict[str, Any]:
+    """The parameters that change when a delay FMU's or a network channel's delay is
+    lengthened by ``shift`` (shortened where ``shift < 0``): a delay's ``delay``; a
+    channel's every packet's (its least ``delay``, so each drawn delay ``delay + X``, each
+    ``trace[i]`` but the lost ones, ``-1``, and a ``max_delay`` given, ``> 0``).
+
+    >>> shifted_delay({"delay": 0.3, "trace[1]": 0.5, "trace[2]": -1.0, "max_delay": 0.0},
+    ...               0.25)
+    {'delay': 0.55, 'trace[1]': 0.75}
+    """
+    out: dict[str, Any] = {"delay": float(params["delay"]) + shift}
+    for key, value in params.items():
+        if (key.startswith("trace[") and float(value) >= 0) or (
+                key == "max_delay" and float(value) > 0):
+            out[key] = float(value) + shift
+    return out
 
 
 def jacobi_variant(loop: Loop) -> Loop:
@@ -69,11 +98,19 @@ def jacobi_variant(loop: Loop) -> Loop:
             "shortened by h and must keep at least one base step (without it the "
             "controller would read the plant, whose output these masters take before "
             "initialization); use r >= 2 T/N")
-    changed: dict[str, dict[str, Any]] = {meas.name: {"delay": delay - lat},
+    changed: dict[str, dict[str, Any]] = {meas.name: shifted_delay(meas.parameters, -lat),
                                           ctrl.name: {"held_sample": True}}
     instances = [i.with_parameters(**changed[i.name]) if i.name in changed else i
                  for i in loop.instances]
-    bypass = {i.name for i in instances if i.role in DELAY_ROLES
+    for inst in instances:
+        if (_is_channel(inst) and inst.role in DELAY_ROLES
+                and grid.nearest_multiple(float(inst.parameters["delay"]), h) == 0):
+            raise CompensationError(
+                f"{inst.name}: a channel with delay 0 is not allowed in a Jacobi master: a "
+                "packet seen in the step it is sent would reach its consumer one base step "
+                "late there (a channel cannot be bypassed as a zero delay is); use delay >= "
+                "T/N")
+    bypass = {i.name for i in instances if i.role in DELAY_ROLES and not _is_channel(i)
               and grid.nearest_multiple(float(i.parameters["delay"]), h) == 0}
     labelled = {p for p, _ in loop.labels}
     if any(p.instance in bypass and p not in labelled for p in loop.recorded):

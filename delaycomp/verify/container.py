@@ -19,21 +19,25 @@ What is exact instead:
 
 1. the controller samples the input held over the step that ends at ``t_i``
    (``held_sample = true``): its output has no direct feedthrough any more;
-2. the container steps in the order ``input_delay, plant, meas_delay, controller``
+2. the container steps in the order ``meas_delay, input_delay, plant, controller``
    (sequential), so that over the step ``[t_k, t_{k+1})``
 
+   - ``meas_delay`` gets ``x(t_k)`` (the plant's output after its previous step), as in
+     our master, and its output after the step is ``x(t_{k+1} - r)`` (``r >= h``: it
+     needs no input at ``t_{k+1}``); the controller, stepped after it, holds that over
+     ``[t_k, t_{k+1})``: with (1) its sample at ``t_{k+1}`` is the true ``x(t_{k+1} - r)``.
+     A network channel there gets each packet at the step our master sends it, so its
+     draws (which go by packet number) are the same;
    - ``input_delay`` gets the controller's output at ``t_k`` (read after its previous
      step) and ``plant`` gets the delay's output just computed: one step of delay more
-     than in our master, so the input delay is ``tau + h``;
-   - ``meas_delay`` gets ``x(t_{k+1})`` (the plant has just stepped): one step early, so
-     the measurement delay is ``r + h`` and the controller, stepped after it, holds
-     ``x(t_{k+1} - r)`` over ``[t_k, t_{k+1})``: with (1) its sample at ``t_{k+1}`` is the
-     true ``x(t_{k+1} - r)``.
+     than in our master, so the input delay is ``tau + h`` (a channel's every packet,
+     ``delaycomp.system.jacobi.shifted_delay``).
 
-   Both added steps are filled by the delays' initial histories, which are the loop's own
-   (``x0`` and ``u0``). Every FMU then gets exactly what it gets in our master; the
+   The added step is filled by the delay's initial history, which is the loop's own
+   (``u0``). Every FMU then gets exactly what it gets in our master; the
    container is tested against the reference traces at the sampling instants with the
-   tolerances of ``delaycomp.verify.check``.
+   tolerances of ``delaycomp.verify.check``, and with a channel against ``run`` bit for
+   bit.
 
 The measurement delay must be at least one base step (``r >= h``): with ``r = 0`` the
 controller needs ``x(t_i)`` before ``t_i`` is reached, which only direct feedthrough gives.
@@ -66,13 +70,13 @@ from delaycomp.child import module_argv
 from delaycomp.errors import DelaycompError, ParameterError
 from delaycomp.names import array_element
 from delaycomp.system import Loop, Role
-from delaycomp.system.loop import refuse_channel
+from delaycomp.system.jacobi import shifted_delay
 from delaycomp.verify.cases import CheckRow, RefCase, compare
 
 #: inner order of the container, by role (see the module docstring)
-ORDER: tuple[Role, ...] = ("input_delay", "plant", "meas_delay", "controller")
+ORDER: tuple[Role, ...] = ("meas_delay", "input_delay", "plant", "controller")
 #: base steps added to each delay (by role) to absorb the container's order
-ADDED_STEPS = {"meas_delay": 1, "input_delay": 1}
+ADDED_STEPS = {"input_delay": 1}
 
 
 class ContainerError(DelaycompError, RuntimeError):
@@ -92,7 +96,7 @@ def _toolbox():
 def exposed(spec: Loop) -> list:
     """The recorded ports the container exposes: all but the delays' outputs (a plant
     FMU's input columns, ``Loop.labels``), which the container's order shifts by the
-    step it adds to each delay (``ADDED_STEPS``): there they are not what the plant
+    step it adds to the input delay (``ADDED_STEPS``): there they are not what the plant
     receives at that instant."""
     delays = {i.name for i in spec.instances if i.role in ADDED_STEPS}
     return [p for p in spec.recorded if p.instance not in delays]
@@ -150,7 +154,7 @@ def description(spec: Loop, fmu_files: dict[str, str], name: str,
     for inst in members:
         params = dict(inst.parameters)
         if inst.role in ADDED_STEPS:
-            params["delay"] = params["delay"] + ADDED_STEPS[inst.role] * h
+            params.update(shifted_delay(params, ADDED_STEPS[inst.role] * h))
         if inst.role == "controller":
             params["held_sample"] = True
         if inst.name in arrays_in_fmu:
@@ -227,7 +231,6 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
 
     if isinstance(fmi, bool) or fmi not in (2, 3):
         raise ParameterError(f"fmi = {fmi!r} is not allowed: must be 2 or 3")
-    refuse_channel(spec, "`export-loop`")
     if fmi == 3 and fmus:
         raise ParameterError("fmus is not allowed with fmi = 3: the container holds "
                              "delaycomp's FMI 3.0 FMUs built with the loop's values as start "
@@ -241,7 +244,11 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
             from delaycomp.formats.loopbuild import native_with_starts
 
             _checked(spec)  # the loop's own refusals before any build
-            fmus = native_with_starts(spec, work / "fmi3", fmi=3)
+            # the arrays the container cannot set (a channel's trace) start shifted too
+            shifted = spec.with_instances(
+                i.with_parameters(**shifted_delay(i.parameters, ADDED_STEPS[i.role] * spec.h))
+                if i.role in ADDED_STEPS else i for i in spec.instances)
+            fmus = native_with_starts(shifted, work / "fmi3", fmi=3)
         arrays_in_fmu = set(fmus or ()) if fmi == 3 else set()
         files = {}
         for inst in _ordered(spec):

@@ -111,6 +111,10 @@ def parameter_choices(key: tuple[str, dict] | None) -> dict[str, tuple[str, ...]
         from delaycomp.maths.lti import MODES
 
         return {"mode": tuple(MODES)}
+    if kind == "channel":
+        from delaycomp.maths.channel import DISTRIBUTIONS, LOSS_MODELS, POLICIES
+
+        return {"distribution": DISTRIBUTIONS, "loss_model": LOSS_MODELS, "policy": POLICIES}
     if kind in ("model_plant", "model_controller") and "model" in config:
         from delaycomp.maths.model import CONTROLS, load_model
         from delaycomp.maths.nlcontrol import PREDICTORS

@@ -202,11 +202,7 @@ def scenario_system(name: str, assignments: list[str] | None = None,
 
 
 def loop_system(loop: Loop, parameter_set: str = DEFAULT_SET) -> tuple[Loop, SystemInfo]:
-    """A loop and the SSD header it gets (its name, title and stop time); a loop with a
-    network channel is refused (not in an SSP archive yet)."""
-    from delaycomp.system.loop import refuse_channel
-
-    refuse_channel(loop, "`ssp`")
+    """A loop and the SSD header it gets (its name, title and stop time)."""
     return loop, SystemInfo(loop.name, loop.title, loop.stop_time, parameter_set)
 
 
