@@ -126,3 +126,60 @@ def test_a_model_loop_is_refused_in_one_line(tmp_path, capsys):
     assert main(["run", str(path)]) == 2
     err = capsys.readouterr().err
     assert "stamps" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def _toml_text(data: dict) -> str:
+    """A loop file's text (numbers, strings, booleans, lists of numbers and of lists)."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return f'"{v}"'
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return repr(v)
+    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for table, body in data.items():
+        if isinstance(body, dict):
+            lines += [f"[{table}]", *(f"{k} = {value(v)}" for k, v in body.items())]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture(scope="module")
+def stamped_file(tmp_path_factory):
+    """The stamped loop over the network as a file, and ``run``'s CSV (4 s)."""
+    folder = tmp_path_factory.mktemp("stamped-hosts")
+    data = copy.deepcopy(MYLOOP)
+    data.update(copy.deepcopy(NETWORK))
+    data["controller"]["stamps"] = True
+    data["stop_time"] = 4.0
+    path = folder / "net.toml"
+    path.write_text(_toml_text(data), encoding="utf-8")
+    assert main(["run", str(path), "--out", str(folder / "run.csv")]) == 0
+    return path, np.loadtxt(folder / "run.csv", delimiter=",", skiprows=1)
+
+
+@pytest.mark.parametrize("argv, master", [([], "delaycomp"), (["--jacobi"], "delaycomp")])
+def test_the_stamped_loop_in_an_archive_is_run_bit_for_bit(stamped_file, tmp_path, argv,
+                                                           master):
+    """``ssp`` (and its Jacobi variant, whose measurement channel is shortened by h) holds
+    the time-stamp controller's FMU and the stamp's connection: our master runs the
+    archive as ``run`` runs the loop file, the same doubles."""
+    path, ours = stamped_file
+    archive = tmp_path / "n.ssp"
+    assert main(["ssp", str(path), *argv, "--out", str(archive)]) == 0
+    out = tmp_path / "ssp.csv"
+    assert main(["run", str(archive), "--master", master, "--out", str(out)]) == 0
+    assert np.array_equal(np.loadtxt(out, delimiter=",", skiprows=1), ours)
+
+
+def test_the_stamped_loop_exported_as_one_fmu_is_run_bit_for_bit(stamped_file, tmp_path):
+    from fmpy import simulate_fmu
+
+    path, ours = stamped_file
+    out = tmp_path / "n.fmu"
+    assert main(["export-loop", str(path), "--out", str(out)]) == 0
+    res = simulate_fmu(str(out), stop_time=4.0, output_interval=0.2)
+    at = ours[::20]
+    for name, col in (("x1", 1), ("x2", 2), ("x3", 3)):
+        assert np.array_equal(np.asarray(res[name]), at[:, col]), name
