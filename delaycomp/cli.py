@@ -102,7 +102,7 @@ def _ending_signals():
 
 #: the commands that run many co-simulations (a grid, the reference cases in every master),
 #: whose interrupt names no one time
-MANY_RUNS = ("sweep", "check", "crosscheck")
+MANY_RUNS = ("sweep", "check", "crosscheck", "robustness")
 
 
 @contextlib.contextmanager
@@ -199,7 +199,7 @@ RUN_EXAMPLES = """examples:
 
 
 #: the commands that draw a progress bar: they take --progress and --no-progress
-COMMANDS_WITH_BARS = ("run", "sweep")
+COMMANDS_WITH_BARS = ("run", "sweep", "robustness")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -213,6 +213,7 @@ def _parser() -> argparse.ArgumentParser:
     _run_parser(sub)
     _critical_delay_parser(sub)
     _sweep_parser(sub)
+    _robustness_parser(sub)
     _check_parser(sub)
     _crosscheck_parser(sub)
     _export_loop_parser(sub)
@@ -384,6 +385,50 @@ def _sweep_parser(sub) -> None:
                    help="write one row per grid point: the grid values and the metrics")
     s.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
                    help="draw rho: a curve for one grid parameter, a map for two")
+
+
+ROBUSTNESS_EXAMPLES = """examples:
+  delaycomp robustness my-loop.toml --jitter 0:0.4:9 --loss 0:0.3:4 --runs 1000 \\
+      --out map.csv --plot map.png
+  delaycomp robustness my-loop.toml --jitter 0:0.2:5 --loss 0.1:0.1:1 --runs 500 \\
+      --on input_delay --modes compensated --out input.csv
+"""
+
+
+def _robustness_parser(sub) -> None:
+    """``delaycomp robustness``: P(stable) and cost quantiles over jitter x loss."""
+    r = sub.add_parser("robustness",
+                       help="Monte Carlo map of an LTI loop file over a channel's jitter x "
+                            "loss: P(stable), cost and final-norm quantiles",
+                       epilog=ROBUSTNESS_EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("scenario", metavar="LOOP.toml",
+                   help="an LTI loop file (its [meas_delay]/[input_delay] tables the base)")
+    r.add_argument("--set", action=_Append, default=[], metavar="NAME=VALUE",
+                   help="set a loop file's key (repeatable), e.g. meas_delay.policy=drop_stale")
+    r.add_argument("--jitter", required=True, metavar="START:STOP:COUNT",
+                   help="the jitter amplitudes [s], COUNT values from START to STOP")
+    r.add_argument("--loss", required=True, metavar="START:STOP:COUNT",
+                   help="the Bernoulli loss rates, COUNT values from START to STOP")
+    r.add_argument("--runs", type=int, required=True,
+                   help="seeds per grid point and mode")
+    r.add_argument("--seed", type=int, default=0,
+                   help="base seed: run i draws seed + i (default 0)")
+    r.add_argument("--on", default="meas_delay", metavar="ROLE",
+                   help="the channel the grid acts on: meas_delay (default) or input_delay")
+    r.add_argument("--modes", default="compensated,uncompensated", metavar="LIST",
+                   help="comma-separated modes (default compensated,uncompensated)")
+    r.add_argument("--distribution", default="uniform",
+                   help="the jitter's distribution: uniform (default), exponential or gamma "
+                        "(these two need the table's max_delay)")
+    r.add_argument("--stop-time", type=float, default=None, metavar="S",
+                   help="stop time of every run in seconds (default: the loop file's)")
+    r.add_argument("--chunk", type=int, default=None, metavar="RUNS",
+                   help="runs per batch-engine call at most (default: from the run's length)")
+    r.add_argument("--out", type=_file_path, required=True, metavar="FILE.csv",
+                   help="write one row per grid point and mode")
+    r.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
+                   help="heat maps of P(stable) and of the median cost, one column per mode")
 
 
 def _check_parser(sub) -> None:
@@ -1094,6 +1139,51 @@ def _sweep_plot(args, source, sets: list[str], axes: list, rho) -> None:
                      curve)
 
 
+def _cmd_robustness(args) -> int:
+    """``delaycomp robustness``; SIGTERM and SIGHUP stop it as Ctrl-C does."""
+    with _ending_signals():
+        return _robustness(args)
+
+
+def _robustness(args) -> int:
+    from delaycomp.formats.outputs import clear_previous
+    from delaycomp.progress import bar
+    from delaycomp.studies import robustness as rb
+    from delaycomp.studies.axes import parse_grid
+
+    _outputs(args)
+    if not str(args.scenario).endswith(".toml"):
+        raise UsageError(f"{short(args.scenario)} is not allowed: robustness takes a loop "
+                         "file (LOOP.toml)")
+    def axis(option: str, text: str):
+        try:
+            return parse_grid(f"{option}={text}").values
+        except ParameterError as exc:
+            raise UsageError(str(exc).replace(f"--grid '{option}=", f"--{option} '")
+                             .replace("NAME=START", "START")) from None
+
+    jitter, loss = axis("jitter", args.jitter), axis("loss", args.loss)
+    modes = tuple(m.strip() for m in args.modes.split(","))
+    rb.check_grid(jitter, loss, args.runs, args.seed, args.on, modes, args.distribution)
+    source, sets = _source(args)
+    clear_previous(args.out, args.plot)
+    started = time.perf_counter()
+    total = len(jitter) * len(loss) * len(modes) * args.runs
+    with bar(total, "robustness", args.verbosity, unit="run") as shown:
+        result = rb.robustness(source, jitter, loss, args.runs, seed=args.seed, on=args.on,
+                               modes=modes, distribution=args.distribution, sets=sets,
+                               stop_time=args.stop_time, chunk=args.chunk,
+                               progress=shown.update)
+    rb.write_csv(result, args.out)
+    if args.plot:
+        rb.plot_map(result, args.plot, f"{source.name}: {args.runs} runs per point, "
+                    f"{args.on}")
+    print(f"{args.scenario}: {len(result.rows)} rows ({total} runs) in "
+          f"{time.perf_counter() - started:.1f} s; wrote {args.out}"
+          + (f" and {args.plot}" if args.plot else ""))
+    return 0
+
+
 def _cmd_critical_delay(args) -> int:
     _outputs(args)
     scenario, sets = _source(args)
@@ -1297,6 +1387,7 @@ def main(argv: list[str] | None = None) -> int:
 
             progress.choose(getattr(args, "progress", None), args.verbosity)
             handler = {"build": _cmd_build, "run": _cmd_run, "sweep": _cmd_sweep,
+                       "robustness": _cmd_robustness,
                        "critical-delay": _cmd_critical_delay, "check": _cmd_check,
                        "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
                        "export-c": _cmd_export_c,
