@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from delaycomp.errors import ParameterError
+from delaycomp.maths.channel import Channel
 from delaycomp.tmpfiles import new_file
 
 #: the channel the grid acts on
@@ -176,7 +177,7 @@ def _plan(source, sets, on: str, modes: Sequence[str], stop: float) -> _Plan:
                                  f"LTI loop (plant A, B and gain K): {point}")
         points.append(point)
         first = first or loop
-    assert first is not None
+    assert first is not None and first.lti is not None
     lti = first.lti
     true = {"meas_delay": lti.r if lti.r_true is None else lti.r_true,
             "input_delay": lti.tau if lti.tau_true is None else lti.tau_true}
@@ -190,7 +191,7 @@ def _channels(plan: _Plan, on: str, jitter: float, loss: float, distribution: st
     """The two channels of one grid point (``None`` for a role without one)."""
     from delaycomp.system.loopfile import channel_of
 
-    out = {}
+    out: dict[str, Channel | None] = {}
     for role in ROLES:
         table = dict(plan.tables.get(role, {}))
         if role == on:
@@ -260,7 +261,7 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
         raise ParameterError("stop_time is not given: the loop file has none; give "
                              "stop_time (--stop-time) > 0 [s]")
     plan = _plan(source, sets, on, modes, stop)
-    steps = int(round(stop / plan.h)) + 1
+    steps = round(stop / plan.h) + 1
     if chunk is None:
         chunk = max(1, min(CHUNK_MAX, CHUNK_CELLS // steps))
     elif isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
@@ -396,8 +397,7 @@ def plot_map(result: RobustnessMap, path: str | Path, title: str = "") -> None:
     finite = costs[np.isfinite(costs) & (costs > 0)]
     norm = LogNorm(float(finite.min()), float(max(finite.max(), finite.min() * 1.0001))) \
         if finite.size else None
-    cmap = plt.get_cmap("viridis").copy()
-    cmap.set_bad("0.75")
+    cmap = plt.get_cmap("viridis").with_extremes(bad="0.75")
     p_mesh = c_mesh = None
     for i, mode in enumerate(modes):
         p = result.array("p_stable", mode)
