@@ -49,14 +49,15 @@ def _reference(path: Path, on: str, jitter: float, loss: float, mode: str, seed:
                     "loss_model": "bernoulli", "loss": loss, "seed": seed + i}
         if other in data:
             data[other] = {**data[other], "seed": seed + runs + i}
-        data["controller"] = {**data["controller"], "mode": mode}
+        data["controller"] = {**data["controller"], **rb.MODE_KEYS[mode][0]}
         loop = build(data, src.base, name="ref")
         res = api.run(loop, engine="inprocess", stop_time=stop)
         m = result_metrics(loop, res)
         n = loop.lti.A.shape[0]
         h = loop.timing.T / loop.timing.N
         ticks = round(stop / h)
-        x, u = res.data[:ticks, :n], res.data[:ticks, n:]
+        m_in = loop.lti.B.shape[1]
+        x, u = res.data[:ticks, :n], res.data[:ticks, n:n + m_in]
         # the plant's input: the controller's output through the input channel (replayed
         # with the channel's own line), else through the constant input delay
         tau = loop.lti.tau if loop.lti.tau_true is None else loop.lti.tau_true
@@ -110,6 +111,16 @@ def test_the_n3_loop_through_the_input_channel_is_the_per_point_runs():
     m = rb.robustness(LoopData(data, MYLOOP.parent, name="myloop"), [0.3], [0.2], 3,
                       seed=5, on="input_delay", modes=("compensated",), stop_time=6.0)
     refs = _reference(MYLOOP, "input_delay", 0.3, 0.2, "compensated", 5, 3, 6.0, extra)
+    _check_row(m.rows[0], refs, REL)
+
+
+@pytest.mark.skipif(not rb.stamped_available(),
+                    reason="run_lti_channels does not read time stamps yet (stamps=True)")
+def test_the_stamped_mode_is_the_per_point_time_stamp_controller():
+    # the hook for the time-stamp controller: [controller] stamps = true in process
+    m = rb.robustness(LoopFile(MYLOOP), [0.4], [0.3], 3, seed=2, modes=("stamped",),
+                      stop_time=6.0)
+    refs = _reference(MYLOOP, "meas_delay", 0.4, 0.3, "stamped", 2, 3, 6.0)
     _check_row(m.rows[0], refs, REL)
 
 
@@ -176,3 +187,16 @@ def test_command_writes_the_csv_and_the_maps(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert says in err and len(err.strip().splitlines()) == 1
+
+
+def test_ctrl_c_writes_nothing_and_exits_130(tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rb, "robustness", interrupted)
+    out = tmp_path / "map.csv"
+    rc = main(["robustness", str(loop_file("example-3.6")), "--jitter", "0:0.2:2",
+               "--loss", "0:0.3:2", "--runs", "2", "--out", str(out)])
+    assert rc == 130
+    assert capsys.readouterr().err.strip() == "delaycomp: interrupted"
+    assert list(tmp_path.iterdir()) == []

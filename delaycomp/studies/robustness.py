@@ -70,6 +70,8 @@ RUNS_MAX = 10_000_000
 #: the batch engine's points per call at most, and the shown-packet table's size bound
 CHUNK_MAX = 16384
 CHUNK_CELLS = 2**24
+#: ``plot_map`` writes P(stable) on the cells of grids of at most this many cells
+ANNOTATE_MAX = 150
 #: the quantiles reported
 QUANTILES = (50, 90, 99)
 #: z of the two-sided 95 % normal interval
@@ -143,7 +145,7 @@ class RobustnessMap:
 
 
 @dataclass
-class _Plan:
+class _StudyPlan:
     data: dict
     base: Path
     design: object
@@ -152,7 +154,7 @@ class _Plan:
     h: float
 
 
-def _plan(source, sets, on: str, modes: Sequence[str], stop: float) -> _Plan:
+def _plan(source, sets, on: str, modes: Sequence[str], stop: float) -> _StudyPlan:
     """The loop's designs per mode (the loop without channels), its channel tables."""
     from delaycomp.studies.sweep_batch import lti_point
     from delaycomp.system import lti_designs
@@ -184,10 +186,10 @@ def _plan(source, sets, on: str, modes: Sequence[str], stop: float) -> _Plan:
     design = lti_designs(points)
     if design is None:
         raise ParameterError(f"{source.where}: its modes do not stack into one batch")
-    return _Plan(data, source.base, design, tables, true, first.timing.T / first.timing.N)
+    return _StudyPlan(data, source.base, design, tables, true, first.timing.T / first.timing.N)
 
 
-def _channels(plan: _Plan, on: str, jitter: float, loss: float, distribution: str):
+def _channels(plan: _StudyPlan, on: str, jitter: float, loss: float, distribution: str):
     """The two channels of one grid point (``None`` for a role without one)."""
     from delaycomp.system.loopfile import channel_of
 
@@ -307,7 +309,7 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
     return result
 
 
-def _run_chunk(batch, plan: _Plan, modes, mode_of, run_of, channels, seeds, stop: float):
+def _run_chunk(batch, plan: _StudyPlan, modes, mode_of, run_of, channels, seeds, stop: float):
     """One ``run_lti_channels`` call: the runs ``run_of`` in the modes ``mode_of`` (a
     chunk holds one or more modes; those that read stamps run in calls of their own)."""
     parts = []
@@ -377,9 +379,11 @@ def _cell(value) -> str:
 
 
 def plot_map(result: RobustnessMap, path: str | Path, title: str = "") -> None:
-    """Jitterbug-style heat maps over (jitter, loss): ``P(stable)`` (top row) and the
-    median cost (bottom row, a logarithmic scale; grey where the median run diverged),
-    one column per mode."""
+    """Jitterbug-style heat maps over (jitter, loss): ``P(stable)`` (top row, one scale
+    0 .. 1, each cell's value written on it for grids of at most ``ANNOTATE_MAX`` cells)
+    and the median cost (bottom row, a logarithmic scale of each mode's own, so that a
+    mode's trend shows however far the modes lie apart; grey where the median run
+    diverged), one column per mode."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -389,34 +393,38 @@ def plot_map(result: RobustnessMap, path: str | Path, title: str = "") -> None:
     from delaycomp.plotting import save
 
     modes = result.modes
-    fig, axs = plt.subplots(2, len(modes), figsize=(4.2 * len(modes) + 1.0, 7.0),
+    fig, axs = plt.subplots(2, len(modes), figsize=(4.6 * len(modes) + 0.6, 7.2),
                             squeeze=False, constrained_layout=True)
     x = np.asarray(result.jitter)
     y = np.asarray(result.loss)
-    costs = np.stack([result.array("cost_p50", m) for m in modes])
-    finite = costs[np.isfinite(costs) & (costs > 0)]
-    norm = LogNorm(float(finite.min()), float(max(finite.max(), finite.min() * 1.0001))) \
-        if finite.size else None
     cmap = plt.get_cmap("viridis").with_extremes(bad="0.75")
-    p_mesh = c_mesh = None
+    annotate = len(x) * len(y) <= ANNOTATE_MAX
+    p_mesh = None
     for i, mode in enumerate(modes):
         p = result.array("p_stable", mode)
         ax = axs[0][i]
         p_mesh = ax.pcolormesh(x, y, p.T, shading="nearest", vmin=0.0, vmax=1.0,
                                cmap="RdYlGn")
+        if annotate:
+            for a, xv in enumerate(x):
+                for b, yv in enumerate(y):
+                    ax.text(xv, yv, f"{p[a, b]:.2f}", ha="center", va="center", fontsize=7)
         ax.set_title(f"{mode}: P(stable)")
+        cost = result.array("cost_p50", mode)
+        ok = cost[np.isfinite(cost) & (cost > 0)]
+        norm = LogNorm(float(ok.min()), float(max(ok.max(), ok.min() * 1.0001))) \
+            if ok.size else None
         ax = axs[1][i]
-        c = np.ma.masked_invalid(np.where(np.isfinite(costs[i]), costs[i], np.nan))
-        c_mesh = ax.pcolormesh(x, y, c.T, shading="nearest", cmap=cmap, norm=norm)
+        c_mesh = ax.pcolormesh(x, y, np.ma.masked_invalid(
+            np.where(np.isfinite(cost) & (cost > 0), cost, np.nan)).T,
+            shading="nearest", cmap=cmap, norm=norm)
         ax.set_title(f"{mode}: median cost")
+        fig.colorbar(c_mesh, ax=ax, label="median of sum h(|x|^2 + |v|^2)")
         for ax in (axs[0][i], axs[1][i]):
             ax.set_xlabel(f"jitter [s] ({result.on}, {result.distribution})")
             ax.set_ylabel("loss rate")
     if p_mesh is not None:
-        fig.colorbar(p_mesh, ax=[a[-1] for a in axs[:1]], label="P(stable)")
-    if c_mesh is not None and norm is not None:
-        fig.colorbar(c_mesh, ax=[a[-1] for a in axs[1:]],
-                     label="median of sum h(|x|^2 + |v|^2)")
+        fig.colorbar(p_mesh, ax=list(axs[0]), label="P(stable)")
     fig.suptitle(title or f"robustness: {result.runs} runs per point")
     save(fig, path)
     plt.close(fig)
