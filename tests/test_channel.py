@@ -322,3 +322,10 @@ def test_the_line_refuses_a_period_off_the_grid_and_a_timeout_beyond_the_buffers
     with pytest.raises(ValueError, match=re.escape(
             "max_delay = 100000.0 is not allowed: must be at most 1000000 steps")):
         ChannelLine(Channel(max_delay=1e5), 1, H, [0.0])
+    # the bound named as what it is: delay + jitter of a uniform channel, a trace's largest
+    with pytest.raises(ValueError, match=re.escape(
+            "delay + jitter = 100000.5 is not allowed: must be at most 1000000 steps")):
+        ChannelLine(Channel(delay=0.5, distribution="uniform", jitter=1e5), 1, H, [0.0])
+    with pytest.raises(ValueError, match=re.escape(
+            "the trace's largest delay = 20000.0 is not allowed: must be at most 1000000")):
+        ChannelLine(Channel(distribution="trace", trace=(0.1, 2e4)), 1, H, [0.0])

@@ -171,6 +171,9 @@ def test_the_state_restores_the_run(fmus):
     ({"seed": -4}, "seed = -4 is not allowed: must be an integer in 0 .. 2147483647"),
     ({"period": 0.015}, "period = 0.015 is not allowed: must be a multiple of the "
                         "communication step 0.01"),
+    ({"distribution": "uniform", "delay": 0.5, "jitter": 1e5},
+     "delay + jitter = 100000.5 is not allowed: must be at most 1000000 steps of the "
+     "communication step 0.01 (it needs 1e+07)"),
     ({"distribution": "pareto"}, "distribution = 'pareto' is not allowed: must be one of"),
 ])
 def test_a_bad_parameter_is_refused_naming_it(fmus, params, message):

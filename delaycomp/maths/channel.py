@@ -203,6 +203,17 @@ class Channel:
             return max(finite) if finite else self.delay
         return self.delay  # constant, or no jitter
 
+    def bound_name(self) -> str:
+        """What ``bound`` is, in a message: ``max_delay``, ``delay + jitter`` (uniform),
+        ``the trace's largest delay`` or ``delay``."""
+        if self.max_delay is not None:
+            return "max_delay"
+        if self.distribution == "uniform" and self.jitter > 0:
+            return "delay + jitter"
+        if self.distribution == "trace":
+            return "the trace's largest delay"
+        return "delay"
+
     def key(self) -> int:
         """The key of the seed's draws."""
         return stream_key(self.seed)
@@ -274,8 +285,8 @@ class ChannelLine:
         self.P = max(1, grid.steps_of(channel.period, h, "period",
                                       f"the communication step {h!r}"))
         bound = channel.bound()
-        grid.check_steps("max_delay" if channel.max_delay is not None else "delay", bound,
-                         bound / h, f"steps of the communication step {h!r}")
+        grid.check_steps(channel.bound_name(), bound, bound / h,
+                         f"steps of the communication step {h!r}")
         self.Q = grid.steps_up(bound, h)
         self.key = channel.key()
         self.offset = channel.offset()

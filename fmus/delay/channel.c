@@ -291,6 +291,14 @@ static int parameters_ok(Instance *c) {
     return 0;
 }
 
+/* What the bound is, in a message (Channel.bound_name). */
+static const char *bound_name(const Chan *ch) {
+    if (ch->max_delay != 0) return "max_delay";
+    if (ch->dist == DIST_UNIFORM && ch->jitter > 0) return "delay + jitter";
+    if (ch->dist == DIST_TRACE) return "the trace's largest delay";
+    return "delay";
+}
+
 /* ChannelLine's grid of step h: the packet period P and the timeout Q in steps (out[0],
  * out[1]); -1 with the refusal logged. */
 static int line_sizes(Instance *c, const Chan *ch, double h, long *out) {
@@ -310,7 +318,7 @@ static int line_sizes(Instance *c, const Chan *ch, double h, long *out) {
     double bound = bound_of(c, ch), steps = bound / h;
     if (!(steps <= MAX_STEPS)) {
         log_error(c, "%s = %s is not allowed: must be at most %.0f steps of the communication "
-                  "step %s (it needs %.6g)", ch->max_delay != 0 ? "max_delay" : "delay",
+                  "step %s (it needs %.6g)", bound_name(ch),
                   num(bound).s, MAX_STEPS, num(h).s, steps);
         return -1;
     }
