@@ -45,25 +45,28 @@ DBL_NET = {"meas_delay": {"distribution": "gamma", "jitter": 0.1, "shape": 2.0,
                            "policy": "playout"}}
 
 
-def _ex36(**over) -> dict:
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
+
+def _ex36(**over) -> dict:
     data = tomllib.loads(Path(loop_file("example-3.6")).read_text())
     data.update(over)
     return data
 
 
 def _compare(data: dict, tables: dict, seeds: list[tuple[int, int]], stop: float,
-             modes=("compensated", "uncompensated"), rel: float = 0.0):
+             modes=("compensated", "uncompensated"), rel: float = 0.0, stamps: bool = False):
     base = Path.cwd()
     worst = 0.0
     for mode in modes:
         d = copy.deepcopy(data)
         d["controller"] = {**d["controller"], "mode": mode}
         plain = build(d, base, name="p")
+        if stamps:
+            d["controller"]["stamps"] = True
         design = lti_designs([lti_point(plain)] * len(seeds))
         loop_r = plain.lti.r_true if plain.lti.r_true is not None else plain.lti.r
         loop_t = plain.lti.tau_true if plain.lti.tau_true is not None else plain.lti.tau
@@ -71,7 +74,8 @@ def _compare(data: dict, tables: dict, seeds: list[tuple[int, int]], stop: float
         inp = channel_of(tables["input_delay"], "input_delay", base, loop_t)
         res = batch.run_lti_channels(design, stop, meas=meas, inp=inp,
                                      meas_seeds=[a for a, _ in seeds],
-                                     input_seeds=[b for _, b in seeds], record=True)
+                                     input_seeds=[b for _, b in seeds], record=True,
+                                     stamps=stamps)
         n = design.A.shape[1]
         for p, (sm, si) in enumerate(seeds):
             t = copy.deepcopy(tables)
@@ -96,6 +100,61 @@ def test_example_3_6_with_jitter_and_loss_is_the_per_point_run_bit_for_bit():
 
 def test_the_double_integrator_through_two_channels_is_the_per_point_run():
     _compare(DBL, DBL_NET, [(3, 4), (11, 5)], 6.0, rel=REL)
+
+
+def test_time_stamps_are_the_per_point_stamped_controller():
+    """``stamps=True`` against the loop with ``[controller] stamps = true``: the same
+    pieces and decisions, but the batch's flows are those of ``k h`` where the controller
+    takes the exponential of a difference of times (``t_{j+1} + tau - s``, a few ulps off
+    ``k h``): a relative change of ~1e-16 in each flow, carried through a stable loop over
+    at most a few hundred pieces, so ``REL`` (1e-12) bounds it with room (~1e-14 measured);
+    one sample used or not wrongly would change the state by ~1e-3. Uncompensated, the
+    controller is ``K y`` as without stamps: bit for bit."""
+    _compare(_ex36(), EX36, [(0, 100), (1, 101), (7, 3)], 20.0, modes=("compensated",),
+             rel=REL, stamps=True)
+    _compare(_ex36(), EX36, [(0, 100)], 20.0, modes=("uncompensated",), stamps=True)
+    _compare(DBL, DBL_NET, [(3, 4), (11, 5)], 6.0, modes=("compensated",), rel=REL,
+             stamps=True)
+
+
+def test_time_stamps_in_the_batch_are_exact_for_every_seed():
+    """The property of ``tests/test_loop_stamps.py`` over many seeds at once: the README's
+    loop (n = 3, m = 2) with uniform jitter 2 T and 30 % loss on the measurement and a
+    play-out buffer on the commands; with stamps the plant at ``t_i + tau`` follows the
+    delay-free sampled loop ``x_{i+1} = (e^{AT} + G(T) K) x_i`` (scipy alone here) to
+    round-off (1e-12 of the state's size, the per-point test's bound), without them not."""
+    from scipy.linalg import expm
+
+    base = Path(__file__).resolve().parents[1] / "docs" / "examples"
+    MYLOOP = tomllib.loads((base / "myloop.toml").read_text("utf-8"))
+    NETWORK = {"meas_delay": {"distribution": "uniform", "jitter": 0.4,
+                              "loss_model": "bernoulli", "loss": 0.3},
+               "input_delay": {"distribution": "uniform", "delay": 0.2, "jitter": 0.2,
+                               "policy": "playout"}}
+    loop = build(copy.deepcopy(MYLOOP), base, name="myloop")
+    seeds = list(range(40))
+    design = lti_designs([lti_point(loop)] * len(seeds))
+    meas = channel_of(NETWORK["meas_delay"], "meas_delay", base, loop.lti.r)
+    inp = channel_of(NETWORK["input_delay"], "input_delay", base, loop.lti.tau)
+    A, B = np.array(MYLOOP["plant"]["A"], float), np.array(MYLOOP["plant"]["B"], float)
+    K = np.array(MYLOOP["controller"]["K"], float)
+    T, tau, N = MYLOOP["T"], MYLOOP["tau"], MYLOOP["N"]
+    n, m = B.shape
+    F = expm(np.block([[A, B], [np.zeros((m, n + m))]]) * T)
+    M = F[:n, :n] + F[:n, n:] @ K
+    stop = float(MYLOOP["stop_time"])
+    worst = {}
+    for stamps in (True, False):
+        res = batch.run_lti_channels(design, stop, meas=meas, inp=inp, meas_seeds=seeds,
+                                     input_seeds=[s + 1000 for s in seeds], record=True,
+                                     stamps=stamps)
+        assert res.states is not None
+        x = res.states
+        at = np.arange(round(tau / T) * N, x.shape[1], N)
+        step = np.abs(x[:, at[1:]] - np.einsum("ab,pkb->pka", M, x[:, at[:-1]])).max(axis=(1, 2))
+        worst[stamps] = step / np.abs(x).max(axis=(1, 2))
+    assert worst[True].max() <= 1e-12, worst[True].max()
+    assert worst[False].min() >= 1e-3, worst[False].min()
 
 
 def test_the_channels_act_and_the_seeds_fix_them():
@@ -129,3 +188,8 @@ def test_refusals_are_one_line():
         batch.run_lti_channels(design, 5.0, meas=Channel(distribution="uniform", jitter=-1))
     with pytest.raises(batch.BatchError, match="meas_seeds"):
         batch.run_lti_channels(design, 5.0, meas=Channel(), meas_seeds=[-1])
+    with pytest.raises(batch.BatchError, match="age_max is not allowed without stamps"):
+        batch.run_lti_channels(design, 5.0, age_max=1.0)
+    with pytest.raises(batch.BatchError, match=r"age_max = -1.0 is not allowed: must be a "
+                                               r"finite number >= 0"):
+        batch.run_lti_channels(design, 5.0, stamps=True, age_max=-1.0)

@@ -1219,7 +1219,8 @@ def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
 
 
 def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
-                     meas_seeds=None, input_seeds=None, record: bool = False) -> BatchResult:
+                     meas_seeds=None, input_seeds=None, record: bool = False,
+                     stamps: bool = False, age_max=None) -> BatchResult:
     """Advance the ``P`` LTI loops of ``design`` to ``stop`` with a network channel
     (``delaycomp.maths.channel.Channel``) in the place of the measurement delay (``meas``)
     and/or the input delay (``inp``), each point with its own seed: the loop of
@@ -1234,6 +1235,17 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
     it is delivered (``Q = steps_up(bound, h)``), so a ring of ``Q + 1`` past states and a
     latch per point hold what is needed. The arithmetic is ``run_lti``'s, in its order.
 
+    With ``stamps=True`` the controller is the time-stamp controller
+    (``delaycomp.maths.stamped.StampedController``, a loop file's ``[controller] stamps =
+    true``) vectorized over the points: at ``t_i`` each point's estimate of ``x(t_i)`` is
+    its sample carried from its stamp (the send tick of the packet shown; the history
+    ``x0`` is the state at ``t0``) when the sample is newer than the last one used and at
+    most ``age_max`` old, else its last estimate carried over ``T``; the output is ``K``
+    times the estimate carried over the controller's ``tau`` (``compensated``) or ``K y``.
+    The pieces of the plant's input are multiples of ``h`` long (the stamps, ``t_i`` and
+    ``tau`` lie on the base grid), so their exact flows are computed once, for ``k h``,
+    ``k = 0 .. N``, per distinct ``(A, B)``: no matrix exponential per run.
+
     Parameters
     ----------
     design : delaycomp.system.LtiBatch
@@ -1247,6 +1259,12 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
         One seed per point (default ``0 .. P - 1``).
     record : bool
         Keep every tick's state and controller output.
+    stamps : bool
+        The time-stamp controller in the place of the paper's.
+    age_max : float or array_like, optional
+        With ``stamps``: the oldest sample used [s] (per point or one for all); default
+        the measurement channel's largest delay (``Channel.bound``, else ``r_true``) plus
+        ``T``, as in loop files.
 
     Returns
     -------
@@ -1288,7 +1306,22 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
 
     Sm, Qm = route(meas, meas_seeds, plan.Dr, "meas_seeds")
     Si, Qi = route(inp, input_seeds, plan.Dt, "input_seeds")
-    run = _ChannelStepper(plan, design, Sm, Qm, Si, Qi, record)
+    stamped = None
+    if stamps:
+        delay = (np.full(P, float(meas.delay)) if meas is not None
+                 else np.asarray(design.r_true, dtype=float))
+        bound = (np.full(P, float(meas.bound())) if meas is not None else delay)
+        if age_max is None:
+            ages = bound + design.T
+        else:
+            ages = np.broadcast_to(np.asarray(age_max, dtype=float), (P,)).copy()
+            if not np.all(np.isfinite(ages) & (ages >= 0)):
+                raise BatchError(f"age_max = {age_max!r} is not allowed: must be a finite "
+                                 "number >= 0 [s] (or one per point)")
+        stamped = _Stamped(plan, design, _ticks("tau", design.tau, plan.h), ages, delay)
+    elif age_max is not None:
+        raise BatchError("age_max is not allowed without stamps = True")
+    run = _ChannelStepper(plan, design, Sm, Qm, Si, Qi, record, stamped)
     acc = _BlockMetrics(get_backend("numpy"), P, N, plan.stop_k, int((plan.stop_k // N).max()))
     with np.errstate(all="ignore"):
         for i in range(kmax // N + 1):
@@ -1316,14 +1349,17 @@ class _ChannelStepper:
     of the last ``Qm + 1`` states and a latch of the measurement, a ring of controller
     outputs (one per period) and a latch of the plant's input."""
 
-    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Qm: int, Si, Qi: int, record: bool):
+    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Qm: int, Si, Qi: int, record: bool,
+                 stamped: _Stamped | None = None):
         P, n, m = d.B.shape
         N = plan.N
         self.plan, self.N, self.n, self.m, self.P = plan, N, n, m, P
         self.Sm, self.Si = Sm, Si
         self.Rx = Qm + 1
         self.Lmax = plan.QB.shape[0]
-        self.Ru = self.Lmax + Qi // N + 3
+        self.Ru = max(self.Lmax, 0 if stamped is None else stamped.back) + Qi // N + 3
+        self.stamped = stamped
+        self.comp = np.asarray(d.mode == "compensated")
 
         def col(a):
             return np.ascontiguousarray(a)
@@ -1357,11 +1393,15 @@ class _ChannelStepper:
         output is not finite from a finite measurement."""
         self._latch_meas(i * self.N)
         y, n, U = self.y, self.n, self.U
-        phi = [_dot(self.E[a], y) for a in range(n)]
-        for q in range(self.Lmax):
-            past = U[(i - q - 1) % self.Ru] if i - q - 1 >= 0 else self.u0
-            for a in range(n):
-                phi[a] = phi[a] + _dot(self.QB[q][a], past)
+        if self.stamped is not None:
+            xhat = self.stamped.predict(i, y, self.Sm[i * self.N], U, self.Ru)
+            phi = list(np.where(self.comp, xhat, y))
+        else:
+            phi = [_dot(self.E[a], y) for a in range(n)]
+            for q in range(self.Lmax):
+                past = U[(i - q - 1) % self.Ru] if i - q - 1 >= 0 else self.u0
+                for a in range(n):
+                    phi[a] = phi[a] + _dot(self.QB[q][a], past)
         self.held = np.stack([_dot(self.K[c], phi) for c in range(self.m)])
         self.U[i % self.Ru] = self.held
         return ~np.all(np.isfinite(self.held), axis=0) & np.all(np.isfinite(y), axis=0)
@@ -1399,3 +1439,90 @@ class _ChannelStepper:
             sq = sq + self.v[c] * self.v[c]
         self.cost = self.cost + self.h * sq
         self.x = np.stack([_dot(self.Ad[a], x) + self.bv[a] for a in range(self.n)])
+
+
+class _Stamped:
+    """The time-stamp controller's estimate and prediction for every point at once
+    (``delaycomp.maths.stamped.StampedController``'s maths, in ticks): the plant's input
+    is ``u_j`` over ticks ``[j N + Dtau, (j + 1) N + Dtau)`` (``u0`` for ``j < 0``), each
+    piece of it ``L`` ticks long carried by the exact flow ``(F[L], G[L])`` of its point's
+    ``(A, B)``, the flows of ``L = 0 .. N`` computed once. The decisions (a new sample,
+    too old) compare the same doubles as the controller: the channel's stamps ``s h``
+    (before any packet ``min(k h - delay, 0)``), ``t_i = i T`` and ``age_max + 1e-9 T``."""
+
+    def __init__(self, plan: _LtiPlan, d: LtiBatch, Dtau: np.ndarray, age_max: np.ndarray,
+                 delay: np.ndarray):
+        from delaycomp.maths.lti import flow
+        from delaycomp.maths.stamped import _SNAP
+
+        P, n, m = d.B.shape
+        N, h = plan.N, float(plan.h[0])
+        self.N, self.n, self.m, self.h, self.T = N, n, m, h, float(plan.T[0])
+        first, self.inv = _unique_rows(d.A, d.B)
+        flows = [[flow(d.A[p], d.B[p], k * h) for k in range(N + 1)] for p in first]
+        self.F = np.array([[f[0] for f in row] for row in flows])  # (U, N + 1, n, n)
+        self.G = np.array([[f[1] for f in row] for row in flows])  # (U, N + 1, n, m)
+        self.Dtau = Dtau.astype(np.int64)
+        self.limit = age_max + _SNAP * self.T
+        self.delay = delay
+        self.u0 = np.ascontiguousarray(d.u0.T)  # (m, P)
+        #: the periods of outputs the carries reach back (the ring's length needed)
+        self.back = int(np.max(np.floor(age_max / h).astype(np.int64) + Dtau)) // N + 3
+        self.z: np.ndarray | None = None  # the estimates of x(t_{i-1}), (n, P)
+        self.last = np.full(P, -np.inf)  # the stamp of the newest sample used
+
+    def carry(self, x: np.ndarray, idx: np.ndarray, a: np.ndarray, b: np.ndarray,
+              U: np.ndarray, Ru: int) -> np.ndarray:
+        """The states ``x`` (``(n, len(idx))``) of the points ``idx`` carried from tick
+        ``a`` to tick ``b`` (per point, ``a <= b``), piece by piece."""
+        x, a = x.copy(), a.copy()
+        N, n, m = self.N, self.n, self.m
+        Dtau = self.Dtau[idx]
+        while True:
+            on = np.flatnonzero(a < b)
+            if not on.size:
+                return x
+            p, aa = idx[on], a[on]
+            j = (aa - Dtau[on]) // N  # the output the plant receives just after aa
+            end = np.minimum((j + 1) * N + Dtau[on], b[on])
+            L = end - aa
+            F, G = self.F[self.inv[p], L], self.G[self.inv[p], L]
+            u = np.where(j >= 0, U[j % Ru, :, p].T, self.u0[:, p])
+            xo = x[:, on]
+            for r in range(n):
+                acc = F[:, r, 0] * xo[0]
+                for c in range(1, n):
+                    acc = acc + F[:, r, c] * xo[c]
+                g = G[:, r, 0] * u[0]
+                for c in range(1, m):
+                    g = g + G[:, r, c] * u[c]
+                x[r, on] = acc + g
+            a[on] = end
+
+    def predict(self, i: int, y: np.ndarray, sent: np.ndarray, U: np.ndarray,
+                Ru: int) -> np.ndarray:
+        """``x_hat`` of every point at ``t_i`` from the samples ``y`` (``(n, P)``) sent at
+        ticks ``sent`` (``-1``: the history); stores the estimates of ``x(t_i)``."""
+        N, P = self.N, y.shape[1]
+        k = i * N
+        t = 0.0 + i * self.T
+        stamp = np.where(sent >= 0, 0.0 + sent * self.h,
+                         np.minimum((0.0 + k * self.h) - self.delay, 0.0))
+        if self.z is None:  # the first instant always uses its sample
+            new = np.ones(P, dtype=bool)
+        else:
+            new = (stamp > self.last) & (t - np.maximum(stamp, 0.0) <= self.limit)
+        self.last = np.where(new, np.maximum(stamp, self.last), self.last)
+        z = np.empty_like(y)
+        fresh = np.flatnonzero(new)
+        if fresh.size:
+            z[:, fresh] = self.carry(y[:, fresh], fresh, np.maximum(sent[fresh], 0),
+                                     np.full(fresh.size, k), U, Ru)
+        old = np.flatnonzero(~new)
+        if old.size:
+            assert self.z is not None
+            z[:, old] = self.carry(self.z[:, old], old, np.full(old.size, k - N),
+                                   np.full(old.size, k), U, Ru)
+        self.z = z
+        every = np.arange(P)
+        return self.carry(z, every, np.full(P, k), k + self.Dtau, U, Ru)
