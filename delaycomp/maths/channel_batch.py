@@ -56,10 +56,20 @@ def _libm(fn: Callable[[float], float], a: np.ndarray) -> np.ndarray:
 
 def mix(z) -> np.ndarray:
     """SplitMix64's finalizer of each element (``delaycomp.maths.channel.mix``)."""
-    z = np.asarray(z, dtype=np.uint64)
-    z = (z ^ (z >> _U(30))) * _C1
-    z = (z ^ (z >> _U(27))) * _C2
-    return z ^ (z >> _U(31))
+    z = np.array(z, dtype=np.uint64)  # a copy: the steps below work in place
+    return _mix_inplace(z)
+
+
+def _mix_inplace(z: np.ndarray) -> np.ndarray:
+    """``mix`` of the ``uint64`` array ``z``, in its own memory (no temporaries but one)."""
+    t = np.empty_like(z)
+    for shift, mult in ((30, _C1), (27, _C2)):
+        np.right_shift(z, _U(shift), out=t)
+        np.bitwise_xor(z, t, out=z)
+        np.multiply(z, mult, out=z)
+    np.right_shift(z, _U(31), out=t)
+    np.bitwise_xor(z, t, out=z)
+    return z
 
 
 def stream_keys(seeds) -> np.ndarray:
@@ -70,20 +80,41 @@ def stream_keys(seeds) -> np.ndarray:
     return mix(seeds.astype(np.uint64) ^ _U(_KEY))
 
 
+def _mantissas(keys, counters) -> np.ndarray:
+    """The top 53 bits of draw ``counter`` of each key, as ``uint64`` (the draw is this
+    times 2^-53, exact)."""
+    k = np.asarray(keys, dtype=np.uint64)
+    c = np.asarray(counters, dtype=np.uint64)
+    z = np.multiply(c, _U(_GOLDEN))
+    z = np.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
+    _mix_inplace(z)
+    return np.right_shift(z, _U(11), out=z)
+
+
 def draws(keys, counters) -> np.ndarray:
     """Draw ``counter`` of each key (``draw``): doubles in ``[0, 1)``; ``keys`` and
     ``counters`` broadcast."""
-    k = np.asarray(keys, dtype=np.uint64)
-    c = np.asarray(counters, dtype=np.uint64)
-    return (mix(k + c * _U(_GOLDEN)) >> _U(11)).astype(np.float64) * 2.0 ** -53
+    out = _mantissas(keys, counters).astype(np.float64)
+    return np.multiply(out, 2.0 ** -53, out=out)
+
+
+def _packet_counters(j, i) -> np.ndarray:
+    j = np.asarray(j, dtype=np.uint64)
+    i = np.asarray(i, dtype=np.uint64)
+    return (j << _U(32)) + i + _U(1)
 
 
 def packet_draws(keys, j, i) -> np.ndarray:
     """The ``i``-th draw of packet ``j`` (``packet_draw``); ``keys``, ``j`` and ``i``
     broadcast (``j < 2^32``)."""
-    j = np.asarray(j, dtype=np.uint64)
-    i = np.asarray(i, dtype=np.uint64)
-    return draws(keys, (j << _U(32)) + i + _U(1))
+    return draws(keys, _packet_counters(j, i))
+
+
+def _below(keys, j, i, p: float) -> np.ndarray:
+    """``packet_draws(keys, j, i) < p`` in integers: the draw is ``m 2^-53`` (``m <
+    2^53``), and ``m 2^-53 < p`` exactly when ``m < ceil(p 2^53)`` (``p 2^53`` is exact,
+    a power of two's scaling of ``p`` in ``[0, 1]``)."""
+    return _mantissas(keys, _packet_counters(j, i)) < _U(math.ceil(p * 2.0 ** 53))
 
 
 def gamma_draws(keys, j, shape: float) -> np.ndarray:
@@ -161,9 +192,9 @@ def losses(channel: Channel, keys, packets: int) -> np.ndarray:
     j = np.arange(packets, dtype=np.uint64)[:, None]
     if channel.loss_model == "none":
         return np.zeros((packets, keys.size), dtype=bool)
-    u_loss = packet_draws(keys[None, :], j, DRAW_LOSS)
     if channel.loss_model == "bernoulli":
-        return u_loss < channel.loss
+        return _below(keys[None, :], j, DRAW_LOSS, channel.loss)
+    u_loss = packet_draws(keys[None, :], j, DRAW_LOSS)
     u_state = packet_draws(keys[None, :], j, DRAW_STATE)
     lost = np.empty((packets, keys.size), dtype=bool)
     bad = np.zeros(keys.size, dtype=bool)
@@ -174,11 +205,22 @@ def losses(channel: Channel, keys, packets: int) -> np.ndarray:
 
 
 def steps_up(values: np.ndarray, step: float) -> np.ndarray:
-    """``delaycomp.maths.grid.steps_up`` elementwise (finite ``values >= 0``)."""
-    ratio = np.asarray(values, dtype=float) / step
-    k = np.rint(ratio)
-    near = np.abs(ratio - k) <= grid.GRID_RTOL * np.maximum(1.0, np.abs(ratio))
-    return np.where(near, k, np.ceil(ratio)).astype(np.int64)
+    """``delaycomp.maths.grid.steps_up`` elementwise (finite ``values >= 0``).
+
+    ``grid.steps_up`` takes the nearest integer ``k`` of ``r = value / step`` where ``|r -
+    k| <= GRID_RTOL max(1, |r|)``, else ``ceil(r)``: for ``r >= 0`` that is ``floor(r)``
+    where ``r - floor(r)`` (exact) is within the tolerance, else ``ceil(r)`` (the nearest
+    integer above, within the tolerance, is ``ceil(r)`` anyway): three passes.
+    """
+    ratio = np.divide(np.asarray(values, dtype=float), step)
+    f = np.floor(ratio)
+    frac = np.subtract(ratio, f, out=ratio)
+    tol = np.maximum(f + frac, 1.0)  # |r| >= 0 here
+    np.multiply(tol, grid.GRID_RTOL, out=tol)
+    up = frac > tol
+    out = f.astype(np.int64)
+    out += up
+    return out
 
 
 def timeout_steps(channel: Channel, h: float) -> int:
@@ -204,12 +246,22 @@ def fates(channel: Channel, seeds, h: float, packets: int) -> tuple[np.ndarray, 
     j = np.arange(packets, dtype=np.int64)[:, None]
     lost = losses(channel, keys, packets)
     d = delays(channel, keys[None, :], j, offsets(channel, keys)[None, :])
-    with np.errstate(invalid="ignore"):
-        late = ~(d / h <= Q + 1)  # NaN (lost in the trace), or surely late
-    lost = lost | late
-    q = steps_up(np.where(lost, 0.0, d), h)
-    lost = lost | (q > Q)
-    return lost, np.where(lost, Q, q)
+    if channel.distribution == "uniform" or (channel.distribution != "trace"
+                                             and (channel.jitter == 0
+                                                  or channel.distribution == "constant")):
+        # d <= bound in doubles (delay + jitter u rounds below delay + jitter, u < 1), so
+        # q <= Q: no packet is late (the general test below finds none)
+        if d.shape != lost.shape:
+            d = np.broadcast_to(d, lost.shape)
+        q = steps_up(d, h)
+    else:
+        with np.errstate(invalid="ignore"):
+            late = ~(d / h <= Q + 1)  # NaN (lost in the trace), or surely late
+        lost = lost | late
+        q = steps_up(np.where(lost, 0.0, d), h)
+        lost = lost | (q > Q)
+    q[lost] = Q
+    return lost, q
 
 
 def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
@@ -227,20 +279,39 @@ def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
     J = (steps - 1) // P + 1 if steps > 0 else 0
     lost, q = fates(channel, seeds, h, J)
     R = lost.shape[1]
-    sent = np.arange(J, dtype=np.int64)[:, None] * P
-    ready = sent + q
     if channel.policy == "playout":  # the play-out buffer: every packet at s_j + Q
-        ready = sent + np.full_like(q, timeout_steps(channel, h))
-    if channel.policy != "drop_stale":  # in order (play-out: the order sent)
-        ready = np.maximum.accumulate(ready, axis=0)  # D_j = max(ready_j, D_{j-1})
-    best = np.full((steps, R), -1, dtype=np.int64)
-    runs = np.arange(R)
-    for j in range(J):  # the packets in the order sent: a later one is newer
-        at = ready[j]
-        ok = ~lost[j] & (at < steps)
-        best[at[ok], runs[ok]] = j
-    best = np.maximum.accumulate(best, axis=0)
-    return np.where(best >= 0, best * P, -1)
+        q = np.full_like(q, timeout_steps(channel, h))
+    ready = np.arange(J, dtype=np.int64)[:, None] * P + q
+    runs = np.arange(R, dtype=np.int64)
+    if channel.policy == "drop_stale":
+        # the packet shown at k is the newest j with a_j <= k (not lost): with m_j the
+        # smallest arrival of packets j.. (a suffix minimum), the j with m_j <= k are
+        # 0 .. that packet, so it is their count - 1
+        ready[lost] = steps
+        m = np.minimum.accumulate(ready[::-1], axis=0)[::-1]
+        best = _counts_below(m, steps, runs) - 1
+        return best if P == 1 else np.where(best >= 0, best * P, -1)
+    # in order (play-out: the order sent): D_j = max(ready_j, D_{j-1}) is nondecreasing,
+    # so the packets passed by k are 0 .. c_k - 1 and the one shown is the newest of
+    # them not lost
+    np.maximum.accumulate(ready, axis=0, out=ready)
+    c = _counts_below(ready, steps, runs)
+    newest = np.where(lost, -1, np.arange(J, dtype=np.int64)[:, None])
+    np.maximum.accumulate(newest, axis=0, out=newest)
+    best = np.take_along_axis(newest, np.maximum(c - 1, 0), axis=0)
+    best[c == 0] = -1
+    return best if P == 1 else np.where(best >= 0, best * P, -1)
+
+
+def _counts_below(m: np.ndarray, steps: int, runs: np.ndarray) -> np.ndarray:
+    """``c[k, r] = #{j : m[j, r] <= k}`` for ``k = 0 .. steps - 1`` (``m >= 0``; values
+    from ``steps`` on count nowhere): a histogram per run (one ``bincount``) summed up."""
+    R = m.shape[1]
+    flat = np.minimum(m, steps)
+    flat *= R
+    flat += runs
+    c = np.bincount(flat.ravel(), minlength=(steps + 1) * R)[:steps * R].reshape(steps, R)
+    return np.cumsum(c, axis=0)
 
 
 def stamps(channel: Channel, sent: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:

@@ -232,7 +232,12 @@ def _merge(parts: list[tuple[np.ndarray, BatchResult]], P: int) -> BatchResult:
             assert res.states is not None and res.inputs is not None
             states[idx, :res.states.shape[1]] = res.states
             inputs[idx, :res.inputs.shape[1]] = res.inputs
-    return BatchResult(**out, message=message, states=states, inputs=inputs)
+    cost = None
+    if first.cost is not None:
+        cost = np.empty(P)
+        for idx, res in parts:
+            cost[idx] = res.cost
+    return BatchResult(**out, message=message, states=states, inputs=inputs, cost=cost)
 
 
 # -- grid arithmetic --------------------------------------------------------------------
@@ -1211,6 +1216,12 @@ def _np_put(a, index, value):
 
 # -- LTI loops through network channels (issue 29, item 4) -------------------------------
 
+#: ``run_lti_channels``' default chunk: points advanced together (measured in
+#: ``bench/channels.py``: a few thousand keep a tick's rows and the channel's arrays of a
+#: chunk in cache while the per-tick overhead of numpy's calls stays small)
+CHANNEL_CHUNK = 4096
+
+
 def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
     """The send step a constant delay of ``D`` ticks (per point) shows at each step: ``k -
     D``, ``-1`` before ``D`` (``DelayLine``)."""
@@ -1220,7 +1231,8 @@ def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
 
 def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
                      meas_seeds=None, input_seeds=None, record: bool = False,
-                     stamps: bool = False, age_max=None) -> BatchResult:
+                     stamps: bool = False, age_max=None, chunk: int | None = None
+                     ) -> BatchResult:
     """Advance the ``P`` LTI loops of ``design`` to ``stop`` with a network channel
     (``delaycomp.maths.channel.Channel``) in the place of the measurement delay (``meas``)
     and/or the input delay (``inp``), each point with its own seed: the loop of
@@ -1265,6 +1277,10 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
         With ``stamps``: the oldest sample used [s] (per point or one for all); default
         the measurement channel's largest delay (``Channel.bound``, else ``r_true``) plus
         ``T``, as in loop files.
+    chunk : int, optional
+        Points advanced together (default ``CHANNEL_CHUNK``): the batch runs chunk by
+        chunk, so its per-tick arrays stay in the processor's cache; the results do not
+        depend on it.
 
     Returns
     -------
@@ -1273,7 +1289,7 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
         before ``stop`` (``v`` the plant's input), the rectangle rule of
         ``int_0^stop x'x + v'v dt`` (``inf`` where the run failed).
     """
-    from delaycomp.maths.channel_batch import shown, timeout_steps
+    from delaycomp.maths.channel_batch import period_steps, timeout_steps
 
     bad = [md for md in set(design.mode.tolist()) if md not in MODES]
     if bad:
@@ -1285,9 +1301,8 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
         raise BatchError("T and N are not allowed to differ between the points of a batch "
                          "with a channel: must be the same at every point")
     N = int(design.N[0])
-    plan = _lti_plan(design, N, float(stop))
+    plan = _lti_plan(design, N, float(stop))  # the checks, on every point
     h = float(plan.h[0])
-    kmax = int(plan.stop_k.max())
 
     def seeds_of(given, name):
         s = np.arange(P) if given is None else np.broadcast_to(np.asarray(given), (P,))
@@ -1295,32 +1310,74 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
             raise BatchError(f"{name} are not allowed: must be integers in 0 .. {2**31 - 1}")
         return s
 
-    def route(channel, seeds, D, name):
+    def checked(channel, name):
         if channel is None:
-            return _constant_shown(D, kmax + 1), int(D.max())
+            return None
         try:
-            return (shown(channel, seeds_of(seeds, name), h, kmax + 1),
-                    timeout_steps(channel, h))
+            channel.check()
+            timeout_steps(channel, h)
+            period_steps(channel, h)
         except ValueError as exc:
             raise BatchError(f"{name.split('_')[0]} channel: {exc}") from None
+        return seeds_of(meas_seeds if name == "meas_seeds" else input_seeds, name)
 
-    Sm, Qm = route(meas, meas_seeds, plan.Dr, "meas_seeds")
-    Si, Qi = route(inp, input_seeds, plan.Dt, "input_seeds")
-    stamped = None
+    seeds_m, seeds_i = checked(meas, "meas_seeds"), checked(inp, "input_seeds")
+    ages = None
     if stamps:
-        delay = (np.full(P, float(meas.delay)) if meas is not None
-                 else np.asarray(design.r_true, dtype=float))
-        bound = (np.full(P, float(meas.bound())) if meas is not None else delay)
         if age_max is None:
+            bound = (np.full(P, float(meas.bound())) if meas is not None
+                     else np.asarray(design.r_true, dtype=float))
             ages = bound + design.T
         else:
             ages = np.broadcast_to(np.asarray(age_max, dtype=float), (P,)).copy()
             if not np.all(np.isfinite(ages) & (ages >= 0)):
                 raise BatchError(f"age_max = {age_max!r} is not allowed: must be a finite "
                                  "number >= 0 [s] (or one per point)")
-        stamped = _Stamped(plan, design, _ticks("tau", design.tau, plan.h), ages, delay)
     elif age_max is not None:
         raise BatchError("age_max is not allowed without stamps = True")
+    if chunk is None:
+        chunk = CHANNEL_CHUNK
+    elif isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise BatchError(f"chunk = {chunk!r} is not allowed: must be an integer >= 1")
+    flows: dict = {}
+    parts = []
+    for c0 in range(0, P, chunk):
+        idx = np.arange(c0, min(P, c0 + chunk))
+        whole = idx.size == P
+        sub = design if whole else take(design, idx)
+        part = _channel_chunk(sub, float(stop), meas, inp,
+                              None if seeds_m is None else seeds_m[idx],
+                              None if seeds_i is None else seeds_i[idx], record,
+                              None if ages is None else ages[idx], flows,
+                              plan if whole else None)
+        parts.append((idx, part))
+    return _merge(parts, P)
+
+
+def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
+                   record: bool, ages, flows: dict, plan: _LtiPlan | None) -> BatchResult:
+    """``run_lti_channels`` of the (checked) points of one chunk."""
+    from delaycomp.maths.channel_batch import shown, timeout_steps
+
+    P, N = len(design), int(design.N[0])
+    if plan is None:
+        plan = _lti_plan(design, N, stop)
+    h = float(plan.h[0])
+    kmax = int(plan.stop_k.max())
+
+    def route(channel, seeds, D):
+        if channel is None:
+            return _constant_shown(D, kmax + 1), int(D.max())
+        return shown(channel, seeds, h, kmax + 1), timeout_steps(channel, h)
+
+    Sm, Qm = route(meas, seeds_m, plan.Dr)
+    Si, Qi = route(inp, seeds_i, plan.Dt)
+    stamped = None
+    if ages is not None:
+        delay = (np.full(P, float(meas.delay)) if meas is not None
+                 else np.asarray(design.r_true, dtype=float))
+        stamped = _Stamped(plan, design, _ticks("tau", design.tau, plan.h), ages, delay,
+                           flows)
     run = _ChannelStepper(plan, design, Sm, Qm, Si, Qi, record, stamped)
     acc = _BlockMetrics(get_backend("numpy"), P, N, plan.stop_k, int((plan.stop_k // N).max()))
     with np.errstate(all="ignore"):
@@ -1451,7 +1508,7 @@ class _Stamped:
     (before any packet ``min(k h - delay, 0)``), ``t_i = i T`` and ``age_max + 1e-9 T``."""
 
     def __init__(self, plan: _LtiPlan, d: LtiBatch, Dtau: np.ndarray, age_max: np.ndarray,
-                 delay: np.ndarray):
+                 delay: np.ndarray, cache: dict | None = None):
         from delaycomp.maths.lti import flow
         from delaycomp.maths.stamped import _SNAP
 
@@ -1459,7 +1516,15 @@ class _Stamped:
         N, h = plan.N, float(plan.h[0])
         self.N, self.n, self.m, self.h, self.T = N, n, m, h, float(plan.T[0])
         first, self.inv = _unique_rows(d.A, d.B)
-        flows = [[flow(d.A[p], d.B[p], k * h) for k in range(N + 1)] for p in first]
+        cache = {} if cache is None else cache  # the flows of (A, B, h, N): chunks share them
+
+        def flows_of(p):
+            key = (d.A[p].tobytes(), d.B[p].tobytes(), d.A.shape, d.B.shape, h, N)
+            if key not in cache:
+                cache[key] = [flow(d.A[p], d.B[p], k * h) for k in range(N + 1)]
+            return cache[key]
+
+        flows = [flows_of(p) for p in first]
         self.F = np.array([[f[0] for f in row] for row in flows])  # (U, N + 1, n, n)
         self.G = np.array([[f[1] for f in row] for row in flows])  # (U, N + 1, n, m)
         self.Dtau = Dtau.astype(np.int64)
