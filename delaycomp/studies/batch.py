@@ -1370,28 +1370,29 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
             return _constant_shown(D, kmax + 1), int(D.max())
         return shown(channel, seeds, h, kmax + 1), timeout_steps(channel, h)
 
-    Sm, Qm = route(meas, seeds_m, plan.Dr)
-    Si, Qi = route(inp, seeds_i, plan.Dt)
+    Sm, _ = route(meas, seeds_m, plan.Dr)
+    Si, Qi = (None, int(plan.Dt.max())) if inp is None else route(inp, seeds_i, plan.Dt)
+    if Si is None and not np.all(plan.Dt == plan.Dt[0]):
+        Si = _constant_shown(plan.Dt, kmax + 1)
     stamped = None
     if ages is not None:
         delay = (np.full(P, float(meas.delay)) if meas is not None
                  else np.asarray(design.r_true, dtype=float))
         stamped = _Stamped(plan, design, _ticks("tau", design.tau, plan.h), ages, delay,
                            flows)
-    run = _ChannelStepper(plan, design, Sm, Qm, Si, Qi, record, stamped)
+    const = inp is None and bool(np.all(plan.Dt == plan.Dt[0]))
+    run = _ChannelStepper(plan, design, Sm, None if const else Si, Qi, record, stamped,
+                          int(plan.Dt[0]) if const else None)
     acc = _BlockMetrics(get_backend("numpy"), P, N, plan.stop_k, int((plan.stop_k // N).max()))
     with np.errstate(all="ignore"):
         for i in range(kmax // N + 1):
             rows = min(N, kmax - i * N + 1)
-            for row in range(rows):
-                k = i * N + row
-                if row == 0:
-                    badc = run.sample(i)
-                    if badc.any():
-                        acc.cut(badc, k, "the control is not finite (the feedback diverged: "
-                                "overflow)", plan.T, plan.h)
-                run.tick(k, row, k < kmax)
-            acc.block(run.blk[:rows], i * N, plan.T, plan.h)
+            badc = run.sample(i)
+            if badc.any():
+                acc.cut(badc, i * N, "the control is not finite (the feedback diverged: "
+                        "overflow)", plan.T, plan.h)
+            blk = run.period(i, rows, i * N + rows - 1 == kmax)
+            acc.block(blk, i * N, plan.T, plan.h)
     res = acc.finish(plan.T, plan.h)
     end = np.minimum(acc.cut_at, plan.stop_k + 1)
     cost = run.cost.copy()
@@ -1402,17 +1403,29 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
 
 
 class _ChannelStepper:
-    """The stepping of ``run_lti_channels`` (numpy, the points on the last axis): a ring
-    of the last ``Qm + 1`` states and a latch of the measurement, a ring of controller
-    outputs (one per period) and a latch of the plant's input."""
+    """The stepping of ``run_lti_channels`` (numpy, the points on the last axis).
 
-    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Qm: int, Si, Qi: int, record: bool,
-                 stamped: _Stamped | None = None):
+    The states are kept in a ring of ``nb`` blocks of ``N`` ticks, ``xb[b, row]``, long
+    enough for the oldest packet the measurement channel shows at a sampling tick (its
+    age is known from the channel's fates, drawn before the run): the controller reads its
+    sample there at the sampling ticks alone, and a block is the metrics' rows as it
+    stands. The controller outputs are a ring of one per period; the plant's input a
+    latch, updated where the input channel shows another packet (a constant delay: at
+    the ticks its period's output arrives). Every value is computed as before, in the same
+    order: the cost's sums a block at a time, row after row.
+    """
+
+    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Si, Qi: int, record: bool,
+                 stamped: _Stamped | None = None, Dt_const: int | None = None):
         P, n, m = d.B.shape
         N = plan.N
         self.plan, self.N, self.n, self.m, self.P = plan, N, n, m, P
-        self.Sm, self.Si = Sm, Si
-        self.Rx = Qm + 1
+        self.Sm, self.Si, self.Dt_const = Sm, Si, Dt_const
+        kmax = int(plan.stop_k.max())
+        sampled = Sm[0:kmax + 1:N]
+        ticks = np.arange(0, kmax + 1, N)[:, None]
+        age = int(np.max(np.where(sampled >= 0, ticks - sampled, 0), initial=0))
+        self.nb = age // N + 2  # blocks kept: the oldest sample read and this period's
         self.Lmax = plan.QB.shape[0]
         self.Ru = max(self.Lmax, 0 if stamped is None else stamped.back) + Qi // N + 3
         self.stamped = stamped
@@ -1428,30 +1441,37 @@ class _ChannelStepper:
         self.QB = [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
                    for q in range(self.Lmax)]
         self.u0 = col(d.u0.T)
-        self.x = col(d.x0.T).copy()  # (n, P)
-        self.xring = np.zeros((self.Rx, n, P))
-        self.y = self.x.copy()  # the measurement latch: x0 before any packet
+        self.x0 = col(d.x0.T)
+        self.xb = np.zeros((self.nb, N, n, P))
+        self.flat = self.xb.reshape(self.nb * N, n, P)
+        self.flat[0] = self.x0
+        self.y = self.x0.copy()
         self.v = self.u0.copy()  # the plant-input latch: u0 before any packet
         self.held = self.u0.copy()
         self.U = np.zeros((self.Ru, m, P))
         self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(n)])
-        self.blk = np.zeros((N, n, P))
+        self.vb = np.zeros((N, m, P))  # the plant's input at each tick of the block
         self.cost = np.zeros(P)
-        self.h = plan.h
-        self.prev_m = np.full(P, -1, dtype=np.int64)
+        self.h = float(plan.h[0])  # one h in a channel batch
         self.prev_i = np.full(P, -1, dtype=np.int64)
-        K = int(plan.stop_k.max()) + 1
-        self.states = np.full((P, K, n), np.nan) if record else None
-        self.inputs = np.full((P, K, m), np.nan) if record else None
+        self.pidx = np.arange(P)
+        self.tmp = np.empty(P)
+        self.states = np.full((P, kmax + 1, n), np.nan) if record else None
+        self.inputs = np.full((P, kmax + 1, m), np.nan) if record else None
 
     def sample(self, i: int) -> np.ndarray:
-        """The controller at the sampling tick ``i N`` from the measurement latched by then
-        (the latch is updated first: ``tick`` of this tick runs after); returns where its
-        output is not finite from a finite measurement."""
-        self._latch_meas(i * self.N)
-        y, n, U = self.y, self.n, self.U
+        """The controller at the sampling tick ``i N`` from the state at the send tick of
+        the packet shown then (``x0`` before any); returns where its output is not finite
+        from a finite measurement."""
+        k = i * self.N
+        s = self.Sm[k]
+        slot = s % (self.nb * self.N)
+        y = self.y
+        for a in range(self.n):
+            np.copyto(y[a], np.where(s >= 0, self.flat[slot, a, self.pidx], self.x0[a]))
+        n, U = self.n, self.U
         if self.stamped is not None:
-            xhat = self.stamped.predict(i, y, self.Sm[i * self.N], U, self.Ru)
+            xhat = self.stamped.predict(i, y, s, U, self.Ru)
             phi = list(np.where(self.comp, xhat, y))
         else:
             phi = [_dot(self.E[a], y) for a in range(n)]
@@ -1463,39 +1483,62 @@ class _ChannelStepper:
         self.U[i % self.Ru] = self.held
         return ~np.all(np.isfinite(self.held), axis=0) & np.all(np.isfinite(y), axis=0)
 
-    def _latch_meas(self, k: int) -> None:
-        self.xring[k % self.Rx] = self.x
-        s = self.Sm[k]
-        new = np.flatnonzero(s != self.prev_m)
-        if new.size:
-            self.y[:, new] = self.xring[s[new] % self.Rx, :, new].T
-            self.prev_m = s
-
-    def tick(self, k: int, row: int, step: bool) -> None:
-        """Tick ``k`` (row ``row`` of its period): the latches, the record and the cost,
-        then (``step``) the plant's exact step to ``k + 1``."""
-        if row:
-            self._latch_meas(k)
-        s = self.Si[k]
-        new = np.flatnonzero(s != self.prev_i)
-        if new.size:
-            self.v[:, new] = self.U[(s[new] // self.N) % self.Ru, :, new].T
+    def _input(self, k: int) -> None:
+        """The plant-input latch at tick ``k``."""
+        N = self.N
+        if self.Dt_const is not None:  # a constant delay: the output of tick k - D
+            s = k - self.Dt_const
+            if s < 0 or s % N:
+                return
+            self.v = self.U[(s // N) % self.Ru].copy()
+        else:
+            s = self.Si[k]
+            new = np.flatnonzero(s != self.prev_i)
+            if not new.size:
+                return
+            self.v[:, new] = self.U[(s[new] // N) % self.Ru, :, new].T
             self.prev_i = s
-            self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
-        x = self.x
-        self.blk[row] = x
-        if self.states is not None and self.inputs is not None:
-            self.states[:, k] = x.T
-            self.inputs[:, k] = self.held.T
-        if not step:
-            return
-        sq = x[0] * x[0]
-        for a in range(1, self.n):
-            sq = sq + x[a] * x[a]
-        for c in range(self.m):
-            sq = sq + self.v[c] * self.v[c]
-        self.cost = self.cost + self.h * sq
-        self.x = np.stack([_dot(self.Ad[a], x) + self.bv[a] for a in range(self.n)])
+        self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
+
+    def period(self, i: int, rows: int, last: bool) -> np.ndarray:
+        """The ticks of period ``i`` (``rows`` of them; ``last``: the run's last tick is
+        among them, not stepped from): the input latch, the record, the plant's exact
+        step into the next row of the ring; then the cost of the block. Returns the
+        block of states."""
+        N, n, nb = self.N, self.n, self.nb
+        bi = i % nb
+        blk, nxt = self.xb[bi], self.xb[(i + 1) % nb]
+        Ad, tmp, vb = self.Ad, self.tmp, self.vb
+        for row in range(rows):
+            k = i * N + row
+            self._input(k)
+            vb[row] = self.v
+            x = blk[row]
+            if self.states is not None and self.inputs is not None:
+                self.states[:, k] = x.T
+                self.inputs[:, k] = self.held.T
+            if last and row == rows - 1:
+                break
+            out = blk[row + 1] if row + 1 < N else nxt[0]
+            for a in range(n):  # Ad[a] x + bv[a], left to right (_dot's order)
+                np.multiply(Ad[a][0], x[0], out=out[a])
+                for b in range(1, n):
+                    np.multiply(Ad[a][b], x[b], out=tmp)
+                    np.add(out[a], tmp, out=out[a])
+                np.add(out[a], self.bv[a], out=out[a])
+        # the cost: sum_k h (|x_k|^2 + |v_k|^2), each tick's term added in turn
+        stepped = rows - 1 if last else rows
+        if stepped > 0:
+            x, v = blk[:stepped], vb[:stepped]
+            sq = x[:, 0] * x[:, 0]
+            for a in range(1, n):
+                sq += x[:, a] * x[:, a]
+            for c in range(self.m):
+                sq += v[:, c] * v[:, c]
+            sq *= self.h
+            for row in range(stepped):
+                np.add(self.cost, sq[row], out=self.cost)
+        return blk[:rows]
 
 
 class _Stamped:
