@@ -189,19 +189,25 @@ def losses(channel: Channel, keys, packets: int) -> np.ndarray:
     (before the timeout, which needs the grid); the Gilbert-Elliott chain starts good and
     moves once a packet, as in ``Channel.draw_fate``."""
     keys = np.asarray(keys, dtype=np.uint64).reshape(-1)
-    j = np.arange(packets, dtype=np.uint64)[:, None]
+    return _loss_rows(channel, keys, 0, packets, np.zeros(keys.size, dtype=bool))[0]
+
+
+def _loss_rows(channel: Channel, keys: np.ndarray, j0: int, j1: int, bad: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``losses`` of packets ``j0 .. j1 - 1`` and the Gilbert-Elliott chain's state
+    after them, from ``bad`` (its state before ``j0``)."""
+    j = np.arange(j0, j1, dtype=np.uint64)[:, None]
     if channel.loss_model == "none":
-        return np.zeros((packets, keys.size), dtype=bool)
+        return np.zeros((j1 - j0, keys.size), dtype=bool), bad
     if channel.loss_model == "bernoulli":
-        return _below(keys[None, :], j, DRAW_LOSS, channel.loss)
+        return _below(keys[None, :], j, DRAW_LOSS, channel.loss), bad
     u_loss = packet_draws(keys[None, :], j, DRAW_LOSS)
     u_state = packet_draws(keys[None, :], j, DRAW_STATE)
-    lost = np.empty((packets, keys.size), dtype=bool)
-    bad = np.zeros(keys.size, dtype=bool)
-    for jj in range(packets):
+    lost = np.empty((j1 - j0, keys.size), dtype=bool)
+    for jj in range(j1 - j0):
         bad = np.where(bad, u_state[jj] >= channel.p_bg, u_state[jj] < channel.p_gb)
         lost[jj] = u_loss[jj] < np.where(bad, channel.loss_bad, channel.loss_good)
-    return lost
+    return lost, bad
 
 
 def steps_up(values: np.ndarray, step: float) -> np.ndarray:
@@ -242,10 +248,19 @@ def fates(channel: Channel, seeds, h: float, packets: int) -> tuple[np.ndarray, 
     the steps until it is seen (``Q`` where lost: its timeout), as ``ChannelLine.fate``."""
     channel.check()
     keys = stream_keys(np.asarray(seeds).reshape(-1))
-    Q = timeout_steps(channel, h)
-    j = np.arange(packets, dtype=np.int64)[:, None]
-    lost = losses(channel, keys, packets)
-    d = delays(channel, keys[None, :], j, offsets(channel, keys)[None, :])
+    lost, q, _ = _fate_rows(channel, keys, offsets(channel, keys), h,
+                            timeout_steps(channel, h), 0, packets,
+                            np.zeros(keys.size, dtype=bool))
+    return lost, q
+
+
+def _fate_rows(channel: Channel, keys: np.ndarray, offs: np.ndarray, h: float, Q: int,
+               j0: int, j1: int, bad: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``fates`` of packets ``j0 .. j1 - 1`` and the loss chain's state after them."""
+    j = np.arange(j0, j1, dtype=np.int64)[:, None]
+    lost, bad = _loss_rows(channel, keys, j0, j1, bad)
+    d = delays(channel, keys[None, :], j, offs[None, :])
     if channel.distribution == "uniform" or (channel.distribution != "trace"
                                              and (channel.jitter == 0
                                                   or channel.distribution == "constant")):
@@ -261,12 +276,23 @@ def fates(channel: Channel, seeds, h: float, packets: int) -> tuple[np.ndarray, 
         q = steps_up(np.where(lost, 0.0, d), h)
         lost = lost | (q > Q)
     q[lost] = Q
-    return lost, q
+    return lost, q, bad
+
+
+#: packets drawn at a time by ``shown``: their arrays (a few per packet and run) stay in
+#: the processor's cache for a few thousand runs
+_ROWS = 64
 
 
 def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
     """The send step of the packet each run's channel shows at steps ``0 .. steps - 1``,
     shape ``(steps, R)``; ``-1`` where none has been delivered yet (the initial history).
+
+    Packet ``j`` is put at the step it is delivered, ``D_j`` (in order: ``max(ready_j,
+    D_{j-1})``, ``ready_j`` its arrival or, lost, its timeout; drop_stale: its arrival;
+    playout: ``s_j + Q`` in order), the newest at each step kept, and the newest up to
+    each step taken down the steps (a running maximum): the largest ``j`` delivered by
+    then. The packets are drawn ``_ROWS`` at a time.
 
     Examples
     --------
@@ -275,43 +301,40 @@ def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
     >>> shown(Channel(delay=0.02), [0], 0.01, 5)[:, 0].tolist()
     [-1, -1, 0, 1, 2]
     """
+    channel.check()
     P = period_steps(channel, h)
+    Q = timeout_steps(channel, h)
     J = (steps - 1) // P + 1 if steps > 0 else 0
-    lost, q = fates(channel, seeds, h, J)
-    R = lost.shape[1]
-    if channel.policy == "playout":  # the play-out buffer: every packet at s_j + Q
-        q = np.full_like(q, timeout_steps(channel, h))
-    ready = np.arange(J, dtype=np.int64)[:, None] * P + q
+    keys = stream_keys(np.asarray(seeds).reshape(-1))
+    offs = offsets(channel, keys)
+    R = keys.size
+    best = np.full((steps + 1, R), -1, dtype=np.int64)  # row ``steps``: never shown
+    flat = best.reshape(-1)
     runs = np.arange(R, dtype=np.int64)
-    if channel.policy == "drop_stale":
-        # the packet shown at k is the newest j with a_j <= k (not lost): with m_j the
-        # smallest arrival of packets j.. (a suffix minimum), the j with m_j <= k are
-        # 0 .. that packet, so it is their count - 1
-        ready[lost] = steps
-        m = np.minimum.accumulate(ready[::-1], axis=0)[::-1]
-        best = _counts_below(m, steps, runs) - 1
-        return best if P == 1 else np.where(best >= 0, best * P, -1)
-    # in order (play-out: the order sent): D_j = max(ready_j, D_{j-1}) is nondecreasing,
-    # so the packets passed by k are 0 .. c_k - 1 and the one shown is the newest of
-    # them not lost
-    np.maximum.accumulate(ready, axis=0, out=ready)
-    c = _counts_below(ready, steps, runs)
-    newest = np.where(lost, -1, np.arange(J, dtype=np.int64)[:, None])
-    np.maximum.accumulate(newest, axis=0, out=newest)
-    best = np.take_along_axis(newest, np.maximum(c - 1, 0), axis=0)
-    best[c == 0] = -1
+    bad = np.zeros(R, dtype=bool)
+    before = np.full(R, np.iinfo(np.int64).min, dtype=np.int64)  # D_{j0 - 1}
+    for j0 in range(0, J, _ROWS):
+        j1 = min(J, j0 + _ROWS)
+        lost, q, bad = _fate_rows(channel, keys, offs, h, Q, j0, j1, bad)
+        if channel.policy == "playout":  # the play-out buffer: every packet at s_j + Q
+            q.fill(Q)
+        ready = q
+        ready += np.arange(j0, j1, dtype=np.int64)[:, None] * P
+        if channel.policy != "drop_stale":  # in order (play-out: the order sent)
+            np.maximum(ready[0], before, out=ready[0])  # D_j = max(ready_j, D_{j-1})
+            for r in range(1, j1 - j0):
+                np.maximum(ready[r - 1], ready[r], out=ready[r])
+            before = ready[-1].copy()
+        np.minimum(ready, steps, out=ready)
+        np.putmask(ready, lost, steps)
+        ready *= R
+        ready += runs
+        jv = np.broadcast_to(np.arange(j0, j1, dtype=np.int64)[:, None], ready.shape)
+        np.maximum.at(flat, ready.ravel(), jv.ravel())
+    for k in range(1, steps):
+        np.maximum(best[k - 1], best[k], out=best[k])
+    best = best[:steps]
     return best if P == 1 else np.where(best >= 0, best * P, -1)
-
-
-def _counts_below(m: np.ndarray, steps: int, runs: np.ndarray) -> np.ndarray:
-    """``c[k, r] = #{j : m[j, r] <= k}`` for ``k = 0 .. steps - 1`` (``m >= 0``; values
-    from ``steps`` on count nowhere): a histogram per run (one ``bincount``) summed up."""
-    R = m.shape[1]
-    flat = np.minimum(m, steps)
-    flat *= R
-    flat += runs
-    c = np.bincount(flat.ravel(), minlength=(steps + 1) * R)[:steps * R].reshape(steps, R)
-    return np.cumsum(c, axis=0)
 
 
 def stamps(channel: Channel, sent: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:

@@ -1219,7 +1219,7 @@ def _np_put(a, index, value):
 #: ``run_lti_channels``' default chunk: points advanced together (measured in
 #: ``bench/channels.py``: a few thousand keep a tick's rows and the channel's arrays of a
 #: chunk in cache while the per-tick overhead of numpy's calls stays small)
-CHANNEL_CHUNK = 4096
+CHANNEL_CHUNK = 2048
 
 
 def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
