@@ -173,7 +173,12 @@ def delays(channel: Channel, keys, j, offset=0) -> np.ndarray:
     if dist == "constant" or (dist != "trace" and channel.jitter == 0):
         return np.full(keys.shape, float(channel.delay))
     if dist == "uniform":
-        return channel.delay + channel.jitter * packet_draws(keys, j, DRAW_DELAY)
+        # jitter (m 2^-53) = (jitter 2^-53) m exactly (a power of two's scaling): one
+        # product fewer, the same doubles
+        d = _mantissas(keys, _packet_counters(j, DRAW_DELAY)).astype(np.float64)
+        d *= channel.jitter * 2.0 ** -53
+        d += channel.delay
+        return d
     if dist == "exponential":
         return channel.delay - channel.jitter * _libm(
             math.log, 1.0 - packet_draws(keys, j, DRAW_DELAY))
@@ -284,15 +289,18 @@ def _fate_rows(channel: Channel, keys: np.ndarray, offs: np.ndarray, h: float, Q
 _ROWS = 64
 
 
-def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
+def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.ndarray:
     """The send step of the packet each run's channel shows at steps ``0 .. steps - 1``,
     shape ``(steps, R)``; ``-1`` where none has been delivered yet (the initial history).
+    With ``every > 1``: at steps ``0, every, 2 every, ...`` alone (the rows a sampler
+    reads), shape ``((steps - 1) // every + 1, R)``.
 
     Packet ``j`` is put at the step it is delivered, ``D_j`` (in order: ``max(ready_j,
     D_{j-1})``, ``ready_j`` its arrival or, lost, its timeout; drop_stale: its arrival;
     playout: ``s_j + Q`` in order), the newest at each step kept, and the newest up to
     each step taken down the steps (a running maximum): the largest ``j`` delivered by
-    then. The packets are drawn ``_ROWS`` at a time.
+    then (a packet delivered at ``D`` counts from row ``ceil(D / every)`` on). The packets
+    are drawn ``_ROWS`` at a time.
 
     Examples
     --------
@@ -308,7 +316,10 @@ def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
     keys = stream_keys(np.asarray(seeds).reshape(-1))
     offs = offsets(channel, keys)
     R = keys.size
-    best = np.full((steps + 1, R), -1, dtype=np.int64)  # row ``steps``: never shown
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every = {every!r} is not allowed: must be an integer >= 1")
+    rows = (steps - 1) // every + 1 if steps > 0 else 0
+    best = np.full((rows + 1, R), -1, dtype=np.int64)  # row ``rows``: never shown
     flat = best.reshape(-1)
     runs = np.arange(R, dtype=np.int64)
     bad = np.zeros(R, dtype=bool)
@@ -325,15 +336,18 @@ def shown(channel: Channel, seeds, h: float, steps: int) -> np.ndarray:
             for r in range(1, j1 - j0):
                 np.maximum(ready[r - 1], ready[r], out=ready[r])
             before = ready[-1].copy()
-        np.minimum(ready, steps, out=ready)
-        np.putmask(ready, lost, steps)
+        if every > 1:  # the first row at or after D_j
+            ready += every - 1
+            ready //= every
+        np.minimum(ready, rows, out=ready)
+        np.putmask(ready, lost, rows)
         ready *= R
         ready += runs
         jv = np.broadcast_to(np.arange(j0, j1, dtype=np.int64)[:, None], ready.shape)
         np.maximum.at(flat, ready.ravel(), jv.ravel())
-    for k in range(1, steps):
+    for k in range(1, rows):
         np.maximum(best[k - 1], best[k], out=best[k])
-    best = best[:steps]
+    best = best[:rows]
     return best if P == 1 else np.where(best >= 0, best * P, -1)
 
 

@@ -1370,7 +1370,9 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
             return _constant_shown(D, kmax + 1), int(D.max())
         return shown(channel, seeds, h, kmax + 1), timeout_steps(channel, h)
 
-    Sm, _ = route(meas, seeds_m, plan.Dr)
+    # the measurement at the sampling ticks alone
+    Sm = (_constant_shown(plan.Dr, kmax + 1)[::N] if meas is None
+          else shown(meas, seeds_m, h, kmax + 1, every=N))
     Si, Qi = (None, int(plan.Dt.max())) if inp is None else route(inp, seeds_i, plan.Dt)
     if Si is None and not np.all(plan.Dt == plan.Dt[0]):
         Si = _constant_shown(plan.Dt, kmax + 1)
@@ -1415,16 +1417,15 @@ class _ChannelStepper:
     order: the cost's sums a block at a time, row after row.
     """
 
-    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm, Si, Qi: int, record: bool,
+    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm: np.ndarray, Si, Qi: int, record: bool,
                  stamped: _Stamped | None = None, Dt_const: int | None = None):
         P, n, m = d.B.shape
         N = plan.N
         self.plan, self.N, self.n, self.m, self.P = plan, N, n, m, P
         self.Sm, self.Si, self.Dt_const = Sm, Si, Dt_const
         kmax = int(plan.stop_k.max())
-        sampled = Sm[0:kmax + 1:N]
         ticks = np.arange(0, kmax + 1, N)[:, None]
-        age = int(np.max(np.where(sampled >= 0, ticks - sampled, 0), initial=0))
+        age = int(np.max(np.where(Sm >= 0, ticks - Sm, 0), initial=0))
         self.nb = age // N + 2  # blocks kept: the oldest sample read and this period's
         self.Lmax = plan.QB.shape[0]
         self.Ru = max(self.Lmax, 0 if stamped is None else stamped.back) + Qi // N + 3
@@ -1463,8 +1464,7 @@ class _ChannelStepper:
         """The controller at the sampling tick ``i N`` from the state at the send tick of
         the packet shown then (``x0`` before any); returns where its output is not finite
         from a finite measurement."""
-        k = i * self.N
-        s = self.Sm[k]
+        s = self.Sm[i]
         slot = s % (self.nb * self.N)
         y = self.y
         for a in range(self.n):
