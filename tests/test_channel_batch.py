@@ -111,3 +111,14 @@ def test_a_period_sends_every_p_steps(policy):
     assert set(np.unique(got[got >= 0]) % 3) == {0}
     for r, s in enumerate([3, 4, 5]):
         assert got[:, r].tolist() == _line_shows(c, s, 0.01, 120)
+
+
+@pytest.mark.parametrize("policy", ch.POLICIES)
+def test_every_gives_the_rows_a_sampler_reads(policy):
+    c = Channel(delay=0.01, distribution="uniform", jitter=0.3, policy=policy,
+                loss_model="bernoulli", loss=0.4)
+    full = cb.shown(c, range(50), 0.01, 301)
+    for every in (1, 7, 100, 400):
+        assert np.array_equal(cb.shown(c, range(50), 0.01, 301, every=every), full[::every])
+    with pytest.raises(ValueError, match="every = 0 is not allowed: must be an integer >= 1"):
+        cb.shown(c, [0], 0.01, 10, every=0)

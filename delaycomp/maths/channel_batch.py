@@ -280,7 +280,7 @@ def _fate_rows(channel: Channel, keys: np.ndarray, offs: np.ndarray, h: float, Q
         lost = lost | late
         q = steps_up(np.where(lost, 0.0, d), h)
         lost = lost | (q > Q)
-    q[lost] = Q
+    np.putmask(q, lost, Q)
     return lost, q, bad
 
 
@@ -324,6 +324,9 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.n
     runs = np.arange(R, dtype=np.int64)
     bad = np.zeros(R, dtype=bool)
     before = np.full(R, np.iinfo(np.int64).min, dtype=np.int64)  # D_{j0 - 1}
+    # the row of each delivery step D <= (J - 1) P + Q: ceil(D / every), at most ``rows``
+    row_of = np.minimum((np.arange((J - 1) * P + Q + 1 if J else 1, dtype=np.int64)
+                         + (every - 1)) // every, rows)
     for j0 in range(0, J, _ROWS):
         j1 = min(J, j0 + _ROWS)
         lost, q, bad = _fate_rows(channel, keys, offs, h, Q, j0, j1, bad)
@@ -336,10 +339,7 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.n
             for r in range(1, j1 - j0):
                 np.maximum(ready[r - 1], ready[r], out=ready[r])
             before = ready[-1].copy()
-        if every > 1:  # the first row at or after D_j
-            ready += every - 1
-            ready //= every
-        np.minimum(ready, rows, out=ready)
+        ready = row_of[ready]  # the first row at or after D_j
         np.putmask(ready, lost, rows)
         ready *= R
         ready += runs

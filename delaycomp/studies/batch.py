@@ -1349,19 +1349,23 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
                               None if seeds_m is None else seeds_m[idx],
                               None if seeds_i is None else seeds_i[idx], record,
                               None if ages is None else ages[idx], flows,
-                              plan if whole else None)
+                              plan if whole else _plan_take(plan, idx))
         parts.append((idx, part))
     return _merge(parts, P)
 
 
+def _plan_take(plan: _LtiPlan, idx: np.ndarray) -> _LtiPlan:
+    """The plan of the points ``idx`` of ``plan``'s."""
+    return _LtiPlan(plan.N, plan.T[idx], plan.h[idx], plan.stop_k[idx], plan.Dr[idx],
+                    plan.Dt[idx], plan.Ad[idx], plan.Bd[idx], plan.E[idx], plan.QB[:, idx])
+
+
 def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
-                   record: bool, ages, flows: dict, plan: _LtiPlan | None) -> BatchResult:
-    """``run_lti_channels`` of the (checked) points of one chunk."""
+                   record: bool, ages, flows: dict, plan: _LtiPlan) -> BatchResult:
+    """``run_lti_channels`` of the (checked) points of one chunk, ``plan`` theirs."""
     from delaycomp.maths.channel_batch import shown, timeout_steps
 
     P, N = len(design), int(design.N[0])
-    if plan is None:
-        plan = _lti_plan(design, N, stop)
     h = float(plan.h[0])
     kmax = int(plan.stop_k.max())
 
