@@ -122,3 +122,11 @@ def test_every_gives_the_rows_a_sampler_reads(policy):
         assert np.array_equal(cb.shown(c, range(50), 0.01, 301, every=every), full[::every])
     with pytest.raises(ValueError, match="every = 0 is not allowed: must be an integer >= 1"):
         cb.shown(c, [0], 0.01, 10, every=0)
+
+
+@pytest.mark.parametrize("p", [0.0, 0.3, 0.5, 2.0 ** -53, 1.0 - 2.0 ** -53, 1.0])
+def test_bernoulli_loss_in_integers_is_the_draw_below_p(p):
+    keys = cb.stream_keys(range(20))[None, :]
+    j = np.arange(500)[:, None]
+    assert np.array_equal(cb._below(keys, j, ch.DRAW_LOSS, p),
+                          cb.packet_draws(keys, j, ch.DRAW_LOSS) < p)

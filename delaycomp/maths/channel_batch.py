@@ -111,10 +111,18 @@ def packet_draws(keys, j, i) -> np.ndarray:
 
 
 def _below(keys, j, i, p: float) -> np.ndarray:
-    """``packet_draws(keys, j, i) < p`` in integers: the draw is ``m 2^-53`` (``m <
-    2^53``), and ``m 2^-53 < p`` exactly when ``m < ceil(p 2^53)`` (``p 2^53`` is exact,
-    a power of two's scaling of ``p`` in ``[0, 1]``)."""
-    return _mantissas(keys, _packet_counters(j, i)) < _U(math.ceil(p * 2.0 ** 53))
+    """``packet_draws(keys, j, i) < p`` in integers: the draw is ``m 2^-53`` with ``m``
+    the top 53 bits of ``z = mix(...)``, and ``m 2^-53 < p`` exactly when ``m < L =
+    ceil(p 2^53)`` (``p 2^53`` is exact, a power of two's scaling of ``p`` in ``[0, 1]``),
+    that is when ``z < L 2^11`` (``L 2^11 = 2^64``: always)."""
+    L = math.ceil(p * 2.0 ** 53)
+    k = np.asarray(keys, dtype=np.uint64)
+    c = _packet_counters(j, i)
+    if L >= 2**53:
+        return np.ones(np.broadcast_shapes(k.shape, c.shape), dtype=bool)
+    z = np.multiply(c, _U(_GOLDEN))
+    z = np.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
+    return _mix_inplace(z) < _U(L << 11)
 
 
 def gamma_draws(keys, j, shape: float) -> np.ndarray:
@@ -225,10 +233,10 @@ def steps_up(values: np.ndarray, step: float) -> np.ndarray:
     """
     ratio = np.divide(np.asarray(values, dtype=float), step)
     f = np.floor(ratio)
-    frac = np.subtract(ratio, f, out=ratio)
-    tol = np.maximum(f + frac, 1.0)  # |r| >= 0 here
-    np.multiply(tol, grid.GRID_RTOL, out=tol)
-    up = frac > tol
+    frac = np.subtract(ratio, f)
+    np.maximum(ratio, 1.0, out=ratio)  # |r| >= 0 here
+    np.multiply(ratio, grid.GRID_RTOL, out=ratio)
+    up = np.greater(frac, ratio)
     out = f.astype(np.int64)
     out += up
     return out

@@ -771,8 +771,10 @@ class _BlockMetrics:
         for p in np.flatnonzero(new):
             self.messages[p] = f"{why} at t = {float(t[p])!r}"
 
-    def block(self, xs, start: int, T, h) -> None:
-        """Rows ``xs[j]`` (shape ``(n, P)``) are the states of ticks ``start + j``.
+    def block(self, xs, start: int, T, h, sq=None) -> None:
+        """Rows ``xs[j]`` (shape ``(n, P)``) are the states of ticks ``start + j``
+        (``sq``: their ``|x|^2``, summed over the components in order, where the caller
+        has them).
 
         Three passes over the block in the common case (squares, their column maxima and
         sums): ``sqrt`` is monotonic, so the largest norm is the root of the largest square,
@@ -780,9 +782,8 @@ class _BlockMetrics:
         """
         xp = self.xp
         R = xs.shape[0]
-        sq = xs[:, 0] * xs[:, 0]
-        for a in range(1, xs.shape[1]):
-            sq = sq + xs[:, a] * xs[:, a]
+        if sq is None:
+            sq = _sumsq(xs)
         colmax = xp.max(sq, axis=0)
         finite = bool(xp.isfinite(xp.max(colmax)))
         if not finite:  # rare: states not finite, or |x|^2 overflow
@@ -875,6 +876,14 @@ class _BlockMetrics:
         stable = (rho < 1.0).astype(np.int64)
         return BatchResult(rho, stable, self.final.copy(), peak, db, ~bad,
                            list(self.messages))
+
+
+def _sumsq(xs):
+    """``|x|^2`` of each row ``xs[j]`` (shape ``(n, P)``), the components added in order."""
+    sq = xs[:, 0] * xs[:, 0]
+    for a in range(1, xs.shape[1]):
+        sq = sq + xs[:, a] * xs[:, a]
+    return sq
 
 
 def _rates(envsq: np.ndarray, periods: np.ndarray) -> np.ndarray:
@@ -1397,8 +1406,8 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
             if badc.any():
                 acc.cut(badc, i * N, "the control is not finite (the feedback diverged: "
                         "overflow)", plan.T, plan.h)
-            blk = run.period(i, rows, i * N + rows - 1 == kmax)
-            acc.block(blk, i * N, plan.T, plan.h)
+            blk, sqx = run.period(i, rows, i * N + rows - 1 == kmax)
+            acc.block(blk, i * N, plan.T, plan.h, sqx)
     res = acc.finish(plan.T, plan.h)
     end = np.minimum(acc.cut_at, plan.stop_k + 1)
     cost = run.cost.copy()
@@ -1504,11 +1513,11 @@ class _ChannelStepper:
             self.prev_i = s
         self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
 
-    def period(self, i: int, rows: int, last: bool) -> np.ndarray:
+    def period(self, i: int, rows: int, last: bool) -> tuple[np.ndarray, np.ndarray]:
         """The ticks of period ``i`` (``rows`` of them; ``last``: the run's last tick is
         among them, not stepped from): the input latch, the record, the plant's exact
         step into the next row of the ring; then the cost of the block. Returns the
-        block of states."""
+        block of states and their ``|x|^2``."""
         N, n, nb = self.N, self.n, self.nb
         bi = i % nb
         blk, nxt = self.xb[bi], self.xb[(i + 1) % nb]
@@ -1531,18 +1540,17 @@ class _ChannelStepper:
                     np.add(out[a], tmp, out=out[a])
                 np.add(out[a], self.bv[a], out=out[a])
         # the cost: sum_k h (|x_k|^2 + |v_k|^2), each tick's term added in turn
+        sqx = _sumsq(blk[:rows])
         stepped = rows - 1 if last else rows
         if stepped > 0:
-            x, v = blk[:stepped], vb[:stepped]
-            sq = x[:, 0] * x[:, 0]
-            for a in range(1, n):
-                sq += x[:, a] * x[:, a]
-            for c in range(self.m):
+            v = vb[:stepped]
+            sq = sqx[:stepped] + v[:, 0] * v[:, 0]
+            for c in range(1, self.m):
                 sq += v[:, c] * v[:, c]
             sq *= self.h
             for row in range(stepped):
                 np.add(self.cost, sq[row], out=self.cost)
-        return blk[:rows]
+        return blk[:rows], sqx
 
 
 class _Stamped:
