@@ -115,6 +115,9 @@ def test_time_stamps_are_the_per_point_stamped_controller():
     _compare(_ex36(), EX36, [(0, 100)], 20.0, modes=("uncompensated",), stamps=True)
     _compare(DBL, DBL_NET, [(3, 4), (11, 5)], 6.0, modes=("compensated",), rel=REL,
              stamps=True)
+    from delaycomp.maths import stamped
+
+    assert batch.STAMP_SNAP == stamped._SNAP  # the same decisions near age_max
 
 
 def test_time_stamps_in_the_batch_are_exact_for_every_seed():

@@ -1225,6 +1225,10 @@ def _np_put(a, index, value):
 
 # -- LTI loops through network channels (issue 29, item 4) -------------------------------
 
+#: how close to ``age_max`` (in ``T``) a sample's age counts as within it: the time-stamp
+#: controller's (``delaycomp.maths.stamped``; tests/test_batch_channel.py holds them equal)
+STAMP_SNAP = 1e-9
+
 #: ``run_lti_channels``' default chunk: points advanced together (measured in
 #: ``bench/channels.py``: a few thousand keep a tick's rows and the channel's arrays of a
 #: chunk in cache while the per-tick overhead of numpy's calls stays small)
@@ -1565,7 +1569,6 @@ class _Stamped:
     def __init__(self, plan: _LtiPlan, d: LtiBatch, Dtau: np.ndarray, age_max: np.ndarray,
                  delay: np.ndarray, cache: dict | None = None):
         from delaycomp.maths.lti import flow
-        from delaycomp.maths.stamped import _SNAP
 
         P, n, m = d.B.shape
         N, h = plan.N, float(plan.h[0])
@@ -1583,7 +1586,7 @@ class _Stamped:
         self.F = np.array([[f[0] for f in row] for row in flows])  # (U, N + 1, n, n)
         self.G = np.array([[f[1] for f in row] for row in flows])  # (U, N + 1, n, m)
         self.Dtau = Dtau.astype(np.int64)
-        self.limit = age_max + _SNAP * self.T
+        self.limit = age_max + STAMP_SNAP * self.T
         self.delay = delay
         self.u0 = np.ascontiguousarray(d.u0.T)  # (m, P)
         #: the periods of outputs the carries reach back (the ring's length needed)
