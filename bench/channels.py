@@ -14,7 +14,11 @@ side by side in one process:
 - ``paper``: the paper's controller (``run_lti_channels``);
 - ``stamps``: the time-stamp controller (``run_lti_channels(stamps=True)``);
 - ``per point``: the in-process engine, a few seeds of the same loop (``--per-point``),
-  timed and scaled to the run count: the ratio the batch gains.
+  timed and scaled to the run count: the ratio the batch gains;
+
+each with a packet every base step (``period = 0``, the channel's default: 2001 packets a
+run) and with one packet per sample (``period = T``, a sensor that sends what it samples:
+21 packets a run).
 
 Each batch column runs the whole count once per repeat, alternately, medians reported;
 the batch results are checked against the per-point runs of the sampled seeds (the
@@ -65,12 +69,13 @@ def design_of(data: dict, runs: int):
     return batch.take(one, np.zeros(runs, dtype=np.int64))  # the same loop, runs times
 
 
-def per_point(data: dict, seeds: list[int], stamps: bool) -> tuple[float, list[float]]:
+def per_point(data: dict, seeds: list[int], stamps: bool, period: float = 0.0
+              ) -> tuple[float, list[float]]:
     """Seconds per run of the in-process engine and each run's cost (the batch's sum)."""
     times, costs = [], []
     for seed in seeds:
         d = copy.deepcopy(data)
-        d["meas_delay"] = {**MEAS, "seed": seed}
+        d["meas_delay"] = {**MEAS, "seed": seed, "period": period}
         d["controller"] = {**d["controller"], "stamps": stamps}
         loop = build(d, REPO, name="c")
         t = time.perf_counter()
@@ -95,21 +100,24 @@ def main(argv=None) -> int:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     data = example_3_6()
     design = design_of(data, args.runs)
-    meas = Channel(**MEAS)
+    T = float(data["T"])
+    #: column -> (stamps, the channel's period)
+    columns = {"paper": (False, 0.0), "stamps": (True, 0.0),
+               "paper, period = T": (False, T), "stamps, period = T": (True, T)}
     seeds = np.arange(args.runs)
-    samples: dict[str, list[float]] = {"paper": [], "stamps": []}
+    samples: dict[str, list[float]] = {key: [] for key in columns}
     results = {}
     with single_threaded_blas():
         for _ in range(args.repeats):
-            for key in samples:
+            for key, (stamps, period) in columns.items():
                 print(f"{key}: {args.runs} runs ...", flush=True)
                 t = time.perf_counter()
-                results[key] = batch.run_lti_channels(design, STOP, meas=meas,
-                                                      meas_seeds=seeds,
-                                                      stamps=key == "stamps")
+                results[key] = batch.run_lti_channels(design, STOP,
+                                                      meas=Channel(**MEAS, period=period),
+                                                      meas_seeds=seeds, stamps=stamps)
                 samples[key].append(time.perf_counter() - t)
         sampled = [int(s) for s in np.linspace(0, args.runs - 1, args.per_point)]
-        pp = {key: per_point(data, sampled, key == "stamps") for key in samples}
+        pp = {key: per_point(data, sampled, *columns[key]) for key in samples}
     med = {k: statistics.median(v) for k, v in samples.items()}
     lines = [
         "# Benchmark: Monte Carlo runs through a network channel (one core)", "",
@@ -118,7 +126,8 @@ def main(argv=None) -> int:
         f"{' --quick' if args.quick else ''}`", "",
         f"Example 3.6 to {STOP:g} s (2001 ticks a run), the measurement through uniform "
         f"jitter {MEAS['jitter']:g} s (2 T) and Bernoulli loss {MEAS['loss']:g}, one seed "
-        f"a run; {args.runs} runs, {args.repeats} repeat(s), medians; one CPU.", "",
+        f"a run, a packet every base step (period 0) or one per sample (period = T); "
+        f"{args.runs} runs, {args.repeats} repeat(s), medians; one CPU.", "",
         "| controller | batch wall [s] | runs/s | per point [ms/run] | ratio | "
         "10^6 runs [s] | cost vs per point |",
         "|---|---:|---:|---:|---:|---:|---:|",
