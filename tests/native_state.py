@@ -51,6 +51,14 @@ MODEL_DATA: dict[str, list[tuple[str, Any, str | None]]] = {
         ("proposal", ctypes.c_double, "NU"), ("y_held_valid", ctypes.c_int, None),
         ("y_held", ctypes.c_double, "NX"), ("held", ctypes.c_double, "NU"),
         ("hist_head", ctypes.c_long, None)],
+    "controller_stamped.h": [
+        ("built", ctypes.c_int, None), ("L", ctypes.c_long, None),
+        ("next", ctypes.c_long, None), ("at_sample", ctypes.c_int, None),
+        ("proposal_valid", ctypes.c_int, None), ("proposal", ctypes.c_double, "NU"),
+        ("y_held_valid", ctypes.c_int, None), ("y_held", ctypes.c_double, "NX"),
+        ("stamp_held", ctypes.c_double, None), ("held", ctypes.c_double, "NU"),
+        ("hist_head", ctypes.c_long, None), ("z", ctypes.c_double, "NX"),
+        ("stamp", ctypes.c_double, None)],
     "model_controller.h": [
         ("built", ctypes.c_int, None), ("branch", ctypes.c_int, None),
         ("zoh", ctypes.c_int, None), ("predictor", ctypes.c_int, None),
@@ -67,6 +75,7 @@ MODEL_DATA: dict[str, list[tuple[str, Any, str | None]]] = {
 DIMENSIONS = {"plant_lti.h": ("NOUT", "NIN"), "model_plant.h": ("NOUT", "NIN"),
               "delay.h": ("NIN", "NIN"), "channel.h": ("NIN", "NIN"),
               "controller_lti.h": ("NIN", "NOUT"),
+              "controller_stamped.h": ("NIN - 1", "NOUT"),  # y1 .. yn and the stamp in
               "model_controller.h": ("NIN", "NOUT")}
 STRING_MAX = 256  # fmus/native/native.h
 #: the FMI 2.0 co-simulation states of fmi2.c (FsmState)
@@ -122,7 +131,9 @@ def layout_of(fmu: Path) -> Layout:
     defines = config_defines(fmu)
     header_name = json.loads(defines["MODEL_HEADER"])
     nvr, nstring = int(defines["NVR"]), int(defines["NSTRING"])
-    nx, nu = (int(defines[name]) for name in DIMENSIONS[header_name])
+    nx, nu = (int(defines[name]) if " - " not in name
+              else int(defines[name.split(" - ")[0]]) - int(name.split(" - ")[1])
+              for name in DIMENSIONS[header_name])
     sizes = {"NX": nx, "NU": nu}
     model = type("ModelData", (ctypes.Structure,), {"_fields_": [
         (name, ctype if length is None else ctype * sizes[length])

@@ -64,7 +64,8 @@ def _recursion_error(result) -> float:
     return worst / np.abs(x).max()
 
 
-@pytest.mark.parametrize("engine,fmus", [("inprocess", "auto"), ("fmu", "python")])
+@pytest.mark.parametrize("engine,fmus", [("inprocess", "auto"), ("fmu", "python"),
+                                         ("fmu", "native")])
 def test_time_stamps_compensate_a_lossy_jittered_network_exactly(fmu_dir, engine, fmus):
     stamped = api.run(_loop(), engine=engine, fmus=fmus, fmu_dir=fmu_dir)
     assert _recursion_error(stamped) <= 1e-12

@@ -65,6 +65,7 @@ def native_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("native")
     build_native(out)  # the LTI loop's three
     build_native_fmu("channel", out)  # and the network channel (as conftest's fmu_dir)
+    build_native_fmu("stamped_controller", out)  # and the time-stamp controller
     return out
 
 

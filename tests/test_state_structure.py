@@ -88,6 +88,12 @@ KINDS = {
                        {"T": 1.0, "r": 0.25, "tau": 1.0, "A[1,2]": 1.0, "B[2,1]": 1.0,
                         "K[1,1]": -1.0, "K[1,2]": -1.5, "u0[1]": 0.5, "held_sample": True},
                        {"tau": 1.0, "A[1,1]": 1000.0}, 0.25, 5, (1.25, 1.5)),
+    # the time-stamp controller: stamps of age 0.25 (held_sample: 0.5), tau off the grid
+    "stamped_controller": Case("stamped_controller", {"n": 2, "m": 1},
+                               {"T": 1.0, "tau": 0.5, "age_max": 1.0, "A[1,2]": 1.0,
+                                "B[2,1]": 1.0, "K[1,1]": -1.0, "K[1,2]": -1.5, "u0[1]": 0.5,
+                                "held_sample": True},
+                               {"T": 0.0}, 0.25, 5, (1.25, 1.5)),
     "model_plant": Case("model_plant", {"model": str(MODELS / "example_3_8.py")},
                         {"x0[1]": 0.5}, {"tolerance": 2.0}, 0.1, 3, (0.3, -0.1)),
     "model_controller-zoh": Case("model_controller",
@@ -384,6 +390,9 @@ def _model_slave(base, module):
 
 def _python_slaves() -> dict:
     from delaycomp.fmus.controller.delaycomp_controller_lti import DelaycompControllerLTI
+    from delaycomp.fmus.controller.delaycomp_controller_stamped import (
+        DelaycompControllerStamped,
+    )
     from delaycomp.fmus.controller.delaycomp_model_controller import ModelControllerSlave
     from delaycomp.fmus.delay.delaycomp_channel import DelaycompChannel
     from delaycomp.fmus.delay.delaycomp_delay import DelaycompDelay
@@ -394,6 +403,7 @@ def _python_slaves() -> dict:
             "delay": (DelaycompDelay, {"n": 2}),
             "channel": (DelaycompChannel, {"n": 2, "L": 3}),
             "controller": (DelaycompControllerLTI, {"n": 2, "m": 1}),
+            "stamped_controller": (DelaycompControllerStamped, {"n": 2, "m": 1}),
             "model_plant": (_model_slave(ModelPlantSlave, "example_3_8"),
                             {"model_name": "example_3_8"}),
             "model_controller-zoh": (_model_slave(ModelControllerSlave, "example_3_8"),

@@ -101,9 +101,10 @@ FMUS: dict[str, FmuSpec] = {
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
                           "DelaycompControllerLTI", _FIXED_STEP + _STATE,
                           native="controller_lti"),
-    # the time-stamp controller of an LTI plant (issue 29, item 2); Python only for now
+    # the time-stamp controller of an LTI plant (issue 29, item 2)
     "stamped_controller": FmuSpec("controller", "delaycomp_controller_stamped.py",
-                                  "DelaycompControllerStamped", _FIXED_STEP + _STATE),
+                                  "DelaycompControllerStamped", _FIXED_STEP + _STATE,
+                                  native="controller_stamped"),
     "model_plant": FmuSpec("plant", "delaycomp_model_plant.py", "DelaycompPlant", _STATE,
                            template="ModelPlantSlave", native="model_plant"),
     "model_controller": FmuSpec("controller", "delaycomp_model_controller.py",

@@ -139,7 +139,9 @@ class StampedController:
     def advance(self, x, a: float, b: float) -> np.ndarray:
         """The plant's state at ``b`` from ``x`` at ``a <= b``, with the inputs it receives
         over ``[a, b]`` (exact flows, piece by piece)."""
-        x = np.asarray(x, dtype=float).reshape(self.n)
+        # a copy: with no piece to walk (a sample taken at the instant) the result is x,
+        # which must not alias the caller's array (the FMU's input y, set in place)
+        x = np.array(x, dtype=float).reshape(self.n)
         tol = _SNAP * self.T
         while b - a > tol:
             j = self._piece(a)
