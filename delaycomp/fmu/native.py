@@ -983,8 +983,8 @@ def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
             what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
             raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
                              f"is {what}; native FMUs exist for the delay, the network "
-                             "channel, the LTI plant and controller, and a model file's plant "
-                             "and controller")
+                             "channel, the LTI plant and controller, the time-stamp "
+                             "controller, and a model file's plant and controller")
     if clocked:
         ctrl = loop.by_role("controller")
         if ctrl is None or isinstance(ctrl.source, FmuFile) or not native_twin(
