@@ -146,8 +146,9 @@ def test_a_loop_with_a_users_fmu_runs_the_python_fmus_with_a_note(tmp_path):
     result = api.run(loop, 1.0, fmu_dir=tmp_path / "py")
     assert result.notes == ["the Python FMUs ran (no native ones here: instance 'plant' is "
                             "a user's FMU file; native FMUs exist for the delay, the "
-                            "network channel, the LTI plant and controller, and a model "
-                            "file's plant and controller)"]
+                            "network channel, the LTI plant and controller, the "
+                            "time-stamp controller, and a model file's plant and "
+                            "controller)"]
 
 
 def test_the_api_runs_native_by_default(tmp_path):

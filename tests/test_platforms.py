@@ -85,8 +85,8 @@ def model_file():
     return REPO / "delaycomp" / "paper" / "models" / "example_3_8.py"
 
 
-@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "model_plant",
-                                  "model_controller"])
+@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "stamped_controller",
+                                  "model_plant", "model_controller"])
 def test_every_native_fmu_carries_three_platforms(kind, model_file, tmp_path):
     """linux64 (.so, x86-64), win64 (.dll, PE x86-64) and aarch64-linux (.so, AArch64):
     each folder holds a library built for the platform it names."""
@@ -151,8 +151,8 @@ def test_delaycomp_platforms_chooses_the_platforms(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("cc", ["gcc", "clang"])
-@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "model_plant",
-                                  "model_controller"])
+@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "stamped_controller",
+                                  "model_plant", "model_controller"])
 def test_sources_compile_alone_as_c99(cc, kind, model_file, tmp_path):
     """An importer builds the FMU for any other platform from ``sources/`` alone: the
     files modelDescription lists compile with ``-std=c99 -pedantic -Wall -Wextra
