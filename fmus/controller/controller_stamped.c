@@ -349,20 +349,8 @@ static int proposal_ok(const StateView *v) {
                         vector_text(u, NU).s);
 }
 
-/* In state 'step complete' the time is where the last step left the sample counter: at the
- * sampling instant t0 + next T (at_sample), or before it (model_step's own test). */
 static int sample_time_ok(const StateView *v) {
-    const Data *d = v->d;
-    double T = d->real[VR_T], t_sample = d->t0 + (double)d->m.next * T;
-    double tol = 1e-9 * T + EPS4 * fabs(d->time);
-    int at = fabs(d->time - t_sample) <= tol;
-    double slack = 1e-6 * fmax(fmax(T, fabs(d->time)), 1.0);
-    if (at == d->m.at_sample && (at || (d->time < t_sample && d->time > t_sample - T - slack)))
-        return 1;
-    return state_refuse(v, "next = %ld: must put the sampling instant t0 + next T = %s %s the "
-                        "time %s (at_sample = %d)", d->m.next, num(t_sample).s,
-                        d->m.at_sample ? "at" : "within one period after", num(d->time).s,
-                        d->m.at_sample);
+    return state_sampling_time(v, v->d->real[VR_T], v->d->m.next, v->d->m.at_sample);
 }
 
 /* The estimate and the last stamp: present from the first instant on (zeros before), z

@@ -218,6 +218,23 @@ int state_same(const StateView *v, const char *name, const double *x, const doub
     return 1;
 }
 
+/* In state 'step complete' the time is where the last step left the sample counter: at the
+ * sampling instant t0 + next T (at_sample), or before it (model_step's own test). */
+int state_sampling_time(const StateView *v, double T, long next, int at_sample) {
+    const Data *d = v->d;
+    double t_sample = d->t0 + (double)next * T;
+    double tol = 1e-9 * T + 4 * DBL_EPSILON * fabs(d->time);
+    int at = fabs(d->time - t_sample) <= tol;
+    /* between instants: after t_{next-1}, up to the host's round-off of its start */
+    double slack = 1e-6 * fmax(fmax(T, fabs(d->time)), 1.0);
+    if (at == at_sample && (at || (d->time < t_sample && d->time > t_sample - T - slack)))
+        return 1;
+    return state_refuse(v, "next = %ld: must put the sampling instant t0 + next T = %s %s the "
+                        "time %s (at_sample = %d)", next, num(t_sample).s,
+                        at_sample ? "at" : "within one period after", num(d->time).s,
+                        at_sample);
+}
+
 int state_nbuf(const StateView *v, size_t need, const char *why) {
     return v->nbuf == need || state_refuse(v, "nbuf = %lu: must be %lu (%s)",
                                            (unsigned long)v->nbuf, (unsigned long)need, why);

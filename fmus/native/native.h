@@ -194,6 +194,9 @@ int state_zeros(const StateView *v, const char *name, const double *x, size_t n,
 int state_same(const StateView *v, const char *name, const double *x, const double *expected,
                size_t n, const char *why);  /* the same bits */
 int state_nbuf(const StateView *v, size_t need, const char *why);  /* nbuf == need */
+/* A sampled controller in state 'step complete': its time at the sampling instant t0 + next
+ * T when at_sample, else within the period before it (the sample counter's consistency). */
+int state_sampling_time(const StateView *v, double T, long next, int at_sample);
 /* The model's checks of initialization (check, logging as model_setup does; out receives
  * what it derives) run on a copy of the state's data: 1 if they pass and leave its Strings
  * as they are (resolved from their _index twins), else 0 and the refusal "<the check's
