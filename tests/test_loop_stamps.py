@@ -184,3 +184,33 @@ def test_the_stamped_loop_exported_as_one_fmu_is_run_bit_for_bit(stamped_file, t
     at = ours[::20]
     for name, col in (("x1", 1), ("x2", 2), ("x3", 3)):
         assert np.array_equal(np.asarray(res[name]), at[:, col]), name
+
+
+def test_the_batch_engine_refuses_stamps_and_never_runs_them_as_the_paper_controller(
+        tmp_path, capsys):
+    """A sweep's batch engine runs the paper's controller over constant delays: a loop
+    file asking for stamps is refused in one line (before, it ran the paper's controller
+    silently), and a built loop with a channel or the time-stamp controller is not batched
+    (the per-point engine takes it, saying why)."""
+    from delaycomp.studies.sweep_batch import lti_point
+
+    path = tmp_path / "s.toml"
+    data = copy.deepcopy(MYLOOP)
+    data["controller"]["stamps"] = True
+    path.write_text(_toml_text(data), encoding="utf-8")
+    assert main(["sweep", str(path), "--grid", "r=0.2:0.4:3", "--out",
+                 str(tmp_path / "s.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "controller.stamps = true is not supported by the batch engine yet" in err
+    assert len(err.strip().splitlines()) == 1
+    assert lti_point(_loop()) == "the meas_delay is delaycomp's channel FMU"
+    assert lti_point(_loop(meas_delay={}, input_delay={})) == (
+        "the meas_delay is delaycomp's channel FMU")
+    plain = copy.deepcopy(MYLOOP)
+    plain["controller"]["stamps"] = True
+    stamped = build(plain, REPO, name="myloop")
+    assert lti_point(stamped) == "the meas_delay is delaycomp's channel FMU"
+    no_stamp = stamped.with_instances(
+        i if i.role != "meas_delay" else build(copy.deepcopy(MYLOOP), REPO).by_role(
+            "meas_delay") for i in stamped.instances)
+    assert lti_point(no_stamp) == "the controller is delaycomp's stamped controller FMU"

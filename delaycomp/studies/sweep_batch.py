@@ -160,17 +160,30 @@ def model_point(loop) -> tuple[dict, tuple, Model] | str:
     return point, (str(plant.source.model), params, bool(cp.get("pad", False))), model
 
 
+def _what(source) -> str:
+    """An instance's source in words, for the reason a loop is not batched."""
+    if isinstance(source, BuiltinFmu):
+        return f"delaycomp's {source.kind.replace('_', ' ')} FMU"
+    if isinstance(source, ModelFmu):
+        return "a model file's"
+    return "an FMU file"
+
+
 def _standard(loop, kind) -> str | None:
-    """Why ``loop`` is not the standard four-instance loop the batch engine runs."""
+    """Why ``loop`` is not the standard four-instance loop the batch engine runs (constant
+    delays, the paper's controller)."""
     roles = {i.role: i for i in loop.instances}
     if len(loop.instances) != 4 or len(roles) != 4:
         return "the loop is not the standard plant, delays and controller"
     for role in ("meas_delay", "input_delay"):
-        if not isinstance(roles[role].source, BuiltinFmu):
-            return f"the {role} is an FMU file"
+        src = roles[role].source
+        if not (isinstance(src, BuiltinFmu) and src.kind == "delay"):
+            return f"the {role} is {_what(src)}"
     for role in ("plant", "controller"):
-        if not isinstance(roles[role].source, kind):
-            return f"the {role} is an FMU file"
+        src = roles[role].source
+        if not isinstance(src, kind) or (isinstance(src, BuiltinFmu)
+                                         and src.kind not in ("plant", "controller")):
+            return f"the {role} is {_what(src)}"
     if roles["controller"].parameters.get("held_sample"):
         return "held_sample is set (a third-party master's timing)"
     return None

@@ -684,7 +684,15 @@ def design(data: dict, where: str = "loop") -> LtiPoint | None:
     if "fmu" in plant or "A" not in plant:
         return None
     refuse_channel_data(data, "the batch engine (use --engine inprocess or fmu)", where)
+    if _stamped(data):
+        raise ParameterError(f"{where}: controller.stamps = true is not supported by the "
+                             "batch engine yet (use --engine inprocess or fmu)")
     return _lti(top, where)[0]
+
+
+def _stamped(data: dict) -> bool:
+    """Does the loop file's ``[controller]`` ask for the time-stamp controller?"""
+    return (data.get("controller") or {}).get("stamps", False) is True
 
 
 def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
@@ -708,7 +716,7 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         for data in datas:
             top = _top(data, where)
             if "fmu" in top["plant"] or "A" not in top["plant"] or any(
-                    t in data for t in CHANNEL_TABLES):
+                    t in data for t in CHANNEL_TABLES) or _stamped(data):
                 return None
             points.append(_lti_args(top, where, array))
         batch = lti_designs([args for args, _, _ in points])
