@@ -216,7 +216,10 @@ def test_cli_run_of_a_constant_channel_writes_the_same_csv(tmp_path):
         path = _toml(tmp_path / f"{name}.toml", **tables)
         assert main(["run", str(path), "--engine", "inprocess", "--out",
                      str(tmp_path / f"{name}.csv")]) == 0
-    assert (tmp_path / "plain.csv").read_bytes() == (tmp_path / "channel.csv").read_bytes()
+    plain, channel = (tmp_path / "plain.csv", tmp_path / "channel.csv")
+    assert plain.read_text().splitlines()[0] == channel.read_text().splitlines()[0]
+    assert np.array_equal(np.loadtxt(plain, delimiter=",", skiprows=1),
+                          np.loadtxt(channel, delimiter=",", skiprows=1))
 
 
 def test_a_lossy_channel_fmu_and_in_process_agree_and_the_seed_fixes_it(fmu_dir):
