@@ -78,6 +78,7 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 import delaycomp
 from delaycomp.errors import ParameterError  # the one ParameterError (DelaycompError, ValueError)
+from delaycomp.maths.grid import GRID_RTOL, drift
 from delaycomp.names import CONFIG_NAME, INDEX_SUFFIX
 
 #: pythonfmu 0.7's runtime releases one reference to the slave module's ``__dict__`` each
@@ -111,6 +112,25 @@ def _plain(value):
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"{type(value).__name__} is not part of an FMU state")
+
+
+_EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times
+
+
+def ends_on_sample(current_time: float, step_size: float, t0: float, T: float,
+                   next_index: int) -> bool:
+    """Does the step ``[t, t + h]`` of a controller sampling at ``t0 + i T`` end on its next
+    instant ``t0 + next_index T`` (up to the grid's tolerance and the drift of a host's
+    clock, ``t += h``: ``delaycomp.maths.grid.drift``)? ``ParameterError`` where it passes
+    over it."""
+    t_end = current_time + step_size
+    t_sample = t0 + next_index * T
+    tol = GRID_RTOL * T + max(_EPS4 * abs(t_end), drift(t_end, step_size, t0))
+    if t_end > t_sample + tol:
+        raise ParameterError(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes "
+                             f"over the sampling instant {t_sample!r}; steps must end on "
+                             "t0 + iT")
+    return abs(t_end - t_sample) <= tol
 
 
 def check_inputs(names, values, t: float) -> None:
@@ -345,6 +365,22 @@ class TableSlave(Fmi2Slave):
             Real(name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                  getter=getter, setter=setter, description=description)
         )
+
+    def matrix_parameter(self, label: str, mat: np.ndarray, description: str) -> None:
+        """Real parameters for the elements of ``mat`` (set in place): ``label[i,j]`` of a
+        matrix, ``label[i]`` of a vector (1-based, row-major)."""
+        def element(idx: tuple[int, ...]) -> tuple[Callable[[], float],
+                                                     Callable[[float], None]]:
+            def get() -> float:
+                return float(mat[idx])
+
+            def set_(v: float) -> None:
+                mat[idx] = v
+            return get, set_
+
+        for idx in np.ndindex(mat.shape):
+            self.parameter(f"{label}[{','.join(str(k + 1) for k in idx)}]", *element(idx),
+                           description)
 
     def string_parameter(
         self, name: str, getter: Callable[[], str], setter: Callable[[str], None],

@@ -13,18 +13,17 @@ from delaycomp.fmu.slave import (
     TableSlave,
     check_finite,
     check_inputs,
+    ends_on_sample,
     state_count,
     state_flag,
     state_refused,
     state_rows,
     state_vector,
 )
-from delaycomp.maths.grid import GRID_RTOL, drift, periods
+from delaycomp.maths.grid import periods
 from delaycomp.maths.lti import MODES, check_steps
 from delaycomp.maths.zoh import ZOHController
 from delaycomp.names import indexed
-
-_EPS4 = 4 * float(np.finfo(float).eps)  # round-off allowance on sampling-instant times
 
 
 class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
@@ -60,20 +59,14 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
                            (lambda v, a=name: setattr(self, a, v)), text)
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
                               "compensated (u = K Phi) or uncompensated (u = K y)", MODES)
-        for label, mat, rows, cols, text in (
-            ("A", self.A, n, n, "plant matrix A used by the predictor"),
-            ("B", self.B, n, m, "plant matrix B used by the predictor"),
-            ("K", self.K, m, n, "feedback gain, u = K x"),
+        for label, mat, text in (
+            ("A", self.A, "plant matrix A used by the predictor"),
+            ("B", self.B, "plant matrix B used by the predictor"),
+            ("K", self.K, "feedback gain, u = K x"),
         ):
-            for i in range(rows):
-                for j in range(cols):
-                    self.parameter(f"{label}[{i + 1},{j + 1}]",
-                                   (lambda M=mat, i=i, j=j: float(M[i, j])),
-                                   (lambda v, M=mat, i=i, j=j: M.__setitem__((i, j), v)), text)
-        for j in range(m):
-            self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
-                           (lambda v, j=j: self.u0.__setitem__(j, v)),
-                           "controller output history, constant on [t0 - r - tau, t0)")
+            self.matrix_parameter(label, mat, text)
+        self.matrix_parameter("u0", self.u0,
+                              "controller output history, constant on [t0 - r - tau, t0)")
         self.register_held_sample()
         self.input_names = indexed("y", n)
         self.output_names = indexed("u", m)
@@ -177,13 +170,6 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
             self.ctrl.commit(self._output())
             self._next += 1
             self._proposal = None
-        t_end = current_time + step_size
-        t_sample = self.t0 + self._next * self.T
-        # the grid's tolerance and the drift of a host's clock (t += h: grid.drift)
-        tol = GRID_RTOL * self.T + max(_EPS4 * abs(t_end), drift(t_end, step_size, self.t0))
-        if t_end > t_sample + tol:
-            self.fail(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes over the "
-                      f"sampling instant {t_sample!r}; steps must end on t0 + iT")
-        self._at_sample = abs(t_end - t_sample) <= tol
+        self._at_sample = ends_on_sample(current_time, step_size, self.t0, self.T, self._next)
         if self._hold():
             self._proposal = None  # the held input is sampled at the next instant
