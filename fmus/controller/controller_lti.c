@@ -9,7 +9,6 @@
  * fmus/controller/delaycomp_controller_lti.py (delaycomp.maths.zoh.ZOHController and
  * delaycomp.maths.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
  * included. Matrices are computed once, at fmi2ExitInitializationMode. */
-#include <float.h>
 #include <limits.h>
 #include <math.h>
 #include <stdlib.h>
@@ -19,7 +18,6 @@
 #include "native.h"
 #include "linalg.h"  /* expm, flow, matmul, with the caller's work memory */
 
-#define EPS4 (4 * DBL_EPSILON)  /* round-off allowance on sampling-instant times */
 
 static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[VR_MODE]]; }
 
@@ -336,17 +334,7 @@ int model_step(Instance *c, double t, double h) {
         m->next += 1;
         m->proposal_valid = 0;
     }
-    double T = c->d.real[VR_T];
-    double t_end = t + h;
-    double t_sample = c->d.t0 + (double)m->next * T;
-    /* the grid's tolerance and the drift of a host's clock (t += h: drift) */
-    double tol = GRID_RTOL * T + fmax(EPS4 * fabs(t_end), drift(t_end, h, c->d.t0));
-    if (t_end > t_sample + tol) {
-        log_error(c, "step [%s, %s] is not allowed: it passes over the sampling instant %s; "
-                  "steps must end on t0 + iT", num(t).s, num(t_end).s, num(t_sample).s);
-        return -1;
-    }
-    m->at_sample = fabs(t_end - t_sample) <= tol;
+    if (ends_on_sample(c, t, h, c->d.real[VR_T], m->next, &m->at_sample) != 0) return -1;
     if (c->d.boolean[VR_HELD_SAMPLE]) {
         memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
         m->y_held_valid = 1;

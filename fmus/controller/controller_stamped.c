@@ -15,7 +15,6 @@
  * and its stamp held) included; the same piece walk (StampedController.advance, its _SNAP
  * rule). Each piece's flow is computed when it is needed (linalg.c's flow, no cache: the
  * results cannot depend on one), in work memory allocated at initialization. */
-#include <float.h>
 #include <limits.h>
 #include <math.h>
 #include <stdlib.h>
@@ -25,7 +24,6 @@
 #include "native.h"
 #include "linalg.h"  /* flow, with the caller's work memory */
 
-#define EPS4 (4 * DBL_EPSILON)  /* round-off allowance on sampling-instant times */
 #define SNAP 1e-9  /* delaycomp.maths.stamped._SNAP: a time this close (in T) to a breakpoint */
 
 static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[VR_MODE]]; }
@@ -287,16 +285,7 @@ int model_step(Instance *c, double t, double h) {
         m->next += 1;
         m->proposal_valid = 0;
     }
-    double T = c->d.real[VR_T];
-    double t_end = t + h;
-    double t_sample = instant(c);
-    double tol = GRID_RTOL * T + fmax(EPS4 * fabs(t_end), drift(t_end, h, c->d.t0));
-    if (t_end > t_sample + tol) {
-        log_error(c, "step [%s, %s] is not allowed: it passes over the sampling instant %s; "
-                  "steps must end on t0 + iT", num(t).s, num(t_end).s, num(t_sample).s);
-        return -1;
-    }
-    m->at_sample = fabs(t_end - t_sample) <= tol;
+    if (ends_on_sample(c, t, h, c->d.real[VR_T], m->next, &m->at_sample) != 0) return -1;
     if (c->d.boolean[VR_HELD_SAMPLE]) {
         memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
         m->stamp_held = c->d.real[VR_STAMP];

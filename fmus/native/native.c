@@ -218,6 +218,20 @@ int state_same(const StateView *v, const char *name, const double *x, const doub
     return 1;
 }
 
+int ends_on_sample(Instance *c, double t, double h, double T, long next, int *at_sample) {
+    double t_end = t + h;
+    double t_sample = c->d.t0 + (double)next * T;
+    /* the grid's tolerance and the drift of a host's clock (t += h: drift) */
+    double tol = GRID_RTOL * T + fmax(4 * DBL_EPSILON * fabs(t_end), drift(t_end, h, c->d.t0));
+    if (t_end > t_sample + tol) {
+        log_error(c, "step [%s, %s] is not allowed: it passes over the sampling instant %s; "
+                  "steps must end on t0 + iT", num(t).s, num(t_end).s, num(t_sample).s);
+        return -1;
+    }
+    *at_sample = fabs(t_end - t_sample) <= tol;
+    return 0;
+}
+
 /* In state 'step complete' the time is where the last step left the sample counter: at the
  * sampling instant t0 + next T (at_sample), or before it (model_step's own test). */
 int state_sampling_time(const StateView *v, double T, long next, int at_sample) {
