@@ -37,7 +37,6 @@ whatever the chunking. The ``seed`` keys of the tables are replaced.
 
 from __future__ import annotations
 
-import csv
 import inspect
 import math
 from collections.abc import Callable, Iterable, Sequence
@@ -48,7 +47,6 @@ import numpy as np
 
 from delaycomp.errors import ParameterError
 from delaycomp.maths.channel import Channel
-from delaycomp.tmpfiles import new_file
 
 #: the channel the grid acts on
 ROLES = ("meas_delay", "input_delay")
@@ -355,21 +353,11 @@ def write_csv(result: RobustnessMap, path: str | Path) -> None:
     ``repr`` writes them), through a ``.part`` file moved into place once written (removed
     if writing stops: no half-written file looks like a result)."""
     from delaycomp.studies.axes import format_value
+    from delaycomp.studies.sweep import write_table
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with new_file(tmp) as fh:
-            w = csv.writer(fh)
-            w.writerow(COLUMNS)
-            for row in result.rows:
-                w.writerow([format_value(row["jitter"]), format_value(row["loss"]),
-                            row["mode"], *(_cell(row[c]) for c in COLUMNS[3:])])
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(path)
+    write_table(path, COLUMNS, ([format_value(row["jitter"]), format_value(row["loss"]),
+                                 row["mode"], *(_cell(row[c]) for c in COLUMNS[3:])]
+                                for row in result.rows))
 
 
 def _cell(value) -> str:

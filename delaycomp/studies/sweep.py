@@ -46,7 +46,7 @@ import dataclasses
 import gc
 import itertools
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -819,16 +819,27 @@ def write_csv(rows: Iterable[dict], names: list[str], path: str | Path) -> None:
     once the last is written (and removed if the rows stop with an error, Ctrl-C or
     SIGTERM included: no half-written file looks like a result).
     """
+    # grid values as written (15 digits), metrics to the bit
+    write_table(path, [*names, *METRICS],
+                ([*(format_value(row[k]) for k in names), *(_cell(row[k]) for k in METRICS)]
+                 for row in rows))
+
+
+def write_table(path: str | Path, header: Sequence[str],
+                lines: Iterable[Sequence[str]]) -> None:
+    """Write CSV ``lines`` (each written as it comes) under ``header`` to ``path``, through a
+    ``.part`` file (a new file: never through a link) moved into place once the last line
+    is written, removed if the lines stop (an error, Ctrl-C, SIGTERM, a full disk: no
+    half-written file looks like a result). ``write_csv``'s and the robustness map's."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
     try:
         with new_file(tmp) as fh:
             w = csv.writer(fh)
-            w.writerow([*names, *METRICS])
-            for row in rows:  # grid values as written (15 digits), metrics to the bit
-                w.writerow([*(format_value(row[k]) for k in names),
-                            *(_cell(row[k]) for k in METRICS)])
+            w.writerow(header)
+            for line in lines:
+                w.writerow(line)
     except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-written file is left
         tmp.unlink(missing_ok=True)
         raise
