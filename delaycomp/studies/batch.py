@@ -595,6 +595,20 @@ def _lti_group(be: Backend, d: LtiBatch, N: int, stop: float, record: bool) -> B
     return res
 
 
+def _coefficients(plan: _LtiPlan, d: LtiBatch, col, Lmax: int) -> tuple:
+    """A stepper's per-point coefficients, entry by entry, each ``col`` of its ``(P,)``
+    column (contiguous, on the stepper's device): ``(Ad, Bd, K, E, QB, x0, u0)``, ``QB``
+    the predictor's first ``Lmax`` blocks."""
+    n, m = plan.Bd.shape[1:]
+    return ([[col(plan.Ad[:, a, b]) for b in range(n)] for a in range(n)],
+            [[col(plan.Bd[:, a, c]) for c in range(m)] for a in range(n)],
+            [[col(d.K[:, c, a]) for a in range(n)] for c in range(m)],
+            [[col(plan.E[:, a, b]) for b in range(n)] for a in range(n)],
+            [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
+             for q in range(Lmax)],
+            col(d.x0.T), col(d.u0.T))
+
+
 class _LtiStepper:
     """The stepping of one LTI group (the maths), on the backend's arrays, the points on
     the last axis: the controller at each sampling tick, the plant's exact step each tick.
@@ -619,14 +633,8 @@ class _LtiStepper:
         def col(a):  # a per-point coefficient as a contiguous (P,) array
             return dev(np.ascontiguousarray(a))
 
-        self.Ad = [[col(plan.Ad[:, a, b]) for b in range(n)] for a in range(n)]
-        self.Bd = [[col(plan.Bd[:, a, c]) for c in range(m)] for a in range(n)]
-        self.K = [[col(d.K[:, c, a]) for a in range(n)] for c in range(m)]
-        self.E = [[col(plan.E[:, a, b]) for b in range(n)] for a in range(n)]
-        self.QB = [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
-                   for q in range(self.Lmax)]
-        self.x0 = col(d.x0.T)
-        self.u0 = col(d.u0.T)
+        self.Ad, self.Bd, self.K, self.E, self.QB, self.x0, self.u0 = _coefficients(
+            plan, d, col, self.Lmax)
         self.pidx = dev(np.arange(P))
         self.Dr_uniform = bool(np.all(plan.Dr == plan.Dr[0]))
         self.Dt_uniform = bool(np.all(plan.Dt == plan.Dt[0]))
@@ -1449,17 +1457,8 @@ class _ChannelStepper:
         self.stamped = stamped
         self.comp = np.asarray(d.mode == "compensated")
 
-        def col(a):
-            return np.ascontiguousarray(a)
-
-        self.Ad = [[col(plan.Ad[:, a, b]) for b in range(n)] for a in range(n)]
-        self.Bd = [[col(plan.Bd[:, a, c]) for c in range(m)] for a in range(n)]
-        self.K = [[col(d.K[:, c, a]) for a in range(n)] for c in range(m)]
-        self.E = [[col(plan.E[:, a, b]) for b in range(n)] for a in range(n)]
-        self.QB = [[[col(plan.QB[q, :, a, c]) for c in range(m)] for a in range(n)]
-                   for q in range(self.Lmax)]
-        self.u0 = col(d.u0.T)
-        self.x0 = col(d.x0.T)
+        self.Ad, self.Bd, self.K, self.E, self.QB, self.x0, self.u0 = _coefficients(
+            plan, d, np.ascontiguousarray, self.Lmax)
         self.xb = np.zeros((self.nb, N, n, P))
         self.flat = self.xb.reshape(self.nb * N, n, P)
         self.flat[0] = self.x0
