@@ -117,7 +117,7 @@ def test_time_stamps_are_the_per_point_stamped_controller():
              stamps=True)
     from delaycomp.maths import stamped
 
-    assert batch.STAMP_SNAP == stamped._SNAP  # the same decisions near age_max
+    assert batch.STAMP_SNAP == stamped.SNAP  # the same decisions near age_max
 
 
 def test_time_stamps_in_the_batch_are_exact_for_every_seed():

@@ -6,7 +6,7 @@ the same samples: of varying age, repeated stamps (a lost packet: the last one s
 again), too old ones (older than ``age_max``), stamps before ``t0`` (the history),
 ``tau`` off the grid of ``T``, both modes, ``held_sample``.
 
-Tolerance: the twins walk the same pieces (the same ``_SNAP`` rule, the same double
+Tolerance: the twins walk the same pieces (the same ``SNAP`` rule, the same double
 arithmetic for the breakpoints) and differ only in each piece's flow: scipy's ``expm``
 against ``linalg.c``'s Pade (each accurate to a few ulps of the augmented exponential's
 norm; ``tests/test_native.py`` holds the two to ~1e-15 relative) and the order of the

@@ -60,7 +60,7 @@ from delaycomp.maths.lti import MODES, as_matrices, flow
 #: first piece varies): a cache, the results do not depend on it
 _FLOWS_KEPT = 32
 #: how close to a breakpoint of the input (t_j + tau) a time is taken as on it, in T
-_SNAP = 1e-9
+SNAP = 1e-9
 
 
 class StampedController:
@@ -137,7 +137,7 @@ class StampedController:
         t_{j+1} + tau`` (a time within round-off of a breakpoint is on it)."""
         x = (w - self.t0 - self.tau) / self.T
         j = math.floor(x)
-        return j + 1 if x - j > 1.0 - _SNAP else j
+        return j + 1 if x - j > 1.0 - SNAP else j
 
     def advance(self, x, a: float, b: float) -> np.ndarray:
         """The plant's state at ``b`` from ``x`` at ``a <= b``, with the inputs it receives
@@ -145,7 +145,7 @@ class StampedController:
         # a copy: with no piece to walk (a sample taken at the instant) the result is x,
         # which must not alias the caller's array (the FMU's input y, set in place)
         x = np.array(x, dtype=float).reshape(self.n)
-        tol = _SNAP * self.T
+        tol = SNAP * self.T
         while b - a > tol:
             j = self._piece(a)
             end = min(self.t0 + (j + 1) * self.T + self.tau, b)
@@ -163,7 +163,7 @@ class StampedController:
         ``stamp`` (``new``: the sample is used) or, where it is not new or too old, from
         the last estimate."""
         t = self._time()
-        if not (math.isfinite(stamp) and stamp <= t + _SNAP * self.T):
+        if not (math.isfinite(stamp) and stamp <= t + SNAP * self.T):
             raise ValueError(f"stamp = {stamp!r} at t = {t!r} is not allowed: must be a finite "
                              "time <= t (the send time of the sample shown)")
         y = np.asarray(y, dtype=float).reshape(self.n)
@@ -171,7 +171,7 @@ class StampedController:
         if self._memo is not None and self._memo[0] == key:
             return self._memo[1]
         s = max(stamp, self.t0)  # before t0: the history x0, the plant's state at t0
-        if (stamp > self.stamp and t - s <= self.age_max + _SNAP * self.T) or self.z is None:
+        if (stamp > self.stamp and t - s <= self.age_max + SNAP * self.T) or self.z is None:
             # the first instant always uses its sample: a stamp at most t0 (the history)
             got = self.advance(y, s, t), True
         else:

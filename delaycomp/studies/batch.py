@@ -65,6 +65,7 @@ from delaycomp.maths.grid import on_grid_array
 from delaycomp.maths.grid import periods as zoh_periods
 from delaycomp.maths.lti import MODES, LTIPredictor, discretize
 from delaycomp.maths.nlcontrol import padded_delay
+from delaycomp.maths.stamped import SNAP
 from delaycomp.system import LtiBatch
 
 #: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.studies.sweep.ZERO``).
@@ -1234,8 +1235,8 @@ def _np_put(a, index, value):
 # -- LTI loops through network channels (issue 29, item 4) -------------------------------
 
 #: how close to ``age_max`` (in ``T``) a sample's age counts as within it: the time-stamp
-#: controller's (``delaycomp.maths.stamped``; tests/test_batch_channel.py holds them equal)
-STAMP_SNAP = 1e-9
+#: controller's own (``delaycomp.maths.stamped.SNAP``)
+STAMP_SNAP = SNAP
 
 #: ``run_lti_channels``' default chunk: points advanced together (measured in
 #: ``bench/channels.py``: a few thousand keep a tick's rows and the channel's arrays of a

@@ -12,7 +12,7 @@
  * [t_j + tau, t_{j+1} + tau) (u0 before t0 + tau). The twin of
  * fmus/controller/delaycomp_controller_stamped.py (delaycomp.maths.stamped.
  * StampedController): same variables, checks, messages and timing, held_sample (the sample
- * and its stamp held) included; the same piece walk (StampedController.advance, its _SNAP
+ * and its stamp held) included; the same piece walk (StampedController.advance, its SNAP
  * rule). Each piece's flow is computed when it is needed (linalg.c's flow, no cache: the
  * results cannot depend on one), in work memory allocated at initialization. */
 #include <limits.h>
@@ -24,7 +24,7 @@
 #include "native.h"
 #include "linalg.h"  /* flow, with the caller's work memory */
 
-#define SNAP 1e-9  /* delaycomp.maths.stamped._SNAP: a time this close (in T) to a breakpoint */
+#define SNAP 1e-9  /* delaycomp.maths.stamped.SNAP: a time this close (in T) to a breakpoint */
 
 static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[VR_MODE]]; }
 
