@@ -292,6 +292,51 @@ def test_check_against_the_reference_csv_a_loop_file_names(lti_case, tmp_path):
     assert proc.returncode == 1  # a controller that assumes another delay: fails
 
 
+def test_check_of_a_loop_file_whose_measurement_is_a_channel(lti_case, tmp_path):
+    """``[meas_delay]`` a lossy channel with jitter 2T, ``stamps = true``: the prediction is
+    exact (issue 29, item 2), so the loop is the compensated loop with ``r = 0``, computed
+    independently (``solve_zoh_loop``: at ``r = 0`` the window ``[t_i, t_i + tau)`` holds
+    only inputs the plant does receive, so its prediction is exact from ``t0`` on). Same
+    tolerance as every exact row, ``EXACT``: measured 7.9e-13."""
+    _folder, K = lti_case
+    times, xs, us = solve_zoh_loop(lambda x, u: A @ x + B @ u, lambda x: K @ x, T, 0.0, TAU,
+                                   X0, U0, 3.0, N, True)
+    with open(tmp_path / "ref.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time", "plant.x1", "plant.x2", "plant.x3", "controller.u1",
+                    "controller.u2"])
+        for t, x, u in zip(times, xs, us):
+            w.writerow([repr(float(v)) for v in (t, *x, *u)])
+    path = write_lti_loop(tmp_path, K, extra=textwrap.dedent("""\
+        stamps = true
+
+        [meas_delay]
+        distribution = "uniform"
+        jitter = 0.4
+        loss_model = "bernoulli"
+        loss = 0.3
+        seed = 7
+
+        [reference]
+        csv = "ref.csv"
+        """))
+    path.write_text(path.read_text().replace("stop_time = 12.0", "stop_time = 3.0"))
+    proc = cli("check", path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("| plant3/")]
+    masters = {line.split("|")[2].strip() for line in rows}
+    assert {"delaycomp", "fmu-alone"} <= masters, proc.stdout  # the others: where installed
+    assert all(line.split("|")[5].strip().startswith("yes") for line in rows), proc.stdout
+    # the channel acts: without the stamps the same loop misses the reference by far
+    proc = cli("check", path, "--master", "delaycomp", "--set", "controller.stamps=false")
+    assert proc.returncode == 1 and "| plant3/reference | delaycomp |" in proc.stdout
+    # a bad value of the channel: the failed row names the channel's key and its range
+    proc = cli("check", path, "--master", "delaycomp", "--set", "meas_delay.loss=1.5")
+    assert proc.returncode == 1
+    assert "meas_delay.loss = 1.5 is not allowed: must be a finite number >= 0.0 and <= 1.0" \
+        in proc.stdout, proc.stdout
+
+
 def test_critical_delay_of_a_loop_file(lti_case, tmp_path):
     folder, K = lti_case
     path = write_lti_loop(folder, K)
