@@ -22,7 +22,9 @@ run) and with one packet per sample (``period = T``, a sensor that sends what it
 
 Each batch column runs the whole count once per repeat, alternately, medians reported;
 the batch results are checked against the per-point runs of the sampled seeds (the
-largest difference of the quadratic cost, relative).
+largest difference of the quadratic cost, relative). Where CuPy reaches a GPU, each column
+also runs on it (``run_lti_channels(backend="cupy")``), its results compared with the
+CPU's exactly; ``--cpu-runs`` times the CPU on fewer runs, scaled.
 """
 
 from __future__ import annotations
@@ -86,51 +88,87 @@ def per_point(data: dict, seeds: list[int], stamps: bool, period: float = 0.0
     return statistics.median(times), costs
 
 
+def gpu_backend():
+    """CuPy's backend where it reaches a GPU, else ``None``."""
+    try:
+        be = batch.channel_backend("auto")
+    except batch.BatchError:
+        return None
+    return be if be.name == "cupy" else None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20 000 runs, one repeat")
     ap.add_argument("--runs", type=int, default=10**6)
+    ap.add_argument("--cpu-runs", type=int, default=None,
+                    help="runs the CPU columns time (default --runs), scaled to --runs: a "
+                         "shorter bench where a GPU runs the whole count")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--per-point", type=int, default=5, help="seeds the per-point engine runs")
     ap.add_argument("--out", type=Path, default=REPO / "BENCHMARKS-channels.md")
     args = ap.parse_args(argv)
     if args.quick:
         args.runs, args.repeats, args.per_point = 20_000, 1, 2
+    cpu_runs = min(args.runs, args.cpu_runs or args.runs)
+    gpu = gpu_backend()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     data = example_3_6()
-    design = design_of(data, args.runs)
     T = float(data["T"])
     #: column -> (stamps, the channel's period)
     columns = {"paper": (False, 0.0), "stamps": (True, 0.0),
                "paper, period = T": (False, T), "stamps, period = T": (True, T)}
-    seeds = np.arange(args.runs)
     samples: dict[str, list[float]] = {key: [] for key in columns}
-    results = {}
+    gpu_samples: dict[str, list[float]] = {key: [] for key in columns}
+    results, gpu_results = {}, {}
+
+    def run(key, runs, backend="numpy"):
+        stamps, period = columns[key]
+        return batch.run_lti_channels(design_of(data, runs), STOP,
+                                      meas=Channel(**MEAS, period=period),
+                                      meas_seeds=np.arange(runs), stamps=stamps,
+                                      backend=backend)
+
+    warm = {}
+    if gpu is not None:  # CuPy compiles each kernel on first use: not timed
+        for key in columns:
+            t = time.perf_counter()
+            run(key, 10_000, gpu)
+            warm[key] = time.perf_counter() - t
     with single_threaded_blas():
         for _ in range(args.repeats):
-            for key, (stamps, period) in columns.items():
-                print(f"{key}: {args.runs} runs ...", flush=True)
+            for key in columns:
+                print(f"{key}: {cpu_runs} runs ...", flush=True)
                 t = time.perf_counter()
-                results[key] = batch.run_lti_channels(design, STOP,
-                                                      meas=Channel(**MEAS, period=period),
-                                                      meas_seeds=seeds, stamps=stamps)
+                results[key] = run(key, cpu_runs)
                 samples[key].append(time.perf_counter() - t)
-        sampled = [int(s) for s in np.linspace(0, args.runs - 1, args.per_point)]
+                if gpu is not None:
+                    print(f"{key}: {args.runs} runs on the GPU ...", flush=True)
+                    t = time.perf_counter()
+                    gpu_results[key] = run(key, args.runs, gpu)
+                    gpu_samples[key].append(time.perf_counter() - t)
+        sampled = [int(s) for s in np.linspace(0, cpu_runs - 1, args.per_point)]
         pp = {key: per_point(data, sampled, *columns[key]) for key in samples}
-    med = {k: statistics.median(v) for k, v in samples.items()}
+    scale = args.runs / cpu_runs
+    med = {k: statistics.median(v) * scale for k, v in samples.items()}
+    gpu_label = gpu.device if gpu is not None else "none seen by CuPy (no GPU column)"
     lines = [
-        "# Benchmark: Monte Carlo runs through a network channel (one core)", "",
+        "# Benchmark: Monte Carlo runs through a network channel (one core; a GPU)", "",
         f"delaycomp {__version__}, Python {platform.python_version()}, numpy "
-        f"{np.__version__}, {platform.machine()}; `python bench/channels.py"
-        f"{' --quick' if args.quick else ''}`", "",
+        f"{np.__version__}, {platform.machine()}; GPU: {gpu_label}; "
+        f"`python bench/channels.py{' --quick' if args.quick else ''}"
+        f"{f' --cpu-runs {cpu_runs}' if cpu_runs != args.runs else ''}`", "",
         f"Example 3.6 to {STOP:g} s (2001 ticks a run), the measurement through uniform "
         f"jitter {MEAS['jitter']:g} s (2 T) and Bernoulli loss {MEAS['loss']:g}, one seed "
         f"a run, a packet every base step (period 0) or one per sample (period = T); "
-        f"{args.runs} runs, {args.repeats} repeat(s), medians; one CPU.", "",
-        "| controller | batch wall [s] | runs/s | per point [ms/run] | ratio | "
-        "10^6 runs [s] | cost vs per point |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        f"{args.runs} runs, {args.repeats} repeat(s), medians; one CPU"
+        + (f" (timed on {cpu_runs} runs, scaled)" if cpu_runs != args.runs else "")
+        + (", and the GPU (CuPy) on every run" if gpu is not None else "") + ".", "",
+        "| controller | batch, 1 core [s] | runs/s | per point [ms/run] | ratio | "
+        "10^6 runs, 1 core [s] | batch, GPU [s] | GPU vs 1 core | GPU = CPU | "
+        "cost vs per point |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|",
     ]
     for key in samples:
         per, costs = pp[key]
@@ -138,9 +176,24 @@ def main(argv=None) -> int:
         assert got is not None
         diff = max(abs(float(got[s]) - c) / max(1.0, abs(c)) for s, c in zip(sampled, costs))
         rate = args.runs / med[key]
+        if gpu is not None:
+            g = statistics.median(gpu_samples[key])
+            same = all(np.array_equal(getattr(gpu_results[key], f)[:cpu_runs],
+                                      getattr(results[key], f), equal_nan=True)
+                       for f in ("cost", "rho", "stable", "final_norm", "peak_norm"))
+            gpu_cells = (f"{g:.2f} | {med[key] / g:.0f}x | "
+                         f"{'bit for bit' if same else 'DIFFERENT'} ({cpu_runs} runs)")
+        else:
+            gpu_cells = "- | - | -"
         lines.append(f"| {key} | {med[key]:.2f} | {rate:.0f} | {per * 1e3:.1f} | "
-                     f"{per * rate:.0f}x | {1e6 / rate:.1f} | {diff:.1e} |")
+                     f"{per * rate:.0f}x | {1e6 / rate:.1f} | {gpu_cells} | {diff:.1e} |")
     lines += ["", f"Target: 10^6 runs under {TARGET_S:g} s on one core."]
+    if gpu is not None:
+        lines += ["", "GPU: the same code on CuPy's arrays, chunked in device memory "
+                  f"(`GPU_CHANNEL_BYTES`); a first call of 10 000 runs per column compiles "
+                  f"CuPy's kernels and is not timed ({', '.join(f'{v:.1f}' for v in warm.values())}"
+                  " s). `GPU = CPU`: the cost, rho, stable flag and norms of the runs the CPU "
+                  "timed, compared exactly."]
     text = "\n".join(lines) + "\n"
     args.out.write_text(text, encoding="utf-8")
     print(text)

@@ -795,7 +795,8 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
                modes: Sequence[str] = ("compensated", "uncompensated"),
                distribution: str = "uniform",
                sets: Sequence[str] | Mapping[str, object] = (),
-               stop_time: float | None = None, chunk: int | None = None):
+               stop_time: float | None = None, chunk: int | None = None,
+               array_backend: str = "numpy"):
     """A Monte Carlo robustness map of an LTI loop over a network channel's jitter x loss.
 
     At every ``(jitter, loss)`` the channel ``on`` (its loop-file table the base, else the
@@ -828,6 +829,10 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
         Each run's horizon (default: the loop's).
     chunk : int, optional
         Runs per batch-engine call at most.
+    array_backend : {"numpy", "cupy", "auto"}
+        The batch engine's array library: ``cupy`` runs on an NVIDIA GPU (the ``cupy``
+        extra), ``auto`` there where CuPy reaches one, else numpy; the numbers are the
+        same bit for bit.
 
     Returns
     -------
@@ -860,7 +865,7 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
                              "loop file, delaycomp.paper.scenarios.loop_file)")
     return study.robustness(source, jitter, loss, runs, seed=seed, on=on, modes=modes,
                             distribution=distribution, sets=_assignments(sets),
-                            stop_time=stop_time, chunk=chunk)
+                            stop_time=stop_time, chunk=chunk, array_backend=array_backend)
 
 
 def critical_delay(loop: LoopLike, *,

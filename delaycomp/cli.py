@@ -425,6 +425,9 @@ def _robustness_parser(sub) -> None:
                    help="stop time of every run in seconds (default: the loop file's)")
     r.add_argument("--chunk", type=int, default=None, metavar="RUNS",
                    help="runs per batch-engine call at most (default: from the run's length)")
+    r.add_argument("--array-backend", choices=("numpy", "cupy", "auto"), default="numpy",
+                   help="batch engine's array library (default numpy; cupy on an NVIDIA GPU, "
+                        "the same numbers; auto: cupy where it sees a GPU, else numpy)")
     r.add_argument("--out", type=_file_path, required=True, metavar="FILE.csv",
                    help="write one row per grid point and mode")
     r.add_argument("--plot", type=_file_path, default=None, metavar="FILE.png",
@@ -1173,7 +1176,7 @@ def _robustness(args) -> int:
         result = rb.robustness(source, jitter, loss, args.runs, seed=args.seed, on=args.on,
                                modes=modes, distribution=args.distribution, sets=sets,
                                stop_time=args.stop_time, chunk=args.chunk,
-                               progress=shown.update)
+                               array_backend=args.array_backend, progress=shown.update)
     rb.write_csv(result, args.out)
     if args.plot:
         rb.plot_map(result, args.plot, f"{source.name}: {args.runs} runs per point, "

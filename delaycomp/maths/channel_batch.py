@@ -26,6 +26,13 @@ the packet shown is a function of the draws alone, not of the values carried: ``
 gives, per step and run, the send step of the packet shown (``-1``: none yet, the initial
 history), which a batch of loops uses as an index into its stored past (a delivered packet
 is at most ``Q = steps_up(bound, h)`` steps old when it is delivered).
+
+**Other array libraries.** ``shown`` and the functions under it take ``xp``, the array
+module (``numpy``, or ``cupy`` for a GPU: the batch engine's ``get_backend``): every step
+is an elementwise integer or IEEE double operation, the same on either, so CuPy gives the
+same doubles and the same steps (``tests/test_channel_batch_gpu.py`` on a GPU). The
+draws of the exponential and gamma distributions, which need libm, are made on the host
+and moved to the device.
 """
 
 from __future__ import annotations
@@ -47,6 +54,11 @@ _C1 = _U(0xBF58476D1CE4E5B9)
 _C2 = _U(0x94D049BB133111EB)
 
 
+def _host(xp, a) -> np.ndarray:
+    """``a`` (an array of ``xp``) on the host."""
+    return a if xp is np else xp.asnumpy(a)
+
+
 def _libm(fn: Callable[[float], float], a: np.ndarray) -> np.ndarray:
     """``fn`` (a function of ``math``) of every element of ``a``: libm's doubles, as the
     scalar code and the C twin compute them."""
@@ -60,15 +72,16 @@ def mix(z) -> np.ndarray:
     return _mix_inplace(z)
 
 
-def _mix_inplace(z: np.ndarray) -> np.ndarray:
-    """``mix`` of the ``uint64`` array ``z``, in its own memory (no temporaries but one)."""
-    t = np.empty_like(z)
+def _mix_inplace(z, xp=np):
+    """``mix`` of the ``uint64`` array ``z`` (of ``xp``), in its own memory (no
+    temporaries but one)."""
+    t = xp.empty_like(z)
     for shift, mult in ((30, _C1), (27, _C2)):
-        np.right_shift(z, _U(shift), out=t)
-        np.bitwise_xor(z, t, out=z)
-        np.multiply(z, mult, out=z)
-    np.right_shift(z, _U(31), out=t)
-    np.bitwise_xor(z, t, out=z)
+        xp.right_shift(z, _U(shift), out=t)
+        xp.bitwise_xor(z, t, out=z)
+        xp.multiply(z, mult, out=z)
+    xp.right_shift(z, _U(31), out=t)
+    xp.bitwise_xor(z, t, out=z)
     return z
 
 
@@ -80,49 +93,49 @@ def stream_keys(seeds) -> np.ndarray:
     return mix(seeds.astype(np.uint64) ^ _U(_KEY))
 
 
-def _mantissas(keys, counters) -> np.ndarray:
+def _mantissas(keys, counters, xp=np):
     """The top 53 bits of draw ``counter`` of each key, as ``uint64`` (the draw is this
     times 2^-53, exact)."""
-    k = np.asarray(keys, dtype=np.uint64)
-    c = np.asarray(counters, dtype=np.uint64)
-    z = np.multiply(c, _U(_GOLDEN))
-    z = np.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
-    _mix_inplace(z)
-    return np.right_shift(z, _U(11), out=z)
+    k = xp.asarray(keys, dtype=xp.uint64)
+    c = xp.asarray(counters, dtype=xp.uint64)
+    z = xp.multiply(c, _U(_GOLDEN))
+    z = xp.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
+    _mix_inplace(z, xp)
+    return xp.right_shift(z, _U(11), out=z)
 
 
-def draws(keys, counters) -> np.ndarray:
+def draws(keys, counters, xp=np):
     """Draw ``counter`` of each key (``draw``): doubles in ``[0, 1)``; ``keys`` and
-    ``counters`` broadcast."""
-    out = _mantissas(keys, counters).astype(np.float64)
-    return np.multiply(out, 2.0 ** -53, out=out)
+    ``counters`` broadcast; ``xp`` the array module (numpy or cupy)."""
+    out = _mantissas(keys, counters, xp).astype(xp.float64)
+    return xp.multiply(out, 2.0 ** -53, out=out)
 
 
-def _packet_counters(j, i) -> np.ndarray:
-    j = np.asarray(j, dtype=np.uint64)
-    i = np.asarray(i, dtype=np.uint64)
+def _packet_counters(j, i, xp=np):
+    j = xp.asarray(j, dtype=xp.uint64)
+    i = xp.asarray(i, dtype=xp.uint64)
     return (j << _U(32)) + i + _U(1)
 
 
-def packet_draws(keys, j, i) -> np.ndarray:
+def packet_draws(keys, j, i, xp=np):
     """The ``i``-th draw of packet ``j`` (``packet_draw``); ``keys``, ``j`` and ``i``
-    broadcast (``j < 2^32``)."""
-    return draws(keys, _packet_counters(j, i))
+    broadcast (``j < 2^32``); ``xp`` the array module (numpy or cupy)."""
+    return draws(keys, _packet_counters(j, i, xp), xp)
 
 
-def _below(keys, j, i, p: float) -> np.ndarray:
+def _below(keys, j, i, p: float, xp=np):
     """``packet_draws(keys, j, i) < p`` in integers: the draw is ``m 2^-53`` with ``m``
     the top 53 bits of ``z = mix(...)``, and ``m 2^-53 < p`` exactly when ``m < L =
     ceil(p 2^53)`` (``p 2^53`` is exact, a power of two's scaling of ``p`` in ``[0, 1]``),
     that is when ``z < L 2^11`` (``L 2^11 = 2^64``: always)."""
     L = math.ceil(p * 2.0 ** 53)
-    k = np.asarray(keys, dtype=np.uint64)
-    c = _packet_counters(j, i)
+    k = xp.asarray(keys, dtype=xp.uint64)
+    c = _packet_counters(j, i, xp)
     if L >= 2**53:
-        return np.ones(np.broadcast_shapes(k.shape, c.shape), dtype=bool)
-    z = np.multiply(c, _U(_GOLDEN))
-    z = np.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
-    return _mix_inplace(z) < _U(L << 11)
+        return xp.ones(np.broadcast_shapes(k.shape, c.shape), dtype=bool)
+    z = xp.multiply(c, _U(_GOLDEN))
+    z = xp.add(k, z, out=z if z.shape == np.broadcast_shapes(k.shape, c.shape) else None)
+    return _mix_inplace(z, xp) < _U(L << 11)
 
 
 def gamma_draws(keys, j, shape: float) -> np.ndarray:
@@ -163,37 +176,40 @@ def gamma_draws(keys, j, shape: float) -> np.ndarray:
     return out.reshape(out_shape)
 
 
-def offsets(channel: Channel, keys) -> np.ndarray:
+def offsets(channel: Channel, keys, xp=np):
     """Where each run's trace starts (``Channel.offset``); zeros without a trace."""
-    keys = np.asarray(keys, dtype=np.uint64)
+    keys = xp.asarray(keys, dtype=xp.uint64)
     if channel.distribution != "trace":
-        return np.zeros(keys.shape, dtype=np.int64)
-    return (draws(keys, 0) * len(channel.trace)).astype(np.int64)
+        return xp.zeros(keys.shape, dtype=xp.int64)
+    return (draws(keys, 0, xp) * len(channel.trace)).astype(xp.int64)
 
 
-def delays(channel: Channel, keys, j, offset=0) -> np.ndarray:
+def delays(channel: Channel, keys, j, offset=0, xp=np):
     """Packet ``j``'s delay [s] for each key (``Channel.delay_of``; NaN: lost in the
-    trace); ``keys``, ``j`` and ``offset`` broadcast."""
-    keys, j, offset = np.broadcast_arrays(np.asarray(keys, dtype=np.uint64),
-                                          np.asarray(j, dtype=np.int64),
-                                          np.asarray(offset, dtype=np.int64))
+    trace); ``keys``, ``j`` and ``offset`` broadcast; ``xp`` the array module (numpy or
+    cupy: the exponential and gamma draws, libm's, are made on the host)."""
+    keys, j, offset = xp.broadcast_arrays(xp.asarray(keys, dtype=xp.uint64),
+                                          xp.asarray(j, dtype=xp.int64),
+                                          xp.asarray(offset, dtype=xp.int64))
     dist = channel.distribution
     if dist == "constant" or (dist != "trace" and channel.jitter == 0):
-        return np.full(keys.shape, float(channel.delay))
+        return xp.full(keys.shape, float(channel.delay))
     if dist == "uniform":
         # jitter (m 2^-53) = (jitter 2^-53) m exactly (a power of two's scaling): one
         # product fewer, the same doubles
-        d = _mantissas(keys, _packet_counters(j, DRAW_DELAY)).astype(np.float64)
+        d = _mantissas(keys, _packet_counters(j, DRAW_DELAY, xp), xp).astype(xp.float64)
         d *= channel.jitter * 2.0 ** -53
         d += channel.delay
         return d
+    if xp is not np and dist in ("exponential", "gamma"):
+        return xp.asarray(delays(channel, _host(xp, keys), _host(xp, j), _host(xp, offset)))
     if dist == "exponential":
         return channel.delay - channel.jitter * _libm(
             math.log, 1.0 - packet_draws(keys, j, DRAW_DELAY))
     if dist == "gamma":
         return channel.delay + (channel.jitter / channel.shape) * gamma_draws(
             keys, j, channel.shape)
-    trace = np.asarray(channel.trace, dtype=float)
+    trace = xp.asarray(np.asarray(channel.trace, dtype=float))
     return trace[(offset + j) % len(trace)]
 
 
@@ -205,25 +221,24 @@ def losses(channel: Channel, keys, packets: int) -> np.ndarray:
     return _loss_rows(channel, keys, 0, packets, np.zeros(keys.size, dtype=bool))[0]
 
 
-def _loss_rows(channel: Channel, keys: np.ndarray, j0: int, j1: int, bad: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _loss_rows(channel: Channel, keys, j0: int, j1: int, bad, xp=np) -> tuple:
     """``losses`` of packets ``j0 .. j1 - 1`` and the Gilbert-Elliott chain's state
     after them, from ``bad`` (its state before ``j0``)."""
-    j = np.arange(j0, j1, dtype=np.uint64)[:, None]
+    j = xp.arange(j0, j1, dtype=xp.uint64)[:, None]
     if channel.loss_model == "none":
-        return np.zeros((j1 - j0, keys.size), dtype=bool), bad
+        return xp.zeros((j1 - j0, keys.size), dtype=bool), bad
     if channel.loss_model == "bernoulli":
-        return _below(keys[None, :], j, DRAW_LOSS, channel.loss), bad
-    u_loss = packet_draws(keys[None, :], j, DRAW_LOSS)
-    u_state = packet_draws(keys[None, :], j, DRAW_STATE)
-    lost = np.empty((j1 - j0, keys.size), dtype=bool)
+        return _below(keys[None, :], j, DRAW_LOSS, channel.loss, xp), bad
+    u_loss = packet_draws(keys[None, :], j, DRAW_LOSS, xp)
+    u_state = packet_draws(keys[None, :], j, DRAW_STATE, xp)
+    lost = xp.empty((j1 - j0, keys.size), dtype=bool)
     for jj in range(j1 - j0):
-        bad = np.where(bad, u_state[jj] >= channel.p_bg, u_state[jj] < channel.p_gb)
-        lost[jj] = u_loss[jj] < np.where(bad, channel.loss_bad, channel.loss_good)
+        bad = xp.where(bad, u_state[jj] >= channel.p_bg, u_state[jj] < channel.p_gb)
+        lost[jj] = u_loss[jj] < xp.where(bad, channel.loss_bad, channel.loss_good)
     return lost, bad
 
 
-def steps_up(values: np.ndarray, step: float) -> np.ndarray:
+def steps_up(values, step: float, xp=np):
     """``delaycomp.maths.grid.steps_up`` elementwise (finite ``values >= 0``).
 
     ``grid.steps_up`` takes the nearest integer ``k`` of ``r = value / step`` where ``|r -
@@ -231,13 +246,13 @@ def steps_up(values: np.ndarray, step: float) -> np.ndarray:
     where ``r - floor(r)`` (exact) is within the tolerance, else ``ceil(r)`` (the nearest
     integer above, within the tolerance, is ``ceil(r)`` anyway): three passes.
     """
-    ratio = np.divide(np.asarray(values, dtype=float), step)
-    f = np.floor(ratio)
-    frac = np.subtract(ratio, f)
-    np.maximum(ratio, 1.0, out=ratio)  # |r| >= 0 here
-    np.multiply(ratio, grid.GRID_RTOL, out=ratio)
-    up = np.greater(frac, ratio)
-    out = f.astype(np.int64)
+    ratio = xp.divide(xp.asarray(values, dtype=float), step)
+    f = xp.floor(ratio)
+    frac = xp.subtract(ratio, f)
+    xp.maximum(ratio, 1.0, out=ratio)  # |r| >= 0 here
+    xp.multiply(ratio, grid.GRID_RTOL, out=ratio)
+    up = xp.greater(frac, ratio)
+    out = f.astype(xp.int64)
     out += up
     return out
 
@@ -267,28 +282,27 @@ def fates(channel: Channel, seeds, h: float, packets: int) -> tuple[np.ndarray, 
     return lost, q
 
 
-def _fate_rows(channel: Channel, keys: np.ndarray, offs: np.ndarray, h: float, Q: int,
-               j0: int, j1: int, bad: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fate_rows(channel: Channel, keys, offs, h: float, Q: int, j0: int, j1: int, bad,
+               xp=np) -> tuple:
     """``fates`` of packets ``j0 .. j1 - 1`` and the loss chain's state after them."""
-    j = np.arange(j0, j1, dtype=np.int64)[:, None]
-    lost, bad = _loss_rows(channel, keys, j0, j1, bad)
-    d = delays(channel, keys[None, :], j, offs[None, :])
+    j = xp.arange(j0, j1, dtype=xp.int64)[:, None]
+    lost, bad = _loss_rows(channel, keys, j0, j1, bad, xp)
+    d = delays(channel, keys[None, :], j, offs[None, :], xp)
     if channel.distribution == "uniform" or (channel.distribution != "trace"
                                              and (channel.jitter == 0
                                                   or channel.distribution == "constant")):
         # d <= bound in doubles (delay + jitter u rounds below delay + jitter, u < 1), so
         # q <= Q: no packet is late (the general test below finds none)
         if d.shape != lost.shape:
-            d = np.broadcast_to(d, lost.shape)
-        q = steps_up(d, h)
+            d = xp.broadcast_to(d, lost.shape)
+        q = steps_up(d, h, xp)
     else:
         with np.errstate(invalid="ignore"):
             late = ~(d / h <= Q + 1)  # NaN (lost in the trace), or surely late
         lost = lost | late
-        q = steps_up(np.where(lost, 0.0, d), h)
+        q = steps_up(xp.where(lost, 0.0, d), h, xp)
         lost = lost | (q > Q)
-    np.putmask(q, lost, Q)
+    xp.putmask(q, lost, Q)
     return lost, q, bad
 
 
@@ -297,7 +311,7 @@ def _fate_rows(channel: Channel, keys: np.ndarray, offs: np.ndarray, h: float, Q
 _ROWS = 64
 
 
-def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.ndarray:
+def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1, xp=np):
     """The send step of the packet each run's channel shows at steps ``0 .. steps - 1``,
     shape ``(steps, R)``; ``-1`` where none has been delivered yet (the initial history).
     With ``every > 1``: at steps ``0, every, 2 every, ...`` alone (the rows a sampler
@@ -308,7 +322,8 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.n
     playout: ``s_j + Q`` in order), the newest at each step kept, and the newest up to
     each step taken down the steps (a running maximum): the largest ``j`` delivered by
     then (a packet delivered at ``D`` counts from row ``ceil(D / every)`` on). The packets
-    are drawn ``_ROWS`` at a time.
+    are drawn ``_ROWS`` at a time. ``xp`` is the array module of the result (numpy, or
+    cupy: the same integers, on the GPU).
 
     Examples
     --------
@@ -321,48 +336,51 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.n
     P = period_steps(channel, h)
     Q = timeout_steps(channel, h)
     J = (steps - 1) // P + 1 if steps > 0 else 0
-    keys = stream_keys(np.asarray(seeds).reshape(-1))
-    offs = offsets(channel, keys)
+    keys = xp.asarray(stream_keys(np.asarray(seeds).reshape(-1)))
+    offs = offsets(channel, keys, xp)
     R = keys.size
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ValueError(f"every = {every!r} is not allowed: must be an integer >= 1")
     rows = (steps - 1) // every + 1 if steps > 0 else 0
-    best = np.full((rows + 1, R), -1, dtype=np.int64)  # row ``rows``: never shown
+    best = xp.full((rows + 1, R), -1, dtype=xp.int64)  # row ``rows``: never shown
     flat = best.reshape(-1)
-    runs = np.arange(R, dtype=np.int64)
-    bad = np.zeros(R, dtype=bool)
-    before = np.full(R, np.iinfo(np.int64).min, dtype=np.int64)  # D_{j0 - 1}
+    runs = xp.arange(R, dtype=xp.int64)
+    bad = xp.zeros(R, dtype=bool)
+    before = xp.full(R, np.iinfo(np.int64).min, dtype=xp.int64)  # D_{j0 - 1}
     # the row of each delivery step D <= (J - 1) P + Q: ceil(D / every), at most ``rows``
-    row_of = np.minimum((np.arange((J - 1) * P + Q + 1 if J else 1, dtype=np.int64)
+    row_of = xp.minimum((xp.arange((J - 1) * P + Q + 1 if J else 1, dtype=xp.int64)
                          + (every - 1)) // every, rows)
     for j0 in range(0, J, _ROWS):
         j1 = min(J, j0 + _ROWS)
-        lost, q, bad = _fate_rows(channel, keys, offs, h, Q, j0, j1, bad)
+        lost, q, bad = _fate_rows(channel, keys, offs, h, Q, j0, j1, bad, xp)
         if channel.policy == "playout":  # the play-out buffer: every packet at s_j + Q
             q.fill(Q)
         ready = q
-        ready += np.arange(j0, j1, dtype=np.int64)[:, None] * P
+        ready += xp.arange(j0, j1, dtype=xp.int64)[:, None] * P
         if channel.policy != "drop_stale":  # in order (play-out: the order sent)
-            np.maximum(ready[0], before, out=ready[0])  # D_j = max(ready_j, D_{j-1})
+            xp.maximum(ready[0], before, out=ready[0])  # D_j = max(ready_j, D_{j-1})
             for r in range(1, j1 - j0):
-                np.maximum(ready[r - 1], ready[r], out=ready[r])
+                xp.maximum(ready[r - 1], ready[r], out=ready[r])
             before = ready[-1].copy()
         ready = row_of[ready]  # the first row at or after D_j
-        np.putmask(ready, lost, rows)
+        xp.putmask(ready, lost, rows)
         ready *= R
         ready += runs
-        jv = np.broadcast_to(np.arange(j0, j1, dtype=np.int64)[:, None], ready.shape)
-        np.maximum.at(flat, ready.ravel(), jv.ravel())
+        # packet j into its row: one packet's targets are distinct (one per run), and the
+        # packets come in increasing j, so each write is the maximum so far (no scatter
+        # maximum: the same on every array library, no atomics on a GPU)
+        for r in range(j1 - j0):
+            flat[ready[r]] = j0 + r
     for k in range(1, rows):
-        np.maximum(best[k - 1], best[k], out=best[k])
+        xp.maximum(best[k - 1], best[k], out=best[k])
     best = best[:rows]
-    return best if P == 1 else np.where(best >= 0, best * P, -1)
+    return best if P == 1 else xp.where(best >= 0, best * P, -1)
 
 
-def stamps(channel: Channel, sent: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:
+def stamps(channel: Channel, sent, h: float, t0: float = 0.0, xp=np):
     """The time stamps the channel outputs with the packets ``shown`` gives (``sent``,
     shape ``(steps, R)``): ``t0 + s h``, or before any delivery ``min(t_k - delay, t0)``
     (``ChannelLine``'s)."""
-    k = np.arange(sent.shape[0], dtype=float)[:, None]
-    history = np.minimum((t0 + k * h) - channel.delay, t0)
-    return np.where(sent >= 0, t0 + sent * h, history)
+    k = xp.arange(sent.shape[0], dtype=float)[:, None]
+    history = xp.minimum((t0 + k * h) - channel.delay, t0)
+    return xp.where(sent >= 0, t0 + sent * h, history)

@@ -802,7 +802,7 @@ class _BlockMetrics:
         self._last_above(sq, above, last_row, need, start)
         j = start // self.N
         if j < self.periods_max and R == self.N:
-            self.envsq[j] = self.be.to_numpy(xp.sum(sq_in, axis=0))
+            self.envsq[j] = self.be.to_numpy(_rowsum(xp, sq_in))
         self._final(sq, start, end)
 
     def _cut_diverged(self, xs, start: int, T, h) -> None:
@@ -887,6 +887,19 @@ class _BlockMetrics:
                            list(self.messages))
 
 
+def _rowsum(xp, a):
+    """``sum_j a[j]`` (rows of shape ``(P,)``), added row after row: numpy's ``sum(axis=0)``
+    of a C-ordered array does exactly that (its pairwise summation is for the contiguous
+    axis); other libraries (a GPU's reduction trees) are given the loop, so that they sum
+    in numpy's order and give its doubles."""
+    if xp is np:
+        return np.sum(a, axis=0)
+    acc = a[0].copy()
+    for j in range(1, a.shape[0]):
+        acc += a[j]
+    return acc
+
+
 def _sumsq(xs):
     """``|x|^2`` of each row ``xs[j]`` (shape ``(n, P)``), the components added in order."""
     sq = xs[:, 0] * xs[:, 0]
@@ -907,10 +920,22 @@ def _rates(envsq: np.ndarray, periods: np.ndarray) -> np.ndarray:
             continue  # too few periods to estimate a rate: nan, as the per-point metric
         zero = np.any(tail == 0.0, axis=1)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            # the least-squares slope of log e_j, its sums taken period after period
+            # (elementwise over the points): a point's rho depends on its own numbers
+            # alone, not on how many points share the call (a matrix product's BLAS
+            # kernel sums in blocks that depend on the shape)
             y = np.log(tail)
-            t = np.arange(tail.shape[1], dtype=float)
+            L = tail.shape[1]
+            t = np.arange(L, dtype=float)
             tc = t - t.mean()
-            slope = ((y - y.mean(axis=1, keepdims=True)) @ tc) / (tc @ tc)
+            ybar = y[:, 0].copy()
+            for j in range(1, L):
+                ybar += y[:, j]
+            ybar /= L
+            acc = (y[:, 0] - ybar) * tc[0]
+            for j in range(1, L):
+                acc += (y[:, j] - ybar) * tc[j]
+            slope = acc / float(np.sum(tc * tc))
             rho[sel] = np.where(zero, 0.0, np.exp(slope))
     return rho
 
@@ -1242,19 +1267,45 @@ STAMP_SNAP = SNAP
 #: ``bench/channels.py``: a few thousand keep a tick's rows and the channel's arrays of a
 #: chunk in cache while the per-tick overhead of numpy's calls stays small)
 CHANNEL_CHUNK = 2048
+#: on a GPU (CuPy): the device memory a chunk's largest arrays may take [bytes] (the send
+#: steps of an input channel, one per tick and point, and the draws of 64 packets): the
+#: chunk is as many points as fit, at most ``GPU_CHANNEL_CHUNK_MAX``
+GPU_CHANNEL_BYTES = 2**31
+GPU_CHANNEL_CHUNK_MAX = 2**18
 
 
-def _constant_shown(D: np.ndarray, steps: int) -> np.ndarray:
+def _constant_shown(D: np.ndarray, steps: int, xp=np):
     """The send step a constant delay of ``D`` ticks (per point) shows at each step: ``k -
     D``, ``-1`` before ``D`` (``DelayLine``)."""
-    s = np.arange(steps, dtype=np.int64)[:, None] - D[None, :]
-    return np.where(s >= 0, s, -1)
+    s = xp.arange(steps, dtype=xp.int64)[:, None] - xp.asarray(D)[None, :]
+    return xp.where(s >= 0, s, -1)
+
+
+def channel_backend(backend: Backend | str) -> Backend:
+    """The array library of ``run_lti_channels``: numpy, or CuPy on a GPU (``auto``: CuPy
+    where it reaches a GPU, else numpy). JAX is refused: its arrays are immutable, and the
+    channel's stepping writes into its rings in place."""
+    if isinstance(backend, Backend):
+        name = backend.name
+    else:
+        name = backend
+    if name == "jax":
+        raise BatchError("array backend jax is not allowed with a network channel: must be "
+                         "numpy, cupy or auto (the channel's stepping writes in place)")
+    if isinstance(backend, Backend):
+        return backend
+    if name == "auto":
+        try:
+            return get_backend("cupy")
+        except BatchError:
+            return get_backend("numpy")
+    return get_backend(name)
 
 
 def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
                      meas_seeds=None, input_seeds=None, record: bool = False,
-                     stamps: bool = False, age_max=None, chunk: int | None = None
-                     ) -> BatchResult:
+                     stamps: bool = False, age_max=None, chunk: int | None = None,
+                     backend: Backend | str = "numpy") -> BatchResult:
     """Advance the ``P`` LTI loops of ``design`` to ``stop`` with a network channel
     (``delaycomp.maths.channel.Channel``) in the place of the measurement delay (``meas``)
     and/or the input delay (``inp``), each point with its own seed: the loop of
@@ -1268,6 +1319,11 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
     constant delay ``r_true`` or ``tau_true``. A packet is at most ``Q`` ticks old when
     it is delivered (``Q = steps_up(bound, h)``), so a ring of ``Q + 1`` past states and a
     latch per point hold what is needed. The arithmetic is ``run_lti``'s, in its order.
+
+    On a GPU (``backend="cupy"``) the same steps run on CuPy's arrays, the points of a
+    chunk on the device: every operation is elementwise IEEE arithmetic or integer
+    indexing, so the results are numpy's bit for bit (the exponential and gamma delays,
+    which need libm, are drawn on the host).
 
     With ``stamps=True`` the controller is the time-stamp controller
     (``delaycomp.maths.stamped.StampedController``, a loop file's ``[controller] stamps =
@@ -1300,9 +1356,12 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
         the measurement channel's largest delay (``Channel.bound``, else ``r_true``) plus
         ``T``, as in loop files.
     chunk : int, optional
-        Points advanced together (default ``CHANNEL_CHUNK``): the batch runs chunk by
-        chunk, so its per-tick arrays stay in the processor's cache; the results do not
-        depend on it.
+        Points advanced together (default ``CHANNEL_CHUNK`` on the CPU; on a GPU as many
+        as ``GPU_CHANNEL_BYTES`` hold): the batch runs chunk by chunk, so its per-tick
+        arrays stay in the processor's cache; the results do not depend on it.
+    backend : Backend or str
+        The array library: ``numpy`` (default), ``cupy`` (a GPU) or ``auto`` (CuPy where
+        it reaches a GPU, else numpy); ``channel_backend``.
 
     Returns
     -------
@@ -1313,6 +1372,7 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
     """
     from delaycomp.maths.channel_batch import period_steps, timeout_steps
 
+    be = channel_backend(backend)
     bad = [md for md in set(design.mode.tolist()) if md not in MODES]
     if bad:
         raise BatchError(f"mode = {bad[0]!r} is not allowed: must be one of {', '.join(MODES)}")
@@ -1358,7 +1418,11 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
     elif age_max is not None:
         raise BatchError("age_max is not allowed without stamps = True")
     if chunk is None:
-        chunk = CHANNEL_CHUNK
+        kmax = int(plan.stop_k.max())
+        per_point = 8 * (kmax + 1) * (2 if inp is not None else 0) + 8 * 64 * 8 + 4096
+        chunk = (CHANNEL_CHUNK if be.name == "numpy"
+                 else max(CHANNEL_CHUNK, min(GPU_CHANNEL_CHUNK_MAX,
+                                             GPU_CHANNEL_BYTES // per_point)))
     elif isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise BatchError(f"chunk = {chunk!r} is not allowed: must be an integer >= 1")
     flows: dict = {}
@@ -1371,7 +1435,7 @@ def run_lti_channels(design: LtiBatch, stop: float, *, meas=None, inp=None,
                               None if seeds_m is None else seeds_m[idx],
                               None if seeds_i is None else seeds_i[idx], record,
                               None if ages is None else ages[idx], flows,
-                              plan if whole else _plan_take(plan, idx))
+                              plan if whole else _plan_take(plan, idx), be)
         parts.append((idx, part))
     return _merge(parts, P)
 
@@ -1383,35 +1447,36 @@ def _plan_take(plan: _LtiPlan, idx: np.ndarray) -> _LtiPlan:
 
 
 def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
-                   record: bool, ages, flows: dict, plan: _LtiPlan) -> BatchResult:
-    """``run_lti_channels`` of the (checked) points of one chunk, ``plan`` theirs."""
+                   record: bool, ages, flows: dict, plan: _LtiPlan, be: Backend
+                   ) -> BatchResult:
+    """``run_lti_channels`` of the (checked) points of one chunk, ``plan`` theirs, on the
+    array library ``be``."""
     from delaycomp.maths.channel_batch import shown, timeout_steps
 
+    xp = be.xp
     P, N = len(design), int(design.N[0])
     h = float(plan.h[0])
     kmax = int(plan.stop_k.max())
 
-    def route(channel, seeds, D):
-        if channel is None:
-            return _constant_shown(D, kmax + 1), int(D.max())
-        return shown(channel, seeds, h, kmax + 1), timeout_steps(channel, h)
-
     # the measurement at the sampling ticks alone
-    Sm = (_constant_shown(plan.Dr, kmax + 1)[::N] if meas is None
-          else shown(meas, seeds_m, h, kmax + 1, every=N))
-    Si, Qi = (None, int(plan.Dt.max())) if inp is None else route(inp, seeds_i, plan.Dt)
-    if Si is None and not np.all(plan.Dt == plan.Dt[0]):
-        Si = _constant_shown(plan.Dt, kmax + 1)
+    Sm = (_constant_shown(plan.Dr, kmax + 1, xp)[::N] if meas is None
+          else shown(meas, seeds_m, h, kmax + 1, every=N, xp=xp))
+    if inp is not None:
+        Si, Qi = shown(inp, seeds_i, h, kmax + 1, xp=xp), timeout_steps(inp, h)
+    else:
+        Si, Qi = None, int(plan.Dt.max())
+        if not np.all(plan.Dt == plan.Dt[0]):
+            Si = _constant_shown(plan.Dt, kmax + 1, xp)
     stamped = None
     if ages is not None:
         delay = (np.full(P, float(meas.delay)) if meas is not None
                  else np.asarray(design.r_true, dtype=float))
-        stamped = _Stamped(plan, design, _ticks("tau", design.tau, plan.h), ages, delay,
+        stamped = _Stamped(be, plan, design, _ticks("tau", design.tau, plan.h), ages, delay,
                            flows)
     const = inp is None and bool(np.all(plan.Dt == plan.Dt[0]))
-    run = _ChannelStepper(plan, design, Sm, None if const else Si, Qi, record, stamped,
+    run = _ChannelStepper(be, plan, design, Sm, None if const else Si, Qi, record, stamped,
                           int(plan.Dt[0]) if const else None)
-    acc = _BlockMetrics(get_backend("numpy"), P, N, plan.stop_k, int((plan.stop_k // N).max()))
+    acc = _BlockMetrics(be, P, N, plan.stop_k, int((plan.stop_k // N).max()))
     with np.errstate(all="ignore"):
         for i in range(kmax // N + 1):
             rows = min(N, kmax - i * N + 1)
@@ -1423,7 +1488,7 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
             acc.block(blk, i * N, plan.T, plan.h, sqx)
     res = acc.finish(plan.T, plan.h)
     end = np.minimum(acc.cut_at, plan.stop_k + 1)
-    cost = run.cost.copy()
+    cost = be.to_numpy(run.cost).copy()
     cost[~res.success] = np.inf
     res.cost = cost
     res.states, res.inputs = _trim(run.states, run.inputs, end)
@@ -1431,7 +1496,7 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
 
 
 class _ChannelStepper:
-    """The stepping of ``run_lti_channels`` (numpy, the points on the last axis).
+    """The stepping of ``run_lti_channels`` (numpy or CuPy, the points on the last axis).
 
     The states are kept in a ring of ``nb`` blocks of ``N`` ticks, ``xb[b, row]``, long
     enough for the oldest packet the measurement channel shows at a sampling tick (its
@@ -1443,15 +1508,17 @@ class _ChannelStepper:
     order: the cost's sums a block at a time, row after row.
     """
 
-    def __init__(self, plan: _LtiPlan, d: LtiBatch, Sm: np.ndarray, Si, Qi: int, record: bool,
-                 stamped: _Stamped | None = None, Dt_const: int | None = None):
+    def __init__(self, be: Backend, plan: _LtiPlan, d: LtiBatch, Sm, Si, Qi: int,
+                 record: bool, stamped: _Stamped | None = None, Dt_const: int | None = None):
+        xp = be.xp
         P, n, m = d.B.shape
         N = plan.N
+        self.be, self.xp = be, xp
         self.plan, self.N, self.n, self.m, self.P = plan, N, n, m, P
         self.Sm, self.Si, self.Dt_const = Sm, Si, Dt_const
         kmax = int(plan.stop_k.max())
-        ticks = np.arange(0, kmax + 1, N)[:, None]
-        age = int(np.max(np.where(Sm >= 0, ticks - Sm, 0), initial=0))
+        ticks = xp.arange(0, kmax + 1, N)[:, None]
+        age = int(xp.max(xp.where(Sm >= 0, ticks - Sm, 0)))  # Sm: one row and column or more
         self.nb = age // N + 2  # blocks kept: the oldest sample read and this period's
         self.Lmax = plan.QB.shape[0]
         self.Ru = max(self.Lmax, 0 if stamped is None else stamped.back) + Qi // N + 3
@@ -1459,46 +1526,48 @@ class _ChannelStepper:
         self.comp = np.asarray(d.mode == "compensated")
 
         self.Ad, self.Bd, self.K, self.E, self.QB, self.x0, self.u0 = _coefficients(
-            plan, d, np.ascontiguousarray, self.Lmax)
-        self.xb = np.zeros((self.nb, N, n, P))
+            plan, d, lambda a: be.asarray(np.ascontiguousarray(a)), self.Lmax)
+        self.xb = xp.zeros((self.nb, N, n, P))
         self.flat = self.xb.reshape(self.nb * N, n, P)
         self.flat[0] = self.x0
         self.y = self.x0.copy()
         self.v = self.u0.copy()  # the plant-input latch: u0 before any packet
         self.held = self.u0.copy()
-        self.U = np.zeros((self.Ru, m, P))
-        self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(n)])
-        self.vb = np.zeros((N, m, P))  # the plant's input at each tick of the block
-        self.cost = np.zeros(P)
+        self.U = xp.zeros((self.Ru, m, P))
+        self.bv = xp.stack([_dot(self.Bd[a], self.v) for a in range(n)])
+        self.vb = xp.zeros((N, m, P))  # the plant's input at each tick of the block
+        self.cost = xp.zeros(P)
         self.h = float(plan.h[0])  # one h in a channel batch
-        self.prev_i = np.full(P, -1, dtype=np.int64)
-        self.pidx = np.arange(P)
-        self.tmp = np.empty(P)
+        self.prev_i = xp.full(P, -1, dtype=xp.int64)
+        self.pidx = xp.arange(P)
+        self.tmp = xp.empty(P)
         self.states = np.full((P, kmax + 1, n), np.nan) if record else None
         self.inputs = np.full((P, kmax + 1, m), np.nan) if record else None
 
     def sample(self, i: int) -> np.ndarray:
         """The controller at the sampling tick ``i N`` from the state at the send tick of
         the packet shown then (``x0`` before any); returns where its output is not finite
-        from a finite measurement."""
+        from a finite measurement (on the host)."""
+        xp = self.xp
         s = self.Sm[i]
         slot = s % (self.nb * self.N)
         y = self.y
         for a in range(self.n):
-            np.copyto(y[a], np.where(s >= 0, self.flat[slot, a, self.pidx], self.x0[a]))
+            xp.copyto(y[a], xp.where(s >= 0, self.flat[slot, a, self.pidx], self.x0[a]))
         n, U = self.n, self.U
         if self.stamped is not None:
             xhat = self.stamped.predict(i, y, s, U, self.Ru)
-            phi = list(np.where(self.comp, xhat, y))
+            phi = list(xp.where(self.be.asarray(self.comp), xhat, y))
         else:
             phi = [_dot(self.E[a], y) for a in range(n)]
             for q in range(self.Lmax):
                 past = U[(i - q - 1) % self.Ru] if i - q - 1 >= 0 else self.u0
                 for a in range(n):
                     phi[a] = phi[a] + _dot(self.QB[q][a], past)
-        self.held = np.stack([_dot(self.K[c], phi) for c in range(self.m)])
+        self.held = xp.stack([_dot(self.K[c], phi) for c in range(self.m)])
         self.U[i % self.Ru] = self.held
-        return ~np.all(np.isfinite(self.held), axis=0) & np.all(np.isfinite(y), axis=0)
+        return self.be.to_numpy(~xp.all(xp.isfinite(self.held), axis=0)
+                                & xp.all(xp.isfinite(y), axis=0))
 
     def _input(self, k: int) -> None:
         """The plant-input latch at tick ``k``."""
@@ -1510,19 +1579,19 @@ class _ChannelStepper:
             self.v = self.U[(s // N) % self.Ru].copy()
         else:
             s = self.Si[k]
-            new = np.flatnonzero(s != self.prev_i)
+            new = self.xp.flatnonzero(s != self.prev_i)
             if not new.size:
                 return
             self.v[:, new] = self.U[(s[new] // N) % self.Ru, :, new].T
             self.prev_i = s
-        self.bv = np.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
+        self.bv = self.xp.stack([_dot(self.Bd[a], self.v) for a in range(self.n)])
 
     def period(self, i: int, rows: int, last: bool) -> tuple[np.ndarray, np.ndarray]:
         """The ticks of period ``i`` (``rows`` of them; ``last``: the run's last tick is
         among them, not stepped from): the input latch, the record, the plant's exact
         step into the next row of the ring; then the cost of the block. Returns the
         block of states and their ``|x|^2``."""
-        N, n, nb = self.N, self.n, self.nb
+        N, n, nb, xp = self.N, self.n, self.nb, self.xp
         bi = i % nb
         blk, nxt = self.xb[bi], self.xb[(i + 1) % nb]
         Ad, tmp, vb = self.Ad, self.tmp, self.vb
@@ -1532,17 +1601,17 @@ class _ChannelStepper:
             vb[row] = self.v
             x = blk[row]
             if self.states is not None and self.inputs is not None:
-                self.states[:, k] = x.T
-                self.inputs[:, k] = self.held.T
+                self.states[:, k] = self.be.to_numpy(x).T
+                self.inputs[:, k] = self.be.to_numpy(self.held).T
             if last and row == rows - 1:
                 break
             out = blk[row + 1] if row + 1 < N else nxt[0]
             for a in range(n):  # Ad[a] x + bv[a], left to right (_dot's order)
-                np.multiply(Ad[a][0], x[0], out=out[a])
+                xp.multiply(Ad[a][0], x[0], out=out[a])
                 for b in range(1, n):
-                    np.multiply(Ad[a][b], x[b], out=tmp)
-                    np.add(out[a], tmp, out=out[a])
-                np.add(out[a], self.bv[a], out=out[a])
+                    xp.multiply(Ad[a][b], x[b], out=tmp)
+                    xp.add(out[a], tmp, out=out[a])
+                xp.add(out[a], self.bv[a], out=out[a])
         # the cost: sum_k h (|x_k|^2 + |v_k|^2), each tick's term added in turn
         sqx = _sumsq(blk[:rows])
         stepped = rows - 1 if last else rows
@@ -1553,7 +1622,7 @@ class _ChannelStepper:
                 sq += v[:, c] * v[:, c]
             sq *= self.h
             for row in range(stepped):
-                np.add(self.cost, sq[row], out=self.cost)
+                xp.add(self.cost, sq[row], out=self.cost)
         return blk[:rows], sqx
 
 
@@ -1566,14 +1635,17 @@ class _Stamped:
     too old) compare the same doubles as the controller: the channel's stamps ``s h``
     (before any packet ``min(k h - delay, 0)``), ``t_i = i T`` and ``age_max + 1e-9 T``."""
 
-    def __init__(self, plan: _LtiPlan, d: LtiBatch, Dtau: np.ndarray, age_max: np.ndarray,
-                 delay: np.ndarray, cache: dict | None = None):
+    def __init__(self, be: Backend, plan: _LtiPlan, d: LtiBatch, Dtau: np.ndarray,
+                 age_max: np.ndarray, delay: np.ndarray, cache: dict | None = None):
         from delaycomp.maths.lti import flow
 
+        xp, dev = be.xp, be.asarray
+        self.xp = xp
         P, n, m = d.B.shape
         N, h = plan.N, float(plan.h[0])
         self.N, self.n, self.m, self.h, self.T = N, n, m, h, float(plan.T[0])
-        first, self.inv = _unique_rows(d.A, d.B)
+        first, inv = _unique_rows(d.A, d.B)
+        self.inv = dev(inv)
         cache = {} if cache is None else cache  # the flows of (A, B, h, N): chunks share them
 
         def flows_of(p):
@@ -1583,34 +1655,35 @@ class _Stamped:
             return cache[key]
 
         flows = [flows_of(p) for p in first]
-        self.F = np.array([[f[0] for f in row] for row in flows])  # (U, N + 1, n, n)
-        self.G = np.array([[f[1] for f in row] for row in flows])  # (U, N + 1, n, m)
-        self.Dtau = Dtau.astype(np.int64)
-        self.limit = age_max + STAMP_SNAP * self.T
-        self.delay = delay
-        self.u0 = np.ascontiguousarray(d.u0.T)  # (m, P)
+        self.F = dev(np.array([[f[0] for f in row] for row in flows]))  # (U, N + 1, n, n)
+        self.G = dev(np.array([[f[1] for f in row] for row in flows]))  # (U, N + 1, n, m)
+        self.Dtau = dev(Dtau.astype(np.int64))
+        self.limit = dev(age_max + STAMP_SNAP * self.T)
+        self.delay = dev(delay)
+        self.u0 = dev(np.ascontiguousarray(d.u0.T))  # (m, P)
         #: the periods of outputs the carries reach back (the ring's length needed)
         self.back = int(np.max(np.floor(age_max / h).astype(np.int64) + Dtau)) // N + 3
-        self.z: np.ndarray | None = None  # the estimates of x(t_{i-1}), (n, P)
-        self.last = np.full(P, -np.inf)  # the stamp of the newest sample used
+        self.z = None  # the estimates of x(t_{i-1}), (n, P), of the backend
+        self.last = xp.full(P, -np.inf)  # the stamp of the newest sample used
 
     def carry(self, x: np.ndarray, idx: np.ndarray, a: np.ndarray, b: np.ndarray,
               U: np.ndarray, Ru: int) -> np.ndarray:
         """The states ``x`` (``(n, len(idx))``) of the points ``idx`` carried from tick
         ``a`` to tick ``b`` (per point, ``a <= b``), piece by piece."""
+        xp = self.xp
         x, a = x.copy(), a.copy()
         N, n, m = self.N, self.n, self.m
         Dtau = self.Dtau[idx]
         while True:
-            on = np.flatnonzero(a < b)
+            on = xp.flatnonzero(a < b)
             if not on.size:
                 return x
             p, aa = idx[on], a[on]
             j = (aa - Dtau[on]) // N  # the output the plant receives just after aa
-            end = np.minimum((j + 1) * N + Dtau[on], b[on])
+            end = xp.minimum((j + 1) * N + Dtau[on], b[on])
             L = end - aa
             F, G = self.F[self.inv[p], L], self.G[self.inv[p], L]
-            u = np.where(j >= 0, U[j % Ru, :, p].T, self.u0[:, p])
+            u = xp.where(j >= 0, U[j % Ru, :, p].T, self.u0[:, p])
             xo = x[:, on]
             for r in range(n):
                 acc = F[:, r, 0] * xo[0]
@@ -1626,26 +1699,28 @@ class _Stamped:
                 Ru: int) -> np.ndarray:
         """``x_hat`` of every point at ``t_i`` from the samples ``y`` (``(n, P)``) sent at
         ticks ``sent`` (``-1``: the history); stores the estimates of ``x(t_i)``."""
+        xp = self.xp
         N, P = self.N, y.shape[1]
         k = i * N
         t = 0.0 + i * self.T
-        stamp = np.where(sent >= 0, 0.0 + sent * self.h,
-                         np.minimum((0.0 + k * self.h) - self.delay, 0.0))
+        stamp = xp.where(sent >= 0, 0.0 + sent * self.h,
+                         xp.minimum((0.0 + k * self.h) - self.delay, 0.0))
         if self.z is None:  # the first instant always uses its sample
-            new = np.ones(P, dtype=bool)
+            new = xp.ones(P, dtype=bool)
         else:
-            new = (stamp > self.last) & (t - np.maximum(stamp, 0.0) <= self.limit)
-        self.last = np.where(new, np.maximum(stamp, self.last), self.last)
-        z = np.empty_like(y)
-        fresh = np.flatnonzero(new)
+            new = (stamp > self.last) & (t - xp.maximum(stamp, 0.0) <= self.limit)
+        self.last = xp.where(new, xp.maximum(stamp, self.last), self.last)
+        z = xp.empty_like(y)
+        fresh = xp.flatnonzero(new)
         if fresh.size:
-            z[:, fresh] = self.carry(y[:, fresh], fresh, np.maximum(sent[fresh], 0),
-                                     np.full(fresh.size, k), U, Ru)
-        old = np.flatnonzero(~new)
+            z[:, fresh] = self.carry(y[:, fresh], fresh, xp.maximum(sent[fresh], 0),
+                                     xp.full(fresh.size, k, dtype=xp.int64), U, Ru)
+        old = xp.flatnonzero(~new)
         if old.size:
             assert self.z is not None
-            z[:, old] = self.carry(self.z[:, old], old, np.full(old.size, k - N),
-                                   np.full(old.size, k), U, Ru)
+            z[:, old] = self.carry(self.z[:, old], old,
+                                   xp.full(old.size, k - N, dtype=xp.int64),
+                                   xp.full(old.size, k, dtype=xp.int64), U, Ru)
         self.z = z
-        every = np.arange(P)
-        return self.carry(z, every, np.full(P, k), k + self.Dtau, U, Ru)
+        every = xp.arange(P)
+        return self.carry(z, every, xp.full(P, k, dtype=xp.int64), k + self.Dtau, U, Ru)

@@ -244,13 +244,21 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
                seed: int = 0, on: str = "meas_delay",
                modes: Sequence[str] = DEFAULT_MODES, distribution: str = "uniform",
                sets: Iterable[str] = (), stop_time: float | None = None,
-               chunk: int | None = None,
+               chunk: int | None = None, array_backend: str = "numpy",
                progress: Callable[[int], None] | None = None) -> RobustnessMap:
     """The robustness map of an LTI loop file (``source``: a ``LoopFile``/``LoopData``,
     ``delaycomp.paper.scenarios.open_source``) over ``jitter`` x ``loss`` (see the module
     docstring). ``chunk``: runs per batch-engine call at most (default: from the run's
-    length, at most ``CHUNK_MAX``); ``progress(k)`` hears each ``k`` runs done."""
+    length, at most ``CHUNK_MAX``; on a GPU every run of a grid point in one call, the
+    engine chunking them in device memory); ``array_backend``: ``numpy``, ``cupy`` or
+    ``auto`` (``delaycomp.studies.batch.channel_backend``: the same numbers on either);
+    ``progress(k)`` hears each ``k`` runs done."""
     from delaycomp.studies import batch
+
+    try:
+        be = batch.channel_backend(array_backend)
+    except batch.BatchError as exc:
+        raise ParameterError(str(exc)) from None
 
     jitter = tuple(float(j) for j in jitter)
     loss = tuple(float(v) for v in loss)
@@ -263,7 +271,8 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
     plan = _plan(source, sets, on, modes, stop)
     steps = round(stop / plan.h) + 1
     if chunk is None:
-        chunk = max(1, min(CHUNK_MAX, CHUNK_CELLS // steps))
+        chunk = (max(1, min(CHUNK_MAX, CHUNK_CELLS // steps)) if be.name == "numpy"
+                 else len(modes) * runs)
     elif isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ParameterError(f"chunk = {chunk!r} is not allowed: must be an integer >= 1")
     other = "input_delay" if on == "meas_delay" else "meas_delay"
@@ -284,7 +293,7 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
             for lo in range(0, total, chunk):
                 hi = min(total, lo + chunk)
                 res = _run_chunk(batch, plan, modes, mode_of[lo:hi], run_of[lo:hi],
-                                 channels, seeds, stop)
+                                 channels, seeds, stop, be)
                 stable[lo:hi] = res.stable
                 assert res.cost is not None
                 cost[lo:hi] = res.cost
@@ -307,7 +316,8 @@ def robustness(source, jitter: Sequence[float], loss: Sequence[float], runs: int
     return result
 
 
-def _run_chunk(batch, plan: _StudyPlan, modes, mode_of, run_of, channels, seeds, stop: float):
+def _run_chunk(batch, plan: _StudyPlan, modes, mode_of, run_of, channels, seeds, stop: float,
+               backend):
     """One ``run_lti_channels`` call: the runs ``run_of`` in the modes ``mode_of`` (a
     chunk holds one or more modes; those that read stamps run in calls of their own)."""
     parts = []
@@ -321,7 +331,8 @@ def _run_chunk(batch, plan: _StudyPlan, modes, mode_of, run_of, channels, seeds,
             res = batch.run_lti_channels(
                 design, stop, meas=channels["meas_delay"], inp=channels["input_delay"],
                 meas_seeds=seeds["meas_delay"][run_of[picked]],
-                input_seeds=seeds["input_delay"][run_of[picked]], **kwargs)
+                input_seeds=seeds["input_delay"][run_of[picked]], backend=backend,
+                **kwargs)
         except batch.BatchError as exc:
             raise ParameterError(str(exc)) from None
         parts.append((picked, res))
