@@ -831,7 +831,7 @@ def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
               timing: bool = False, exact_grid: bool = False,
               platform: str | None = None, start: float = 0.0) -> list[str]:
     """The C host's command line for the LTI loop ``loop`` (a
-    ``Loop``, scalar or with vectors) with the FMUs unpacked
+    ``Loop``, scalar or with vectors, its delays network channels or not) with the FMUs unpacked
     in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
 
     Parameters

@@ -2,16 +2,23 @@
  *
  * Runs the loop  plant -> meas_delay -> controller -> input_delay -> plant  of delaycomp's
  * scenarios (LTI, scalar or with vectors, and model files' nonlinear loops: n states, m
- * inputs), with the FMUs unpacked in four
- * folders (the two delays may share one). Value references, types, GUIDs and model
- * identifiers are read from each folder's modelDescription.xml; each FMU's Real outputs are
- * connected, in the order of its modelDescription, to the next FMU's Real inputs (plant x1
- * .. xn to the measurement delay's u1 .. un, and so on; the counts must agree). The step
- * order is delaycomp's master (Gauss-Seidel along the signal chain, orchestrator/master.py):
+ * inputs; either delay may be a network channel, the controller the time-stamp one), with
+ * the FMUs unpacked in four folders (the two delays may share one). Value references,
+ * types, GUIDs and model identifiers are read from each folder's modelDescription.xml.
+ * Each FMU's Real outputs feed the next FMU's Real inputs (wire()): a `stamp` output to a
+ * `stamp` input (a channel's send time to the time-stamp controller; a `stamp` the next
+ * FMU has no input for stays unconnected, a `stamp` input needs a `stamp` output); the
+ * other outputs by name where every input finds its name among them and the counts agree
+ * (a channel's y1 .. yn to the controller's y1 .. yn), else in the order of the
+ * modelDescriptions where the counts agree (plant x1 .. xn to the measurement delay's
+ * u1 .. un, a channel's y1 .. ym to the plant's u1 .. um). Anything else is refused before
+ * any step, in one line naming the FMU and the variable. The step order is delaycomp's
+ * master (Gauss-Seidel along the signal chain, orchestrator/master.py):
  * at t_k = t0 + k h the plant's state is read, passed through the measurement delay to the
- * controller, the control through the input delay to the plant; then every FMU steps from
- * t_k to t_{k+1}. One CSV row per tick, written to stdout after the run: time, the plant's
- * outputs, the controller's outputs (%.17g, exact), headed plant.NAME, controller.NAME.
+ * controller, the control through the input delay to the plant (each FMU's outputs read
+ * all at once, its inputs set all at once); then every FMU steps from t_k to t_{k+1}. One
+ * CSV row per tick, written to stdout after the run: time, the plant's outputs, the
+ * controller's outputs (%.17g, exact), headed plant.NAME, controller.NAME.
  *
  * usage: host [--timing] [--exact-grid] [--start=T0] STOP_TIME H plant=DIR meas_delay=DIR
  *             controller=DIR
@@ -253,6 +260,55 @@ typedef struct {           /* the Real inputs and outputs of one FMU */
     const char *in_name[MAXPORTS], *out_name[MAXPORTS];
 } Ports;
 
+/* How FMU i's Real outputs feed FMU j's Real inputs: input q of j receives output from[q]
+ * of i (indices into the Ports). A `stamp` output goes to a `stamp` input, or nowhere if j
+ * has none; a `stamp` input needs a `stamp` output. The other outputs go to the other
+ * inputs by name when every input finds its name and the counts agree, else in order when
+ * the counts agree; else the first variable left unconnected is named and the run refused. */
+static void wire(int i, int j, const Ports *s, const Ports *d, size_t *from) {
+    size_t so = s->nout, di = d->nin;  /* the stamps' indices; nout, nin: none */
+    for (size_t q = 0; q < s->nout; q++) if (strcmp(s->out_name[q], "stamp") == 0) so = q;
+    for (size_t q = 0; q < d->nin; q++) if (strcmp(d->in_name[q], "stamp") == 0) di = q;
+    if (di < d->nin && so == s->nout)
+        die("cannot connect %s.stamp: %s has no Real output stamp (the send time a network "
+            "channel gives)", NAMES[j], NAMES[i]);
+    if (di < d->nin) from[di] = so;
+    size_t nsig = s->nout - (so < s->nout), nin = d->nin - (di < d->nin), named = 0;
+    if (nsig == 0) die("%s has no Real output to feed %s", NAMES[i], NAMES[j]);
+    for (size_t q = 0; q < d->nin; q++) {  /* by name */
+        if (q == di) continue;
+        for (size_t p = 0; p < s->nout; p++)
+            if (p != so && strcmp(s->out_name[p], d->in_name[q]) == 0) { from[q] = p; named++; }
+    }
+    if (named == nin && nin == nsig) return;
+    if (nin == nsig) {  /* in order */
+        size_t p = 0;
+        for (size_t q = 0; q < d->nin; q++) {
+            if (q == di) continue;
+            if (p == so) p++;
+            from[q] = p++;
+        }
+        return;
+    }
+    for (size_t q = 0; q < d->nin; q++) {  /* refused: the first input without an output */
+        size_t p = 0;
+        while (p < s->nout && (p == so || strcmp(s->out_name[p], d->in_name[q]) != 0)) p++;
+        if (q != di && p == s->nout)
+            die("cannot connect %s.%s: %s has no Real output %s, and its %zu Real outputs "
+                "(a stamp aside) cannot go in order to %s's %zu Real inputs", NAMES[j],
+                d->in_name[q], NAMES[i], d->in_name[q], nsig, NAMES[j], nin);
+    }
+    for (size_t p = 0; p < s->nout; p++) {  /* or the first output without an input */
+        size_t q = 0;
+        while (q < d->nin && (q == di || strcmp(s->out_name[p], d->in_name[q]) != 0)) q++;
+        if (p != so && q == d->nin)
+            die("cannot connect %s.%s: %s has no Real input %s, and %s's %zu Real outputs "
+                "(a stamp aside) cannot go in order to its %zu Real inputs", NAMES[i],
+                s->out_name[p], NAMES[j], s->out_name[p], NAMES[i], nsig, nin);
+    }
+    die("cannot connect %s to %s", NAMES[i], NAMES[j]);  /* not reached: names are unique */
+}
+
 static double now(void) {
 #if defined(_WIN32)
     LARGE_INTEGER count, frequency;
@@ -296,6 +352,14 @@ int main(int argc, char **argv) {
         CHECK(fmu[i].setup(fmu[i].c, fmi2False, 0.0, t0, fmi2True, stop), "fmi2SetupExperiment");
         CHECK(fmu[i].enter(fmu[i].c), "fmi2EnterInitializationMode");
     }
+    static Ports io[NI];
+    for (int i = 0; i < NI; i++) {
+        io[i].nin = ports(&fmu[i], "input", io[i].in, io[i].in_name, MAXPORTS);
+        io[i].nout = ports(&fmu[i], "output", io[i].out, io[i].out_name, MAXPORTS);
+    }
+    static size_t from[NI][MAXPORTS];  /* from[i][q]: the output of FMU i that input q of
+                                          FMU i + 1 receives */
+    for (int i = 0; i < NI; i++) wire(i, (i + 1) % NI, &io[i], &io[(i + 1) % NI], from[i]);
     for (int a = 7; a < argc; a++) {  /* INSTANCE.VARIABLE=VALUE */
         char buf[512];
         snprintf(buf, sizeof buf, "%s", argv[a]);
@@ -325,22 +389,11 @@ int main(int argc, char **argv) {
         }
     }
     for (int i = 0; i < NI; i++) CHECK(fmu[i].exit_init(fmu[i].c), "fmi2ExitInitializationMode");
-    static Ports io[NI];
-    for (int i = 0; i < NI; i++) {
-        io[i].nin = ports(&fmu[i], "input", io[i].in, io[i].in_name, MAXPORTS);
-        io[i].nout = ports(&fmu[i], "output", io[i].out, io[i].out_name, MAXPORTS);
-    }
-    for (int i = 0; i < NI; i++) {  /* each FMU's outputs feed the next one's inputs */
-        const Ports *src = &io[i], *dst = &io[(i + 1) % NI];
-        if (src->nout == 0 || src->nout != dst->nin)
-            die("%s has %zu Real outputs and %s %zu Real inputs: they must agree (and be "
-                "at least one)", NAMES[i], src->nout, NAMES[(i + 1) % NI], dst->nin);
-    }
     size_t nx = io[0].nout, nu = io[2].nout, width = 1 + nx + nu;
     long ticks = lround((stop - t0) / h);
     double *rows = malloc(width * (size_t)(ticks + 1) * sizeof(double));  /* printed at the end */
-    double *v = malloc(MAXPORTS * sizeof(double));
-    if (rows == NULL || v == NULL) die("out of memory");
+    double *v = malloc(MAXPORTS * sizeof(double)), *w = malloc(MAXPORTS * sizeof(double));
+    if (rows == NULL || v == NULL || w == NULL) die("out of memory");
     double started = now();
     for (long k = 0;; k++) {
         double t = t0 + (double)k * h;  /* t_k = t0 + k h */
@@ -350,7 +403,8 @@ int main(int argc, char **argv) {
             Fmu *src = &fmu[i], *dst = &fmu[(i + 1) % NI];
             const Ports *ps = &io[i], *pd = &io[(i + 1) % NI];
             CHECK(src->get_real(src->c, ps->out, ps->nout, v), "fmi2GetReal");
-            CHECK(dst->set_real(dst->c, pd->in, pd->nin, v), "fmi2SetReal");
+            for (size_t q = 0; q < pd->nin; q++) w[q] = v[from[i][q]];
+            CHECK(dst->set_real(dst->c, pd->in, pd->nin, w), "fmi2SetReal");
             if (i == 0) memcpy(row + 1, v, nx * sizeof(double));
             if (i == 2) memcpy(row + 1 + nx, v, nu * sizeof(double));
         }
@@ -373,6 +427,7 @@ int main(int argc, char **argv) {
     }
     free(rows);
     free(v);
+    free(w);
     for (int i = 0; i < NI; i++) {
         CHECK(fmu[i].terminate(fmu[i].c), "fmi2Terminate");
         fmu[i].free_instance(fmu[i].c);
