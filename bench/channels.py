@@ -47,7 +47,7 @@ from delaycomp import __version__, api  # noqa: E402
 from delaycomp.maths.channel import Channel  # noqa: E402
 from delaycomp.orchestrator.simulate import single_threaded_blas  # noqa: E402
 from delaycomp.paper.scenarios import loop_file  # noqa: E402
-from delaycomp.studies import batch  # noqa: E402
+from delaycomp.studies import batch, channel_kernel  # noqa: E402
 from delaycomp.studies.sweep_batch import lti_point  # noqa: E402
 from delaycomp.system import lti_designs  # noqa: E402
 from delaycomp.system.loopfile import build  # noqa: E402
@@ -156,7 +156,8 @@ def main(argv=None) -> int:
     lines = [
         "# Benchmark: Monte Carlo runs through a network channel (one core; a GPU)", "",
         f"delaycomp {__version__}, Python {platform.python_version()}, numpy "
-        f"{np.__version__}, {platform.machine()}; GPU: {gpu_label}; "
+        f"{np.__version__}, {platform.machine()}; draws on the CPU: "
+        f"{channel_kernel.status()}; GPU: {gpu_label}; "
         f"`python bench/channels.py{' --quick' if args.quick else ''}"
         f"{f' --cpu-runs {cpu_runs}' if cpu_runs != args.runs else ''}`", "",
         f"Example 3.6 to {STOP:g} s (2001 ticks a run), the measurement through uniform "

@@ -324,7 +324,7 @@ def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind)
     cs = nat.coSimulation
     assert not cs.needsExecutionTool and cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
     # the FMI layer, the shared sources of the model's manifest, the model's own C
-    uses = [] if kind in ("delay", "channel") else ["linalg.c"]
+    uses = {"delay": [], "channel": ["draws.c"]}.get(kind, ["linalg.c"])
     assert _source_files(nat) == ["fmi2.c", "core.c", "native.c", "pyrepr.c", *uses,
                                   NATIVE_KINDS[kind]]
     assert nat.guid != py.guid

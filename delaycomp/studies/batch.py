@@ -1452,17 +1452,27 @@ def _channel_chunk(design: LtiBatch, stop: float, meas, inp, seeds_m, seeds_i,
     """``run_lti_channels`` of the (checked) points of one chunk, ``plan`` theirs, on the
     array library ``be``."""
     from delaycomp.maths.channel_batch import shown, timeout_steps
+    from delaycomp.studies import channel_kernel
 
     xp = be.xp
     P, N = len(design), int(design.N[0])
     h = float(plan.h[0])
     kmax = int(plan.stop_k.max())
 
+    def fates(channel, seeds, every=1):
+        """The packets shown: the compiled draws on the CPU where they are available (the
+        same integers), else the array library's."""
+        if be.name == "numpy":
+            got = channel_kernel.shown(channel, seeds, h, kmax + 1, every)
+            if got is not None:
+                return got
+        return shown(channel, seeds, h, kmax + 1, every=every, xp=xp)
+
     # the measurement at the sampling ticks alone
     Sm = (_constant_shown(plan.Dr, kmax + 1, xp)[::N] if meas is None
-          else shown(meas, seeds_m, h, kmax + 1, every=N, xp=xp))
+          else fates(meas, seeds_m, N))
     if inp is not None:
-        Si, Qi = shown(inp, seeds_i, h, kmax + 1, xp=xp), timeout_steps(inp, h)
+        Si, Qi = fates(inp, seeds_i), timeout_steps(inp, h)
     else:
         Si, Qi = None, int(plan.Dt.max())
         if not np.all(plan.Dt == plan.Dt[0]):

@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "draws.h"  /* mix, draw, packet_draw, gamma_draw: shared with the batch */
 #include "native.h"
 
 enum { DIST_CONSTANT, DIST_UNIFORM, DIST_EXPONENTIAL, DIST_GAMMA, DIST_TRACE, NDIST };
@@ -24,12 +25,6 @@ static const char *const LOSS_MODELS[NLOSS] = {"none", "bernoulli", "gilbert_ell
 static const char *const POLICIES[NPOLICY] = {"in_order", "drop_stale", "playout"};
 
 #define SEED_MAX 2147483647L                    /* delaycomp.maths.channel.SEED_MAX */
-#define GOLDEN UINT64_C(0x9E3779B97F4A7C15)     /* SplitMix64's increment */
-#define KEY_XOR UINT64_C(0x6A09E667F3BCC909)    /* the fractional bits of sqrt(2) */
-#define DRAW_LOSS 0u
-#define DRAW_STATE 1u
-#define DRAW_DELAY 2u
-static const double PI = 0x1.921fb54442d18p+1;  /* math.pi */
 static const size_t N_TRACE = NTRACE;  /* a variable: loops over no trace compile cleanly */
 
 /* The channel's parameters as the maths takes them (delaycomp.maths.channel.Channel). */
@@ -40,47 +35,6 @@ typedef struct {
     uint64_t key;
     uint64_t offset;  /* where a trace starts */
 } Chan;
-
-/* SplitMix64's finalizer (delaycomp.maths.channel.mix) */
-static uint64_t mix(uint64_t z) {
-    z = (z ^ (z >> 30)) * UINT64_C(0xBF58476D1CE4E5B9);
-    z = (z ^ (z >> 27)) * UINT64_C(0x94D049BB133111EB);
-    return z ^ (z >> 31);
-}
-
-/* draw `counter` of a key: a double in [0, 1), a multiple of 2^-53 */
-static double draw(uint64_t key, uint64_t counter) {
-    return (double)(mix(key + counter * GOLDEN) >> 11) * 0x1p-53;
-}
-
-/* the i-th draw of packet j: counter j 2^32 + i + 1 (counter 0: the trace's offset) */
-static double packet_draw(uint64_t key, uint64_t j, unsigned i) {
-    return draw(key, (j << 32) + i + 1u);
-}
-
-/* gamma of shape a, scale 1 (delaycomp.maths.channel.gamma_draw): Marsaglia and Tsang with
- * a Box-Muller normal; a < 1: G(a + 1) U^(1/a) */
-static double gamma_draw(uint64_t key, uint64_t j, double shape) {
-    unsigned i = DRAW_DELAY;
-    double boost = 1.0, a = shape;
-    if (a < 1.0) {
-        boost = pow(1.0 - packet_draw(key, j, i), 1.0 / a);
-        i += 1;
-        a = a + 1.0;
-    }
-    double d = a - 1.0 / 3.0;
-    double c = 1.0 / sqrt(9.0 * d);
-    for (;;) {  /* accepts with probability > 0.95 */
-        double u1 = packet_draw(key, j, i), u2 = packet_draw(key, j, i + 1),
-               u3 = packet_draw(key, j, i + 2);
-        i += 3;
-        double x = sqrt(-2.0 * log(1.0 - u1)) * cos((2.0 * PI) * u2);
-        double v = 1.0 + c * x;
-        if (v <= 0.0) continue;
-        v = v * v * v;
-        if (log(1.0 - u3) < 0.5 * x * x + d - d * v + d * log(v)) return d * v * boost;
-    }
-}
 
 static int choice_of(const Instance *c, ValueRef vr, const char *const *choices, int count) {
     const char *value = c->d.string[STRING_SLOT[vr]];
