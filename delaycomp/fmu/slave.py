@@ -69,7 +69,7 @@ import sys
 import uuid
 import warnings
 from collections.abc import Callable, Iterable
-from typing import ClassVar
+from typing import Any, ClassVar
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
@@ -889,3 +889,149 @@ class HeldSampleMixin:
 
     def _restore_held(self, held: list | None) -> None:
         self._y_held = None if held is None else np.array(held, dtype=float)
+
+
+class StampedSlaveMixin(HeldSampleMixin):
+    """What the time-stamp controllers' slaves share (``delaycomp.maths.stamped``): the
+    input ``stamp``, the sample and its stamp held (``held_sample``), the output proposed
+    at a sampling instant and committed by the step that leaves it, and the hidden state
+    checked field by field when restored.
+
+    The slave sets ``n``, ``m``, ``y`` (n numbers), ``input_names`` (the n measurement
+    inputs, then ``stamp``) and ``output_names``, registers its measurement inputs with
+    ``y_setter`` and the stamp with ``register_stamp``, and builds ``ctrl`` (a
+    ``_StampedCore``: ``StampedController`` or ``StampedModelController``) in ``_setup``
+    before calling ``_reset_stamps``.
+    """
+
+    # what the TableSlave it is mixed into provides (annotations for the type checker only)
+    n: int
+    m: int
+    T: float
+    t0: float
+    u0: np.ndarray
+    ctrl: Any
+    error: str | None
+    input_names: list
+    output_names: list
+    _refuse: Callable[[str], None]
+    fail: Callable[[str], None]
+    real_input: Callable[..., None]
+
+    def register_stamp(self) -> None:
+        """Register the Real input ``stamp`` (after the measurement inputs)."""
+        self.stamp = 0.0
+        self._stamp_held: float | None = None
+        self._at_sample = True
+        self._proposal: np.ndarray | None = None
+
+        def set_stamp(v):
+            self.stamp = v
+            self._proposal = None
+
+        self.real_input("stamp", lambda: self.stamp, set_stamp,
+                        "the time [s] the sample y was taken (a channel's stamp), <= t")
+
+    def y_setter(self, i: int) -> Callable[[float], None]:
+        """The setter of the measurement input ``i`` (a new value drops the proposal)."""
+        def setter(v):
+            self.y[i] = v
+            self._proposal = None
+        return setter
+
+    def _reset_stamps(self) -> None:
+        """At initialization: at a sampling instant, nothing proposed or held."""
+        self._at_sample = True
+        self._proposal = None
+        self._y_held = None
+        self._stamp_held = None
+
+    def _sampled(self) -> tuple[np.ndarray, float]:
+        """The sample and its stamp read now (``held_sample``: those held over the step
+        that just ended)."""
+        if self.held_sample and self._stamp_held is not None:
+            return self._sample(), self._stamp_held
+        return self.y, self.stamp
+
+    def _hidden_state(self) -> dict:
+        ctrl = self.ctrl
+        assert ctrl is not None  # saved only when initialized
+        return {"ctrl": ctrl.get_state(), "at_sample": self._at_sample,
+                "y_held": self._held_state(), "stamp_held": self._stamp_held}
+
+    def _restore_hidden(self, hidden: dict) -> None:
+        core = self.ctrl
+        assert core is not None  # called after _setup() built it
+        ctrl = hidden.get("ctrl")
+        if not isinstance(ctrl, dict):
+            raise state_refused("hidden.ctrl", ctrl, "an object (held, history, i, z, stamp)")
+        z, stamp = ctrl.get("z"), ctrl.get("stamp")
+        checked = {
+            "held": state_vector("hidden.ctrl.held", ctrl.get("held"), self.m, False),
+            "history": state_rows("hidden.ctrl.history", ctrl.get("history"),
+                                  core.L, self.m, False),
+            "i": state_count("hidden.ctrl.i", ctrl.get("i")),
+            "z": None if z is None else state_vector("hidden.ctrl.z", z, self.n),
+            "stamp": None if stamp is None else state_number("hidden.ctrl.stamp", stamp)}
+        if (z is None) != (checked["i"] == 0):
+            raise state_refused("hidden.ctrl.z", z, "null exactly before the first instant")
+        if stamp is not None and not stamp <= self.t0 + checked["i"] * self.T:
+            raise state_refused("hidden.ctrl.stamp", stamp, "a time before the instant")
+        at_sample = hidden.get("at_sample")
+        if not isinstance(at_sample, bool):
+            raise state_refused("hidden.at_sample", at_sample, "true or false")
+        y_held = self._checked_held(hidden.get("y_held"))
+        stamp_held = hidden.get("stamp_held")
+        if (stamp_held is None) != (y_held is None):
+            raise state_refused("hidden.stamp_held", stamp_held, "given with y_held")
+        if stamp_held is not None:
+            stamp_held = state_number("hidden.stamp_held", stamp_held)
+        core.set_state(checked)
+        self._at_sample = at_sample
+        self._restore_held(y_held)
+        self._stamp_held = stamp_held
+        self._proposal = None
+
+    def _output(self) -> np.ndarray:
+        ctrl = self.ctrl
+        if ctrl is None:
+            return self.u0
+        if not self._at_sample:
+            return ctrl.held
+        if self._proposal is None:
+            y, stamp = self._sampled()
+            t = self.t0 + ctrl.i * self.T
+            try:
+                with np.errstate(all="ignore"):  # checked below
+                    u = ctrl.propose(y, stamp)
+            except ValueError as exc:  # a stamp from the future
+                if self.error is None:
+                    self._refuse(str(exc))
+                return ctrl.held
+            except Exception as exc:  # noqa: BLE001 - a model's solve or feedback failed
+                if self.error is None:
+                    self._refuse(f"computing the control at t = {t!r} failed: "
+                                 f"{type(exc).__name__}: {exc}")
+                return ctrl.held
+            if not np.all(np.isfinite(u)) and np.all(np.isfinite(y)) and self.error is None:
+                self._refuse(f"control {self.output_names} = {u.tolist()} at t = {t!r} is "
+                             "not allowed: must be finite (the feedback diverged: overflow)")
+            self._proposal = u
+        return self._proposal
+
+    def _step(self, current_time: float, step_size: float) -> None:
+        check_inputs(self.input_names, [*self.y, self.stamp], current_time)
+        ctrl = self.ctrl
+        assert ctrl is not None  # steps only when initialized
+        if self._at_sample:
+            y, stamp = self._sampled()
+            try:
+                u = self._proposal if self._proposal is not None else ctrl.propose(y, stamp)
+                ctrl.commit(u, y, stamp)
+            except ValueError as exc:  # a stamp from the future
+                self.fail(str(exc))
+            self._proposal = None
+        self._at_sample = ends_on_sample(current_time, step_size, self.t0, self.T, ctrl.i)
+        if self._hold():
+            self._stamp_held = self.stamp
+            self._proposal = None
