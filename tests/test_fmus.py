@@ -82,7 +82,8 @@ def test_readme_table_matches_model_description(fmu_dir, kind):
     assert_table_matches(readme_table(FMUS[kind].folder, FMUS[kind].model_identifier), md)
 
 
-@pytest.mark.parametrize("kind", ["model_plant", "model_controller"])
+@pytest.mark.parametrize("kind", ["model_plant", "model_controller",
+                                  "stamped_model_controller"])
 def test_readme_table_of_the_model_templates(fmu_dir, kind):
     from delaycomp.fmu.cache import fmu_path
     from delaycomp.paper.models import path

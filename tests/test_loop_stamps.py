@@ -119,14 +119,22 @@ def test_age_max_without_stamps_is_refused():
         _loop(stamps=False, **{"controller.age_max": 1.0})
 
 
-def test_a_model_loop_is_refused_in_one_line(tmp_path, capsys):
-    model = REPO / "delaycomp" / "paper" / "models" / "example_3_8.py"
-    path = tmp_path / "m.toml"
-    path.write_text(f'T = 0.5\nN = 10\nstop_time = 1.0\n[plant]\nmodel = "{model}"\n'
-                    'x0 = [1.0]\n[controller]\nstamps = true\n', encoding="utf-8")
-    assert main(["run", str(path)]) == 2
-    err = capsys.readouterr().err
-    assert "stamps" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+def test_a_loop_without_a_delay_controller_is_refused_in_one_line(tmp_path, capsys):
+    """A plant FMU's loop whose controller is not delaycomp's LTI or model controller
+    (here: the predictor on the plant FMU's own derivatives) has no time-stamp controller.
+    (A model loop has one: tests/test_loop_stamps_model.py.)"""
+    from delaycomp.system.loop import BuiltinFmu, Instance
+
+    loop = _loop(stamps=False)
+    ctrl = loop.by_role("controller")
+    other = loop.with_instances([Instance(i.name, i.role, BuiltinFmu("plant", {}), {})
+                                 if i is ctrl else i for i in loop.instances])
+    from delaycomp.system.loopfile import with_stamps
+
+    with pytest.raises(ParameterError, match=r"^loop: controller.stamps = true is not allowed "
+                                             r"for this loop: the time-stamp controller is an "
+                                             r"LTI loop's"):
+        with_stamps(other, {"controller": {"stamps": True}})
 
 
 def _toml_text(data: dict) -> str:

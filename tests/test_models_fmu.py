@@ -124,7 +124,8 @@ def test_repeated_instantiation_keeps_the_slave_module_intact(tmp_path):
             finally:
                 comp.terminate()
     slaves = [m for name, m in sys.modules.items()
-              if name.startswith(("delaycomp_plant_", "delaycomp_controller_", "delaycomp_delay"))]
+              if name.startswith(("delaycomp_model_plant_", "delaycomp_model_controller_",
+                                "delaycomp_delay"))]
     assert slaves
     for module in slaves:
         assert module.__name__.startswith("delaycomp_")

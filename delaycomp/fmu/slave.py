@@ -966,7 +966,7 @@ class StampedSlaveMixin(HeldSampleMixin):
         if not isinstance(ctrl, dict):
             raise state_refused("hidden.ctrl", ctrl, "an object (held, history, i, z, stamp)")
         z, stamp = ctrl.get("z"), ctrl.get("stamp")
-        checked = {
+        checked: dict[str, Any] = {
             "held": state_vector("hidden.ctrl.held", ctrl.get("held"), self.m, False),
             "history": state_rows("hidden.ctrl.history", ctrl.get("history"),
                                   core.L, self.m, False),

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import delaycomp
-from delaycomp.fmu.build import FMUS, model_id, model_identifier
+from delaycomp.fmu.build import FMUS, check_model_control, model_id, model_identifier
 
 __all__ = ["slave_class"]
 
@@ -48,6 +48,7 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
     if not spec.template:
         return getattr(module, spec.model_identifier), cfg
     model_path = str(Path(cfg.pop("model")).resolve())
+    check_model_control(kind, model_path)
     cfg["model_name"] = Path(model_path).stem
     cfg["model_id"] = model_id(model_path)
     cls = _CLASSES.get(key)

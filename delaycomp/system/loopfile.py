@@ -955,12 +955,14 @@ def _channel_from(params: Mapping[str, Any]):
 
 
 def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
-    """``loop`` with the time-stamp controller where ``[controller] stamps = true``: the
-    LTI controller becomes ``BuiltinFmu("stamped_controller", ...)`` (parameters ``T``,
-    ``tau``, ``age_max``, ``mode``, ``A``, ``B``, ``K``, ``u0``), its input ``stamp``
-    connected to the measurement channel's (a constant channel in the place of a plain
-    measurement delay); otherwise ``loop`` as it is."""
-    from delaycomp.system.loop import BuiltinFmu, Connection, Port
+    """``loop`` with the time-stamp controller where ``[controller] stamps = true``: an
+    LTI loop's controller becomes ``BuiltinFmu("stamped_controller", ...)`` (parameters
+    ``T``, ``tau``, ``age_max``, ``mode``, ``A``, ``B``, ``K``, ``u0``), a model loop's
+    zero-order-hold controller ``ModelFmu("stamped_model_controller", model)`` (``T``,
+    ``tau``, ``age_max``, ``mode``, ``tolerance``, ``u0``, the model's parameters); its
+    input ``stamp`` connected to the measurement channel's (a constant channel in the
+    place of a plain measurement delay); otherwise ``loop`` as it is."""
+    from delaycomp.system.loop import BuiltinFmu, Connection, ModelFmu, Port
 
     ctrl_data = data.get("controller") or {}
     if not check_value("controller.stamps", ctrl_data.get("stamps", False),
@@ -970,12 +972,18 @@ def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
                                  "controller.stamps = true")
         return loop
     ctrl, meas = loop.by_role("controller"), loop.by_role("meas_delay")
-    if not (ctrl is not None and isinstance(ctrl.source, BuiltinFmu)
-            and ctrl.source.kind == "controller" and meas is not None
+    model = (ctrl.source.model if ctrl is not None and isinstance(ctrl.source, ModelFmu)
+             and ctrl.source.kind == "model_controller" else None)
+    if not (ctrl is not None and meas is not None
+            and (model is not None or (isinstance(ctrl.source, BuiltinFmu)
+                                       and ctrl.source.kind == "controller"))
             and isinstance(meas.source, BuiltinFmu)
             and meas.source.kind in ("delay", "channel")):
         raise ParameterError(f"{where}: controller.stamps = true is not allowed for this "
-                             "loop: the time-stamp controller is an LTI loop's ([plant] A, B)")
+                             "loop: the time-stamp controller is an LTI loop's ([plant] A, B) "
+                             "or a zero-order-hold model loop's ([plant] model)")
+    if model is not None:
+        _stamped_model_control(model, where)
     if meas.source.kind == "delay":  # a constant channel: the same numbers, and a stamp
         from delaycomp.maths.channel import Channel
 
@@ -988,14 +996,35 @@ def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
     age_max = ctrl_data.get("age_max")
     age_max = (_channel_from(meas.parameters).bound() + T if age_max is None
                else check_value("controller.age_max", age_max, f"{where}: controller.age_max"))
-    params = {k: v for k, v in ctrl.parameters.items() if k != "r"}
+    source: BuiltinFmu | ModelFmu
+    if model is None:
+        assert isinstance(ctrl.source, BuiltinFmu)  # checked above
+        params = {k: v for k, v in ctrl.parameters.items() if k != "r"}
+        source = BuiltinFmu("stamped_controller", dict(ctrl.source.config))
+    else:  # the model controller's settings that the time-stamp controller has
+        params = {k: v for k, v in ctrl.parameters.items()
+                  if k not in ("r", "N", "pad", "predictor", "mode") and not k.startswith("z0[")}
+        params["mode"] = ("uncompensated" if ctrl.parameters.get("predictor") == "none"
+                          else "compensated")
+        source = ModelFmu("stamped_model_controller", model)
     params["age_max"] = float(age_max)
-    stamped = Instance(ctrl.name, ctrl.role, BuiltinFmu("stamped_controller",
-                                                        dict(ctrl.source.config)), params)
+    stamped = Instance(ctrl.name, ctrl.role, source, params)
     instances = [stamped if i.name == ctrl.name else meas if i.name == meas.name else i
                  for i in loop.instances]
     wire = Connection(Port(meas.name, "stamp"), Port(ctrl.name, "stamp"))
     return loop.replace(instances=tuple(instances), connections=(*loop.connections, wire))
+
+
+def _stamped_model_control(model_path, where: str) -> None:
+    """A model loop's time-stamp controller holds ``k(x, p)`` over each period: a model
+    whose ``CONTROL`` is not ``"zoh"`` is refused in one line naming ``controller.stamps``."""
+    from delaycomp.maths.model import load_model
+
+    model = load_model(model_path)
+    if model.control != "zoh":
+        raise ParameterError(f"{where}: controller.stamps = true is not allowed for model "
+                             f"{model.name!r}: its CONTROL is {model.control!r}; the time-stamp "
+                             "controller holds k(x, p) over each period (CONTROL = 'zoh')")
 
 
 def model_value(model, key: str, value, where: str | None = None) -> Any:
@@ -1068,7 +1097,9 @@ def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
     if "A" in plant:
         _lti(top, where)
     else:
-        _, model, args = _model_args(top, base, where, model)
+        path, model, args = _model_args(top, base, where, model)
+        if _stamped(data):
+            _stamped_model_control(path, where)
         check_model_loop(model, top["T"], top["r"], top["tau"], top["N"], args["x0"],
                          args["u0"], args["params"], args["pad"], top["r_true"],
                          top["tau_true"])

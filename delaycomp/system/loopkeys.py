@@ -127,12 +127,13 @@ TABLE: tuple[Entry, ...] = (
       "(the feedback on the sample itself)", default="compensated"),
     E("controller", "u0", ALL, "the constant input history on `[-r - tau, 0)` (`m` numbers)",
       shown="zeros"),
-    E("controller", "stamps", ("lti",), "`true`: the time-stamp controller (issue 29): the "
-      "predictor integrates over each sample's actual age, the measurement channel's "
-      "`stamp`, plus `tau`; a lost sample means predicting from the last one received "
-      "(`[meas_delay]` becomes a constant channel where it is no table)", default=False),
-    E("controller", "age_max", ("lti",), "with `stamps`: the largest age [s] of a sample "
-      "the predictor uses (an older one is not); it sizes the stored inputs",
+    E("controller", "stamps", ("lti", "model"), "`true`: the time-stamp controller (issue "
+      "29): the predictor integrates over each sample's actual age, the measurement "
+      "channel's `stamp`, plus `tau`; a lost sample means predicting from the last one "
+      "received (`[meas_delay]` becomes a constant channel where it is no table); a model "
+      "loop's model must have `CONTROL = \"zoh\"`", default=False),
+    E("controller", "age_max", ("lti", "model"), "with `stamps`: the largest age [s] of a "
+      "sample the predictor uses (an older one is not); it sizes the stored inputs",
       shown="the measurement channel's largest delay + `T`"),
     E("controller", "allow_unstable", ("lti", "model", "fmu-lti"), "let through an LTI `K` "
       "with which the delay-free sampled loop is unstable (the sign guard)", default=False),

@@ -1,0 +1,95 @@
+"""FMU slave template: the time-stamp predictor-controller of a user model (issue 29).
+
+The model's zero-order-hold law ``k(x, p)`` (``CONTROL = "zoh"``) on the estimate of
+``delaycomp.maths.stamped.StampedModelController``: at each sampling instant it reads the
+sample ``y_<state>`` and its send time ``stamp`` (a network channel's outputs), carries the
+newest sample over its actual age plus ``tau`` through the model's ODE (or, lost or too
+old, its last estimate), and holds ``u = k(x_hat)`` over the period. The build generates a
+subclass naming the model module, as for ``delaycomp_model_controller.py``; a model whose
+``CONTROL`` is ``continuous`` is refused at the build. See README.md beside this file.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+from pythonfmu import Fmi2Variability
+
+from delaycomp.fmu.slave import (
+    StampedSlaveMixin,
+    TableSlave,
+    check_finite,
+    check_model_parameters,
+)
+from delaycomp.maths.lti import MODES
+from delaycomp.maths.model import from_module
+from delaycomp.maths.predictors import DEFAULT_TOL
+from delaycomp.maths.stamped import StampedModelController
+
+
+class StampedModelControllerSlave(StampedSlaveMixin, TableSlave):
+    """u_i = k(x_hat(t_i + tau)), x_hat from the newest sample at its stamp; held.
+    ``model_module`` is set by the generated subclass."""
+
+    model_module = ""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.model = model = from_module(importlib.import_module(self.model_module),
+                                         self.config.get("model_name"))
+        self.description = (f"sampled-data ZOH controller of model {model.name} whose "
+                            "predictor integrates over each sample's actual age (its time "
+                            "stamp) plus tau; samples at t0 + iT")
+        self.n, self.m = n, m = model.n, model.m
+        self.u0, self.y = np.zeros(m), np.zeros(n)
+        self.T, self.tau, self.age_max = 1.0, 0.0, 0.0
+        self.mode = "compensated"
+        self.tolerance = DEFAULT_TOL
+        self.ctrl: StampedModelController | None = None
+        for name, text in (
+            ("T", "sampling period [s], > 0"),
+            ("tau", "input delay [s], >= 0 (constant: a delay, or a channel's play-out "
+                    "buffer)"),
+            ("age_max", "the largest age of a sample the predictor uses [s], >= 0: it sizes "
+                        "the stored inputs; an older sample is not used"),
+        ):
+            self.parameter(name, (lambda a=name: getattr(self, a)),
+                           (lambda v, a=name: setattr(self, a, v)), text)
+        self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
+                              "compensated (u = k(x_hat)) or uncompensated (u = k(y))", MODES)
+        self.parameter("tolerance", lambda: self.tolerance,
+                       lambda v: setattr(self, "tolerance", v),
+                       "rtol = atol of the predictor's ODE solves, in (0, 1)")
+        self.values: dict = {}
+        self.model_parameters(self.values, model.parameters, model.choices)
+        for j, s in enumerate(model.inputs):
+            self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
+                           (lambda v, j=j: self.u0.__setitem__(j, v)),
+                           f"history of {s}, constant before t0")
+        self.register_held_sample()
+        self.input_names = [*(f"y_{s}" for s in model.states), "stamp"]
+        self.output_names = list(model.inputs)
+        for i, (name, s) in enumerate(zip(self.input_names, model.states)):
+            self.real_input(name, (lambda i=i: float(self.y[i])), self.y_setter(i),
+                            f"sampled measurement {s}(stamp), read at t0 + iT")
+        self.register_stamp()
+        for j, name in enumerate(self.output_names):
+            self.real_output(name, (lambda j=j: float(self._output()[j])),
+                             "control, held over each sampling period",
+                             depends_on=self.input_names,
+                             variability=Fmi2Variability.discrete)
+
+    def _setup(self):
+        for name in ("T", "tau", "age_max", "tolerance"):
+            check_finite(name, getattr(self, name))
+        for j, v in enumerate(self.u0):
+            check_finite(f"u0[{j + 1}]", float(v))
+        check_model_parameters(self.model, self.values)
+        try:
+            self.ctrl = StampedModelController(self.model, self.values, self.T, self.tau,
+                                               self.age_max, self.mode, self.u0, self.t0,
+                                               self.tolerance)
+        except ValueError as exc:
+            self.fail(str(exc))
+        self._reset_stamps()
