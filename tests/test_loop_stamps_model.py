@@ -133,8 +133,7 @@ def test_the_fmus_follow_it_and_agree_with_in_process(inprocess, fmu_dir):
     assert _error(plain) >= 1e-2
 
 
-def test_run_on_the_command_line_follows_it(tmp_path):
-    data = _data()
+def _file(tmp_path, data) -> Path:
     lines = [f"{k} = {v!r}".replace("'", '"') for k, v in data.items()
              if not isinstance(v, dict)]
     for table, body in data.items():
@@ -144,6 +143,11 @@ def test_run_on_the_command_line_follows_it(tmp_path):
                       for k, v in body.items()]
     path = tmp_path / "s.toml"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_run_on_the_command_line_follows_it(tmp_path):
+    path = _file(tmp_path, _data())
     out = tmp_path / "s.csv"
     assert main(["run", str(path), "--engine", "inprocess", "--out", str(out)]) == 0
     table = np.loadtxt(out, delimiter=",", skiprows=1)
@@ -174,3 +178,26 @@ def test_a_continuous_model_is_refused_in_one_line(tmp_path, capsys):
                                              r"'continuous'; must be 'zoh'$"):
         build_fmu("stamped_model_controller", tmp_path,
                   {"model": str(MODELS / "example_2_4.py")})
+
+
+@pytest.mark.parametrize("mode", ["compensated", "uncompensated"])
+@pytest.mark.parametrize("argv", [[], ["--jacobi"]])
+def test_the_archive_runs_as_the_loop_file_bit_for_bit(tmp_path, argv, mode):
+    """``ssp`` (and its Jacobi variant) holds the stamped model controller, the stamp's
+    connection and its ``mode`` as the Integer twin ``mode_index`` (for importers without
+    String parameters): our master runs the archive as ``run`` runs the loop file, the same
+    doubles, in either mode."""
+    import zipfile
+
+    path = _file(tmp_path, _data(**{"controller.mode": mode}))
+    ours, archive, out = tmp_path / "run.csv", tmp_path / "s.ssp", tmp_path / "ssp.csv"
+    assert main(["run", str(path), "--out", str(ours)]) == 0
+    assert main(["ssp", str(path), *argv, "--out", str(archive)]) == 0
+    with zipfile.ZipFile(archive) as z:
+        ssv = z.read("resources/controller.ssv").decode()
+    assert 'name="mode_index"' in ssv and 'name="mode"' not in ssv
+    assert f'<ssv:Integer value="{1 if mode == "compensated" else 2}"/>' in ssv
+    assert main(["run", str(archive), "--out", str(out)]) == 0
+    want = np.loadtxt(ours, delimiter=",", skiprows=1)
+    assert np.array_equal(np.loadtxt(out, delimiter=",", skiprows=1), want)
+    assert (np.abs(want[-1, 1:3]).max() < 1e-6) == (mode == "compensated")

@@ -107,7 +107,7 @@ def parameter_choices(key: tuple[str, dict] | None) -> dict[str, tuple[str, ...]
     if key is None:
         return {}
     kind, config = key
-    if kind == "controller":
+    if kind in ("controller", "stamped_controller"):
         from delaycomp.maths.lti import MODES
 
         return {"mode": tuple(MODES)}
@@ -115,13 +115,17 @@ def parameter_choices(key: tuple[str, dict] | None) -> dict[str, tuple[str, ...]
         from delaycomp.maths.channel import DISTRIBUTIONS, LOSS_MODELS, POLICIES
 
         return {"distribution": DISTRIBUTIONS, "loss_model": LOSS_MODELS, "policy": POLICIES}
-    if kind in ("model_plant", "model_controller") and "model" in config:
+    if kind in ("model_plant", "model_controller", "stamped_model_controller") \
+            and "model" in config:
+        from delaycomp.maths.lti import MODES
         from delaycomp.maths.model import CONTROLS, load_model
         from delaycomp.maths.nlcontrol import PREDICTORS
 
         choices = dict(load_model(config["model"]).choices)
         if kind == "model_controller":
             choices = {"mode": CONTROLS, "predictor": PREDICTORS, **choices}
+        elif kind == "stamped_model_controller":
+            choices = {"mode": tuple(MODES), **choices}
         return {k: tuple(v) for k, v in choices.items()}
     return {}
 
