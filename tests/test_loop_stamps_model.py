@@ -201,3 +201,19 @@ def test_the_archive_runs_as_the_loop_file_bit_for_bit(tmp_path, argv, mode):
     want = np.loadtxt(ours, delimiter=",", skiprows=1)
     assert np.array_equal(np.loadtxt(out, delimiter=",", skiprows=1), want)
     assert (np.abs(want[-1, 1:3]).max() < 1e-6) == (mode == "compensated")
+
+
+def test_the_loop_exported_as_one_fmu_runs_as_the_loop_file_bit_for_bit(tmp_path):
+    """``export-loop``: the container FMU of the stamped model loop, run by fmpy, gives
+    ``run``'s samples to the bit (its outputs at the communication points)."""
+    from fmpy import simulate_fmu
+
+    path = _file(tmp_path, _data())
+    ours, out = tmp_path / "run.csv", tmp_path / "s.fmu"
+    assert main(["run", str(path), "--out", str(ours)]) == 0
+    assert main(["export-loop", str(path), "--out", str(out)]) == 0
+    want = np.loadtxt(ours, delimiter=",", skiprows=1)
+    res = simulate_fmu(str(out), stop_time=STOP, output_interval=T / N)
+    assert len(res) == len(want)
+    for name, col in (("x1", 1), ("x2", 2)):
+        assert np.array_equal(np.asarray(res[name]), want[:, col]), name
