@@ -914,9 +914,30 @@ class StampedSlaveMixin(HeldSampleMixin):
     error: str | None
     input_names: list
     output_names: list
+    mode: str
     _refuse: Callable[[str], None]
     fail: Callable[[str], None]
     real_input: Callable[..., None]
+    parameter: Callable[..., None]
+    string_parameter: Callable[..., None]
+
+    def register_timing(self, mode_text: str) -> None:
+        """Register the parameters ``T``, ``tau``, ``age_max`` and the String ``mode``
+        (compensated or uncompensated, ``mode_text`` its description), in that order, with
+        the slave's attributes of those names."""
+        from delaycomp.maths.lti import MODES
+
+        for name, text in (
+            ("T", "sampling period [s], > 0"),
+            ("tau", "input delay [s], >= 0 (constant: a delay, or a channel's play-out "
+                    "buffer)"),
+            ("age_max", "the largest age of a sample the predictor uses [s], >= 0: it sizes "
+                        "the stored inputs; an older sample is not used"),
+        ):
+            self.parameter(name, (lambda a=name: getattr(self, a)),
+                           (lambda v, a=name: setattr(self, a, v)), text)
+        self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
+                              mode_text, MODES)
 
     def register_stamp(self) -> None:
         """Register the Real input ``stamp`` (after the measurement inputs)."""

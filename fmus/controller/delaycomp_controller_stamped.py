@@ -12,7 +12,6 @@ import numpy as np
 from pythonfmu import Fmi2Variability
 
 from delaycomp.fmu.slave import StampedSlaveMixin, TableSlave, check_finite
-from delaycomp.maths.lti import MODES
 from delaycomp.maths.stamped import StampedController
 from delaycomp.names import indexed
 
@@ -36,17 +35,7 @@ class DelaycompControllerStamped(StampedSlaveMixin, TableSlave):
         self.mode = "compensated"
         self.y = np.zeros(n)
         self.ctrl: StampedController | None = None
-        for name, text in (
-            ("T", "sampling period [s], > 0"),
-            ("tau", "input delay [s], >= 0 (constant: a delay, or a channel's play-out "
-                    "buffer)"),
-            ("age_max", "the largest age of a sample the predictor uses [s], >= 0: it sizes "
-                        "the stored inputs; an older sample is not used"),
-        ):
-            self.parameter(name, (lambda a=name: getattr(self, a)),
-                           (lambda v, a=name: setattr(self, a, v)), text)
-        self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
-                              "compensated (u = K x_hat) or uncompensated (u = K y)", MODES)
+        self.register_timing("compensated (u = K x_hat) or uncompensated (u = K y)")
         for label, mat, text in (
             ("A", self.A, "plant matrix A used by the predictor"),
             ("B", self.B, "plant matrix B used by the predictor"),

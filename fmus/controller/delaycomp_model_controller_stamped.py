@@ -22,7 +22,6 @@ from delaycomp.fmu.slave import (
     check_finite,
     check_model_parameters,
 )
-from delaycomp.maths.lti import MODES
 from delaycomp.maths.model import from_module
 from delaycomp.maths.predictors import DEFAULT_TOL
 from delaycomp.maths.stamped import StampedModelController
@@ -47,17 +46,7 @@ class StampedModelControllerSlave(StampedSlaveMixin, TableSlave):
         self.mode = "compensated"
         self.tolerance = DEFAULT_TOL
         self.ctrl: StampedModelController | None = None
-        for name, text in (
-            ("T", "sampling period [s], > 0"),
-            ("tau", "input delay [s], >= 0 (constant: a delay, or a channel's play-out "
-                    "buffer)"),
-            ("age_max", "the largest age of a sample the predictor uses [s], >= 0: it sizes "
-                        "the stored inputs; an older sample is not used"),
-        ):
-            self.parameter(name, (lambda a=name: getattr(self, a)),
-                           (lambda v, a=name: setattr(self, a, v)), text)
-        self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
-                              "compensated (u = k(x_hat)) or uncompensated (u = k(y))", MODES)
+        self.register_timing("compensated (u = k(x_hat)) or uncompensated (u = k(y))")
         self.parameter("tolerance", lambda: self.tolerance,
                        lambda v: setattr(self, "tolerance", v),
                        "rtol = atol of the predictor's ODE solves, in (0, 1)")
