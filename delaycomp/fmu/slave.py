@@ -897,9 +897,9 @@ class StampedSlaveMixin(HeldSampleMixin):
     at a sampling instant and committed by the step that leaves it, and the hidden state
     checked field by field when restored.
 
-    The slave sets ``n``, ``m``, ``y`` (n numbers), ``input_names`` (the n measurement
-    inputs, then ``stamp``) and ``output_names``, registers its measurement inputs with
-    ``y_setter`` and the stamp with ``register_stamp``, and builds ``ctrl`` (a
+    The slave sets ``n``, ``m``, ``y`` (n numbers), registers ``T``, ``tau``, ``age_max``
+    and ``mode`` with ``register_timing`` and its inputs, the stamp and its outputs with
+    ``register_ports``, and builds ``ctrl`` (a
     ``_StampedCore``: ``StampedController`` or ``StampedModelController``) in ``_setup``
     before calling ``_reset_stamps``.
     """
@@ -918,6 +918,7 @@ class StampedSlaveMixin(HeldSampleMixin):
     _refuse: Callable[[str], None]
     fail: Callable[[str], None]
     real_input: Callable[..., None]
+    real_output: Callable[..., None]
     parameter: Callable[..., None]
     string_parameter: Callable[..., None]
 
@@ -939,7 +940,22 @@ class StampedSlaveMixin(HeldSampleMixin):
         self.string_parameter("mode", lambda: self.mode, lambda v: setattr(self, "mode", v),
                               mode_text, MODES)
 
-    def register_stamp(self) -> None:
+    def register_ports(self, inputs: list[str], texts: list[str], outputs: list[str]) -> None:
+        """Register the measurement inputs ``inputs`` (described by ``texts``), the Real
+        input ``stamp`` and the held outputs ``outputs``, in that order; sets
+        ``input_names`` (the inputs, then ``stamp``) and ``output_names``."""
+        self.input_names = [*inputs, "stamp"]
+        self.output_names = list(outputs)
+        for i, (name, text) in enumerate(zip(inputs, texts)):
+            self.real_input(name, (lambda i=i: float(self.y[i])), self.y_setter(i), text)
+        self._register_stamp()
+        for j, name in enumerate(self.output_names):
+            self.real_output(name, (lambda j=j: float(self._output()[j])),
+                             "control, held over each sampling period",
+                             depends_on=self.input_names,
+                             variability=Fmi2Variability.discrete)
+
+    def _register_stamp(self) -> None:
         """Register the Real input ``stamp`` (after the measurement inputs)."""
         self.stamp = 0.0
         self._stamp_held: float | None = None

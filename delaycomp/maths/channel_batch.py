@@ -311,6 +311,26 @@ def _fate_rows(channel: Channel, keys, offs, h: float, Q: int, j0: int, j1: int,
 _ROWS = 64
 
 
+def sizes(channel: Channel, h: float, steps: int, every: int = 1) -> tuple[int, int, int, int]:
+    """``(P, Q, J, rows)`` of ``shown``'s arguments (the channel checked): the steps between
+    packets, the timeout in steps, the packets sent in ``steps`` steps and the rows shown
+    (every ``every``-th step).
+
+    Examples
+    --------
+    >>> sizes(Channel(delay=0.02, period=0.03), 0.01, 10, every=4)
+    (3, 2, 4, 3)
+    """
+    channel.check()
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every = {every!r} is not allowed: must be an integer >= 1")
+    P = period_steps(channel, h)
+    Q = timeout_steps(channel, h)
+    J = (steps - 1) // P + 1 if steps > 0 else 0
+    rows = (steps - 1) // every + 1 if steps > 0 else 0
+    return P, Q, J, rows
+
+
 def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1, xp=np):
     """The send step of the packet each run's channel shows at steps ``0 .. steps - 1``,
     shape ``(steps, R)``; ``-1`` where none has been delivered yet (the initial history).
@@ -332,16 +352,10 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1, xp=np):
     >>> shown(Channel(delay=0.02), [0], 0.01, 5)[:, 0].tolist()
     [-1, -1, 0, 1, 2]
     """
-    channel.check()
-    P = period_steps(channel, h)
-    Q = timeout_steps(channel, h)
-    J = (steps - 1) // P + 1 if steps > 0 else 0
+    P, Q, J, rows = sizes(channel, h, steps, every)
     keys = xp.asarray(stream_keys(np.asarray(seeds).reshape(-1)))
     offs = offsets(channel, keys, xp)
     R = keys.size
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"every = {every!r} is not allowed: must be an integer >= 1")
-    rows = (steps - 1) // every + 1 if steps > 0 else 0
     best = xp.full((rows + 1, R), -1, dtype=xp.int64)  # row ``rows``: never shown
     flat = best.reshape(-1)
     runs = xp.arange(R, dtype=xp.int64)

@@ -1285,10 +1285,7 @@ def channel_backend(backend: Backend | str) -> Backend:
     """The array library of ``run_lti_channels``: numpy, or CuPy on a GPU (``auto``: CuPy
     where it reaches a GPU, else numpy). JAX is refused: its arrays are immutable, and the
     channel's stepping writes into its rings in place."""
-    if isinstance(backend, Backend):
-        name = backend.name
-    else:
-        name = backend
+    name = backend.name if isinstance(backend, Backend) else backend
     if name == "jax":
         raise BatchError("array backend jax is not allowed with a network channel: must be "
                          "numpy, cupy or auto (the channel's stepping writes in place)")
@@ -1533,7 +1530,7 @@ class _ChannelStepper:
         self.Lmax = plan.QB.shape[0]
         self.Ru = max(self.Lmax, 0 if stamped is None else stamped.back) + Qi // N + 3
         self.stamped = stamped
-        self.comp = np.asarray(d.mode == "compensated")
+        self.comp = be.asarray(np.asarray(d.mode == "compensated"))  # on the device, once
 
         self.Ad, self.Bd, self.K, self.E, self.QB, self.x0, self.u0 = _coefficients(
             plan, d, lambda a: be.asarray(np.ascontiguousarray(a)), self.Lmax)
@@ -1567,7 +1564,7 @@ class _ChannelStepper:
         n, U = self.n, self.U
         if self.stamped is not None:
             xhat = self.stamped.predict(i, y, s, U, self.Ru)
-            phi = list(xp.where(self.be.asarray(self.comp), xhat, y))
+            phi = list(xp.where(self.comp, xhat, y))
         else:
             phi = [_dot(self.E[a], y) for a in range(n)]
             for q in range(self.Lmax):

@@ -16,7 +16,6 @@ batch draws with numpy (the same numbers, slower); ``status`` says which and why
 from __future__ import annotations
 
 import ctypes
-import math
 import subprocess
 import sys
 import tempfile
@@ -96,20 +95,13 @@ def shown(channel: Channel, seeds, h: float, steps: int, every: int = 1) -> np.n
     lib = _load()
     if lib is None:
         return None
-    channel.check()
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"every = {every!r} is not allowed: must be an integer >= 1")
-    P = cb.period_steps(channel, h)
-    Q = cb.timeout_steps(channel, h)
-    J = (steps - 1) // P + 1 if steps > 0 else 0
+    P, Q, J, rows = cb.sizes(channel, h, steps, every)
     keys = np.ascontiguousarray(cb.stream_keys(np.asarray(seeds).reshape(-1)))
     offs = np.ascontiguousarray(cb.offsets(channel, keys), dtype=np.int64)
     R = keys.size
-    rows = (steps - 1) // every + 1 if steps > 0 else 0
     trace = np.ascontiguousarray(channel.trace if channel.distribution == "trace" else [0.0],
                                  dtype=float)
-    shape = channel.shape if channel.shape is not None else math.nan
-    par = np.array([channel.delay, channel.jitter, shape, channel.loss, channel.p_gb,
+    par = np.array([channel.delay, channel.jitter, channel.shape, channel.loss, channel.p_gb,
                     channel.p_bg, channel.loss_good, channel.loss_bad, h, grid.GRID_RTOL],
                    dtype=float)
     ipar = np.array([DISTRIBUTIONS.index(channel.distribution),

@@ -9,7 +9,6 @@ estimate), and holds ``u = K x_hat`` over the period. See README.md beside this 
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Fmi2Variability
 
 from delaycomp.fmu.slave import StampedSlaveMixin, TableSlave, check_finite
 from delaycomp.maths.stamped import StampedController
@@ -44,17 +43,9 @@ class DelaycompControllerStamped(StampedSlaveMixin, TableSlave):
             self.matrix_parameter(label, mat, text)
         self.matrix_parameter("u0", self.u0, "controller output history, constant before t0")
         self.register_held_sample()
-        self.input_names = [*indexed("y", n), "stamp"]
-        self.output_names = indexed("u", m)
-        for i, name in enumerate(self.input_names[:n]):
-            self.real_input(name, (lambda i=i: float(self.y[i])), self.y_setter(i),
-                            "sampled measurement y = x(stamp), read at t0 + iT")
-        self.register_stamp()
-        for j, name in enumerate(self.output_names):
-            self.real_output(name, (lambda j=j: float(self._output()[j])),
-                             "control, held over each sampling period",
-                             depends_on=self.input_names,
-                             variability=Fmi2Variability.discrete)
+        self.register_ports(indexed("y", n),
+                            ["sampled measurement y = x(stamp), read at t0 + iT"] * n,
+                            indexed("u", m))
 
     def _setup(self):
         for name in ("T", "tau", "age_max"):

@@ -14,7 +14,6 @@ from __future__ import annotations
 import importlib
 
 import numpy as np
-from pythonfmu import Fmi2Variability
 
 from delaycomp.fmu.slave import (
     StampedSlaveMixin,
@@ -57,17 +56,9 @@ class StampedModelControllerSlave(StampedSlaveMixin, TableSlave):
                            (lambda v, j=j: self.u0.__setitem__(j, v)),
                            f"history of {s}, constant before t0")
         self.register_held_sample()
-        self.input_names = [*(f"y_{s}" for s in model.states), "stamp"]
-        self.output_names = list(model.inputs)
-        for i, (name, s) in enumerate(zip(self.input_names, model.states)):
-            self.real_input(name, (lambda i=i: float(self.y[i])), self.y_setter(i),
-                            f"sampled measurement {s}(stamp), read at t0 + iT")
-        self.register_stamp()
-        for j, name in enumerate(self.output_names):
-            self.real_output(name, (lambda j=j: float(self._output()[j])),
-                             "control, held over each sampling period",
-                             depends_on=self.input_names,
-                             variability=Fmi2Variability.discrete)
+        self.register_ports([f"y_{s}" for s in model.states],
+                            [f"sampled measurement {s}(stamp), read at t0 + iT"
+                             for s in model.states], list(model.inputs))
 
     def _setup(self):
         for name in ("T", "tau", "age_max", "tolerance"):
