@@ -26,24 +26,66 @@ def machine_blas_settings(environ=None) -> list[str]:
     return [f"{k}={v}" for k, v in sorted(environ.items()) if k.startswith("OPENBLAS_")]
 
 
+def session_root(tmp_path_factory) -> Path:
+    """The folder of this test session that every pytest-xdist worker shares (each worker's
+    own ``getbasetemp()`` lies in it); without workers, the session's ``getbasetemp()``."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+def built_once(tmp_path_factory, name: str, build) -> Path:
+    """``session_root/name``, filled by ``build(folder)`` once per test session whichever
+    worker asks first (the others wait on a lock, then take the folder as it is); a build
+    that fails leaves no folder, so the next asker builds again and fails the same way."""
+    import shutil
+
+    from delaycomp.tmpfiles import build_lock
+
+    out = session_root(tmp_path_factory) / name
+    with build_lock(out):
+        if not out.is_dir():
+            part = out.with_name(f".{name}.{os.getpid()}.part")
+            shutil.rmtree(part, ignore_errors=True)
+            part.mkdir()
+            build(part)
+            part.rename(out)
+    return out
+
+
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory) -> Path:
     """Folder with the default FMUs, built by the same code as ``delaycomp build``, and
     the network channel and the time-stamp controller (every FMU of the registry but the
-    model templates)."""
+    model templates); built once per session, shared by every worker (read only)."""
     from delaycomp.fmu.build import build_all, build_fmu
 
-    out = tmp_path_factory.mktemp("fmus")
-    build_all(out)
-    build_fmu("channel", out)
-    build_fmu("stamped_controller", out)
-    return out
+    def build(out: Path) -> None:
+        build_all(out)
+        build_fmu("channel", out)
+        build_fmu("stamped_controller", out)
+
+    return built_once(tmp_path_factory, "fmus", build)
 
 
 @pytest.fixture(autouse=True)
 def _isolated_cache(tmp_path_factory, monkeypatch):
-    """Never touch the user's FMU cache from a test."""
-    monkeypatch.setenv("DELAYCOMP_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cache"))
+    """Never touch the user's FMU cache from a test: the session's own, one for every
+    worker (the caches lock each build: one worker builds an FMU, the others wait for it)."""
+    monkeypatch.setenv("DELAYCOMP_CACHE_DIR", str(session_root(tmp_path_factory) / "cache"))
+
+
+def pytest_configure(config):
+    """The programs the tests start get SIGINT's and SIGHUP's default actions, as a
+    terminal's programs do, also where pytest itself was started with them ignored (a
+    script's background job ignores SIGINT, ``nohup`` SIGHUP): they would inherit the
+    ignored signals, and the tests that interrupt them (Ctrl-C, a closed terminal) would
+    wait for them in vain. Set before pytest-xdist starts its workers, which inherit it."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 _EXIT_STATUS: list[int] = []
@@ -74,14 +116,58 @@ def pytest_unconfigure(config):
 @pytest.fixture(scope="module")
 def oms():
     """OMSimulator's install; skipped with the hint when it is absent and not required (a
-    ``DELAYCOMP_OMSIMULATOR`` that names no install is an error, not a skip)."""
-    import os
-
+    ``DELAYCOMP_OMSIMULATOR`` that names no install fails: ``tests/external.py``)."""
     from delaycomp.verify import omsimulator
 
+    from .external import need
+
+    return need("omsimulator", omsimulator.locate, (omsimulator.NotInstalled,))
+
+
+def _sigint_state() -> tuple:
+    """This process's SIGINT disposition: Python's handler, and whether the kernel has it
+    ignored or blocked (a library loaded into the process can do either)."""
+    import signal
+
+    bits = []
     try:
-        return omsimulator.locate()
-    except omsimulator.NotInstalled as exc:
-        if os.environ.get(omsimulator.ENV):
-            raise
-        pytest.skip(f"OMSimulator not found: {exc}")
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith(("SigBlk:", "SigIgn:")):
+                    bits.append(bool(int(line.split()[1], 16) & (1 << (signal.SIGINT - 1))))
+    except OSError:  # not Linux
+        pass
+    return (signal.getsignal(signal.SIGINT), *bits)
+
+
+@pytest.fixture(autouse=True)
+def _sigint_unchanged():
+    """A test leaves SIGINT as it found it: the programs later tests start inherit an
+    ignored or blocked SIGINT, and their Ctrl-C tests then hang (whichever test file a
+    pytest-xdist worker happens to run after the one that changed it)."""
+    before = _sigint_state()
+    yield
+    after = _sigint_state()
+    assert after == before, f"this test changed SIGINT (handler, blocked, ignored): " \
+                            f"{before} -> {after}"
+
+
+@pytest.fixture(autouse=True)
+def _alone_when_marked(request, tmp_path_factory):
+    """Under pytest-xdist, a test marked ``alone`` (it measures wall time against a bound,
+    or needs the cores to itself) runs while no other worker runs a test: it takes the
+    session's lock file exclusively, every other test takes it shared. Without workers
+    there is nothing to wait for."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    import fcntl
+
+    lock = session_root(tmp_path_factory) / ".alone.lock"
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        alone = request.node.get_closest_marker("alone") is not None
+        fcntl.flock(fd, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        yield
+    finally:
+        os.close(fd)  # releases the lock

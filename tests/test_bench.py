@@ -14,6 +14,7 @@ from .conftest import REPO
 pytestmark = pytest.mark.fmu
 
 
+@pytest.mark.slow  # the whole quick bench; one section runs in the fast tier (below)
 def test_bench_quick_writes_report_and_plot(tmp_path):
     out, plot = tmp_path / "BENCHMARKS.md", tmp_path / "bench.png"
     proc = subprocess.run([sys.executable, str(REPO / "bench" / "run.py"), "--quick",

@@ -30,6 +30,8 @@ from delaycomp.maths.channel import Channel
 from delaycomp.studies import batch
 from delaycomp.system import LtiBatch
 
+from .external import need
+
 FIELDS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time", "success", "cost")
 
 #: the channels of the cases: every distribution, loss model and policy
@@ -57,10 +59,8 @@ def _shim() -> batch.Backend:
 
 
 def _gpu() -> batch.Backend:
-    try:
-        return batch.get_backend("cupy")
-    except batch.BatchError as exc:
-        pytest.skip(f"no GPU for the cupy backend: {exc}")
+    return need("gpu", lambda: batch.get_backend("cupy"), (batch.BatchError,),
+                "the cupy backend")
 
 
 def _design(P: int, n: int, m: int, T: float = 0.2, N: int = 20, r: float = 0.3,

@@ -79,6 +79,7 @@ def test_a_step_that_never_returns_is_stopped_by_the_watchdog(plant):
     assert _children_of_fmu(plant) == []
 
 
+@pytest.mark.alone  # the interrupt must end the command within a second
 @pytest.mark.parametrize("plant", ["hang"], indirect=True)
 def test_ctrl_c_ends_the_command_while_a_step_hangs(plant):
     """SIGINT to the process group, as a terminal sends it, with the default watchdog

@@ -17,6 +17,7 @@ from delaycomp.paper import scenarios
 from delaycomp.verify import check, container
 
 from .conftest import REPO
+from .tiers import tiered
 
 pytestmark = pytest.mark.fmu
 
@@ -123,7 +124,7 @@ def _fmi_versions(path) -> tuple[str, list[str]]:
         return version(zf.read("modelDescription.xml")), [version(zf.read(n)) for n in inner]
 
 
-@pytest.mark.parametrize("case_id", FMI3_CASES)
+@pytest.mark.parametrize("case_id", tiered(FMI3_CASES, {"example-3.8/delayed"}))
 def test_fmi3_container_is_the_fmi2_container_bit_for_bit(case_id, tmp_path):
     """``export_loop(..., fmi=3)``: an FMI 3.0 container holding the four FMI 3.0 native
     FMUs, built with the loop's values as start values (the container sets no array),

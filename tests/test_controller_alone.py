@@ -75,15 +75,14 @@ def test_the_assembled_loop_runs_in_our_master_as_the_whole_loop(users_loop):
     _close(res.names, res.data, whole, 1e-12)
 
 
-def test_omsimulators_command_line_runs_the_users_ssp(users_loop, tmp_path):
+def test_omsimulators_command_line_runs_the_users_ssp(oms, users_loop, tmp_path):
     from delaycomp.formats.ssp import loop_system, pack
-    from delaycomp.verify.omsimulator import locate
 
     folder, loop, whole = users_loop
     archive = pack(*loop_system(_assembled(folder, loop)), tmp_path / "users.ssp")
     result = tmp_path / "run" / "result.csv"
     result.parent.mkdir()
-    proc = subprocess.run(["env", "-i", str(locate().cli), f"--stopTime={STOP!r}",
+    proc = subprocess.run(["env", "-i", str(oms.cli), f"--stopTime={STOP!r}",
                            f"--resultFile={result}", str(archive)],
                           cwd=result.parent, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "error" not in (proc.stdout + proc.stderr).lower(), \

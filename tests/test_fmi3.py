@@ -28,6 +28,7 @@ from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.paper import models as paper_models
 
 from .test_loopbuild import cli, write_loop
+from .tiers import tiered
 
 pytestmark = pytest.mark.fmu
 
@@ -136,12 +137,12 @@ def test_the_sources_compile_as_build_description_lists_them(built, kind, tmp_pa
 
 
 # -- item 2: our master runs them ---------------------------------------------------------
-@pytest.mark.parametrize("source, sets", [
-    ("example-3.6", {"r": 0.3, "u0": 4}),
-    ("corollary-3.7", {}),
+@pytest.mark.parametrize("source, sets", tiered([
     (str(MYLOOP), {}),  # a user's loop file, n = 3, m = 2
     ("example-3.8", {}),  # a model file's plant and controller, translated to C
-])
+    ("example-3.6", {"r": 0.3, "u0": 4}),
+    ("corollary-3.7", {}),
+], 2))
 def test_an_fmi3_loop_equals_its_fmi2_twin_bit_for_bit(source, sets, tmp_path):
     two = api.run(source, sets=sets, fmus="native", fmu_dir=tmp_path)
     three = api.run(source, sets=sets, fmi=3, fmu_dir=tmp_path)
@@ -529,7 +530,7 @@ def _archive(tmp_path: Path, source: str, *flags: str) -> Path:
     return out
 
 
-@pytest.mark.parametrize("source", ["example-3.6", "corollary-3.7", str(MYLOOP)])
+@pytest.mark.parametrize("source", tiered([str(MYLOOP), "example-3.6", "corollary-3.7"]))
 def test_an_fmi3_archive_is_ssp_1_0_and_runs_in_our_master_as_the_loop(source, tmp_path):
     """``ssp --fmi 3``: the SSD and parameter sets valid against the SSP 1.0 schemas, an
     FMI 3.0 FMU of its own per instance (its values as start values), the parameter sets

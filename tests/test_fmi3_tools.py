@@ -69,7 +69,6 @@ from __future__ import annotations
 import csv
 import importlib.util
 import json
-import os
 import re
 import subprocess
 import sys
@@ -84,6 +83,7 @@ from delaycomp.fmu.native import build_native_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.verify import fmusim as fmusim_tool
 
+from .external import Absent, need
 from .roundoff import EPS, SAME_ARITHMETIC_ULPS, assert_columns_close
 from .test_loopbuild import cli
 
@@ -146,13 +146,9 @@ def fmus(tmp_path_factory) -> dict[str, Path]:
 def fmusim_cli() -> Path:
     """fmusim, to run again; skipped saying so where it is not found and not asked for (a
     ``DELAYCOMP_FMUSIM`` that names no fmusim fails the test with how to build it)."""
-    try:
-        return fmusim_tool.locate()
-    except fmusim_tool.FmusimNotInstalled as exc:
-        if os.environ.get(fmusim_tool.ENV):
-            pytest.fail(str(exc), pytrace=False)
-        pytest.skip(f"fmusim not run again ({exc}); our master is checked against its "
-                    "records in reference/fmusim on every machine")
+    return need("fmusim", fmusim_tool.locate, (fmusim_tool.FmusimNotInstalled,),
+                "running fmusim again (our master is checked against its records in "
+                "reference/fmusim on every machine)")
 
 
 def _ours(fmu: Path, params: dict, names: list[str], values: np.ndarray,
@@ -404,9 +400,13 @@ def test_omsimulators_python_api_cannot_read_an_fmi3_model_description(oms, fmus
     assert proc.stderr.strip().splitlines()[-1] == "KeyError: 'structuralParameter'"
 
 
+def _no_cli() -> None:
+    raise Absent("this OMSimulator install has no command line")
+
+
 def _oms_cli(oms, tmp: Path, *args: str) -> subprocess.CompletedProcess:
     if oms.cli is None:
-        pytest.skip("this OMSimulator install has no command line")
+        need("omsimulator", _no_cli, what="its command line")
     return subprocess.run(["env", "-i", str(oms.cli), *args], capture_output=True, text=True,
                           cwd=tmp, timeout=300)
 

@@ -51,6 +51,7 @@ def test_buffers_are_bounded_by_the_delay_window(fmu_dir):
     assert len(hidden["controller"]["ctrl"]["history"]) == 2
 
 
+@pytest.mark.slow  # a soak: 20 000 base steps under tracemalloc
 def test_memory_is_flat(fmu_dir):
     """Python-side memory of the FMUs and the master (tracemalloc, which also sees the
     objects pythonfmu's C++ layer creates through the Python C API) grows by less than

@@ -25,6 +25,8 @@ from delaycomp.fmu.native import compile_host, compiler, host_argv, native_fmus,
 from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import lti_loop
 
+from .tiers import tiered
+
 COUNTER = Path(__file__).parent / "native_alloc" / "count_alloc.c"
 
 #: every native loop kind: LTI (scalar and MIMO), each nonlinear scenario (closed and
@@ -79,7 +81,7 @@ def _count(counter, loop, dirs, steps, exact, start, tmp_path) -> dict[str, int]
     return {k: int(v) for k, v in fields.items()}
 
 
-@pytest.mark.parametrize("name", sorted(LOOPS))
+@pytest.mark.parametrize("name", tiered(sorted(LOOPS), {"mimo-n3-m2", "example-3.8-padded"}))
 @pytest.mark.parametrize("start", [0.0, 1e5], ids=["t0=0", "t0=1e5"])
 def test_no_allocation_while_stepping(name, start, counter, tmp_path):
     """The four counts (10^3 and 10^5 steps, exact grid and constant steps) are equal, and

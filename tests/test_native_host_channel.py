@@ -22,7 +22,6 @@ time the masters pass reaches the numbers. Measured: equal, 0 difference, in eve
 from __future__ import annotations
 
 import copy
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loopfile import build
 
 from .conftest import machine_blas_settings
+from .external import need
 
 REPO = Path(__file__).resolve().parents[1]
 MYLOOP = tomllib.loads((REPO / "docs" / "examples" / "myloop.toml").read_text("utf-8"))
@@ -163,9 +163,7 @@ def test_valgrind_finds_no_error_and_no_leak_in_the_host_over_channels(chost, na
     """The C host running the time-stamp loop over both channels (12 s, 1200 ticks) under
     valgrind: no invalid access, every heap block freed (as
     tests/test_native_model_controller.py does for the nonlinear loops)."""
-    valgrind = shutil.which("valgrind")
-    if valgrind is None:
-        pytest.skip("valgrind is not installed (apt-get install valgrind)")
+    valgrind = need("valgrind")
     loop = _loop(True, MEAS, INPUT)
     dirs = _dirs(loop, native_dir, tmp_path)
     proc = subprocess.run([valgrind, "--error-exitcode=9", "--leak-check=full",

@@ -29,7 +29,6 @@ and why each tolerance:
 from __future__ import annotations
 
 import ctypes
-import shutil
 import subprocess
 import warnings
 from pathlib import Path
@@ -41,6 +40,8 @@ from scipy.linalg import expm
 
 from delaycomp.fmu.native import SOURCE_DIR, compiler
 from delaycomp.maths.predictors import integrate
+
+from .external import need
 
 HERE = Path(__file__).resolve().parent / "native_ode"
 FLAGS = ["-std=c11", "-O2", "-fPIC", "-Wall", "-Wextra", "-Werror"]
@@ -317,9 +318,7 @@ def test_no_ops_and_bad_input(lib):
 
 # -- memory -------------------------------------------------------------------------------
 def test_valgrind(tmp_path):
-    valgrind = shutil.which("valgrind")
-    if valgrind is None:
-        pytest.skip("valgrind is not installed (apt-get install valgrind)")
+    valgrind = need("valgrind")
     exe = tmp_path / "driver"
     subprocess.run([*compiler(), *FLAGS[:2], "-g", *FLAGS[3:], f"-I{SOURCE_DIR}",
                     f"-I{HERE}", "-o", str(exe), str(SOURCE_DIR / "ode.c"),

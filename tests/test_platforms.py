@@ -18,7 +18,6 @@ uses no libm function on the stepping path).
 from __future__ import annotations
 
 import os
-import shutil
 import struct
 import subprocess
 import sys
@@ -41,24 +40,19 @@ from delaycomp.fmu.native import (
 )
 from delaycomp.formats.loopbuild import file_stem
 
+from .external import need
 from .test_loopbuild import write_loop
+from .tiers import tiered
 
 pytestmark = pytest.mark.fmu
 
 REPO = Path(__file__).resolve().parent.parent
-INSTALL = "scripts/install_platform_tools.sh"
 RTOL = 1e-12
 
 
-def need(program: str, package: str, what: str) -> None:
-    if shutil.which(program) is None:
-        pytest.skip(f"{program} is not installed (`apt-get install {package}`, or {INSTALL}): "
-                    f"{what} not checked")
-
-
 def need_cross(platform: str) -> None:
-    _, default, package, _, _ = CROSS_TARGETS[platform]
-    need(default, package, f"the {platform} binaries were")
+    _, default, _, _, _ = CROSS_TARGETS[platform]
+    need(default, what=f"the {platform} binaries")
 
 
 def machine_of(binary: bytes) -> str:
@@ -85,15 +79,32 @@ def model_file():
     return REPO / "delaycomp" / "paper" / "models" / "example_3_8.py"
 
 
-@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "stamped_controller",
-                                  "model_plant", "model_controller"])
-def test_every_native_fmu_carries_three_platforms(kind, model_file, tmp_path):
+@pytest.fixture(scope="module")
+def built(model_file, tmp_path_factory):
+    """``built(kind)``: the native FMU of ``kind``, with every platform whose compiler is
+    here, built once for this module's tests (the compilers run once per kind, not per
+    case)."""
+    made: dict[str, Path] = {}
+
+    def get(kind: str) -> Path:
+        if kind not in made:
+            config = {"model": str(model_file)} if kind.startswith("model") else None
+            made[kind] = build_native_fmu(kind, tmp_path_factory.mktemp(kind), config)
+        return made[kind]
+    return get
+
+
+KINDS = ["delay", "plant", "controller", "stamped_controller", "model_plant",
+         "model_controller"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_native_fmu_carries_three_platforms(kind, built):
     """linux64 (.so, x86-64), win64 (.dll, PE x86-64) and aarch64-linux (.so, AArch64):
     each folder holds a library built for the platform it names."""
     for platform in CROSS_TARGETS:
         need_cross(platform)
-    config = {"model": str(model_file)} if kind.startswith("model") else None
-    fmu = build_native_fmu(kind, tmp_path, config)
+    fmu = built(kind)
     found = binaries(fmu)
     assert found == {"linux64": "linux64", "win64": "win64", "aarch64-linux": "aarch64-linux"}
     with zipfile.ZipFile(fmu) as zf:
@@ -151,17 +162,15 @@ def test_delaycomp_platforms_chooses_the_platforms(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("cc", ["gcc", "clang"])
-@pytest.mark.parametrize("kind", ["delay", "plant", "controller", "stamped_controller",
-                                  "model_plant", "model_controller"])
-def test_sources_compile_alone_as_c99(cc, kind, model_file, tmp_path):
+@pytest.mark.parametrize("kind", KINDS)
+def test_sources_compile_alone_as_c99(cc, kind, built, tmp_path):
     """An importer builds the FMU for any other platform from ``sources/`` alone: the
     files modelDescription lists compile with ``-std=c99 -pedantic -Wall -Wextra
     -Werror``."""
     from fmpy import read_model_description
 
-    need(cc, cc, "the sources were not compiled with it;")
-    config = {"model": str(model_file)} if kind.startswith("model") else None
-    fmu = build_native_fmu(kind, tmp_path / "fmu", config)
+    need(cc, what="the sources compiled with it")
+    fmu = built(kind)
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(tmp_path / "x", [n for n in zf.namelist() if n.startswith("sources/")])
     files = read_model_description(str(fmu)).buildConfigurations[0].sourceFileSets[0] \
@@ -182,6 +191,54 @@ def wine_prefix(tmp_path_factory):
     return tmp_path_factory.mktemp("wine") / "prefix"
 
 
+@pytest.fixture(scope="module")
+def hosts(tmp_path_factory):
+    """``hosts(platform)``: the C host built for ``platform`` (None: linux64), compiled
+    once for the module's matrix."""
+    made: dict = {}
+
+    def get(platform: str | None) -> Path:
+        if platform not in made:
+            suffix = ".exe" if platform == "win64" else ""
+            made[platform] = compile_host(
+                tmp_path_factory.mktemp("host") / f"host-{platform or 'linux64'}{suffix}",
+                platform)
+        return made[platform]
+    return get
+
+
+@pytest.fixture(scope="module")
+def case_loops(tmp_path_factory, hosts):
+    """``case_loops(case)``: the case's loop, its FMUs unpacked (``delaycomp build``, every
+    platform inside) and the linux64 host's trajectory, made once for both platforms."""
+    from delaycomp import api
+    from delaycomp.paper import scenarios
+
+    made: dict = {}
+
+    def get(case: str):
+        if case not in made:
+            tmp = tmp_path_factory.mktemp(f"case-{case}")
+            if case == "myloop":
+                source = write_loop(tmp)
+                args = [str(source)]
+                loop = api.load(source)
+            else:
+                args = CASES[case]
+                loop = scenarios.get(case).loop([a for a in args[1:] if a != "--set"])
+            out = tmp / "fmus"
+            proc = subprocess.run([sys.executable, "-m", "delaycomp", "build", *args,
+                                   "--out", str(out)], capture_output=True, text=True)
+            assert proc.returncode == 0, proc.stderr
+            stem = file_stem(loop.name)
+            fmus = {loop.by_role(role).name: out / f"{stem}_{role}.fmu"
+                    for role in ("plant", "meas_delay", "controller", "input_delay")}
+            dirs = unpack(fmus, tmp / "unpacked")
+            made[case] = (loop, dirs, run_host(hosts(None), loop, STOP, dirs, None, None))
+        return made[case]
+    return get
+
+
 def run_host(exe: Path, loop, stop: float, dirs, platform, env) -> np.ndarray:
     proc = subprocess.run(host_argv(exe, loop, stop, dirs, platform=platform),
                           capture_output=True, text=True, env=env, timeout=600)
@@ -195,43 +252,23 @@ def run_host(exe: Path, loop, stop: float, dirs, platform, env) -> np.ndarray:
 CASES = {"example-3.6": ["example-3.6", "--set", "r=0.3", "--set", "u0=4"],
          "corollary-3.7": ["corollary-3.7"],
          "myloop": None}
+#: the hosts' horizon [s]
+STOP = 6.0
 
 
 @pytest.mark.parametrize("platform", ["win64", "aarch64-linux"])
-@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("case", tiered(sorted(CASES), {"myloop"}))
 def test_the_c_host_runs_the_platform_binaries_as_linux64(platform, case, wine_prefix,
-                                                          tmp_path):
+                                                          hosts, case_loops):
     """``delaycomp build`` the loop's FMUs (every platform inside); the C host built for
     ``platform`` runs that platform's binaries in its emulator (wine, qemu-user) and
     gives the linux64 host's trajectory to 1e-12 of each column's peak."""
-    from delaycomp import api
-    from delaycomp.paper import scenarios
     need_cross(platform)
-    prefix, package = native.EMULATORS[platform]
-    need(prefix[0], package, f"the {platform} binaries were not run;")
-    if case == "myloop":
-        source = write_loop(tmp_path)
-        args = [str(source)]
-        loop = api.load(source)
-    else:
-        args = CASES[case]
-        sc = scenarios.get(case)
-        loop = sc.loop([a for a in args[1:] if a != "--set"])
-    out = tmp_path / "fmus"
-    proc = subprocess.run([sys.executable, "-m", "delaycomp", "build", *args, "--out",
-                           str(out)], capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    stem = file_stem(loop.name)
-    fmus = {loop.by_role(role).name: out / f"{stem}_{role}.fmu"
-            for role in ("plant", "meas_delay", "controller", "input_delay")}
-    dirs = unpack(fmus, tmp_path / "unpacked")
-    stop = 6.0
-    ours = run_host(compile_host(tmp_path / "host"), loop, stop, dirs, None, None)
-    suffix = ".exe" if platform == "win64" else ""
-    exe = compile_host(tmp_path / f"host-{platform}{suffix}", platform)
+    need(native.EMULATORS[platform][0][0], what=f"the {platform} binaries run")
+    loop, dirs, ours = case_loops(case)
     env = {**os.environ, **emulator(platform)[1], "WINEPREFIX": str(wine_prefix)}
-    theirs = run_host(exe, loop, stop, dirs, platform, env)
-    assert theirs.shape == ours.shape == (round(stop / loop.h) + 1, ours.shape[1])
+    theirs = run_host(hosts(platform), loop, STOP, dirs, platform, env)
+    assert theirs.shape == ours.shape == (round(STOP / loop.h) + 1, ours.shape[1])
     peak = np.max(np.abs(ours), axis=0)
     assert np.all(np.abs(theirs - ours) <= RTOL * peak), np.max(np.abs(theirs - ours))
     assert np.max(np.abs(ours[:, 1:])) > 0.1  # the loop moves: a real comparison

@@ -28,7 +28,6 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
-import shutil
 import subprocess
 import sys
 import zipfile
@@ -43,6 +42,8 @@ from delaycomp.fmu.runtime import (
     patch_runtime,
     stock_runtime,
 )
+
+from .external import need
 
 pytestmark = pytest.mark.fmu
 
@@ -108,6 +109,7 @@ def invalid_accesses(log: str) -> list[str]:
     return [r for r in reports if "dl-load.c" not in r]
 
 
+@pytest.mark.slow  # valgrind over a whole Python FMU loop (about 20 s)
 def test_no_invalid_access_under_valgrind(fmu_dir, tmp_path):
     """Every sequence in turn on the controller FMU in one host under valgrind, the issue's
     (set the output ``u``, get, step, terminate, free) first among the illegal ones: no
@@ -116,9 +118,7 @@ def test_no_invalid_access_under_valgrind(fmu_dir, tmp_path):
     __run_exit_handlers" (the runtime library), and "Invalid read of size 8 at Py_DECREF,
     list_dealloc, 0 bytes inside a block of size 40 free'd" (a state's token freed twice by
     the host, then once more by the teardown: ``delaycomp.fmu.slave._never_freed``)."""
-    valgrind = shutil.which("valgrind")
-    if valgrind is None:
-        pytest.skip("valgrind is not installed")
+    valgrind = need("valgrind")
     log = tmp_path / "valgrind.txt"
     env = dict(os.environ, PYTHONMALLOC="malloc")  # every object on the C heap: checked
     proc = run_host("all", [str(fmu_dir / "DelaycompControllerLTI.fmu")],

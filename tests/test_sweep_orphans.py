@@ -23,8 +23,10 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
-                                reason="reads the process tree from /proc")
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                 reason="reads the process tree from /proc"),
+              # each test bounds how fast a two-worker sweep ends: the cores to itself
+              pytest.mark.alone]
 
 #: a sweep that runs for minutes on two workers (250 points a task, ~10 s each)
 SWEEP = ["sweep", "example-3.6", "--engine", "inprocess", "--grid", "k=0.5:3:4000",

@@ -24,6 +24,7 @@ from delaycomp.paper import scenarios
 from delaycomp.verify import check, thirdparty
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_csv_close
+from .tiers import tiered
 
 pytestmark = pytest.mark.fmu
 
@@ -75,7 +76,7 @@ def packed(tmp_path_factory):
 
 
 @pytest.mark.parametrize("master", thirdparty.MASTERS)
-@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("name", tiered(list(CASES), {"example-3.6", "example-3.8"}))
 def test_master_reproduces_our_trajectory_and_the_reference(packed, master, name):
     c, stop, path, ours = packed[name]
     res = thirdparty.run_ssp(master, path, stop)

@@ -869,6 +869,10 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
     carries (``resources/delaycomp_model_<id>.py``), under its own name, so the native
     twin has the same modelIdentifier.
 
+    The twins come from the native build cache, ``fmu_dir`` (default: ``native_fmu_dir``),
+    built there where missing: each kind and configuration is compiled once, however many
+    archives hold it.
+
     Raises
     ------
     ValueError
@@ -890,8 +894,9 @@ def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
                     zout.writestr(item, data)
                     continue
                 kind, config = _twin_of(inner, item.filename, Path(tmp) / "models")
-                built = build_native_fmu(kind, Path(tmp) / "native", config, inner.name)
-                data = built.read_bytes()
+                # from the native build cache: a twin of the same kind and configuration
+                # (a model's named by its content) is compiled once, for every archive
+                data = native_fmu_path(kind, config, fmu_dir).read_bytes()
             zout.writestr(item, data)
     part.replace(dest)
     return dest
