@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -72,6 +73,34 @@ def _isolated_cache(tmp_path_factory, monkeypatch):
     """Never touch the user's FMU cache from a test: the session's own, one for every
     worker (the caches lock each build: one worker builds an FMU, the others wait for it)."""
     monkeypatch.setenv("DELAYCOMP_CACHE_DIR", str(session_root(tmp_path_factory) / "cache"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _this_platform_only():
+    """Native FMUs for this machine's platform alone (``DELAYCOMP_PLATFORMS=""``), for the
+    whole session, its module and session fixtures included: where the cross compilers
+    are installed every native build would compile each FMU three times, for binaries no
+    test but the platform tests reads. The tests marked ``platforms``
+    (``tests/test_platforms.py``) build every platform, as ``delaycomp build`` does
+    (``every_platform``)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("DELAYCOMP_PLATFORMS", "")
+        yield
+
+
+@pytest.fixture(autouse=True)
+def _platforms_when_marked(request, monkeypatch):
+    if request.node.get_closest_marker("platforms") is not None:
+        monkeypatch.delenv("DELAYCOMP_PLATFORMS", raising=False)
+
+
+@contextlib.contextmanager
+def every_platform():
+    """Native builds for every platform whose compiler is here, while the block runs (for
+    the module fixtures of the tests marked ``platforms``)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("DELAYCOMP_PLATFORMS", raising=False)
+        yield
 
 
 def pytest_configure(config):

@@ -40,11 +40,12 @@ from delaycomp.fmu.native import (
 )
 from delaycomp.formats.loopbuild import file_stem
 
+from .conftest import every_platform
 from .external import need
 from .test_loopbuild import write_loop
 from .tiers import tiered
 
-pytestmark = pytest.mark.fmu
+pytestmark = [pytest.mark.fmu, pytest.mark.platforms]
 
 REPO = Path(__file__).resolve().parent.parent
 RTOL = 1e-12
@@ -89,7 +90,8 @@ def built(model_file, tmp_path_factory):
     def get(kind: str) -> Path:
         if kind not in made:
             config = {"model": str(model_file)} if kind.startswith("model") else None
-            made[kind] = build_native_fmu(kind, tmp_path_factory.mktemp(kind), config)
+            with every_platform():
+                made[kind] = build_native_fmu(kind, tmp_path_factory.mktemp(kind), config)
         return made[kind]
     return get
 
@@ -227,8 +229,9 @@ def case_loops(tmp_path_factory, hosts):
                 args = CASES[case]
                 loop = scenarios.get(case).loop([a for a in args[1:] if a != "--set"])
             out = tmp / "fmus"
-            proc = subprocess.run([sys.executable, "-m", "delaycomp", "build", *args,
-                                   "--out", str(out)], capture_output=True, text=True)
+            with every_platform():  # the FMUs with every platform inside
+                proc = subprocess.run([sys.executable, "-m", "delaycomp", "build", *args,
+                                       "--out", str(out)], capture_output=True, text=True)
             assert proc.returncode == 0, proc.stderr
             stem = file_stem(loop.name)
             fmus = {loop.by_role(role).name: out / f"{stem}_{role}.fmu"
