@@ -82,6 +82,9 @@ def test_critical_delay_prints_r_c_and_confirms(fmu_dir):
     assert any(line.startswith("confirmed above") and "(unstable)" in line for line in rest)
 
 
+# the same command's FMUs and archives are checked in the fast tier, native and run, by
+# tests/test_native_default.py::test_build_writes_native_fmus_and_archives_by_default
+@pytest.mark.slow
 def test_build_writes_three_valid_fmus_and_an_ssp_per_scenario(tmp_path):
     from delaycomp.paper.scenarios import SCENARIOS
 

@@ -293,7 +293,8 @@ def test_the_firmware_example_runs_the_loop_of_delaycomp_run(tmp_path):
     assert np.max(np.abs(got[-1, 1:3])) < 1e-9  # dead-beat: at rest well before 10 s
 
 
-@pytest.mark.parametrize("name", ["mimo-n3-m2", "example-2.4-numerical", "example-3.8-padded"])
+@pytest.mark.parametrize("name", tiered(["mimo-n3-m2", "example-2.4-numerical",
+                                         "example-3.8-padded"], {"example-3.8-padded"}))
 def test_valgrind_finds_no_invalid_access_in_the_export(name, tmp_path):
     """The driver running an exported controller under valgrind (memcheck): no invalid
     read or write, no use of an uninitialized value (the state is a stack struct, so

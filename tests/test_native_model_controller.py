@@ -64,7 +64,7 @@ def _loop(name, sets):
     return sc.make(sc.resolve(sets))
 
 
-@pytest.mark.parametrize("name,sets", LOOPS, ids=lambda c: str(c))
+@pytest.mark.parametrize("name,sets", tiered(LOOPS, 7), ids=lambda c: str(c))
 def test_native_loop_equals_the_python_loop(name, sets, native_dir, fmu_dir):
     """Plant, controller and delays native against all Python, 10 s in our master.
 
@@ -460,9 +460,10 @@ def test_c_host_under_env_i_runs_a_nonlinear_loop(name, sets, native_dir, tmp_pa
     assert_columns_close(rows[:, 1:], ours.data, SAME_ARITHMETIC_ULPS, "C host")
 
 
-@pytest.mark.parametrize("case_id", ["example-3.6/fig3", "example-2.4/default",
-                                     "example-3.8/delayed", "example-3.8/sin",
-                                     "corollary-4.1/default", "proposition-4.2/default"])
+@pytest.mark.parametrize("case_id", tiered(["example-3.6/fig3", "example-2.4/default",
+                                            "example-3.8/delayed", "example-3.8/sin",
+                                            "corollary-4.1/default", "proposition-4.2/default"],
+                                           {"example-2.4/default", "example-3.8/delayed"}))
 def test_container_with_the_native_model_fmus(case_id, tmp_path):
     """``delaycomp export-loop --native``: one container FMU holding the native plant,
     controller and delays (no Python inside), run by fmpy, against the independent
@@ -637,8 +638,9 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path, request
     assert np.max(np.abs(rows[last] - want)) <= 1e-7 * scale
 
 
-@pytest.mark.parametrize("name,sets", [("example-2.4", []),
-                                       ("proposition-4.2", ["tau=0.5", "pad=true"])], ids=str)
+@pytest.mark.parametrize("name,sets", tiered([("example-2.4", []),
+                                              ("proposition-4.2", ["tau=0.5", "pad=true"])]),
+                         ids=str)
 def test_valgrind_finds_no_error_and_no_leak_in_a_nonlinear_loop(name, sets, native_dir,
                                                                  tmp_path):
     """The C host running a native model loop (2 s) under valgrind: no invalid access,

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import pytest
 
+from .tiers import tiered
+
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"),
                                  reason="reads the process tree from /proc"),
               # each test bounds how fast a two-worker sweep ends: the cores to itself
@@ -166,11 +168,12 @@ def test_sigkill_of_the_main_process_leaves_no_worker(sweep):
     assert took is not None, f"still running 3 s after SIGKILL: {left}"
 
 
-@pytest.mark.parametrize("signum, status, line", [
-    (signal.SIGTERM, 143, "delaycomp: terminated (SIGTERM)"),
-    (signal.SIGHUP, 129, "delaycomp: terminated (SIGHUP)"),
-])
-@pytest.mark.parametrize("to_group", [False, True], ids=["main", "group"])
+@pytest.mark.parametrize("signum, status, line, to_group", tiered([
+    (signal.SIGTERM, 143, "delaycomp: terminated (SIGTERM)", False),
+    (signal.SIGHUP, 129, "delaycomp: terminated (SIGHUP)", True),
+    (signal.SIGTERM, 143, "delaycomp: terminated (SIGTERM)", True),
+    (signal.SIGHUP, 129, "delaycomp: terminated (SIGHUP)", False),
+], 2), ids=["SIGTERM-main", "SIGHUP-group", "SIGTERM-group", "SIGHUP-main"])
 def test_sigterm_and_sighup_end_the_sweep(sweep, signum, status, line, to_group):
     if to_group:  # systemd stopping a service, a terminal closing (the shell's SIGHUP)
         os.killpg(sweep.proc.pid, signum)
