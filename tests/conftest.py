@@ -90,6 +90,7 @@ def _this_platform_only():
 
 @pytest.fixture(autouse=True)
 def _platforms_when_marked(request, monkeypatch):
+    """A test marked ``platforms`` builds every platform (``_this_platform_only``)."""
     if request.node.get_closest_marker("platforms") is not None:
         monkeypatch.delenv("DELAYCOMP_PLATFORMS", raising=False)
 

@@ -13,6 +13,8 @@ from typing import Any
 import pytest
 
 slow = pytest.mark.slow
+#: the type of ``pytest.param(...)`` (pytest does not export it)
+_PARAM = type(pytest.param(None))
 
 
 def tiered(values: Iterable[Any], fast: int | Collection[Any] = 1) -> list[Any]:
@@ -31,7 +33,7 @@ def tiered(values: Iterable[Any], fast: int | Collection[Any] = 1) -> list[Any]:
     """
     out = []
     for i, value in enumerate(values):
-        if isinstance(value, type(pytest.param(None))):
+        if isinstance(value, _PARAM):
             param = value
         else:  # a tuple holds the values of several argnames, as parametrize reads it
             param = pytest.param(*value) if isinstance(value, tuple) else pytest.param(value)
