@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from delaycomp import api
-from delaycomp.fmu.native import build_native_fmu, build_native_model
+from delaycomp.fmu.native import MODEL_KINDS, build_native_fmu
 from delaycomp.names import array_element
 from delaycomp.paper import models as paper_models
 from delaycomp.verify import fmusim
@@ -76,7 +76,10 @@ def build(spec: dict, out: Path) -> Path:
     """The FMI 3.0 FMU a case's ``fmu`` entry describes, built into ``out``."""
     if "model" in spec:
         model = Path(paper_models.__file__).parent / spec["model"]
-        return build_native_model(model, out / Path(spec["model"]).stem, fmi=3)[spec["index"]]
+        # the index in build_native_model's list (the plant, the controller): that FMU alone
+        kind = list(MODEL_KINDS)[spec["index"]]
+        return build_native_fmu(kind, out / Path(spec["model"]).stem, {"model": str(model)},
+                                fmi=3)
     name = "_".join([spec["kind"], *(f"{k}{v}" for k, v in spec["config"].items())])
     return build_native_fmu(spec["kind"], out / name, spec["config"], fmi=3)
 

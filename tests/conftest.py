@@ -68,11 +68,38 @@ def fmu_dir(tmp_path_factory) -> Path:
     return built_once(tmp_path_factory, "fmus", build)
 
 
-@pytest.fixture(autouse=True)
-def _isolated_cache(tmp_path_factory, monkeypatch):
+@pytest.fixture(scope="session")
+def native_dir() -> Path:
+    """The folder of the session's native build cache (``native_fmu_dir``), holding the
+    default native FMU of every kind with a native twin (the LTI loop's three, the network
+    channel, the time-stamp controller) under its own name, ``<modelIdentifier>.fmu``: the
+    native twins of ``fmu_dir``."""
+    from delaycomp.fmu.build import DEFAULT_CONFIG
+    from delaycomp.fmu.native import NATIVE_KINDS, native_fmu_dir, native_fmu_path
+
+    for kind in NATIVE_KINDS:
+        native_fmu_path(kind, DEFAULT_CONFIG[kind])
+    return native_fmu_dir()
+
+
+@pytest.fixture(scope="session")
+def chost(tmp_path_factory) -> Path:
+    """The C closed-loop host (``fmus/native/host/host.c``) for this machine, compiled once
+    per test session for every worker (``delaycomp.fmu.native.compile_host``)."""
+    from delaycomp.fmu.native import compile_host
+
+    return built_once(tmp_path_factory, "chost", lambda out: compile_host(out / "host")) / "host"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_cache(tmp_path_factory):
     """Never touch the user's FMU cache from a test: the session's own, one for every
-    worker (the caches lock each build: one worker builds an FMU, the others wait for it)."""
-    monkeypatch.setenv("DELAYCOMP_CACHE_DIR", str(session_root(tmp_path_factory) / "cache"))
+    worker (the caches lock each build: one worker builds an FMU, the others wait for it),
+    for the whole session, so the module fixtures that take FMUs from the cache
+    (``native_fmu_path``) find it set too."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("DELAYCOMP_CACHE_DIR", str(session_root(tmp_path_factory) / "cache"))
+        yield
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from delaycomp.fmu.build import build_fmu
-from delaycomp.fmu.native import build_native_fmu
+from delaycomp.fmu.cache import fmu_path
+from delaycomp.fmu.native import native_fmu_path
 from delaycomp.maths.channel import Channel, ChannelLine
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
@@ -25,42 +26,30 @@ H = 0.01
 N_SIG = 2
 
 
-_BUILT: dict[str, dict] = {}
-
-
-def _built(impl: str, tmp_path_factory) -> dict:
+def _built(impl: str) -> dict:
     """The delay and the channel for two signals, and the channel with a trace of 5, as
-    Python FMUs or their native twins (``fmus/delay/channel.c``, this platform's binary);
-    built once per module run."""
-    if impl not in _BUILT:
-        out = tmp_path_factory.mktemp(f"channel-{impl}")
-        if impl == "python":
-            build = build_fmu
-        else:
-            def build(kind, folder, config):
-                with pytest.MonkeyPatch.context() as mp:
-                    mp.setenv("DELAYCOMP_PLATFORMS", "")
-                    return build_native_fmu(kind, folder, config)
-        built = {kind: build(kind, out, {"n": N_SIG}) for kind in ("channel", "delay")}
-        built["traced"] = build("channel", out / "traced", {"n": N_SIG, "L": 5})
-        _BUILT[impl] = built
-    return _BUILT[impl]
+    Python FMUs or their native twins (``fmus/delay/channel.c``, this platform's binary),
+    from the session's build caches."""
+    build = fmu_path if impl == "python" else native_fmu_path
+    built = {kind: build(kind, {"n": N_SIG}) for kind in ("channel", "delay")}
+    built["traced"] = build("channel", {"n": N_SIG, "L": 5})
+    return built
 
 
 @pytest.fixture(scope="module", params=["python", "native"])
-def fmus(request, tmp_path_factory):
+def fmus(request):
     """Each test that takes it runs on the Python FMUs and on their native twins."""
-    return _built(request.param, tmp_path_factory)
+    return _built(request.param)
 
 
 @pytest.fixture(scope="module")
-def python_fmus(tmp_path_factory):
-    return _built("python", tmp_path_factory)
+def python_fmus():
+    return _built("python")
 
 
 @pytest.fixture(scope="module")
-def native_fmus(tmp_path_factory):
-    return _built("native", tmp_path_factory)
+def native_fmus():
+    return _built("native")
 
 
 def _inputs(steps: int) -> np.ndarray:
@@ -325,7 +314,7 @@ def test_a_bad_trace_entry_is_refused_naming_it(fmus, params, message):
     assert comp.last_message is not None and message in comp.last_message, comp.messages
 
 
-def test_the_trace_entries_are_parameters_of_the_build(fmus):
+def test_the_trace_entries_are_parameters_of_the_build(fmus, tmp_path):
     """``L`` is the build's: ``trace[1..L]`` Real parameters (none for L = 0), and a
     length out of range is refused before anything is built."""
     from fmpy import read_model_description
@@ -337,18 +326,14 @@ def test_the_trace_entries_are_parameters_of_the_build(fmus):
     for bad in (-1, 10_001, 2.0):
         with pytest.raises(ValueError, match=r"L = .* is not allowed: must be an integer "
                                              r"from 0 to 10000"):
-            build_fmu("channel", fmus["channel"].parent / "x", {"n": 1, "L": bad})
+            build_fmu("channel", tmp_path / "x", {"n": 1, "L": bad})
 
 
 @pytest.fixture(scope="module")
-def fmi3_fmus(tmp_path_factory):
+def fmi3_fmus():
     """The native channel as FMI 3.0 FMUs: with a trace of 5 and without one."""
-    out = tmp_path_factory.mktemp("channel-fmi3")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("DELAYCOMP_PLATFORMS", "")
-        return {"channel": build_native_fmu("channel", out, {"n": N_SIG}, fmi=3),
-                "traced": build_native_fmu("channel", out / "traced", {"n": N_SIG, "L": 5},
-                                           fmi=3)}
+    return {"channel": native_fmu_path("channel", {"n": N_SIG}, fmi=3),
+            "traced": native_fmu_path("channel", {"n": N_SIG, "L": 5}, fmi=3)}
 
 
 @pytest.mark.parametrize("case", list(CASES))

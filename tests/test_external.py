@@ -106,3 +106,20 @@ def test_pytests_summary_names_the_skip_and_the_failure(tmp_path):
            "scripts/install_platform_tools.sh [required here: DELAYCOMP_REQUIRE=clang]" \
            in lines, proc.stdout
     assert lines[-1].startswith("1 failed, 1 skipped")
+
+
+@pytest.fixture(scope="module")
+def _cache_seen_by_a_module_fixture() -> str | None:
+    return os.environ.get("DELAYCOMP_CACHE_DIR")
+
+
+def test_module_fixtures_build_into_the_sessions_cache_not_the_users(
+        _cache_seen_by_a_module_fixture, tmp_path_factory):
+    """The module fixtures that take FMUs from the build cache (``native_fmu_path``) run
+    before any function fixture: the session's cache is set for them too, never the
+    user's ``~/.cache/delaycomp``."""
+    from .conftest import session_root
+
+    want = str(session_root(tmp_path_factory) / "cache")
+    assert _cache_seen_by_a_module_fixture == want
+    assert os.environ.get("DELAYCOMP_CACHE_DIR") == want

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from delaycomp import api
-from delaycomp.fmu.native import build_native_fmu, build_native_model, compiler
+from delaycomp.fmu.native import MODEL_KINDS, compiler, native_fmu_path
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.paper import models as paper_models
 
@@ -39,16 +39,16 @@ DIMS = {"delay": {"n": 3}, "plant": {"n": 3, "m": 2}, "controller": {"n": 3, "m"
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory) -> dict[tuple[str, int], Path]:
+def built() -> dict[tuple[str, int], Path]:
     """(kind, fmi) -> the FMU: delay (n = 3), LTI plant and controller (n = 3, m = 2) and
-    example 3.8's model plant and controller, for FMI 2.0 and 3.0."""
+    example 3.8's model plant and controller, for FMI 2.0 and 3.0; from the session's
+    native build cache, which the loops run here share."""
     out: dict[tuple[str, int], Path] = {}
     for fmi in (2, 3):
-        folder = tmp_path_factory.mktemp(f"fmi{fmi}")
         for kind, config in DIMS.items():
-            out[kind, fmi] = build_native_fmu(kind, folder, config, fmi=fmi)
-        model = build_native_model(EXAMPLE_3_8, folder / "model", fmi=fmi)
-        out["model_plant", fmi], out["model_controller", fmi] = model[:2]
+            out[kind, fmi] = native_fmu_path(kind, config, fmi=fmi)
+        for kind in MODEL_KINDS:
+            out[kind, fmi] = native_fmu_path(kind, {"model": str(EXAMPLE_3_8)}, fmi=fmi)
     return out
 
 
@@ -144,13 +144,13 @@ def test_the_sources_compile_as_build_description_lists_them(built, kind, tmp_pa
     ("corollary-3.7", {}),
 ], 2))
 def test_an_fmi3_loop_equals_its_fmi2_twin_bit_for_bit(source, sets, tmp_path):
-    two = api.run(source, sets=sets, fmus="native", fmu_dir=tmp_path)
-    three = api.run(source, sets=sets, fmi=3, fmu_dir=tmp_path)
+    two = api.run(source, sets=sets, fmus="native")
+    three = api.run(source, sets=sets, fmi=3)
     assert three.names == two.names
     assert np.array_equal(three.times, two.times)
     assert np.array_equal(three.data, two.data)
     chosen, _ = api.choose_fmus(source if not sets else api.load(source, sets=sets),
-                                fmi=3, fmu_dir=tmp_path)
+                                fmi=3)
     assert {_root(p).get("fmiVersion") for p in chosen.values()} == {"3.0"}
 
 
@@ -158,7 +158,6 @@ def test_an_fmi3_controller_runs_beside_another_tools_fmi2_plant(tmp_path):
     """A plant FMU of another tool (FMI 2.0, C, RK4 inside: tests/cfmu) with delaycomp's
     delays and controller as FMI 3.0 FMUs: the run equals the one with their FMI 2.0 twins
     bit for bit (the same plant binary, the same C maths)."""
-    from delaycomp.fmu.native import native_fmu_path
     from delaycomp.system.loop import FmuFile
     from tests.cfmu.build import build_oscillator
 
@@ -166,13 +165,13 @@ def test_an_fmi3_controller_runs_beside_another_tools_fmi2_plant(tmp_path):
 
     build_oscillator(tmp_path)
     loop = api.load(write_loop(tmp_path, LOOP, "osc"))
-    three = api.run(loop, fmi=3, fmu_dir=tmp_path / "cache")
-    twins = {i.name: native_fmu_path(*i.source.build_key(), tmp_path / "cache2")
+    three = api.run(loop, fmi=3)
+    twins = {i.name: native_fmu_path(*i.source.build_key())
              for i in loop.instances if not isinstance(i.source, FmuFile)}
     two = api.run(loop, fmus=twins)
     assert np.array_equal(three.data, two.data) and three.names == two.names
     assert np.max(np.abs(three.data)) > 0.1  # a loop that moves
-    chosen, _ = api.choose_fmus(loop, fmi=3, fmu_dir=tmp_path / "cache")
+    chosen, _ = api.choose_fmus(loop, fmi=3)
     assert set(chosen) == {"meas_delay", "controller", "input_delay"}  # not the plant
 
 
@@ -333,10 +332,10 @@ def test_build_and_run_take_fmi_3(tmp_path):
     for role in ("plant", "meas_delay", "controller", "input_delay"):
         assert _root(tmp_path / f"myloop_{role}.fmu").get("fmiVersion") == "3.0"
     assert "FMI 3.0 co-simulation FMUs" in (tmp_path / "myloop_wiring.txt").read_text()
-    proc = cli("run", MYLOOP, "--fmi", "3", "--fmu-dir", tmp_path / "cache", "--out",
+    proc = cli("run", MYLOOP, "--fmi", "3", "--out",
                tmp_path / "three.csv")
     assert proc.returncode == 0, proc.stderr
-    proc = cli("run", MYLOOP, "--native", "--fmu-dir", tmp_path / "cache", "--out",
+    proc = cli("run", MYLOOP, "--native", "--out",
                tmp_path / "two.csv")
     assert proc.returncode == 0, proc.stderr
     three, two = (np.loadtxt(tmp_path / f"{n}.csv", delimiter=",", skiprows=1)
@@ -382,10 +381,9 @@ def test_the_reference_pages_table_is_the_fmus(built):
 
 # -- item 3: a controller on a clock -------------------------------------------------------
 @pytest.fixture(scope="module")
-def clocked(tmp_path_factory) -> Path:
-    """The clocked LTI controller, n = 3, m = 2."""
-    return build_native_fmu("controller", tmp_path_factory.mktemp("clocked"),
-                            {**DIMS["controller"], "clocked": True}, fmi=3)
+def clocked() -> Path:
+    """The clocked LTI controller, n = 3, m = 2 (from the session's native build cache)."""
+    return native_fmu_path("controller", {**DIMS["controller"], "clocked": True}, fmi=3)
 
 
 def test_the_clocked_controller_declares_its_clock(clocked):
@@ -416,12 +414,12 @@ def test_the_clocked_controller_reproduces_the_unclocked_loop(source, sets, tmp_
     """Our master schedules its ticks (event mode, the inputs, fmi3SetClock,
     fmi3UpdateDiscreteStates, step mode at each t0 + i T): the loop equals the unclocked
     one bit for bit."""
-    plain = api.run(source, sets=sets, fmi=3, fmu_dir=tmp_path)
-    ticked = api.run(source, sets=sets, fmi=3, clocked=True, fmu_dir=tmp_path)
+    plain = api.run(source, sets=sets, fmi=3)
+    ticked = api.run(source, sets=sets, fmi=3, clocked=True)
     assert ticked.names == plain.names
     assert np.array_equal(ticked.data, plain.data)
     chosen, _ = api.choose_fmus(source if not sets else api.load(source, sets=sets), fmi=3,
-                                clocked=True, fmu_dir=tmp_path)
+                                clocked=True)
     assert _root(chosen["controller"]).find("CoSimulation").get("hasEventMode") == "true"
 
 
@@ -494,7 +492,7 @@ def test_a_clocked_run_restored_mid_period_continues_bit_identically(clocked, tm
     from delaycomp.orchestrator.simulate import make_master
 
     loop = api.load(MYLOOP)
-    fmus, _ = api.choose_fmus(loop, fmi=3, clocked=True, fmu_dir=tmp_path)
+    fmus, _ = api.choose_fmus(loop, fmi=3, clocked=True)
     master, rec = make_master(loop, fmus=fmus)
     master.setup(loop.stop_time, loop.parameters())
     master.initialize()
@@ -518,7 +516,7 @@ def test_clocked_asks_for_fmi_3_on_the_command_line(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert _root(tmp_path / "myloop_controller.fmu").find(
         "CoSimulation").get("hasEventMode") == "true"
-    proc = cli("run", MYLOOP, "--fmi", "3", "--clocked", "--fmu-dir", tmp_path / "cache")
+    proc = cli("run", MYLOOP, "--fmi", "3", "--clocked")
     assert proc.returncode == 0, proc.stderr
 
 
@@ -554,7 +552,7 @@ def test_an_fmi3_archive_is_ssp_1_0_and_runs_in_our_master_as_the_loop(source, t
 
         got = run_loop(archive.system.spec, archive.system.info.stop_time,
                        fmus=archive.fmus())
-    want = api.run(source, fmi=3, fmu_dir=tmp_path / "cache")
+    want = api.run(source, fmi=3)
     assert got.success and np.array_equal(got.data, want.data)
 
 
@@ -568,7 +566,7 @@ def test_a_clocked_archive_runs_in_our_master_as_the_loop(tmp_path):
                        fmus=archive.fmus())
         assert _root(archive.fmu("controller")).find("CoSimulation").get(
             "hasEventMode") == "true"
-    want = api.run(str(MYLOOP), fmi=3, fmu_dir=tmp_path / "cache")
+    want = api.run(str(MYLOOP), fmi=3)
     assert got.success and np.array_equal(got.data, want.data)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from delaycomp.fmu.build import DEFAULT_CONFIG, FMUS
-from delaycomp.fmu.native import build_native
+from delaycomp.fmu.native import native_fmu_path
 from delaycomp.maths.grid import DRIFT_RTOL, GRID_RTOL, drift, grid_step, same_step
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent
@@ -65,13 +65,6 @@ def test_what_is_really_off_the_grid_is_refused():
 
 
 # -- the FMUs, Python and native ------------------------------------------------------------
-
-@pytest.fixture(scope="module")
-def native_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("native")
-    build_native(out)
-    return out
-
 
 def _make(how, kind, native_dir):
     if how == "python":
@@ -117,7 +110,6 @@ def test_fmus_run_on_a_drifting_clock_far_from_zero(native_dir, how, kind):
     """From t0 = 1e5 a clock ``t += h`` drifts by half an ulp of 1e5 a step: 2000 steps
     put it 1e-6 h off the grid, beyond ``GRID_RTOL h + 8 eps |t|`` (before: every FMU
     refused the last step ``stop - t``, the LTI controller the step to ``t0 + 1``)."""
-    from delaycomp.fmu.native import build_native_fmu
     from delaycomp.maths.model import load_model
     from delaycomp.paper.models import path
 
@@ -127,7 +119,7 @@ def test_fmus_run_on_a_drifting_clock_far_from_zero(native_dir, how, kind):
     if kind == "model_controller":
         config = {"model": str(path("example_3_8"))}
         comp = (SlaveComponent("x", kind, config) if how == "python" else FmuComponent(
-            "x", build_native_fmu(kind, native_dir / "model", config)))
+            "x", native_fmu_path(kind, config)))
         params, inputs = MODEL, [f"y_{s}" for s in load_model(path("example_3_8")).states]
     else:
         _, params, inputs = next(c for c in CASES if c[0] == kind)
@@ -232,22 +224,12 @@ print("done")
 '''
 
 
-@pytest.fixture(scope="module")
-def python_dir(tmp_path_factory):
-    from delaycomp.fmu.build import build_fmu
-
-    out = tmp_path_factory.mktemp("python")
-    for kind in ("delay", "plant", "controller"):
-        build_fmu(kind, out)
-    return out
-
-
 @pytest.mark.fmu
 @pytest.mark.parametrize("how", ["python", "native"])
 @pytest.mark.parametrize("kind", ["delay", "plant", "controller"])
 @pytest.mark.parametrize("seq", ["terminate,free", "free", "terminate,terminate,free",
                                  "step,terminate,free", "reset,terminate,free", "step,free"])
-def test_fmus_survive_every_call_after_an_error(native_dir, python_dir, tmp_path, how, kind,
+def test_fmus_survive_every_call_after_an_error(native_dir, fmu_dir, tmp_path, how, kind,
                                                 seq):
     """A host ends a failed run in its own order (OMSimulator: fmi2Terminate then
     fmi2FreeInstance on every instance); no order may crash the process or log a freed
@@ -257,7 +239,7 @@ def test_fmus_survive_every_call_after_an_error(native_dir, python_dir, tmp_path
     script.write_text(_SEQUENCE)
     import sys
 
-    folder = python_dir if how == "python" else native_dir
+    folder = fmu_dir if how == "python" else native_dir
     proc = subprocess.run([sys.executable, str(script),
                            str(folder / f"{FMUS[kind].model_identifier}.fmu"), seq],
                           capture_output=True, text=True, timeout=120)

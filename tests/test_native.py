@@ -36,9 +36,7 @@ from delaycomp.fmu.native import (
     NATIVE_KINDS,
     SOURCE_DIR,
     NativeBuildError,
-    build_native,
     build_native_fmu,
-    compile_host,
     compiler,
     fmi_header_dir,
     host_argv,
@@ -58,15 +56,6 @@ from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close
 pytestmark = pytest.mark.fmu
 
 LTI_CASES = [c for c in CASES if c.scenario in ("example-3.6", "corollary-3.7")]
-
-
-@pytest.fixture(scope="session")
-def native_dir(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("native")
-    build_native(out)  # the LTI loop's three
-    build_native_fmu("channel", out)  # and the network channel (as conftest's fmu_dir)
-    build_native_fmu("stamped_controller", out)  # and the time-stamp controller
-    return out
 
 
 # -- the maths in C ---------------------------------------------------------------------
@@ -227,11 +216,6 @@ def test_native_equals_inprocess_on_a_random_mimo_loop(native_dir):
 
 
 # -- the C host, no Python in the process ---------------------------------------------------
-@pytest.fixture(scope="module")
-def chost(tmp_path_factory) -> Path:
-    return compile_host(tmp_path_factory.mktemp("chost") / "host")
-
-
 @pytest.mark.parametrize("c", LTI_CASES[:3], ids=lambda c: c.id)
 def test_c_host_without_python_equals_our_master(native_dir, chost, tmp_path, c):
     spec = _spec(c)

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from delaycomp.fmu.native import compile_host, compiler, host_argv, native_fmus, unpack
+from delaycomp.fmu.native import compiler, host_argv, native_fmus, unpack
 from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import lti_loop
 
@@ -60,12 +60,12 @@ def _scenario(name, sets):
 
 
 @pytest.fixture(scope="module")
-def counter(tmp_path_factory):
+def counter(tmp_path_factory, chost):
     tmp = tmp_path_factory.mktemp("alloc")
     lib = tmp / "count_alloc.so"
     subprocess.run([*compiler(), "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-shared",
                     "-fPIC", "-o", str(lib), str(COUNTER)], check=True)
-    return lib, compile_host(tmp / "host")
+    return lib, chost
 
 
 def _count(counter, loop, dirs, steps, exact, start, tmp_path) -> dict[str, int]:

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 import tomllib
 
-from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+from delaycomp.fmu.native import host_argv, native_fmus, unpack
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loopfile import build
 
@@ -62,11 +62,6 @@ def _loop(stamps, meas, inp, **plant):
             data[table] = dict(value)
     data["plant"].update(plant)
     return build(data, REPO / "docs" / "examples", name="myloop")
-
-
-@pytest.fixture(scope="module")
-def chost(tmp_path_factory) -> Path:
-    return compile_host(tmp_path_factory.mktemp("chost-channel") / "host")
 
 
 @pytest.fixture(scope="module")

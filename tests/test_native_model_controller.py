@@ -22,7 +22,13 @@ import numpy as np
 import pytest
 
 from delaycomp.fmu.build import build_fmu
-from delaycomp.fmu.native import build_native_fmu, compile_host, host_argv, native_fmus, unpack
+from delaycomp.fmu.native import (
+    build_native_fmu,
+    host_argv,
+    native_fmu_path,
+    native_fmus,
+    unpack,
+)
 from delaycomp.fmu.translate import TranslationError
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent
@@ -54,18 +60,13 @@ LOOPS = [("example-2.4", []), ("example-2.4", ["predictor=numerical"]),
          ("proposition-4.2", []), ("proposition-4.2", ["law=printed"])]
 
 
-@pytest.fixture(scope="module")
-def native_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("native-model-controller")
-
-
 def _loop(name, sets):
     sc = scenarios.get(name)
     return sc.make(sc.resolve(sets))
 
 
 @pytest.mark.parametrize("name,sets", tiered(LOOPS, 7), ids=lambda c: str(c))
-def test_native_loop_equals_the_python_loop(name, sets, native_dir, fmu_dir):
+def test_native_loop_equals_the_python_loop(name, sets, fmu_dir):
     """Plant, controller and delays native against all Python, 10 s in our master.
 
     Bound: the closed forms differ from the Python ones by round-off only (Example 2.4's
@@ -78,7 +79,7 @@ def test_native_loop_equals_the_python_loop(name, sets, native_dir, fmu_dir):
     loop = _loop(name, sets)
     stop = stop_ticks(10.0, loop.T, loop.N) * loop.h
     python = run_loop(loop, stop, fmu_dir)
-    native = run_loop(loop, stop, fmu_dir, fmus=native_fmus(loop, native_dir))
+    native = run_loop(loop, stop, fmu_dir, fmus=native_fmus(loop))
     assert python.success and native.success, native.message
     assert python.names == native.names
     ticks = len(python.times)
@@ -86,14 +87,23 @@ def test_native_loop_equals_the_python_loop(name, sets, native_dir, fmu_dir):
     assert np.all(np.abs(native.data - python.data) <= ticks * TOL * scale)
 
 
-def test_native_rows_of_check_pass_for_every_nonlinear_case():
+#: one reference case of each nonlinear model in the fast tier (the slow tier, and CI's
+#: ``check --require-all``, run every case of them)
+NONLINEAR = ("example-2.4", "example-3.8", "corollary-4.1", "proposition-4.2")
+
+
+@pytest.mark.parametrize("every", [False, pytest.param(True, marks=pytest.mark.slow)],
+                         ids=["one-per-model", "every-case"])
+def test_native_rows_of_check_pass_for_every_nonlinear_case(every):
     """``delaycomp check --master native``: every reference case whose model translates
     runs natively and meets the reference's tolerance (independent computations,
-    ``reference/README.md``) and the Python FMUs' within ``NATIVE_RTOL``."""
+    ``reference/README.md``) and the Python FMUs' within ``NATIVE_RTOL``; the fast tier
+    takes each model's first case."""
     from delaycomp.verify.check import CASES
 
-    cases = [c for c in CASES if c.id.split("/")[0] in (
-        "example-2.4", "example-3.8", "corollary-4.1", "proposition-4.2")]
+    cases = [c for c in CASES if c.id.split("/")[0] in NONLINEAR]
+    if not every:
+        cases = [next(c for c in cases if c.id.split("/")[0] == m) for m in NONLINEAR]
     rows = list(PROVIDERS.providers["native"](cases))
     assert {r.case for r in rows} == {c.id for c in cases}
     assert {r.master for r in rows} == {"native", "native-vs-python"}
@@ -101,7 +111,7 @@ def test_native_rows_of_check_pass_for_every_nonlinear_case():
 
 
 @pytest.mark.parametrize("case", sorted(DEADBEAT))
-def test_native_deadbeat_laws_are_deadbeat_at_the_same_time(case, native_dir):
+def test_native_deadbeat_laws_are_deadbeat_at_the_same_time(case):
     """Issue 23, item 3: the dead-beat laws (Example 3.8, padded and delayed; Corollary
     3.7; Proposition 4.2) stay dead-beat with the native FMUs, from the time Theorem 3.2
     predicts, ``(j + l + ceil(r/T)) T``, and not a base step earlier: the Python FMUs'
@@ -111,7 +121,7 @@ def test_native_deadbeat_laws_are_deadbeat_at_the_same_time(case, native_dir):
     scenario, sets, periods = DEADBEAT[case]
     loop = _loop(scenario, sets)
     res = run_loop(loop, stop_ticks((periods + 3) * loop.T, loop.T, loop.N) * loop.h,
-                   fmus=native_fmus(loop, native_dir / "deadbeat"))
+                   fmus=native_fmus(loop))
     assert res.success, res.message
     states = [i for i, n in enumerate(res.names) if n.startswith("plant.")]
     x = np.abs(res.data[:, states]).max(axis=1)
@@ -122,7 +132,7 @@ def test_native_deadbeat_laws_are_deadbeat_at_the_same_time(case, native_dir):
 
 @pytest.mark.parametrize("case_id", ["example-2.4/default", "example-2.4/sparse",
                                      "corollary-4.1/default"])
-def test_native_continuous_loops_converge_to_the_reference_at_order_one(case_id, native_dir):
+def test_native_continuous_loops_converge_to_the_reference_at_order_one(case_id):
     """The continuous-input cases against their independent reference (the paper's loop
     with the control continuous in time, ``reference/``): the FMUs hold the control over
     each base step h (FMI 2.0 holds inputs), an O(h) perturbation, so the native loop's
@@ -136,7 +146,7 @@ def test_native_continuous_loops_converge_to_the_reference_at_order_one(case_id,
     errors = []
     for N in (100, 200):
         loop = _loop(c.scenario, [*c.sets, f"N={N}"])
-        res = run_loop(loop, ref[-1, 0], fmus=native_fmus(loop, native_dir / "order"))
+        res = run_loop(loop, ref[-1, 0], fmus=native_fmus(loop))
         assert res.success, res.message
         cols = [res.names.index(n) for n in header[1:]]
         errors.append(np.abs(res.data[:: N // 100][:, cols] - ref[:, 1:]).max())
@@ -176,7 +186,7 @@ DRIVEN = [
 
 
 @pytest.mark.parametrize("model_name,params", DRIVEN, ids=lambda p: str(p))
-def test_the_controller_alone_answers_as_the_python_one(model_name, params, native_dir):
+def test_the_controller_alone_answers_as_the_python_one(model_name, params):
     """Both controllers read the same measurements (random, so every sample differs):
     each output, at every base step, agrees. Bound: the closed forms to round-off; the
     numerical predictor is DOP853 at tol in both, a prediction within ``tol (1 + |x|)``
@@ -190,8 +200,7 @@ def test_the_controller_alone_answers_as_the_python_one(model_name, params, nati
     h = params["T"] / params["N"]
     config = {"model": str(path(model_name))}
     slave = SlaveComponent("c", "model_controller", config)
-    comp = FmuComponent("c", build_native_fmu("model_controller", native_dir / "driven",
-                                              config))
+    comp = FmuComponent("c", native_fmu_path("model_controller", config))
     try:
         want = _drive(slave, params, ys, h, names, list(model.inputs))
         got = _drive(comp, params, ys, h, names, list(model.inputs))
@@ -201,11 +210,10 @@ def test_the_controller_alone_answers_as_the_python_one(model_name, params, nati
     assert len(np.unique(want)) > 5  # the outputs move: the comparison means something
 
 
-def _both(model_file, params, native_dir):
+def _both(model_file, params):
     config = {"model": str(model_file)}
     slave = SlaveComponent("x", "model_controller", config)
-    comp = FmuComponent("x", build_native_fmu("model_controller", native_dir / "faults",
-                                              config))
+    comp = FmuComponent("x", native_fmu_path("model_controller", config))
     for c in (slave, comp):
         c.setup(0.0, 10.0, params)
     return slave, comp
@@ -238,8 +246,8 @@ BAD = [
 
 
 @pytest.mark.parametrize("model_name,params", BAD, ids=lambda p: str(p))
-def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params, native_dir):
-    slave, comp = _both(path(model_name), params, native_dir)
+def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params):
+    slave, comp = _both(path(model_name), params)
     try:
         assert_initialize_refused_alike(slave, comp)
     finally:
@@ -249,18 +257,18 @@ def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params, 
 @pytest.mark.parametrize("step,y", [((0.0, 0.01), float("nan")), ((0.0, 0.02), 1.0),
                                     ((0.5, 0.01), 1.0), ((0.0, -0.01), 1.0),
                                     ((0.0, float("inf")), 1.0)], ids=str)
-def test_a_bad_input_or_step_is_refused_with_the_python_message(step, y, native_dir):
-    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 100}, native_dir)
+def test_a_bad_input_or_step_is_refused_with_the_python_message(step, y):
+    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 100})
     try:
         assert_step_refused_alike(slave, comp, {"y_x1": y}, step)
     finally:
         comp.terminate()
 
 
-def test_a_roundoff_sliver_step_moves_nothing(native_dir):
+def test_a_roundoff_sliver_step_moves_nothing():
     """A master that adds h to its time ends 1e-13 s short and takes a sliver step to the
     stop time: both controllers accept it and stay where they are."""
-    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 2}, native_dir)
+    slave, comp = _both(path("example_3_8"), {"T": 1.0, "N": 2})
     try:
         for c in (slave, comp):
             c.initialize()
@@ -338,7 +346,7 @@ def test_a_users_model_without_a_closed_form(tmp_path):
     assert np.all(np.abs(native.data - python.data) <= len(python.times) * TOL * scale)
     angle = python.names.index("plant.angle")
     assert abs(python.data[-1, angle]) < 1e-2 * abs(python.data[0, angle])  # it stabilizes
-    slave, comp = _both(model, {"predictor": "closed"}, tmp_path)
+    slave, comp = _both(model, {"predictor": "closed"})
     try:
         assert_initialize_refused_alike(slave, comp)
     finally:
@@ -363,16 +371,16 @@ def test_a_closed_form_without_a_translatable_step_is_refused_in_one_line(tmp_pa
         build_native_fmu("model_controller", tmp_path / "fmu", {"model": str(model)})
 
 
-def test_fmu_state_continues_bit_identically(native_dir):
+def test_fmu_state_continues_bit_identically():
     """Saved half-way (mid-period, histories and padding line full), the native loop
     continues as it did, bit for bit, in the same master and in a fresh one."""
     loop = _loop("example-3.8", ["tau=0.3", "pad=true", "predictor=numerical"])
-    fmus = native_fmus(loop, native_dir / "state")
+    fmus = native_fmus(loop)
     ticks = stop_ticks(6.0, loop.T, loop.N)
     first, second, third = _restore_run(fmus, loop, 6.0, ticks // 2 + 7)
     assert len(first) > 10 and second == first and third == first
     loop = _loop("example-2.4", [])
-    fmus = native_fmus(loop, native_dir / "state")
+    fmus = native_fmus(loop)
     ticks = stop_ticks(4.0, loop.T, loop.N)
     first, second, third = _restore_run(fmus, loop, 4.0, ticks // 2 + 3)
     assert len(first) > 10 and second == first and third == first
@@ -380,7 +388,7 @@ def test_fmu_state_continues_bit_identically(native_dir):
 
 @pytest.mark.parametrize("model_name", ["example_2_4", "example_3_8"])
 def test_the_model_description_is_the_python_table_and_the_sources_compile(
-        model_name, native_dir, tmp_path):
+        model_name, tmp_path):
     """Same variables, value references, types, starts and dependencies as the Python
     model controller; ``sources/`` compile on their own with strict warnings."""
     from fmpy import read_model_description
@@ -388,7 +396,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     from delaycomp.fmu.native import CFLAGS, compiler
 
     config = {"model": str(path(model_name))}
-    nat_path = build_native_fmu("model_controller", native_dir / "tables", config)
+    nat_path = native_fmu_path("model_controller", config)
     nat = read_model_description(str(nat_path), validate=True)
     py = read_model_description(str(build_fmu("model_controller", tmp_path / "py", config)),
                                 validate=True)
@@ -442,14 +450,13 @@ def test_cli_build_model_native_and_run_native(tmp_path):
                                        ("corollary-4.1", []),
                                        ("proposition-4.2", ["tau=0.5", "pad=true"])],
                          ids=str)
-def test_c_host_under_env_i_runs_a_nonlinear_loop(name, sets, native_dir, tmp_path):
+def test_c_host_under_env_i_runs_a_nonlinear_loop(name, sets, chost, tmp_path):
     """No Python, no environment: the C host (``fmus/native/host``) runs the native loop
     of a model file and prints our master's numbers (the same binaries and calls)."""
     loop = _loop(name, sets)
     stop = stop_ticks(4.0, loop.T, loop.N) * loop.h
-    fmus = native_fmus(loop, native_dir / "host")
-    exe = compile_host(tmp_path / "host")
-    proc = subprocess.run(["env", "-i", *host_argv(exe, loop, stop, unpack(fmus, tmp_path))],
+    fmus = native_fmus(loop)
+    proc = subprocess.run(["env", "-i", *host_argv(chost, loop, stop, unpack(fmus, tmp_path))],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
@@ -475,7 +482,7 @@ def test_container_with_the_native_model_fmus(case_id, tmp_path):
 
     c = case(case_id)
     loop = c.loop()
-    path = export_loop(loop, tmp_path / "loop.fmu", fmus=native_fmus(loop, tmp_path / "n"))
+    path = export_loop(loop, tmp_path / "loop.fmu", fmus=native_fmus(loop))
     with zipfile.ZipFile(path) as zf:
         assert not any(n.endswith((".py", "slavemodule.txt")) for n in zf.namelist())
     names, times, data = simulate_loop(path, loop, c.stop_time())
@@ -572,7 +579,7 @@ def _independent_zoh_loop(model, p, x0, u0, T, N, r, tau, stop):
     return np.array(xs)
 
 
-def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path, request):
+def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path, request, chost):
     """Issue 23's "done when": a model file that is not shipped (a pendulum) builds with
     ``--native``; its loop runs natively in our master (``run --native``), in the C host
     under ``env -i`` and in OMSimulator's command line (``ssp --native``, under ``env -i``);
@@ -611,8 +618,7 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path, request
 
     loop = read_loop(loop_file)
     fmus = native_fmus(loop, tmp_path / "cache" / "native")
-    exe = compile_host(tmp_path / "host")
-    proc = subprocess.run(["env", "-i", *host_argv(exe, loop, 3.0, unpack(fmus, tmp_path))],
+    proc = subprocess.run(["env", "-i", *host_argv(chost, loop, 3.0, unpack(fmus, tmp_path))],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     host = np.array([line.split(",") for line in proc.stdout.splitlines()[1:]], dtype=float)
@@ -641,16 +647,15 @@ def test_a_users_model_end_to_end_matches_an_independent_solve(tmp_path, request
 @pytest.mark.parametrize("name,sets", tiered([("example-2.4", []),
                                               ("proposition-4.2", ["tau=0.5", "pad=true"])]),
                          ids=str)
-def test_valgrind_finds_no_error_and_no_leak_in_a_nonlinear_loop(name, sets, native_dir,
-                                                                 tmp_path):
+def test_valgrind_finds_no_error_and_no_leak_in_a_nonlinear_loop(name, sets, chost, tmp_path):
     """The C host running a native model loop (2 s) under valgrind: no invalid access,
     every heap block freed (scripts/toolchain_proofs.py runs every nonlinear scenario)."""
     valgrind = need("valgrind")
     loop = _loop(name, sets)
     stop = stop_ticks(2.0, loop.T, loop.N) * loop.h
-    dirs = unpack(native_fmus(loop, native_dir / "valgrind"), tmp_path)
+    dirs = unpack(native_fmus(loop), tmp_path)
     proc = subprocess.run([valgrind, "--error-exitcode=9", "--leak-check=full",
-                           *host_argv(compile_host(tmp_path / "host"), loop, stop, dirs)],
+                           *host_argv(chost, loop, stop, dirs)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "All heap blocks were freed" in proc.stderr

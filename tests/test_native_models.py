@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from delaycomp.fmu.native import build_native_fmu
+from delaycomp.fmu.native import build_native_fmu, native_fmu_path
 from delaycomp.fmu.translate import TranslationError
 from delaycomp.maths.model import load_model
 from delaycomp.orchestrator.fmu import FmuComponent
@@ -42,24 +42,19 @@ CASES = [("example-2.4", []), ("example-3.8", []), ("example-3.8", ["p=sin"]),
          ("corollary-4.1", [])]
 
 
-def native_plant(loop, folder):
+def native_plant(loop):
     plant = next(i for i in loop.instances if i.name == "plant")
-    return build_native_fmu("model_plant", folder, plant.source.build_key()[1])
-
-
-@pytest.fixture(scope="module")
-def native_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("native-models")
+    return native_fmu_path("model_plant", plant.source.build_key()[1])
 
 
 @pytest.mark.parametrize("name,sets", CASES, ids=lambda c: str(c))
-def test_native_plant_in_the_loop_equals_the_python_plant(name, sets, native_dir, fmu_dir):
+def test_native_plant_in_the_loop_equals_the_python_plant(name, sets, fmu_dir):
     sc = scenarios.get(name)
     loop = sc.make(sc.resolve(sets))
     stop = min(sc.stop_time if hasattr(sc, "stop_time") else 10.0, 10.0)
     stop = stop_ticks(stop, loop.T, loop.N) * loop.h
     python = run_loop(loop, stop, fmu_dir)
-    native = run_loop(loop, stop, fmu_dir, fmus={"plant": native_plant(loop, native_dir)})
+    native = run_loop(loop, stop, fmu_dir, fmus={"plant": native_plant(loop)})
     assert python.success and native.success, native.message
     ticks = len(python.times)
     scale = np.maximum(1.0, np.max(np.abs(python.data), axis=0))
@@ -82,7 +77,7 @@ def _plant_alone(fmu, model, x0, inputs, h):
 
 
 @pytest.mark.parametrize("model_name", ["example_2_4", "example_3_8", "corollary_4_1"])
-def test_native_plant_equals_an_independent_solve(model_name, native_dir):
+def test_native_plant_equals_an_independent_solve(model_name):
     """The plant alone under random held inputs against scipy's ``solve_ivp`` (RK45 of
     another family, rtol = atol = 1e-12) of the model's Python ``f``: shares no code with
     the translation or ode.c. DOP853 at tol = 1e-10 and the reference at 1e-12: within
@@ -90,7 +85,7 @@ def test_native_plant_equals_an_independent_solve(model_name, native_dir):
     from delaycomp.paper.models import path
 
     model = load_model(path(model_name))
-    fmu = build_native_fmu("model_plant", native_dir / "alone", {"model": str(path(model_name))})
+    fmu = native_fmu_path("model_plant", {"model": str(path(model_name))})
     rng = np.random.default_rng(11)
     x0 = rng.uniform(-1, 1, model.n)
     inputs = rng.uniform(-1, 1, (50, model.m))
@@ -107,14 +102,13 @@ def test_native_plant_equals_an_independent_solve(model_name, native_dir):
     assert np.max(np.abs(got - want)) <= 1e-8 * scale
 
 
-def _both(kind_model, params, native_dir):
+def _both(kind_model, params):
     """The Python model plant (in-process slave) and the native one, set up with params."""
     from delaycomp.paper.models import path
 
     model_path = str(path(kind_model))
     slave = SlaveComponent("x", "model_plant", {"model": model_path})
-    comp = FmuComponent("x", build_native_fmu("model_plant", native_dir / "faults",
-                                              {"model": model_path}))
+    comp = FmuComponent("x", native_fmu_path("model_plant", {"model": model_path}))
     for c in (slave, comp):
         c.setup(0.0, 10.0, params)
     return slave, comp
@@ -133,17 +127,17 @@ BAD = [
 
 
 @pytest.mark.parametrize("model_name,params", BAD, ids=lambda p: str(p))
-def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params, native_dir):
-    slave, comp = _both(model_name, params, native_dir)
+def test_a_bad_parameter_is_refused_with_the_python_message(model_name, params):
+    slave, comp = _both(model_name, params)
     try:
         assert_initialize_refused_alike(slave, comp)
     finally:
         comp.terminate()
 
 
-def test_a_bad_input_or_step_is_refused_with_the_python_message(native_dir):
+def test_a_bad_input_or_step_is_refused_with_the_python_message():
     for step, u in (((0.0, 0.1), float("nan")), ((0.0, -0.1), 1.0), ((0.0, float("inf")), 1.0)):
-        slave, comp = _both("example_3_8", {"x0[1]": 0.5}, native_dir)
+        slave, comp = _both("example_3_8", {"x0[1]": 0.5})
         try:
             assert_step_refused_alike(slave, comp, {"u": u}, step)
         finally:
@@ -151,9 +145,9 @@ def test_a_bad_input_or_step_is_refused_with_the_python_message(native_dir):
 
 
 @pytest.mark.parametrize("params", [{"p": "sin"}, {"p_index": 2}], ids=["string", "index"])
-def test_a_choice_by_string_or_by_index_selects_the_branch(params, native_dir):
+def test_a_choice_by_string_or_by_index_selects_the_branch(params):
     """``p = "sin"`` and ``p_index = 2`` give the sine shape: the Python plant's numbers."""
-    slave, comp = _both("example_3_8", {**params, "x0[1]": 0.3, "x0[2]": 1.1}, native_dir)
+    slave, comp = _both("example_3_8", {**params, "x0[1]": 0.3, "x0[2]": 1.1})
     try:
         rows = []
         for c in (slave, comp):
@@ -172,12 +166,12 @@ def test_a_choice_by_string_or_by_index_selects_the_branch(params, native_dir):
         comp.terminate()
 
 
-def test_fmu_state_continues_bit_identically(native_dir):
+def test_fmu_state_continues_bit_identically():
     """Saved half-way, the loop with the native plant continues as it did, bit for bit,
     in the same master and in a fresh one (``tests/test_native.py``'s restore run)."""
     sc = scenarios.get("example-3.8")
     loop = sc.make(sc.resolve([]))
-    fmus = {"plant": native_plant(loop, native_dir / "state")}
+    fmus = {"plant": native_plant(loop)}
     ticks = stop_ticks(6.0, loop.T, loop.N)
     first, second, third = _restore_run(fmus, loop, 6.0, ticks // 2)
     assert len(first) > 10 and second == first and third == first
@@ -245,7 +239,7 @@ def test_a_model_that_does_not_translate_is_refused_in_one_line(tmp_path):
 
 @pytest.mark.parametrize("model_name", ["example_2_4", "example_3_8"])
 def test_the_model_description_is_the_python_table_and_the_sources_compile(
-        model_name, native_dir, tmp_path):
+        model_name, tmp_path):
     """Same variables, value references, types, starts, descriptions and dependencies as
     the Python model plant; ``sources/`` (generated model.c and headers included) compile
     on their own with strict warnings, and the build is reproducible."""
@@ -259,7 +253,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     from delaycomp.paper.models import path
 
     config = {"model": str(path(model_name))}
-    nat_path = build_native_fmu("model_plant", native_dir / "tables", config)
+    nat_path = native_fmu_path("model_plant", config)
     nat = read_model_description(str(nat_path), validate=True)
     py = read_model_description(str(build_fmu("model_plant", tmp_path / "py", config)),
                                 validate=True)

@@ -175,11 +175,10 @@ def test_a_stamp_from_the_future_is_refused():
 
 # -- the FMU (fmus/controller/delaycomp_controller_stamped.py) ----------------------------
 @pytest.fixture(scope="module")
-def stamped_fmu(tmp_path_factory):
-    from delaycomp.fmu.build import build_fmu
+def stamped_fmu():
+    from delaycomp.fmu.cache import fmu_path
 
-    return build_fmu("stamped_controller", tmp_path_factory.mktemp("stamped"),
-                     {"n": 3, "m": 2})
+    return fmu_path("stamped_controller", {"n": 3, "m": 2})
 
 
 def _parameters():

@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from delaycomp.fmu.build import build_fmu
-from delaycomp.fmu.native import build_native_fmu
+from delaycomp.fmu.cache import fmu_path
+from delaycomp.fmu.native import native_fmu_path
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
 pytestmark = pytest.mark.fmu
@@ -40,15 +40,13 @@ RTOL = 1e-11
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, object]:
-    """The Python FMU, its native twin (FMI 2.0 and 3.0), n = 3, m = 2."""
-    out = tmp_path_factory.mktemp("stamped-native")
+def fmus() -> dict[str, object]:
+    """The Python FMU, its native twin (FMI 2.0 and 3.0), n = 3, m = 2, from the session's
+    build caches."""
     config = {"n": 3, "m": 2}
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("DELAYCOMP_PLATFORMS", "")
-        return {"python": build_fmu("stamped_controller", out / "py", config),
-                "native": build_native_fmu("stamped_controller", out / "c2", config),
-                "fmi3": build_native_fmu("stamped_controller", out / "c3", config, fmi=3)}
+    return {"python": fmu_path("stamped_controller", config),
+            "native": native_fmu_path("stamped_controller", config),
+            "fmi3": native_fmu_path("stamped_controller", config, fmi=3)}
 
 
 def _plant():

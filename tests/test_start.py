@@ -116,17 +116,16 @@ def installed_modules(modules) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def python_fmus(fmu_dir, tmp_path_factory):
-    from delaycomp.fmu.build import build_fmu
+def python_fmus(fmu_dir):
+    from delaycomp.fmu.cache import fmu_path
     from delaycomp.paper.models import path as builtin_model
 
-    out = tmp_path_factory.mktemp("probe-fmus")
     model = {"model": str(builtin_model("example_2_4"))}
     return {"delay": fmu_dir / "DelaycompDelay.fmu",
             "plant": fmu_dir / "DelaycompPlantLTI.fmu",
             "controller": fmu_dir / "DelaycompControllerLTI.fmu",
-            "model_plant": build_fmu("model_plant", out, model),
-            "model_controller": build_fmu("model_controller", out, model)}
+            "model_plant": fmu_path("model_plant", model),
+            "model_controller": fmu_path("model_controller", model)}
 
 
 @pytest.mark.parametrize("kind", FMU_NEEDS)

@@ -50,7 +50,7 @@ import pytest
 from fmpy.fmi1 import FMICallException
 
 from delaycomp.fmu.build import PACKAGE_DIR
-from delaycomp.fmu.native import build_native_fmu, compiler
+from delaycomp.fmu.native import compiler, native_fmu_path
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
 from .external import Absent, need
@@ -117,13 +117,9 @@ REFUSED = re.compile(r"^fmi2DeSerializeFMUstate: (?:FMU state is not allowed: (?
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    """Each kind's native FMU, for this platform only."""
-    out = tmp_path_factory.mktemp("state-structure")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("DELAYCOMP_PLATFORMS", "")
-        return {name: build_native_fmu(case.kind, out / name, case.config)
-                for name, case in KINDS.items()}
+def fmus() -> dict[str, Path]:
+    """Each kind's native FMU, for this platform only (the session's native build cache)."""
+    return {name: native_fmu_path(case.kind, case.config) for name, case in KINDS.items()}
 
 
 def _component(fmu: Path, name: str, parameters: dict, t0: float = 0.5) -> FmuComponent:

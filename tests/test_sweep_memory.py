@@ -61,6 +61,8 @@ def sweep_args(out, k_count: int) -> list[str]:
 # the child is forked to set its limit, then execs: JAX, imported in this process by other
 # tests, warns at any fork about its threads, which the exec'd child never uses
 @pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
+# a soak (15 s): the fast tier streams in test_streamed_results_are_the_unstreamed_ones
+@pytest.mark.slow
 def test_a_grid_streams_in_memory_its_points_would_exceed(tmp_path):
     """300 000 points under an address-space limit of a small sweep's peak plus 160 MB.
     Held together (before: each point's grid texts, loop-file values, design, metrics

@@ -137,12 +137,13 @@ def _segment(slot: _Slot, z: np.ndarray, duration: float, u: np.ndarray,
         ok = solver.successful()
         reason = _DOP853_MESSAGES.get(code, "unknown failure")
     except BaseException as exc:  # noqa: BLE001 - f raised, or a solver warning as error
-        raised = slot.raised if slot.raised is not None else exc
-        ok, reason = False, f"{type(raised).__name__}: {raised}"
-        if slot.raised is not None:
-            reason = f"the model's f raised {reason}"
-        z_end = z
-    if not ok and (code == -3 or (code == -2 and np.max(np.abs(z), initial=0.0) < _TINY)):
+        ok, reason, z_end = False, f"{type(exc).__name__}: {exc}", z
+    if slot.raised is not None:
+        # f raised (scipy then reports its own error, "Function to integrate must not
+        # return a tuple", or none): the caller hears f's exception
+        ok, reason, z_end = False, (f"the model's f raised {type(slot.raised).__name__}: "
+                                    f"{slot.raised}"), z
+    elif not ok and (code == -3 or (code == -2 and np.max(np.abs(z), initial=0.0) < _TINY)):
         # step size too small, or the step budget spent on a tiny state: the scaled error
         # underflowed (a failure of a solve that can progress is retried in vain, fast)
         ok, reason, z_end = _python_dop853(slot, z, duration, u)
@@ -214,13 +215,16 @@ class _Slot:
         slot = self  # the closure holds the slot, not a bound method per call
 
         def rhs(_t, s, u):
+            if slot.raised is not None:
+                # the solve is lost, but the compiled DOP853 cannot be stopped from here:
+                # it goes on calling until its step budget is spent (1.2e6 calls of f,
+                # seconds, measured). NaN ends it within a few thousand cheap calls
+                # ("step size becomes too small"); the caller reports f's exception.
+                return np.full(len(s), np.nan)
             try:
                 return slot.f(s, u, slot.p)
             except BaseException as exc:
-                # scipy reports its own error ("Function to integrate must not return a
-                # tuple"); the caller reports this one instead
-                if slot.raised is None:  # the first one: later calls see scipy's state
-                    slot.raised = exc
+                slot.raised = exc
                 raise
 
         self.solver = ode(rhs).set_integrator("dop853", rtol=rtol, atol=atol,
