@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from delaycomp.errors import ParameterError
 from delaycomp.fmu.native import compiler
-from delaycomp.formats.exportc import EXPORT_CODES, closed_loop_io, export_c
+from delaycomp.formats.exportc import EXPORT_CODES, check_prefix, closed_loop_io, export_c
 from delaycomp.paper import scenarios
 from tests.external import need
 from tests.test_native_alloc import stable_mimo_loop
@@ -253,6 +254,10 @@ def test_the_command_writes_the_two_files_and_refuses_bad_input_in_one_line(tmp_
             (["example-3.6", "--prefix", "1ctl"], "--prefix '1ctl' is not allowed"),
             (["example-3.6", "--prefix", "int"], "--prefix 'int' is not allowed"),
             (["example-3.6", "--prefix", "a-b"], "--prefix 'a-b' is not allowed"),
+            (["example-3.6", "--prefix", "math"], "math.h would shadow the system header "
+                                                  "<math.h>"),
+            (["example-3.6", "--prefix", "main"], "would clash with the program's own main"),
+            (["example-3.6", "--prefix", "CON"], "CON is a device name Windows reserves"),
             (["example-3.6", "--prefix", "c", "--set", "T=0"], "T = "),
             (["example-3.8", "--prefix", "c", "--set", "tau=0.3"], "tau = 0.3 is not allowed"),
             (["loop.ssp", "--prefix", "c"], "not an SSP archive")]:
@@ -265,6 +270,37 @@ def test_the_command_writes_the_two_files_and_refuses_bad_input_in_one_line(tmp_
     bad = subprocess.run([*CLI, "export-c", "example-3.6", "--prefix", "c", "--out",
                           str(tmp_path / "file")], capture_output=True, text=True)
     assert bad.returncode == 2 and "it is a file" in bad.stderr
+
+
+@pytest.mark.parametrize("prefix, rule", [
+    ("math", "would shadow the system header <math.h>"),  # sqrt undeclared in its .c
+    ("stdio", "<stdio.h>"), ("string", "<string.h>"), ("stdlib", "<stdlib.h>"),
+    ("stdint", "<stdint.h>"), ("Math", "<math.h>"), ("STDIO", "<stdio.h>"),  # macOS, Windows
+    ("threads", "<threads.h>"), ("stdckdint", "<stdckdint.h>"),  # C11, C23
+    ("unistd", "<unistd.h>"), ("pthread", "<pthread.h>"), ("strings", "<strings.h>"),
+    ("main", "own main file"), ("Main", "own main file"),
+    ("CON", "Windows reserves"), ("nul", "Windows reserves"), ("Aux", "Windows reserves"),
+    ("PRN", "Windows reserves"), ("COM1", "Windows reserves"), ("lpt9", "Windows reserves"),
+    ("com0", "Windows reserves"),
+])
+def test_a_prefix_whose_files_break_the_users_build_is_refused(prefix, rule, tmp_path):
+    """Before: ``--prefix math`` wrote ``math.h``, shadowing ``<math.h>`` for every file
+    compiled with the folder on its include path; ``main`` clashed with the program's own
+    file; ``CON`` cannot be a file on Windows. Refused in one line, nothing written."""
+    sc = scenarios.get("example-3.6")
+    with pytest.raises(ParameterError) as info:
+        export_c(sc.make(sc.resolve([])), tmp_path / "out", prefix)
+    msg = str(info.value)
+    assert msg.startswith(f"--prefix {prefix!r} is not allowed: ") and rule in msg, msg
+    assert "\n" not in msg
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("prefix", ["ctl", "mathx", "my_math", "stdio2", "mainloop",
+                                    "console", "com10", "lpt", "nullable", "sys", "net"])
+def test_a_prefix_near_a_refused_name_is_allowed(prefix):
+    """Only the names themselves: a longer name shadows no header and is a file anywhere."""
+    assert check_prefix(prefix) == prefix
 
 
 def test_the_firmware_example_runs_the_loop_of_delaycomp_run(tmp_path):

@@ -56,6 +56,26 @@ _C_KEYWORDS = frozenset(
     "auto break case char const continue default do double else enum extern float for goto "
     "if inline int long register restrict return short signed sizeof static struct switch "
     "typedef union unsigned void volatile while".split())
+#: the standard headers of C (C99; C11's and C23's added) and the top-level headers of POSIX
+#: (IEEE Std 1003.1-2024): ``NAME.h`` of one of these names in the output folder shadows
+#: the system's header for every file compiled with that folder on its include path
+#: (``--prefix math``: ``sqrt`` undeclared); compared in any case (macOS's and Windows'
+#: file systems are case-insensitive: ``Math.h`` shadows ``math.h`` there)
+_HEADERS = frozenset(
+    # C99
+    "assert complex ctype errno fenv float inttypes iso646 limits locale math setjmp signal "
+    "stdarg stdbool stddef stdint stdio stdlib string tgmath time wchar wctype "
+    # C11, C23
+    "stdalign stdatomic stdnoreturn threads uchar stdbit stdckdint "
+    # POSIX, beyond C's (the ones in subfolders, sys/... and the like, cannot be shadowed)
+    "aio cpio devctl dirent dlfcn endian fcntl fmtmsg fnmatch ftw glob grp iconv langinfo "
+    "libgen libintl monetary mqueue ndbm netdb nl_types poll pthread pwd regex sched search "
+    "semaphore spawn strings stropts syslog tar termios trace ulimit unistd utime utmpx "
+    "wordexp".split())
+#: file names Windows reserves for devices, whatever their extension and case: ``CON.h``
+#: cannot be written there
+_WINDOWS_RESERVED = frozenset(["con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)),
+                               *(f"lpt{i}" for i in range(10))])
 #: DOP853's work memory, doubles per state (ode_work_size of fmus/native/ode.c)
 _ODE_WORK_PER_STATE = 17
 #: the predictor's number in the C (model.c.in's PREDICT), in the order of
@@ -93,12 +113,42 @@ def _array(values) -> str:
 
 
 def check_prefix(prefix: str) -> str:
-    """The C prefix of the exported names, or ``ParameterError`` naming the rule."""
+    """The C prefix of the exported names and files, or ``ParameterError`` naming the rule.
+
+    A C identifier (at most 40 characters, not a keyword) whose files ``prefix.h`` and
+    ``prefix.c`` break nothing where they are used: not the name of a C or POSIX header
+    (``math.h`` in the output folder shadows ``<math.h>``), not ``main`` (the user's
+    program's own file), not a device name Windows reserves (``CON``, ``NUL``, ``COM1``,
+    ...); each in any case (case-insensitive file systems).
+
+    Examples
+    --------
+    >>> check_prefix("ctl")
+    'ctl'
+    >>> check_prefix("Math")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: --prefix 'Math' is not allowed: Math.h would shadow ...
+    """
     if not isinstance(prefix, str) or not _PREFIX.fullmatch(prefix) or \
             prefix in _C_KEYWORDS:
         raise ParameterError(f"--prefix {prefix!r} is not allowed: must be a C identifier "
                              "(a letter, then letters, digits or _; at most 40 characters; "
                              "not a C keyword)")
+    folded = prefix.lower()
+    if folded in _HEADERS:
+        raise ParameterError(f"--prefix {prefix!r} is not allowed: {prefix}.h would shadow "
+                             f"the system header <{folded}.h> for every file compiled with "
+                             "the output folder on its include path (the names of C's and "
+                             "POSIX's headers are refused, in any case)")
+    if folded == "main":
+        raise ParameterError(f"--prefix {prefix!r} is not allowed: {prefix}.c and "
+                             f"{prefix}.h would clash with the program's own main file "
+                             "(choose a name of the controller, e.g. ctl)")
+    if folded in _WINDOWS_RESERVED:
+        raise ParameterError(f"--prefix {prefix!r} is not allowed: {prefix} is a device name "
+                             "Windows reserves, no file can be called so there (CON, PRN, "
+                             "AUX, NUL, COM0 to COM9, LPT0 to LPT9, in any case)")
     return prefix
 
 
