@@ -187,7 +187,7 @@ def test_outputs_that_cannot_give_the_states_are_refused(folder, tmp_path):
                                     b'dependenciesKind="fixed"/>')
             out.writestr(item, data)
     with pytest.raises(ParameterError, match=r"no output in plant\.states \(sensor\.phi, "
-                       r"sensor\.w\) depends on the state 'body\.w' of Drive\.fmu"):
+                       r"sensor\.w\) is or depends on the state 'body\.w' of Drive\.fmu"):
         read_loop(_write(tmp_path, "dep.toml", base))
 
 

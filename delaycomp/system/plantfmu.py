@@ -56,6 +56,9 @@ class Variable:
     start: str | None = None
     #: the ``initial`` attribute as declared (``None`` where absent)
     initial: str | None = None
+    #: the ``valueReference`` (``None`` where it is not an integer: ``check_declarations``
+    #: refuses that file)
+    value_reference: int | None = None
 
 
 @dataclass(frozen=True)
@@ -174,7 +177,8 @@ def read_interface(path: str | Path) -> FmuInterface:
                                                  "Enumeration")), None)
         var = Variable(sv.get("name", ""), typed.tag if typed is not None else "?",
                        sv.get("causality", "local"), sv.get("variability", "continuous"),
-                       typed.get("start") if typed is not None else None, sv.get("initial"))
+                       typed.get("start") if typed is not None else None, sv.get("initial"),
+                       _reference(sv.get("valueReference")))
         variables[var.name] = var
         ordered.append(var)
     check_declarations(path, [(v.name, v.type, v.causality, sv.get("valueReference"))
@@ -209,6 +213,14 @@ def read_interface(path: str | Path) -> FmuInterface:
                         variables, tuple(states), tuple(ders), platforms, deps,
                         me is not None and me.get("providesDirectionalDerivative") in (
                             "true", "1"))
+
+
+def _reference(ref: str | None) -> int | None:
+    """A ``valueReference`` attribute as an integer, ``None`` where it is none."""
+    try:
+        return int(cast(str, ref))
+    except (TypeError, ValueError):
+        return None
 
 
 def _names(where: str, value) -> list[str]:
@@ -318,14 +330,98 @@ def _value(where: str, vname: str, var: Variable, value):
     return value
 
 
+def state_of(fmu: FmuInterface, output: str) -> str | None:
+    """The continuous state that the output ``output`` of ``fmu`` is, if any.
+
+    An output is a continuous state when it is the variable that a derivative's
+    ``derivative`` attribute names (the Reference FMUs' ``x0`` beside ``der(x0)``), or an
+    alias of it: a Real of the same value reference (FMI 2.0, 2.2.7; an alias set holds
+    one value).
+
+    Parameters
+    ----------
+    fmu : FmuInterface
+        The FMU, as ``read_interface`` reads it.
+    output : str
+        The name of one of its variables.
+
+    Returns
+    -------
+    str or None
+        The name of the state (``fmu.states``), ``None`` where ``output`` is none.
+
+    Examples
+    --------
+    >>> fmu = FmuInterface(Path("VanDerPol.fmu"), "VanDerPol", "2.0", "VanDerPol",
+    ...                    "VanDerPol", {"x0": Variable("x0", "Real", "output",
+    ...                                                 "continuous", value_reference=0),
+    ...                                  "y": Variable("y", "Real", "output",
+    ...                                                "continuous", value_reference=0),
+    ...                                  "z": Variable("z", "Real", "output",
+    ...                                                "continuous", value_reference=5)},
+    ...                    states=("x0",), derivatives=("der(x0)",))
+    >>> state_of(fmu, "x0"), state_of(fmu, "y"), state_of(fmu, "z")
+    ('x0', 'x0', None)
+    """
+    if output in fmu.states:
+        return output
+    var = fmu.variables.get(output)
+    if var is None or var.type != "Real" or var.value_reference is None:
+        return None
+    return next((x for x in fmu.states
+                 if (state := fmu.variables.get(x)) is not None and state.type == "Real"
+                 and state.value_reference == var.value_reference), None)
+
+
 def check_output_map(fmu: FmuInterface, states: Sequence[str],
                      where: str = "controller.predictor") -> None:
-    """``predictor = "plant-fmu"``: refuse (one line, saying what to give instead) outputs
-    ``states`` that cannot determine the FMU's continuous states, as far as the
-    modelDescription tells: fewer outputs than states, an output with direct feedthrough
-    from an input, or a state no named output depends on (ModelStructure). Whether the map
-    is invertible where the loop runs is checked by the controller on its Jacobian
-    (``delaycomp.maths.outputmap.check_rank``)."""
+    """Refuse outputs that cannot determine the FMU's continuous states, as far as its
+    modelDescription tells (``predictor = "plant-fmu"``).
+
+    Refused, in one line that says what to give instead: an FMU without continuous
+    states, fewer outputs than states, an output with direct feedthrough from an input,
+    or a state that no named output determines. An output determines the state that it is
+    (``state_of``: the Reference FMUs declare such an output with ``dependencies=""``,
+    the other knowns it depends on being none) and the states its ``dependencies`` list
+    (ModelStructure/Outputs); an output without ``dependencies`` may depend on every
+    known (FMI 2.0, 2.2.8), so the check cannot tell and leaves it to the controller. An
+    output that is no state and depends on no state (``dependencies=""``, a constant as
+    far as the description says) determines none.
+
+    Parameters
+    ----------
+    fmu : FmuInterface
+        The plant FMU, as ``read_interface`` reads it.
+    states : sequence of str
+        The outputs measured (``plant.states``), already checked to be Real outputs
+        (``check_mapping``).
+    where : str
+        The key named in the messages.
+
+    Raises
+    ------
+    ParameterError
+        One line, naming the outputs and the state concerned.
+
+    Notes
+    -----
+    Whether the map is invertible where the loop runs is checked by the controller on its
+    Jacobian (``delaycomp.maths.outputmap.check_rank``).
+
+    Examples
+    --------
+    >>> real = dict(type="Real", causality="output", variability="continuous")
+    >>> fmu = FmuInterface(Path("VanDerPol.fmu"), "VanDerPol", "2.0", "VanDerPol",
+    ...                    "VanDerPol", {n: Variable(n, value_reference=i, **real)
+    ...                                  for i, n in enumerate(["x0", "x1", "c"])},
+    ...                    states=("x0", "x1"), derivatives=("der(x0)", "der(x1)"),
+    ...                    dependencies={"x0": (), "x1": (), "c": ()})
+    >>> check_output_map(fmu, ["x0", "x1"])
+    >>> check_output_map(fmu, ["x0", "c"])   # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    delaycomp.errors.ParameterError: ... no output in plant.states (x0, c) is or depends on ...
+    """
     name, xs = fmu.path.name, list(fmu.states)
     head = f'{where} = "plant-fmu" is not allowed'
     instead = "or give A and B (or model) for the predictor"
@@ -341,7 +437,7 @@ def check_output_map(fmu: FmuInterface, states: Sequence[str],
     covered: set[str] | None = set()
     for s in states:
         deps = fmu.dependencies.get(s)
-        if deps is None:  # not declared: it may depend on anything (FMI 2.0, 3.2.2)
+        if deps is None:  # not declared: it may depend on anything (FMI 2.0, 2.2.8)
             covered = None
             continue
         fed = [d for d in deps if fmu.variables[d].causality == "input"]
@@ -352,13 +448,16 @@ def check_output_map(fmu: FmuInterface, states: Sequence[str],
                 f"plant.states must be a function of the FMU's states alone; name another "
                 f"output, {instead}")
         if covered is not None:
+            # the states it depends on, and the state it is (whatever its list says)
             covered |= set(deps) & set(xs)
+            if (state := state_of(fmu, s)) is not None:
+                covered.add(state)
     missing = [x for x in xs if covered is not None and x not in covered]
     if missing:
         raise ParameterError(
-            f"{head}: no output in plant.states ({', '.join(states)}) depends on the state "
-            f"{missing[0]!r} of {name} (ModelStructure), so the outputs cannot determine it; "
-            f"name an output that does, {instead}")
+            f"{head}: no output in plant.states ({', '.join(states)}) is or depends on the "
+            f"state {missing[0]!r} of {name} (ModelStructure), so the outputs cannot "
+            f"determine it; name an output that does, {instead}")
 
 
 def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
