@@ -388,12 +388,21 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     ``fmus`` (``FMU_KINDS``): ``auto`` takes the native C FMUs where the loop has them
     here (``why`` says otherwise: no native twin, no C compiler, a model that does not
     translate), ``native`` only those (``ValueError`` where there are none),
-    ``python`` the Python ones. ``engine="inprocess"`` runs no FMU files. Native FMUs are
-    built into ``fmu_dir/native``; ``run`` and the command line choose through here.
+    ``python`` the Python ones. ``engine="inprocess"`` runs no FMU files. ``run`` and the
+    command line choose through here.
+
+    ``fmu_dir``: the FMUs there under their own names come first, what ``delaycomp build
+    --out fmu_dir`` wrote (``delaycomp.fmu.native.fmus_in_dir``): ``auto`` takes their kind,
+    native or Python, and builds nothing they cover; one that is stale (another delaycomp
+    version, other sources) or of the wrong kind (a Python FMU where native ones run or the
+    reverse, another FMI version, other dimensions) raises ``BadFileError``, one line
+    naming it and what to do. Missing Python FMUs are built into ``fmu_dir``, missing
+    native ones into ``fmu_dir/native``.
 
     ``fmi=3``: FMI 3.0 native FMUs (``delaycomp.fmu.fmi3``; native only: ``auto`` is
-    ``native``), built into ``fmu_dir/native/fmi3``; a user's FMU file of the loop (another
-    tool's FMI 2.0 plant) runs beside them as it is. ``clocked=True`` (with ``fmi=3``):
+    ``native``), missing ones built into ``fmu_dir/native/fmi3``; a user's FMU file of the
+    loop (another tool's FMI 2.0 plant) runs beside them as it is. ``clocked=True`` (with
+    ``fmi=3``):
     the LTI controller's clocked variant, its sampling driven by an FMI 3.0 clock of
     interval T (``docs/reference/fmi3.md``).
 
@@ -416,14 +425,26 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
             raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
                                  "(the Python slaves run in this process)")
         return None, None
-    if fmus == "python":
-        return None, None
-    from delaycomp.fmu.native import native_fmus, native_or_why
+    from delaycomp.fmu import native
 
     native_dir = Path(fmu_dir) / "native" if fmu_dir else None
+    found: dict[str, Path] = {}
+    if fmu_dir:
+        there, found = native.fmus_in_dir(loop, Path(fmu_dir), fmus, fmi, clocked)
+        if there == "python" and fmus == "auto":  # what build --out left there
+            try:  # the note of a loop that has no native FMUs anyway
+                native.check_native(loop, fmi, clocked)
+            except ValueError as exc:
+                return None, native.why_not_native(exc)
+            from delaycomp.progress import detail
+
+            detail(f"the Python FMUs run this loop: {fmu_dir} holds Python ones")
+            return None, None
+    if fmus == "python":
+        return None, None
     if fmus == "native" or fmi == 3:
-        return native_fmus(loop, native_dir, fmi, clocked), None
-    return native_or_why(loop, native_dir)
+        return native.native_fmus(loop, native_dir, fmi, clocked, found), None
+    return native.native_or_why(loop, native_dir, found=found)
 
 
 def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
@@ -438,7 +459,8 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     FMUs where the loop has them (``auto``: LTI loops and model files that translate, with
     a C compiler; a note in ``result.notes`` says when the Python FMUs ran instead), only
     native ones, or the Python ones (``choose_fmus``); or the FMU file of each
-    instance, by name (an SSP archive's). Native FMUs are built into ``fmu_dir/native``.
+    instance, by name (an SSP archive's). The FMUs of ``fmu_dir`` come first, native or
+    Python, as ``delaycomp build --out fmu_dir`` wrote them (``choose_fmus``).
 
     The rest is for long runs (as the command line's ``run``): a row every ``every`` base
     steps; ``sink(t, row)`` receives each row as it is made

@@ -310,8 +310,8 @@ def _run_parser(sub) -> None:
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
     _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
-                 "runs them where it can); with --fmu-dir DIR they are built into "
-                 "DIR/native")
+                 "runs them where it can); with --fmu-dir DIR those delaycomp build --out "
+                 "DIR wrote there, missing ones built into DIR/native")
     _fmi_flag(r, "run delaycomp's FMUs as FMI 3.0 FMUs (native C only; a loop's own FMU "
                  "file, e.g. another tool's FMI 2.0 plant, runs beside them as it is)")
     r.add_argument("--watchdog", type=float, default=None, metavar="SECONDS",
@@ -586,7 +586,10 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="LOOP.toml: let an LTI gain through with which the delay-free sampled "
                         "loop is unstable (the sign guard; docs: reference/loop-files)")
     p.add_argument("--fmu-dir", type=Path, default=None,
-                   help="folder of built FMUs (default: a per-version cache, built on demand)")
+                   help="folder of built FMUs (default: a per-version cache, built on "
+                        "demand): the FMUs that delaycomp build --out DIR wrote there run, "
+                        "native or Python, missing ones are built into it; a stale one or "
+                        "one of the wrong kind is an error naming it")
 
 
 def _source(args):

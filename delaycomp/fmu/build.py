@@ -185,6 +185,10 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if spec.template:
         check_model_control(kind, config["model"])
     config["version"] = delaycomp.__version__
+    from delaycomp.fmu.cache import source_digest
+
+    # what a run checks an FMU of --fmu-dir against (the cache's folders are named by it)
+    config["sources"] = source_digest()
     ident = model_identifier(kind, config)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -29,11 +29,13 @@ from delaycomp.fmu.build import (
 from delaycomp.system import FmuFile, Source
 from delaycomp.tmpfiles import build_lock
 
-__all__ = ["cache_hit", "check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path", "source_fmu"]
+__all__ = ["cache_hit", "check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path",
+           "source_digest", "source_fmu"]
 
 
-def _source_digest() -> str:
-    """Digest of everything that goes into an FMU, naming the build cache."""
+def source_digest() -> str:
+    """Digest of everything that goes into a Python FMU: it names the build cache, and
+    each Python FMU records it as ``sources`` in its build configuration."""
     h = hashlib.sha256(delaycomp.__version__.encode())
     # the fix of pythonfmu's runtime library (delaycomp.fmu.runtime) goes into every FMU too
     files = [PACKAGE_DIR / m for m in BUNDLED_MODULES] + [PACKAGE_DIR / "fmu" / "runtime.py"]
@@ -48,7 +50,7 @@ def default_fmu_dir() -> Path:
     """Build cache: ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, per source digest."""
     root = os.environ.get("DELAYCOMP_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "delaycomp")
-    return Path(root) / f"fmus-{delaycomp.__version__}-{_source_digest()}"
+    return Path(root) / f"fmus-{delaycomp.__version__}-{source_digest()}"
 
 
 def fmu_file_name(kind: str, config: dict) -> str:
@@ -64,8 +66,10 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
     """Path of the FMU for ``kind`` and ``config`` in ``fmu_dir``; built there if missing.
 
     An FMU already there is checked first (``check_fmu``): a corrupt or foreign file
-    raises ``BadFileError`` before anything runs.
+    raises ``BadFileError`` before anything runs; in a ``fmu_dir`` of the caller's also
+    one built from other sources (the cache's folders are named by their digest).
     """
+    own = fmu_dir is not None
     fmu_dir = Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
     if fmu_dir.exists() and not fmu_dir.is_dir():
         raise BadFileError(fmu_dir, "is not a folder (--fmu-dir wants a folder of FMUs)")
@@ -78,7 +82,7 @@ def fmu_path(kind: str, config: dict, fmu_dir: Path | None = None) -> Path:
             if not path.exists():
                 build_fmu(kind, fmu_dir, config, path.name)
                 built = True
-    check_fmu(path, kind, config)
+    check_fmu(path, kind, config, sources=own)
     cache_hit(path, model_identifier(kind, config), built)
     return path
 
@@ -124,25 +128,36 @@ def _regular_or_missing(path: Path) -> None:
 _CHECKED: set[tuple] = set()
 
 
-def check_fmu(path: Path, kind: str, config: dict) -> None:
+def check_fmu(path: Path, kind: str, config: dict, sources: bool = False) -> None:
     """Refuse an FMU that is not a zip, has no readable modelDescription, is of another
-    model, or was built for other dimensions or another delaycomp version. A file checked
-    before and unchanged since is not read again (runs of a sweep look up the same FMUs)."""
+    model, or was built for other dimensions or another delaycomp version; with
+    ``sources`` (an FMU of a folder the user named, ``--fmu-dir``: the cache's folders are
+    named by the digest) also one built from other sources than this delaycomp's (the
+    ``sources`` digest its build configuration records: ``source_digest``, or
+    ``delaycomp.fmu.native.sources_digest`` for a native one). A file checked before and
+    unchanged since is not read again (runs of a sweep look up the same FMUs)."""
     try:
         st = Path(path).stat()
         key = (str(path), st.st_mtime_ns, st.st_size, kind,
-               json.dumps(config, sort_keys=True, default=str))
+               json.dumps(config, sort_keys=True, default=str), sources)
     except OSError:
         key = None
     if key is not None and key in _CHECKED:
         return
     _regular_or_missing(Path(path))
-    _check_fmu(path, kind, config)
+    _check_fmu(path, kind, config, sources)
     if key is not None:
         _CHECKED.add(key)
 
 
-def _check_fmu(path: Path, kind: str, config: dict) -> None:
+def _rebuild_hint(path: Path) -> str:
+    """What to do about a stale FMU of ``--fmu-dir`` DIR: DIR rebuilt, or the file gone (a
+    run builds a missing FMU)."""
+    return (f"rebuild the folder: delaycomp build --out {Path(path).parent}, or delete the "
+            "file")
+
+
+def _check_fmu(path: Path, kind: str, config: dict, sources: bool = False) -> None:
     from fmpy import read_model_description
 
     ident = model_identifier(kind, config)
@@ -174,7 +189,20 @@ def _check_fmu(path: Path, kind: str, config: dict) -> None:
         raise BadFileError(path, f"has a corrupt resources/{CONFIG_NAME}") from None
     if cfg.get("version") != delaycomp.__version__:
         raise BadFileError(path, f"was built by delaycomp {cfg.get('version')!r}, this is "
-                                 f"{delaycomp.__version__!r} (delete it to rebuild)")
+                                 f"{delaycomp.__version__!r} ("
+                                 + (_rebuild_hint(path) if sources else "delete it to rebuild")
+                                 + ")")
+    if sources:
+        if cfg.get("native"):
+            from delaycomp.fmu.native import sources_digest
+
+            digest = sources_digest()
+        else:
+            digest = source_digest()
+        if cfg.get("sources") != digest:
+            raise BadFileError(path, f"is stale: it was built from other sources than this "
+                                     f"delaycomp {delaycomp.__version__}'s "
+                                     f"({_rebuild_hint(path)})")
     wanted = {k: v for k, v in config.items() if k != "model"}
     differs = {k: cfg.get(k) for k, v in wanted.items() if cfg.get(k) != v}
     if differs:

@@ -65,9 +65,10 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli packag
     import tomli as tomllib
 
 __all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "NativeTwin", "build_native",
-           "build_native_fmu", "build_native_model", "compile_host", "compiler",
-           "host_argv", "native_archive", "native_fmu_dir", "native_fmu_path",
-           "native_fmus", "native_or_why", "native_twin", "unpack"]
+           "build_native_fmu", "build_native_model", "built_config", "check_native",
+           "compile_host", "compiler", "fmus_in_dir", "host_argv", "native_archive",
+           "native_fmu_dir", "native_fmu_path", "native_fmus", "native_or_why",
+           "native_twin", "unpack", "why_not_native"]
 
 #: the shared C sources (``fmus/native/`` in the repository, package data of
 #: delaycomp.fmus): the FMI layer, the linear algebra, DOP853, the host, export-c's templates
@@ -678,7 +679,10 @@ def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> N
     (stage / "modelDescription.xml").write_bytes(description)
     res = stage / "resources"
     res.mkdir()
-    (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True}, sort_keys=True),
+    # sources: what a run checks an FMU of --fmu-dir against (the cache's folders are
+    # named by it); not part of the GUID (``full`` without it)
+    (res / CONFIG_NAME).write_text(json.dumps({**full, "native": True,
+                                               "sources": sources_digest()}, sort_keys=True),
                                    encoding="utf-8")
     doc = stage / "documentation"
     doc.mkdir()
@@ -739,9 +743,9 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None,
     FMI 3.0 FMUs in its subfolder ``fmi3``), built there if missing; an FMU already there
     is checked as ``delaycomp.fmu.cache.check_fmu`` does, and must be native, of FMI
     version ``fmi``."""
-    from delaycomp.errors import BadFileError
-    from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
+    from delaycomp.fmu.cache import cache_hit, fmu_file_name
 
+    own = fmu_dir is not None
     if fmu_dir is None:
         fmu_dir = native_fmu_dir(fmi)
     elif fmi == 3:
@@ -752,17 +756,104 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None,
         build_native_fmu(kind, fmu_dir, config, path.name, fmi=fmi)
         cache_hit(path, model_identifier(kind, config), built=True)
         return path
-    check_fmu(path, kind, config)
-    with zipfile.ZipFile(path) as zf:
-        built = json.loads(zf.read(f"resources/{CONFIG_NAME}"))
+    _check_native(path, kind, config, fmi, own)
+    cache_hit(path, model_identifier(kind, config))
+    return path
+
+
+def _check_native(path: Path, kind: str, config: dict, fmi: int, own: bool) -> None:
+    """``check_fmu`` (``own``: a folder of the caller's, whose FMUs must be built from these
+    sources), and native, of FMI version ``fmi``."""
+    from delaycomp.errors import BadFileError
+    from delaycomp.fmu.cache import check_fmu
+
+    check_fmu(path, kind, config, sources=own)
+    built = built_config(path)
     if not built.get("native"):
         raise BadFileError(path, "is a Python FMU, not a native one (use another "
                                  "--fmu-dir, or delete it to rebuild)")
     if built.get("fmi", 2) != fmi:
         raise BadFileError(path, f"is an FMI {built.get('fmi', 2)}.0 FMU, this run needs FMI "
                                  f"{fmi}.0 (use another --fmu-dir, or delete it to rebuild)")
-    cache_hit(path, model_identifier(kind, config))
-    return path
+
+
+def built_config(path: Path) -> dict:
+    """The build configuration a delaycomp FMU carries (``resources/delaycomp_fmu.json``:
+    its configuration, ``version``, ``sources``, and ``native`` and ``fmi`` for a native
+    one); ``{}`` where it has none."""
+    with zipfile.ZipFile(path) as zf:
+        try:
+            return json.loads(zf.read(f"resources/{CONFIG_NAME}"))
+        except (KeyError, ValueError):
+            return {}
+
+
+def fmus_in_dir(loop, fmu_dir: Path, fmus: str = "auto", fmi: int = 2,
+                clocked: bool = False) -> tuple[str | None, dict[str, Path]]:
+    """What ``delaycomp build --out fmu_dir`` (or an earlier run) left in ``fmu_dir`` for
+    ``loop``: the kind of the FMUs there under their own names (``fmu_file_name``: the
+    names ``build --out`` writes), ``"native"`` or ``"python"`` (``None``: none there),
+    and those files by instance.
+
+    Each file is checked (``check_fmu``: a delaycomp FMU of the instance's model and
+    dimensions, built by this delaycomp from these sources), then against the FMUs the
+    run asks for: ``fmus`` (``auto``: the kind of the first file there; ``native``;
+    ``python``) and ``fmi`` (3: native FMI 3.0 ones; ``clocked``: the controller's clocked
+    variant).
+
+    Raises
+    ------
+    delaycomp.errors.BadFileError
+        A file there is stale or of the wrong kind: one line naming it and what to do.
+    """
+    from delaycomp.errors import BadFileError
+    from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
+    from delaycomp.system.loop import FmuFile
+
+    fmu_dir = Path(fmu_dir)
+    kind_there: str | None = None
+    found: dict[str, Path] = {}
+    for inst in loop.instances:
+        src = inst.source
+        if isinstance(src, FmuFile):
+            continue
+        config = _clocked(dict(src.config), src.kind, clocked and inst.role == "controller")
+        path = fmu_dir / fmu_file_name(src.kind, config)
+        if not os.path.lexists(path):
+            continue
+        check_fmu(path, src.kind, config, sources=True)
+        built = built_config(path)
+        kind = "native" if built.get("native") else "python"
+        wanted = ("native" if fmi == 3 or fmus == "native" else fmus if fmus == "python"
+                  else kind_there or kind)
+        if kind != wanted:
+            raise BadFileError(path, _wrong_kind(kind, wanted, fmus, fmi, fmu_dir))
+        if kind == "native" and built.get("fmi", 2) != fmi:
+            had = built.get("fmi", 2)
+            raise BadFileError(path, f"is an FMI {had}.0 FMU, this run needs FMI {fmi}.0 ("
+                                     + ("--fmi 3 runs it" if had == 3 else
+                                        "run without --fmi 3 to use it")
+                                     + f", or rebuild the folder: delaycomp build"
+                                       f"{' --fmi 3' if fmi == 3 else ''} --out {fmu_dir})")
+        kind_there = kind
+        found[inst.name] = path
+        cache_hit(path, model_identifier(src.kind, config))
+    return kind_there, found
+
+
+def _wrong_kind(kind: str, wanted: str, fmus: str, fmi: int, fmu_dir: Path) -> str:
+    """The reason of ``fmus_in_dir``'s error for a ``kind`` FMU where ``wanted`` ones run:
+    what it is, what the run asks for, and what to do."""
+    name = {"native": "native", "python": "Python"}
+    if fmus == "auto" and fmi == 2:  # the first file there was of the other kind
+        return (f"is a {name[kind]} FMU beside {name[wanted]} ones of this loop (rebuild the "
+                f"folder: delaycomp build --out {fmu_dir}, or delete the file)")
+    if wanted == "python":
+        return ("is a native FMU, --python runs Python ones (run without --python to use "
+                f"it, or rebuild the folder: delaycomp build --python --out {fmu_dir})")
+    flag = "--fmi 3" if fmi == 3 else "--native"
+    return (f"is a Python FMU, {flag} runs native ones (run without {flag} to use it, or "
+            f"rebuild the folder: delaycomp build {flag} --out {fmu_dir})")
 
 
 def compile_host(exe: Path, platform: str | None = None) -> Path:
@@ -928,7 +1019,7 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
         module = f"resources/delaycomp_model_{mid}.py"
         if ident in kinds:
             return kinds[ident], {k: v for k, v in config.items()
-                                  if k not in ("version", "native")}
+                                  if k not in ("version", "native", "sources")}
         kind = next((k for k in MODEL_KINDS if mid and name and module in names
                      and ident == f"{FMUS[k].model_identifier}_{mid}"), None)
         if kind is None:
@@ -948,7 +1039,8 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
     return kind, config
 
 
-def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2
+def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2,
+                  found: dict[str, Path] | None = None
                   ) -> tuple[dict[str, Path] | None, str | None]:
     """The native FMUs of ``loop`` where they can be had here (``native_fmus``), else
     ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
@@ -957,26 +1049,50 @@ def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2
     from delaycomp.maths.model import ModelError
 
     try:
-        return native_fmus(loop, fmu_dir, fmi), None
+        return native_fmus(loop, fmu_dir, fmi, found=found), None
     except (ValueError, NativeBuildError, ModelError) as exc:
-        return None, str(exc).splitlines()[0].removeprefix(
-            "--native is not allowed for this loop: ")
+        return None, why_not_native(exc)
+
+
+def why_not_native(exc: Exception) -> str:
+    """The reason ``exc`` gives why a loop runs no native FMUs here, as the commands' note
+    says it (``native_or_why``)."""
+    return str(exc).splitlines()[0].removeprefix("--native is not allowed for this loop: ")
 
 
 def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
-                clocked: bool = False) -> dict[str, Path]:
+                clocked: bool = False, found: dict[str, Path] | None = None
+                ) -> dict[str, Path]:
     """Native FMU files for every instance of ``loop`` (a
     ``Loop``), to pass as ``fmus=`` to
     ``delaycomp.orchestrator.simulate.run_loop``; FMI 3.0 ones with ``fmi=3``, where a
     user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant) keeps its file: a
     mixed loop; ``clocked`` (FMI 3.0): the controller driven by a clock (the LTI
     controller's variant; ``ValueError`` for a loop whose controller has none).
+    ``found``: native files already checked for some instances, by name (``fmus_in_dir``:
+    those ``delaycomp build --out`` wrote), taken as they are; the others from
+    ``fmu_dir``.
 
     Raises
     ------
     ValueError
         An instance has no native twin (a user model's plant or controller, a user's FMU).
     """
+    from delaycomp.system.loop import FmuFile
+
+    check_native(loop, fmi, clocked)
+    found = found or {}
+    return {inst.name: found.get(inst.name) or native_fmu_path(
+                inst.source.kind,
+                _clocked(dict(inst.source.config), inst.source.kind,
+                         clocked and inst.role == "controller"), fmu_dir, fmi)
+            for inst in loop.instances if not isinstance(inst.source, FmuFile)}
+
+
+def check_native(loop, fmi: int = 2, clocked: bool = False) -> None:
+    """``ValueError`` where ``loop`` has no native FMUs (``native_fmus``), before any
+    build: an instance without a native twin, or ``clocked`` for a loop whose controller
+    has no clocked variant."""
     from delaycomp.system.loop import BuiltinFmu, FmuFile, ModelFmu
 
     for inst in loop.instances:
@@ -997,8 +1113,3 @@ def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
             raise ValueError("clocked = true is not allowed for this loop: a clocked "
                              "controller is the FMI 3.0 LTI controller (fmi = 3, an LTI "
                              "loop's controller)")
-    return {inst.name: native_fmu_path(
-                inst.source.kind,
-                _clocked(dict(inst.source.config), inst.source.kind,
-                         clocked and inst.role == "controller"), fmu_dir, fmi)
-            for inst in loop.instances if not isinstance(inst.source, FmuFile)}

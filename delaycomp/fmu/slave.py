@@ -230,7 +230,9 @@ def _value_ok(var, value) -> bool:
 
 
 def pinned_guid(class_name: str, config: dict) -> uuid.UUID:
-    """The GUID of the slave class ``class_name`` built with ``config`` (see item 3)."""
+    """The GUID of the slave class ``class_name`` built with ``config`` (see item 3); the
+    digest of the sources the configuration records (``sources``) is not part of it."""
+    config = {k: v for k, v in config.items() if k != "sources"}
     key = json.dumps({"model": class_name, "config": config}, sort_keys=True)
     return uuid.uuid5(_GUID_NAMESPACE, key)
 
