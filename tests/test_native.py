@@ -824,6 +824,30 @@ def test_fuzz_native_delay_and_plant_behave_as_the_python_slaves(native_dir, kin
         comp.terminate()
 
 
+def test_concurrent_asks_for_one_cached_native_fmu_compile_it_once(tmp_path, monkeypatch):
+    """The build cache (``native_fmu_path``, what ``run`` and the tests' workers ask)
+    compiles a missing FMU under a lock named after it: four asking at once, one
+    compiles, the others wait and take its file (before: each compiled its own)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from delaycomp.fmu import native
+
+    compiled = []
+    build = native.build_native_fmu
+
+    def counted(*args, **kwargs):
+        compiled.append(args[0])
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(native, "build_native_fmu", counted)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        paths = list(pool.map(lambda _: native.native_fmu_path("delay", {"n": 2}, tmp_path),
+                              range(4)))
+    assert compiled == ["delay"] and len(set(paths)) == 1
+    assert read_model_description(str(paths[0])).coSimulation.modelIdentifier == \
+        "DelaycompDelay"
+
+
 def test_concurrent_builds_of_one_native_fmu_give_one_whole_file(tmp_path):
     """Native FMUs are the default: two runs at once build the same FMU into the same
     cache. Each writes a part file of its own and renames it over the target, so every

@@ -753,9 +753,14 @@ def native_fmu_path(kind: str, config: dict, fmu_dir: Path | None = None,
     fmu_dir = Path(fmu_dir)
     path = fmu_dir / fmu_file_name(kind, config)
     if not path.exists():
-        build_native_fmu(kind, fmu_dir, config, path.name, fmi=fmi)
-        cache_hit(path, model_identifier(kind, config), built=True)
-        return path
+        from delaycomp.tmpfiles import build_lock
+
+        fmu_dir.mkdir(parents=True, exist_ok=True)
+        with build_lock(path):  # parallel first runs: one compiles, the others wait
+            if not path.exists():
+                build_native_fmu(kind, fmu_dir, config, path.name, fmi=fmi)
+                cache_hit(path, model_identifier(kind, config), built=True)
+                return path
     _check_native(path, kind, config, fmi, own)
     cache_hit(path, model_identifier(kind, config))
     return path
