@@ -94,3 +94,21 @@ def build_drive(out_dir: Path, name: str = f"{DRIVE}.fmu", directional: bool = T
             xml = xml[:start] + xml[xml.index("/>", start) + 2:]
     return _pack(out_dir, name, DRIVE, "drive.c", xml,
                  [] if directional else ["-DNO_DIRECTIONAL"])
+
+
+VANDERPOL = "VanDerPol"
+
+
+def build_vanderpol(out_dir: Path, name: str = f"{VANDERPOL}.fmu",
+                    directional: bool = True) -> Path:
+    """Compile ``vanderpol.c`` (a Van der Pol oscillator with an input, shaped like the
+    modelica/Reference-FMUs' ``VanDerPol``: its continuous states are its outputs,
+    ``initial="exact"`` with start values, settable before initialization, listed with
+    ``dependencies=""``; README.md) and pack it into ``out_dir``; return its path.
+    ``directional = False``: its modelDescription declares no directional derivatives
+    (``providesDirectionalDerivative="false"``), so a master uses differences."""
+    xml = (HERE / "vanderpol.xml").read_text(encoding="utf-8")
+    if not directional:
+        xml = xml.replace('providesDirectionalDerivative="true"',
+                          'providesDirectionalDerivative="false"')
+    return _pack(out_dir, name, VANDERPOL, "vanderpol.c", xml, [])
