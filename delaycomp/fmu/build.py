@@ -8,6 +8,7 @@ FMU imports when a host instantiates it, and how long that takes.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import json
 import os
@@ -170,6 +171,19 @@ def check_dimensions(config: dict) -> None:
                          f"{TRACE_MAX} (the length of the channel's delay trace)")
 
 
+def source_digest() -> str:
+    """Digest of everything that goes into a Python FMU: it names the build cache, and
+    each Python FMU records it as ``sources`` in its build configuration."""
+    h = hashlib.sha256(delaycomp.__version__.encode())
+    # the fix of pythonfmu's runtime library (delaycomp.fmu.runtime) goes into every FMU too
+    files = [PACKAGE_DIR / m for m in BUNDLED_MODULES] + [PACKAGE_DIR / "fmu" / "runtime.py"]
+    for spec in FMUS.values():
+        files += [spec.script_path, spec.folder / "README.md"]
+    for f in files:
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
               file_name: str | None = None) -> Path:
     """Build the FMU ``kind`` of ``FMUS`` into ``out_dir``; return the ``.fmu`` path.
@@ -185,7 +199,6 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     if spec.template:
         check_model_control(kind, config["model"])
     config["version"] = delaycomp.__version__
-    from delaycomp.fmu.cache import source_digest
 
     # what a run checks an FMU of --fmu-dir against (the cache's folders are named by it)
     config["sources"] = source_digest()

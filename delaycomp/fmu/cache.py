@@ -8,7 +8,6 @@ everything that goes into an FMU.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import stat
@@ -18,32 +17,18 @@ from pathlib import Path
 import delaycomp
 from delaycomp.errors import BadFileError
 from delaycomp.fmu.build import (
-    BUNDLED_MODULES,
     CONFIG_NAME,
     DEFAULT_CONFIG,
     FMUS,
-    PACKAGE_DIR,
     build_fmu,
     model_identifier,
+    source_digest,
 )
 from delaycomp.system import FmuFile, Source
 from delaycomp.tmpfiles import build_lock
 
-__all__ = ["cache_hit", "check_fmu", "default_fmu_dir", "fmu_file_name", "fmu_path",
-           "source_digest", "source_fmu"]
-
-
-def source_digest() -> str:
-    """Digest of everything that goes into a Python FMU: it names the build cache, and
-    each Python FMU records it as ``sources`` in its build configuration."""
-    h = hashlib.sha256(delaycomp.__version__.encode())
-    # the fix of pythonfmu's runtime library (delaycomp.fmu.runtime) goes into every FMU too
-    files = [PACKAGE_DIR / m for m in BUNDLED_MODULES] + [PACKAGE_DIR / "fmu" / "runtime.py"]
-    for spec in FMUS.values():
-        files += [spec.script_path, spec.folder / "README.md"]
-    for f in files:
-        h.update(f.read_bytes())
-    return h.hexdigest()[:12]
+__all__ = ["cache_hit", "check_fmu", "check_sources", "default_fmu_dir", "fmu_file_name",
+           "fmu_path", "source_digest", "source_fmu"]
 
 
 def default_fmu_dir() -> Path:
@@ -192,22 +177,23 @@ def _check_fmu(path: Path, kind: str, config: dict, sources: bool = False) -> No
                                  f"{delaycomp.__version__!r} ("
                                  + (_rebuild_hint(path) if sources else "delete it to rebuild")
                                  + ")")
-    if sources:
-        if cfg.get("native"):
-            from delaycomp.fmu.native import sources_digest
-
-            digest = sources_digest()
-        else:
-            digest = source_digest()
-        if cfg.get("sources") != digest:
-            raise BadFileError(path, f"is stale: it was built from other sources than this "
-                                     f"delaycomp {delaycomp.__version__}'s "
-                                     f"({_rebuild_hint(path)})")
+    if sources and not cfg.get("native"):
+        # a native FMU's sources are checked by delaycomp.fmu.native, whose digest it is
+        check_sources(path, cfg, source_digest())
     wanted = {k: v for k, v in config.items() if k != "model"}
     differs = {k: cfg.get(k) for k, v in wanted.items() if cfg.get(k) != v}
     if differs:
         raise BadFileError(path, f"was built for {differs}, this loop needs "
                                  f"{ {k: wanted[k] for k in differs} }")
+
+
+def check_sources(path: Path, built: dict, digest: str) -> None:
+    """Refuse the FMU ``path`` (``BadFileError``, one line saying how to rebuild) whose
+    build configuration ``built`` records other sources than ``digest``: stale."""
+    if built.get("sources") != digest:
+        raise BadFileError(path, f"is stale: it was built from other sources than this "
+                                 f"delaycomp {delaycomp.__version__}'s "
+                                 f"({_rebuild_hint(path)})")
 
 
 def source_fmu(source: Source, fmu_dir: Path | None = None) -> Path:

@@ -770,13 +770,15 @@ def _check_native(path: Path, kind: str, config: dict, fmi: int, own: bool) -> N
     """``check_fmu`` (``own``: a folder of the caller's, whose FMUs must be built from these
     sources), and native, of FMI version ``fmi``."""
     from delaycomp.errors import BadFileError
-    from delaycomp.fmu.cache import check_fmu
+    from delaycomp.fmu.cache import check_fmu, check_sources
 
     check_fmu(path, kind, config, sources=own)
     built = built_config(path)
     if not built.get("native"):
         raise BadFileError(path, "is a Python FMU, not a native one (use another "
                                  "--fmu-dir, or delete it to rebuild)")
+    if own:
+        check_sources(path, built, sources_digest())
     if built.get("fmi", 2) != fmi:
         raise BadFileError(path, f"is an FMI {built.get('fmi', 2)}.0 FMU, this run needs FMI "
                                  f"{fmi}.0 (use another --fmu-dir, or delete it to rebuild)")
@@ -812,7 +814,7 @@ def fmus_in_dir(loop, fmu_dir: Path, fmus: str = "auto", fmi: int = 2,
         A file there is stale or of the wrong kind: one line naming it and what to do.
     """
     from delaycomp.errors import BadFileError
-    from delaycomp.fmu.cache import cache_hit, check_fmu, fmu_file_name
+    from delaycomp.fmu.cache import cache_hit, check_fmu, check_sources, fmu_file_name
     from delaycomp.system.loop import FmuFile
 
     fmu_dir = Path(fmu_dir)
@@ -828,6 +830,8 @@ def fmus_in_dir(loop, fmu_dir: Path, fmus: str = "auto", fmi: int = 2,
             continue
         check_fmu(path, src.kind, config, sources=True)
         built = built_config(path)
+        if built.get("native"):
+            check_sources(path, built, sources_digest())
         kind = "native" if built.get("native") else "python"
         wanted = ("native" if fmi == 3 or fmus == "native" else fmus if fmus == "python"
                   else kind_there or kind)
