@@ -1062,8 +1062,8 @@ def write_report(path, results, args) -> None:
     if sta is not None:
         L += ["", "## 6. Start", "",
               "Whole processes, timed alternately (medians): what a user waits for before any "
-              "work. `--help` and `list` import neither scipy nor matplotlib nor fmpy "
-              "(tests/test_start.py).", "",
+              "work. `--help` and `list` import neither scipy nor matplotlib nor fmpy, "
+              "nor numpy (tests/test_start.py).", "",
               "| command | wall time [ms] | against `python -c pass` |", "|---|---|---|",
               f"| `python -c pass` | {sta['python'] * 1e3:.0f} | 1x |",
               f"| `delaycomp --help` | {sta['help'] * 1e3:.0f} | {sta['help_ratio']:.1f}x |",

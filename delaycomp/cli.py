@@ -52,11 +52,17 @@ import time
 from pathlib import Path
 
 from delaycomp import __version__
-from delaycomp.errors import BadFileError, DelaycompError, SimulationFailed, SspError, short
+from delaycomp.errors import (
+    BadFileError,
+    DelaycompError,
+    ParameterError,
+    SimulationFailed,
+    SspError,
+    short,
+)
 from delaycomp.maths.model import ModelError
 from delaycomp.names import LOOP_GROUPS
-from delaycomp.paper import scenarios
-from delaycomp.paper.scenarios import ParameterError
+from delaycomp.paper import scenarios  # light: no numpy until a loop is read
 
 
 class UsageError(DelaycompError):
@@ -1083,11 +1089,8 @@ def _cmd_sweep(args) -> int:
 
 
 def _sweep(args) -> int:
-    import numpy as np
-
     from delaycomp.formats.outputs import clear_previous
     from delaycomp.progress import info
-    from delaycomp.studies import sweep
     from delaycomp.studies.axes import parse_grid, snap_axes
 
     _outputs(args)
@@ -1095,6 +1098,11 @@ def _sweep(args) -> int:
     axes = [parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
+    # the arguments read: now the sweep (numpy)
+    import numpy as np
+
+    from delaycomp.studies import sweep
+
     # the rows are written as they come (held: the plot's rho alone)
     count, _ = sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
                                       1 if args.scheduler else args.workers, args.exact,
@@ -1261,13 +1269,13 @@ def _cmd_crosscheck(args) -> int:
 
 
 def _cmd_export_loop(args) -> int:
-    from delaycomp.verify.container import export_loop
-
     if args.out.suffix != ".fmu":
         raise UsageError(f"--out {short(str(args.out))} is not allowed: must end in .fmu")
     fmi = _fmi_of(args)
     _outputs(args)
     _, _, loop = _loop(args)
+    from delaycomp.verify.container import export_loop  # the arguments and the loop are read
+
     fmus = _chosen_fmus(args, loop) if fmi == 2 else None  # 3: built with the loop's values
     _undriven_note(loop, args.verbosity)
     path = export_loop(loop, args.out, args.fmu_dir, fmus, fmi=fmi)
@@ -1301,10 +1309,11 @@ def _cmd_list(args) -> int:
     for number, sc in enumerate(scenarios.SCENARIOS.values()):
         if number:
             print()
-        print(textwrap.fill(f"{sc.name}: {sc.title} (stop time {sc.default_stop_time:g} s)",
+        shown = sc.listing()  # the shipped files as TOML holds them: no numpy
+        print(textwrap.fill(f"{sc.name}: {shown.title} (stop time {shown.stop_time:g} s)",
                             LIST_WIDTH, subsequent_indent="  "))
         print(f"    {'NAME':<9} {'DEFAULT':<15} MEANING; ALLOWED VALUES")
-        for p in sc.params:
+        for p in shown.params:
             if isinstance(p.default, tuple):
                 default = ",".join(f"{v:g}" for v in p.default)
             elif p.default is None:  # derived from other parameters

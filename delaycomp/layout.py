@@ -20,7 +20,10 @@ The package stands in layers, each a folder, imports only downward (docs/develop
 
 ``install`` puts the finder first on ``sys.meta_path`` (``import delaycomp`` calls it);
 it answers only for these names. This module imports nothing from delaycomp: it is bundled
-into the Python FMUs with the maths.
+into the Python FMUs with the maths. The finder and its loader are plain classes with the
+methods the import system calls (``find_spec``; ``create_module``, ``exec_module``), not
+subclasses of ``importlib.abc``'s, which imports ``importlib.resources`` (a third of
+``delaycomp --help``'s start, issue 50).
 
 Examples
 --------
@@ -40,7 +43,6 @@ the API function (``delaycomp/__init__.py``).
 from __future__ import annotations
 
 import importlib
-import importlib.abc
 import importlib.machinery
 import importlib.util
 import os
@@ -139,8 +141,9 @@ def now(name: str) -> str | None:
     return None
 
 
-class _Same(importlib.abc.Loader):
-    """Loads an earlier name as the module at its new place (imported by then)."""
+class _Same:
+    """Loads an earlier name as the module at its new place (imported by then): a loader
+    of the import system (``create_module``, ``exec_module``)."""
 
     def __init__(self, target: str):
         self.target = target
@@ -155,8 +158,9 @@ class _Same(importlib.abc.Loader):
         module.__spec__ = self._spec  # the import machinery set the earlier name's spec
 
 
-class _Finder(importlib.abc.MetaPathFinder):
-    """Answers for the earlier names and, in a checkout, for the folders beside it."""
+class _Finder:
+    """Answers for the earlier names and, in a checkout, for the folders beside it: a
+    finder of ``sys.meta_path`` (``find_spec``)."""
 
     def find_spec(self, fullname, path=None, target=None):
         if not fullname.startswith("delaycomp."):

@@ -1,10 +1,13 @@
 """A CLI that answers at once: what only reads its arguments, prints help or lists the
-scenarios imports neither scipy nor matplotlib nor fmpy (nor lxml, pythonfmu).
+scenarios imports neither scipy nor matplotlib nor fmpy (nor lxml, pythonfmu), nor numpy.
 
 Not a timed test (speed is measured in ``bench/``): a fresh interpreter runs the command
 through ``delaycomp.cli.main`` and reports which of those packages ``sys.modules``
 holds at its end. Importing scipy alone cost ``delaycomp --help`` about 0.35 s of its
-0.45 s on a 2-core machine (``python -X importtime``)."""
+0.45 s on a 2-core machine (``python -X importtime``); numpy, through the scenarios and
+the loop-file reader, 47 ms of 0.18 s (issue 50, item 3). A value that only the loop-file
+reader can judge (``r`` off the base grid, ``k`` not a number) is refused after it has
+read the scenario's file, with numpy (``NEEDS_READER``)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,9 @@ from .roundoff import EPS, assert_columns_close
 
 #: what a command that does no maths, runs no FMU and writes no SSP must not import
 HEAVY = ("scipy", "matplotlib", "fmpy", "lxml", "pythonfmu")
+#: ... nor, where it reads no loop file (help, version, list, argument errors and unknown
+#: names), numpy
+NUMPY = ("numpy",)
 
 PROBE = """
 import contextlib, io, json, sys
@@ -50,12 +56,22 @@ LIGHT = [
     (["run", "example-9.9"], 2, "unknown scenario 'example-9.9'"),
     (["run", "example-3.6", "--set", "r=0.305"], 2, "r = 0.305 is not allowed"),
     (["run", "example-3.6", "--set", "k=abc"], 2, "k = 'abc' is not allowed"),
+    (["run", "example-3.6", "--set", "zz=1"], 2, "unknown parameter 'zz' for example-3.6"),
+    (["run", "example-3.6", "--set", "r"], 2, "expected NAME=VALUE"),
+    (["list", "--no-such-flag"], 2, "unrecognized arguments"),
+    (["run"], 2, "the following arguments are required"),
     (["sweep", "example-3.6", "--grid", "r=bad", "--out", "x.csv"], 2,
      "expected NAME=START:STOP:COUNT"),
+    (["sweep", "example-3.6", "--grid", "r=0:1:0", "--out", "x.csv"], 2, "COUNT = 0"),
+    (["sweep", "example-9.9", "--grid", "r=0:1:3", "--out", "x.csv"], 2, "unknown scenario"),
     (["critical-delay", "example-9.9"], 2, "unknown scenario"),
+    (["export-loop", "example-9.9", "--out", "x.fmu"], 2, "unknown scenario"),
     (["check", "--case", "example-9.9/x"], 2, "example-9.9/x"),
     (["ssp", "example-9.9", "--out", "x.ssp"], 2, "unknown scenario"),
 ]
+#: the refusals of values that the loop-file reader (numpy) judges, after reading the file
+NEEDS_READER = {("run", "example-3.6", "--set", "r=0.305"),
+                ("run", "example-3.6", "--set", "k=abc")}
 
 
 @pytest.mark.parametrize("argv,code,text", LIGHT, ids=[" ".join(a) for a, _, _ in LIGHT])
@@ -63,8 +79,52 @@ def test_help_list_and_argument_errors_import_no_heavy_package(argv, code, text)
     res = run_probe(*argv)
     assert res["code"] == code, res
     assert text in res["out"] + res["err"], res
-    heavy = sorted(set(HEAVY) & set(res["modules"]))
+    forbidden = HEAVY if tuple(argv) in NEEDS_READER else HEAVY + NUMPY
+    heavy = sorted(set(forbidden) & set(res["modules"]))
     assert not heavy, f"delaycomp {' '.join(argv)} imported {heavy}"
+
+
+def test_the_probe_sees_numpy_when_a_value_needs_the_reader():
+    """Not vacuous for numpy either: a value the loop-file reader judges imports it."""
+    res = run_probe("run", "example-3.6", "--set", "r=0.305")
+    assert res["code"] == 2 and "numpy" in res["modules"], res
+
+
+def test_import_delaycomp_loads_no_importlib_resources():
+    """The finder of the earlier module names (``delaycomp.layout``) is a plain class:
+    ``importlib.abc`` imports ``importlib.resources`` (36 ms of ``--help``'s 0.18 s, issue
+    50), which importing delaycomp (in every Python FMU too) does not need."""
+    code = ("import sys; before = set(sys.modules); import delaycomp, delaycomp.cli; "
+            "print(sorted(m for m in set(sys.modules) - before "
+            "if m.startswith(('importlib.abc', 'importlib.resources', 'numpy'))))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=True)
+    assert proc.stdout.strip() == "[]", proc.stdout
+
+
+def test_the_light_list_equals_the_readers(capsys, monkeypatch):
+    """``delaycomp list`` reads the shipped loop files as TOML holds them
+    (``Scenario.listing``, no numpy); what it shows equals the loop-file reader's title,
+    stop time and parameters (defaults, allowed ranges), and so does the printed list."""
+    from delaycomp import cli
+    from delaycomp.paper import scenarios
+
+    def full(sc):
+        return scenarios.Listing(sc.title, sc.default_stop_time, sc.params)
+
+    for sc in scenarios.SCENARIOS.values():
+        light, read = sc.listing(), full(sc)
+        assert light == read, sc.name
+        for a, b in zip(light.params, read.params):  # 2 == 2.0: the types too
+            assert type(a.default) is type(b.default), (sc.name, a.name)
+            if isinstance(a.default, tuple):
+                assert [type(v) for v in a.default] == [type(v) for v in b.default]
+    assert cli.main(["list"]) == 0
+    shown = capsys.readouterr().out
+    monkeypatch.setattr(scenarios.Scenario, "listing", full)
+    assert cli.main(["list"]) == 0
+    assert capsys.readouterr().out == shown
+    assert shown.count("\n\n") == len(scenarios.SCENARIOS) - 1
 
 
 def test_the_probe_sees_an_import_when_there_is_one():

@@ -7,24 +7,30 @@ table: each scenario parameter (``k``, ``T``, ``x0``, ``law``) names the loop-fi
 sets (``k`` is ``controller.K = [[-k]]``) and how its value maps to the key's. Defaults are
 the file's values; the allowed ranges are the reader's. A scenario turns ``NAME=VALUE``
 assignments into a ``Loop``; it does not run anything.
+
+Importing this module imports no numpy (nor the loop-file reader, which uses it): naming a
+scenario, refusing an unknown one or a parameter it does not have, and what ``delaycomp
+list`` prints (``Scenario.listing``) stay light; reading a loop file and building a loop
+import the reader on first use.
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from delaycomp.errors import ParameterError, short, shown
 from delaycomp.maths.grid import on_grid
-from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_loop, model_loop
-from delaycomp.system import loopfile as lf
-from delaycomp.system.loopfile import ON_BASE_GRID, ZOH_TAU, ZOH_TAU_PAD, LoopFile
+from delaycomp.system.loopkeys import ALLOWED, ON_BASE_GRID, ZOH_TAU, ZOH_TAU_PAD
+
+if TYPE_CHECKING:
+    from delaycomp.system import Loop, LtiBatch, LtiPoint, lti_loop, model_loop
+    from delaycomp.system.loopfile import LoopFile
 
 __all__ = [
     "ON_BASE_GRID",
@@ -43,6 +49,24 @@ __all__ = [
     "open_source",
 ]
 
+#: the names this module gives from ``delaycomp.system`` (imported on first access, PEP 562)
+_SYSTEM = ("Loop", "lti_loop", "model_loop")
+
+
+def __getattr__(name: str):
+    """``Loop``, ``lti_loop`` and ``model_loop``, from ``delaycomp.system``."""
+    if name in _SYSTEM:
+        return getattr(importlib.import_module("delaycomp.system"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _reader():
+    """The loop-file reader, ``delaycomp.system.loopfile`` (numpy), imported on first use."""
+    from delaycomp.system import loopfile
+
+    return loopfile
+
+
 #: the scenarios at their defaults, as loop files shipped in the package
 LOOPS_DIR = Path(__file__).resolve().parent / "loops"
 
@@ -60,7 +84,7 @@ class Param:
     scenario's ``derive``), ``to_file`` maps the parameter's value to the key's (``k`` to
     ``[[-k]]``) and ``from_file`` the key's checked value back (the default shown by
     ``delaycomp list`` is the file's value read so). ``allowed`` is the range in words
-    (``None``: the reader's, ``delaycomp.system.loopfile.KEYS``; a model's own
+    (``None``: the reader's, ``delaycomp.system.loopkeys.ALLOWED``; a model's own
     parameter states its choices, which ``delaycomp list`` prints without importing the
     model, tested equal to the model's). The reader checks every value; a refusal names
     this parameter. A parameter without a key (Corollary 3.7's ``n``) has its own
@@ -158,7 +182,7 @@ class Scenario:
     @functools.cached_property
     def file(self) -> LoopFile:
         """The shipped loop file (read once)."""
-        return LoopFile(LOOPS_DIR / f"{self.name}.toml")
+        return _reader().LoopFile(LOOPS_DIR / f"{self.name}.toml")
 
     @property
     def title(self) -> str:
@@ -180,46 +204,84 @@ class Scenario:
             return None
         from delaycomp.maths.model import load_model
 
-        return load_model(lf.model_path(plant, self.file.base))
+        return load_model(_reader().model_path(plant, self.file.base))
 
     @functools.cached_property
     def params(self) -> tuple[Param, ...]:
         """The parameters, each with its default and allowed range filled in."""
-        return tuple(replace(p, default=self._default(p), allowed=self._allowed(p))
-                     for p in self._aliases)
+        check = _reader().check_value  # a model's own parameter is checked when resolved
+        return self._filled(self.file.data, lambda key, value: (
+            check(key, value) if key in ALLOWED else value))
 
-    def _default(self, p: Param):
+    def listing(self) -> Listing:
+        """What ``delaycomp list`` shows of the scenario, from its shipped file as TOML
+        holds it (no loop-file reader, no numpy: the file's numbers as they are, a list's
+        as floats): the same as the reader's ``title``, ``default_stop_time`` and
+        ``params`` (``tests/test_start.py``), and the reader's checks of the shipped
+        files are ``tests/test_scenarios.py``'s.
+
+        Examples
+        --------
+        >>> shown = get("example-3.6").listing()
+        >>> shown.title[:12], shown.stop_time, shown.params[0].default
+        ('Example 3.6:', 20.0, 2.0)
+        """
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli package
+            import tomli as tomllib
+
+        with open(LOOPS_DIR / f"{self.name}.toml", "rb") as f:
+            data = tomllib.load(f)
+        title = str(data.get("title") or f"loop file {self.name}.toml")  # as LoopFile's
+        return Listing(title, float(data["stop_time"]),
+                       self._filled(data, lambda key, value: _plain(value)))
+
+    def _filled(self, data: dict, check: Callable[[str, Any], Any]) -> tuple[Param, ...]:
+        """The alias table with each default read from the file's ``data`` (its value
+        ``check``-ed by key) and each allowed range filled in."""
+        return tuple(replace(p, default=self._default(p, data, check),
+                             allowed=self._allowed(p)) for p in self._aliases)
+
+    @staticmethod
+    def _default(p: Param, data: dict, check: Callable[[str, Any], Any]):
         if p.default is not _FROM_FILE or p.key is None:
             return p.default
-        value = _get(self.file.data, p.key)
-        if p.key in lf.KEYS:  # a model's own parameter is checked when it is resolved
-            value = lf.check_value(p.key, value)
+        value = check(p.key, _get(data, p.key))
         return p.from_file(value) if p.from_file else value
 
-    def _allowed(self, p: Param) -> str:
+    @staticmethod
+    def _allowed(p: Param) -> str:
         if p.allowed is not None:
             return p.allowed
-        return lf.KEYS[str(p.key)].allowed  # the others state theirs
+        return ALLOWED[str(p.key)]  # the others state theirs
 
     def _check_key(self, key, value):
         """``value`` of loop-file ``key`` checked by the reader (a model's own parameter
         against the model)."""
+        lf = _reader()
         if key in lf.KEYS:
             return lf.check_value(key, value)
         return lf.model_value(self.model, key.partition(".")[2], value)
 
+    def _known(self, name: str) -> None:
+        """A parameter called ``name`` exists (ParameterError listing them if not): the
+        alias table alone says so, without reading the file."""
+        if not any(p.name == name for p in self._aliases):
+            names = ", ".join(p.name for p in self._aliases)
+            raise ParameterError(
+                f"unknown parameter {name!r} for {self.name}: allowed are {names}")
+
     def param(self, name: str) -> Param:
         """The parameter called ``name`` (ParameterError listing the allowed ones if none)."""
-        for p in self.params:
-            if p.name == name:
-                return p
-        names = ", ".join(p.name for p in self.params)
-        raise ParameterError(f"unknown parameter {name!r} for {self.name}: allowed are {names}")
+        self._known(name)
+        return next(p for p in self.params if p.name == name)
 
     def _parse(self, name: str, text) -> object:
         """The value of one assignment, parsed and checked by the loop-file reader as the
         key it stands for; a refusal names the parameter and its range."""
         p = self.param(name)
+        lf = _reader()
         try:
             value = lf.parse_value(text) if isinstance(text, str) else text
             if p.key is None:
@@ -230,6 +292,8 @@ class Scenario:
             quoted = repr(shown(text)) if isinstance(text, str) else repr(text)
             raise ParameterError(
                 f"parameter {name} = {quoted} is not allowed: must be {p.allowed}") from None
+        import numpy as np  # imported by the reader
+
         if isinstance(value, np.ndarray):  # as the reader keeps it, as a tuple here
             return _vector(value)
         return value
@@ -284,9 +348,11 @@ class Scenario:
         loop-file reader, then the whole loop checked as it will be built."""
         items = list(assignments.items()) if isinstance(assignments, dict) else list(
             assignments or [])
+        for item in items:  # the names first: refused without reading the file
+            self._known(_split(item)[0] if isinstance(item, str) else item[0])
         values = self._values({p.name: p.default for p in self.params}, items)
-        lf.check(self.data(values), self.file.base, where=self.file.path.name,
-                 model=self.model)
+        _reader().check(self.data(values), self.file.base, where=self.file.path.name,
+                        model=self.model)
         return values
 
     def resolve_grid(self, sets: list[str], points: list[tuple[str, ...]]) -> Grid | None:
@@ -313,7 +379,7 @@ class Scenario:
                 out.designs = self.designs(out)
             if out.designs is None:
                 for values in out:
-                    lf.check(self.data(values), self.file.base,
+                    _reader().check(self.data(values), self.file.base,
                              where=self.file.path.name, model=self.model)
             return out
         except ParameterError:
@@ -358,6 +424,25 @@ class Scenario:
         return self.file.designs([self.data(p) for p in params])
 
 
+@dataclass(frozen=True)
+class Listing:
+    """What ``delaycomp list`` shows of a scenario (``Scenario.listing``)."""
+
+    title: str
+    stop_time: float
+    params: tuple[Param, ...]
+
+
+def _plain(value, listed: bool = False):
+    """A value of a loop file as TOML holds it, a list's numbers as floats (as the reader
+    reads a vector or a matrix)."""
+    if isinstance(value, list):
+        return [_plain(v, True) for v in value]
+    if listed and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 class Grid(list):
     """The resolved points of a grid (``Scenario.resolve_grid``); for an LTI scenario
     it keeps their designs (``designs``: the check made them), so that
@@ -393,7 +478,7 @@ _STUDY = {"controller.allow_unstable": True}
 
 EXAMPLE_3_6 = Scenario("example-3.6", (
     Param("k", "feedback gain, u = -k x", "controller.K", "a finite number",
-          to_file=lambda k: [[-_number(k)]], from_file=lambda K: float(-K[0, 0])),
+          to_file=lambda k: [[-_number(k)]], from_file=lambda K: float(-K[0][0])),
     *_timing(ZOH_TAU),
     _MODE,
     Param("x0", "constant history of x on [-r, 0]", "plant.x0", "a finite number",
@@ -447,6 +532,8 @@ def _chain(values: dict) -> dict:
     """Corollary 3.7's keys from ``n`` and ``T``: the chain of ``n`` integrators, its
     dead-beat gain for period ``T``, and ``x0`` (``1, -1, 0.5, 1, ...`` where none is
     given)."""
+    import numpy as np
+
     from delaycomp.maths.predictors import deadbeat_gain
 
     n = values["n"]
@@ -509,13 +596,13 @@ def open_source(source: str | Path | Loop | LoopFile | Scenario):
     ...
     delaycomp.errors.ParameterError: source = float 3.5 is not allowed: give a Loop, ...
     """
-    if isinstance(source, (LoopFile, Scenario)):
+    if isinstance(source, (str, Path)):  # a name is looked up without the reader (numpy)
+        return _reader().LoopFile(source) if str(source).endswith(".toml") else get(
+            str(source))
+    lf = _reader()
+    if isinstance(source, (lf.LoopFile, Scenario)):
         return source
-    if isinstance(source, Loop):
+    if isinstance(source, lf.Loop):
         return lf.LoopData.of(source)
-    if not isinstance(source, (str, Path)):
-        raise ParameterError(f"source = {short(source)} is not allowed: give a Loop, a loop "
-                             "file path or a scenario name")
-    if str(source).endswith(".toml"):
-        return LoopFile(source)
-    return get(str(source))
+    raise ParameterError(f"source = {short(source)} is not allowed: give a Loop, a loop "
+                         "file path or a scenario name")

@@ -1,7 +1,8 @@
 """The axes of a grid over a loop's parameters, written once for sweeps and the
 critical-delay tables: ``NAME=START:STOP:COUNT`` (``parse_grid``), each value as a
 person would write it (``format_value``), the delay axes snapped to the base grid
-(``snap_axes``) and the grid's points (``points``).
+(``snap_axes``) and the grid's points (``points``). A grid refused as written is refused
+before numpy is imported (``delaycomp sweep``'s argument errors stay light).
 """
 
 from __future__ import annotations
@@ -9,8 +10,6 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-
-import numpy as np
 
 from delaycomp.errors import ParameterError
 from delaycomp.paper.scenarios import open_source
@@ -43,6 +42,8 @@ def parse_grid(text: str) -> Axis:
     if not 1 <= count <= 100_000:
         raise ParameterError(f"--grid {text!r}: COUNT = {count} is not allowed: must be an "
                              "integer from 1 to 100000")
+    import numpy as np
+
     # each value as a person would write it: 0.05, not linspace's 0.049999999999999996
     return Axis(name.strip(), tuple(_decimal(v) for v in np.linspace(start, stop, count)))
 

@@ -85,7 +85,10 @@ from delaycomp.system.loop import (
     lti_designs,
     model_loop,
 )
-from delaycomp.system.loopkeys import CHANNEL_TABLES, DEFAULTS, allowed
+from delaycomp.system.loopkeys import ALLOWED, CHANNEL_TABLES, DEFAULTS, PREDICTORS, allowed
+from delaycomp.system.loopkeys import ON_BASE_GRID as ON_BASE_GRID  # importable here as before
+from delaycomp.system.loopkeys import ZOH_TAU as ZOH_TAU
+from delaycomp.system.loopkeys import ZOH_TAU_PAD as ZOH_TAU_PAD
 
 #: the keys of each table, required or not, and the defaults: ``.loopkeys``
 TOP_KEYS = allowed("", "lti")
@@ -218,16 +221,6 @@ def _predictor(where: str, value) -> str:
     return value
 
 
-#: the model predictors a loop file names (``[controller] predictor``)
-PREDICTORS = ("closed", "numerical")
-#: the allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
-#: ``tau`` under continuous input), as ``delaycomp list`` and docs/reference/commands.md say it
-ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
-#: ``tau`` under zero-order hold (Theorem 3.2); ``ZOH_TAU_PAD`` where ``pad`` is offered
-ZOH_TAU = "a finite multiple l*T of T, l >= 0"
-ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
-
-
 @dataclass(frozen=True)
 class Key:
     """A loop-file key whose value is checked on its own: ``check(where, value)`` returns
@@ -255,24 +248,27 @@ def _matrix(where: str, value) -> np.ndarray:
 
 
 #: the keys checked on their own, each rule written once (what ``check_value`` and the
-#: reader apply); a model's own parameters are checked against the model (``check``)
-KEYS: dict[str, Key] = {
-    "T": Key(_positive, "a finite number > 0"),
-    "N": Key(_int, "a positive integer"),
-    **{name: Key(_nonneg, ON_BASE_GRID) for name in ("r", "tau", "r_true", "tau_true")},
-    "stop_time": Key(_positive, "a finite number > 0"),
-    "plant.A": Key(_matrix, "rows of finite numbers"),
-    "plant.B": Key(_matrix, "rows of finite numbers"),
-    "plant.x0": Key(_vector, "comma-separated finite numbers"),
-    "controller.K": Key(_matrix, "rows of finite numbers"),
-    "controller.u0": Key(_vector, "comma-separated finite numbers"),
-    "controller.mode": Key(_mode, " or ".join(MODES)),
-    "controller.predictor": Key(_predictor, " or ".join(PREDICTORS)),
-    "controller.pad": Key(_flag, "true or false"),
-    "controller.allow_unstable": Key(_flag, "true or false"),
-    "controller.stamps": Key(_flag, "true or false"),
-    "controller.age_max": Key(_nonneg, "a finite number >= 0 [s]"),
+#: reader apply), each with its allowed values in words (``.loopkeys.ALLOWED``); a model's
+#: own parameters are checked against the model (``check``)
+_CHECKS: dict[str, Callable[[str, Any], Any]] = {
+    "T": _positive,
+    "N": _int,
+    **dict.fromkeys(("r", "tau", "r_true", "tau_true"), _nonneg),
+    "stop_time": _positive,
+    "plant.A": _matrix,
+    "plant.B": _matrix,
+    "plant.x0": _vector,
+    "controller.K": _matrix,
+    "controller.u0": _vector,
+    "controller.mode": _mode,
+    "controller.predictor": _predictor,
+    "controller.pad": _flag,
+    "controller.allow_unstable": _flag,
+    "controller.stamps": _flag,
+    "controller.age_max": _nonneg,
 }
+KEYS: dict[str, Key] = {key: Key(check, ALLOWED[key]) for key, check in _CHECKS.items()}
+assert KEYS.keys() == ALLOWED.keys()  # every key checked, and said in words
 
 
 def check_value(key: str, value, where: str | None = None) -> Any:

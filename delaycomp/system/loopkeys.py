@@ -25,6 +25,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from delaycomp.names import MODES
+
 #: the kinds of loop (module docstring)
 KINDS = ("lti", "model", "fmu-lti", "fmu-model", "fmu-plant-fmu")
 ALL = KINDS
@@ -221,6 +223,36 @@ def required(table: str, kind: str) -> tuple[str, ...]:
     """The keys ``table`` requires in a loop of ``kind``."""
     return tuple(e.key for e in TABLE if e.table == table and kind in e.kinds and e.required)
 
+
+#: the model predictors a loop file names (``[controller] predictor``)
+PREDICTORS = ("closed", "numerical")
+#: the allowed range of a delay on the base grid (``r``, ``r_true``, ``tau_true``, and
+#: ``tau`` under continuous input), as ``delaycomp list`` and docs/reference/commands.md say it
+ON_BASE_GRID = "a finite number >= 0, a whole number of base steps h = T/N"
+#: ``tau`` under zero-order hold (Theorem 3.2); ``ZOH_TAU_PAD`` where ``pad`` is offered
+ZOH_TAU = "a finite multiple l*T of T, l >= 0"
+ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
+
+#: the values allowed, in words, of each key the reader checks on its own, by dotted name:
+#: the reader's ``KEYS`` (``delaycomp.system.loopfile``) pair each with its check, and
+#: ``delaycomp list`` prints them without importing the reader (and so numpy)
+ALLOWED: dict[str, str] = {
+    "T": "a finite number > 0",
+    "N": "a positive integer",
+    **dict.fromkeys(("r", "tau", "r_true", "tau_true"), ON_BASE_GRID),
+    "stop_time": "a finite number > 0",
+    "plant.A": "rows of finite numbers",
+    "plant.B": "rows of finite numbers",
+    "plant.x0": "comma-separated finite numbers",
+    "controller.K": "rows of finite numbers",
+    "controller.u0": "comma-separated finite numbers",
+    "controller.mode": " or ".join(MODES),
+    "controller.predictor": " or ".join(PREDICTORS),
+    "controller.pad": "true or false",
+    "controller.allow_unstable": "true or false",
+    "controller.stamps": "true or false",
+    "controller.age_max": "a finite number >= 0 [s]",
+}
 
 #: the defaults that are values of their key, by dotted name (``"N"``,
 #: ``"controller.mode"``): what the reader takes for a key left out

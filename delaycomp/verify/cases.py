@@ -3,7 +3,9 @@
 A ``RefCase`` is a loop (a scenario with parameters, or a loop file) and the
 reference trace it must reproduce; ``compare`` holds a recorded trajectory to it
 pointwise. The runners (our master, each FMU alone, the container, third-party masters)
-import this module, and ``delaycomp.verify.check`` imports the runners: no ring.
+import this module, and ``delaycomp.verify.check`` imports the runners: no ring. Naming
+a case (``case``, ``CASES``) imports no numpy: ``delaycomp check --case`` refuses an
+unknown one at once.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 import delaycomp.reference
 from delaycomp.errors import BadFileError, ParameterError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: the reference traces: ``reference/`` of the repository, installed as package data of
 #: ``delaycomp.reference``
@@ -73,6 +77,8 @@ class RefCase:
 
     def reference(self) -> tuple[list[str], np.ndarray]:
         """Header (``time`` first) and the rows of the reference trace."""
+        import numpy as np
+
         if not self.csv_path.exists():
             raise FileNotFoundError(
                 f"reference trace {self.csv_path} of {self.id} not found: the installed "
@@ -149,6 +155,8 @@ def compare(c: RefCase, names: list[str], times: np.ndarray, data: np.ndarray,
     second run at 2N: ``tests/test_scenarios.py`` and ``tests/test_native_model_controller.py``
     check that the error halves).
     """
+    import numpy as np
+
     header, ref = c.reference()
     ref = ref[::ref_stride]
     missing = [n for n in header[1:] if n not in names]
