@@ -912,6 +912,7 @@ def critical_delay(loop: LoopLike, *,
     d = loop.lti
     if d is None:
         raise ParameterError(f"critical_delay needs an LTI loop; {loop.name} is not")
+    d = d.equivalent(loop.T)  # pad: the loop of the padded delay
 
     def rho(r: float) -> float:
         return lifted_loop(d.A, d.B, d.K, loop.T, r, d.tau, "uncompensated").spectral_radius

@@ -46,7 +46,9 @@ MODEL_DATA: dict[str, list[tuple[str, Any, str | None]]] = {
     "controller_lti.h": [
         ("built", ctypes.c_int, None), ("l", ctypes.c_long, None),
         ("q", ctypes.c_long, None), ("L", ctypes.c_long, None),
-        ("r_tilde", ctypes.c_double, None), ("next", ctypes.c_long, None),
+        ("r_tilde", ctypes.c_double, None), ("padding", ctypes.c_double, None),
+        ("released", ctypes.c_int, None), ("pad_line", ctypes.c_double, "NU"),
+        ("next", ctypes.c_long, None),
         ("at_sample", ctypes.c_int, None), ("proposal_valid", ctypes.c_int, None),
         ("proposal", ctypes.c_double, "NU"), ("y_held_valid", ctypes.c_int, None),
         ("y_held", ctypes.c_double, "NX"), ("held", ctypes.c_double, "NU"),

@@ -133,6 +133,20 @@ def ends_on_sample(current_time: float, step_size: float, t0: float, T: float,
     return abs(t_end - t_sample) <= tol
 
 
+def reaches_release(current_time: float, step_size: float, t0: float, T: float,
+                    release: float) -> bool:
+    """Does the step ``[t, t + h]`` of a padded controller (``pad``, Remark 3.3(b)) reach
+    the instant ``release = t_i + padding`` at which ``u_i`` reaches its output (up to the
+    tolerance of ``ends_on_sample``)? ``ParameterError`` where it passes over it."""
+    t_end = current_time + step_size
+    tol = GRID_RTOL * T + max(_EPS4 * abs(t_end), drift(t_end, step_size, t0))
+    if t_end > release + tol:
+        raise ParameterError(f"step [{current_time!r}, {t_end!r}] is not allowed: it passes "
+                             f"over the padded output's instant {release!r}; steps must end "
+                             "on t0 + iT + padding")
+    return t_end >= release - tol
+
+
 def check_inputs(names, values, t: float) -> None:
     """Refuse a non-finite input value, naming the input, its value and the time."""
     if all(map(math.isfinite, values)):  # the per-step path: no names needed

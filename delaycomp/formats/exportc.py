@@ -257,6 +257,10 @@ _COMMON_STATE = """    int started;        /* t0 is set (by the first sample) */
 def _export_lti(prefix, loop, slave) -> tuple[str, str]:
     from delaycomp import __version__
     ctrl = slave.ctrl
+    if ctrl.padding:  # never the unpadded controller in its place
+        raise ParameterError(f"loop {loop.name}: the LTI controller with pad = true (tau = "
+                             f"{float(slave.tau)!r} padded up to {ctrl.tau_effective!r}) "
+                             "cannot be exported yet: give tau a multiple of T")
     pred = ctrl.predictor
     n, m, L = ctrl.n, ctrl.m, pred.L
     compensated = ctrl.mode == "compensated"

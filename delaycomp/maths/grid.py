@@ -235,6 +235,17 @@ def split(value: float, period: float) -> tuple[int, float]:
     return q, max(value - q * period, 0.0)
 
 
+def padded_delay(tau: float, T: float) -> float:
+    """``ceil(tau / T) T`` (Remark 3.3(b)), with ``tau`` that is a multiple of ``T`` up to
+    round-off kept (the model and LTI controllers' ``pad``).
+
+    >>> padded_delay(0.7, 0.5), padded_delay(0.6, 0.2)
+    (1.0, 0.6)
+    """
+    q, rest = split(tau, T)
+    return tau if rest == 0.0 else (q + 1) * T
+
+
 def _show(x: float) -> str:
     """A value the message computed (a multiple, a quotient): 12 significant digits, so
     that round-off (``3 * 0.3 = 0.8999999999999999``) does not show."""

@@ -32,8 +32,7 @@ import numpy as np
 from delaycomp.errors import DelaycompError
 from delaycomp.maths import grid
 from delaycomp.maths.delayline import DelayLine
-from delaycomp.maths.grid import check_steps
-from delaycomp.maths.grid import split as split_delay
+from delaycomp.maths.grid import check_steps, padded_delay
 from delaycomp.maths.history import InputHistory
 from delaycomp.maths.model import Model
 from delaycomp.maths.predictors import DEFAULT_TOL, integrate, numerical_predictor
@@ -42,12 +41,6 @@ from delaycomp.maths.predictors import DEFAULT_TOL, integrate, numerical_predict
 def grid_steps(value: float, h: float, name: str) -> int:
     """Base steps in ``value`` (``delaycomp.maths.grid.steps_of``)."""
     return grid.steps_of(value, h, name)
-
-
-def padded_delay(tau: float, T: float) -> float:
-    """``ceil(tau / T) T``, with ``tau`` that is a multiple of ``T`` up to round-off kept."""
-    q, rest = split_delay(tau, T)
-    return tau if rest == 0.0 else (q + 1) * T
 
 
 class StateNotFinite(DelaycompError, ValueError):

@@ -476,11 +476,15 @@ def _split(assignment: str) -> tuple[str, str]:
 #: the scenarios' gains are studied across stability: the sign guard is the loop files'
 _STUDY = {"controller.allow_unstable": True}
 
+_PAD = Param("pad", "pad tau up to the next multiple of T (Remark 3.3(b))", "controller.pad",
+             "0 or 1", to_file=_zero_one, default=False)
+
 EXAMPLE_3_6 = Scenario("example-3.6", (
     Param("k", "feedback gain, u = -k x", "controller.K", "a finite number",
           to_file=lambda k: [[-_number(k)]], from_file=lambda K: float(-K[0][0])),
-    *_timing(ZOH_TAU),
+    *_timing(ZOH_TAU_PAD),
     _MODE,
+    _PAD,
     Param("x0", "constant history of x on [-r, 0]", "plant.x0", "a finite number",
           to_file=lambda v: [_number(v)], from_file=lambda x: float(x[0])),
     Param("u0", "constant input history on [-r - tau, 0)", "controller.u0", "a finite number",
@@ -490,8 +494,6 @@ EXAMPLE_3_6 = Scenario("example-3.6", (
 
 _PREDICTOR = Param("predictor", "predictor map: the closed form or an ODE solve",
                    "controller.predictor")
-_PAD = Param("pad", "pad tau up to the next multiple of T (Remark 3.3(b))", "controller.pad",
-             "0 or 1", to_file=_zero_one, default=False)
 
 
 def _model_scenario(name: str, zoh: bool, *own: Param) -> Scenario:
@@ -546,13 +548,14 @@ def _chain(values: dict) -> dict:
 COROLLARY_3_7 = Scenario("corollary-3.7", (
     Param("n", "number of integrators", allowed=f"an integer from 1 to {CHAIN_MAX}",
           default=3, check=_chain_length),
-    *_timing(ZOH_TAU),
+    *_timing(ZOH_TAU_PAD),
     *_TRUE_DELAYS,
     Param("x0", "initial state, comma-separated (default 1,-1,0.5,1,... of length n), "
           "constant on [-r, 0]", "plant.x0", to_file=_listed, from_file=_vector, default=None),
     Param("u0", "input history, constant on [-r - tau, 0)", "controller.u0", to_file=_listed,
           from_file=_vector),
     _MODE,
+    _PAD,
 ), derive=_chain, study=_STUDY)
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (

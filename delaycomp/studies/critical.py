@@ -68,7 +68,7 @@ def _design(source, sets: list[str]) -> tuple[Loop, LtiDesign]:
     refuse_channel(loop, "`critical-delay` (its lifted model has constant delays)")
     if loop.lti is None:
         raise ParameterError(f"critical-delay needs an LTI loop; {source.name} is not")
-    return loop, loop.lti
+    return loop, loop.lti.equivalent(loop.T)  # pad: the loop of the padded delay
 
 
 def critical_delay_report(source, sets: list[str], periods: int,
@@ -262,7 +262,8 @@ def critical_curve(source, sets: list[str], names: list[str],
     """
     if "r" not in names or len(names) > 2:
         return None
-    d = source.loop(["r=0", *sets]).lti
+    loop = source.loop(["r=0", *sets])
+    d = None if loop.lti is None else loop.lti.equivalent(loop.T)
     if d is None or d.mode != "uncompensated" or d.r_true is not None:
         return None
     r_axis = np.unique(np.asarray(values[names.index("r")], dtype=float))
@@ -291,7 +292,7 @@ def _curve(source, sets: list[str], others: list[str], grid: np.ndarray,
             loop = source.loop(["r=0", *sets, *extra])
         except ValueError:
             continue  # a value the loop refuses at r = 0 (the map then has none either)
-        d = loop.lti
+        d = loop.lti.equivalent(loop.T)
         for r in _crossings(d.A, d.B, d.K, loop.T, d.tau, r_axis):
             points.append((float(a), r))
     return np.array(points, dtype=float).reshape(-1, 2)

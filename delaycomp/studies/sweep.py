@@ -149,7 +149,7 @@ def evaluate(job: Job) -> dict:
     if job.exact:
         from delaycomp.maths.lti import lifted_loop
 
-        d = spec.lti
+        d = spec.lti.equivalent(spec.T)  # pad: the loop of the padded delay
         lifted = lifted_loop(d.A, d.B, d.K, spec.T, d.r, d.tau, d.mode, d.r_true, d.tau_true)
         rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,

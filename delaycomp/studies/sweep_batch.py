@@ -121,6 +121,8 @@ def lti_point(loop) -> dict | str:
         if why:
             return why
     d = loop.lti
+    if d.pad:  # run by the per-point engine, which has the padded controller
+        return "controller.pad = true (the batch engine has no padded LTI controller)"
     return dict(A=d.A, B=d.B, K=d.K, T=loop.timing.T, N=loop.timing.N, r=d.r, tau=d.tau,
                 r_true=d.r if d.r_true is None else d.r_true,
                 tau_true=d.tau if d.tau_true is None else d.tau_true,

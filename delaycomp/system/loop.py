@@ -212,6 +212,29 @@ class LtiDesign:
     u0: np.ndarray
     r_true: float | None = None
     tau_true: float | None = None
+    #: the controller pads ``tau`` up to ``ceil(tau / T) T`` (Remark 3.3(b)): its output
+    #: is delayed by the difference (``equivalent`` gives the loop it equals)
+    pad: bool = False
+
+    def equivalent(self, T: float) -> LtiDesign:
+        """The unpadded design of the same loop: a padded controller (``pad``) predicts over
+        ``tau_eff = ceil(tau / T) T`` and delays its output by ``tau_eff - tau``, so the
+        plant sees ``u(t - tau_eff)``: the loop of ``tau = tau_eff`` and a true input delay
+        longer by the padding (the plant's state the same; the controller's output column
+        earlier by the padding). Without ``pad``, the design itself.
+
+        >>> d = LtiDesign(*[np.eye(1)] * 3, 0.0, 0.7, "compensated", np.zeros(1),
+        ...               np.zeros(1), pad=True)
+        >>> e = d.equivalent(0.5)
+        >>> e.tau, e.tau_true, e.pad
+        (1.0, 1.0, False)
+        """
+        if not self.pad:
+            return self
+        tau_eff = grid.padded_delay(self.tau, T)
+        true = self.tau if self.tau_true is None else self.tau_true
+        return dataclasses.replace(self, tau=tau_eff, tau_true=true + (tau_eff - self.tau),
+                                   pad=False)
 
     @property
     def n(self) -> int:
@@ -468,11 +491,13 @@ class LtiPoint:
 
 
 def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
-               r_true: float | None = None, tau_true: float | None = None) -> LtiPoint:
+               r_true: float | None = None, tau_true: float | None = None,
+               pad: bool = False) -> LtiPoint:
     """The validated design and timing of the LTI loop ``lti_loop`` builds.
 
     Every check of ``lti_loop`` happens here (shapes, finite entries, histories, mode,
-    the base grid of the delays), so a point that passes builds a valid loop.
+    the base grid of the delays, ``tau = l T`` unless ``pad``), so a point that passes
+    builds a valid loop.
 
     Examples
     --------
@@ -510,8 +535,9 @@ def lti_design(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u
         raise ParameterError(f"parameter mode = {mode!r} is not allowed: must be "
                              f"{' or '.join(MODES)}")
     timing = Timing(T, N)
-    check_delays(timing, r, tau, r_true, tau_true, zoh="hold")
-    return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true), timing)
+    check_delays(timing, r, tau, r_true, tau_true, zoh=None if pad else "pad")
+    return LtiPoint(LtiDesign(A, B, K, r, tau, mode, x0, u0, r_true, tau_true,
+                              bool(pad)), timing)
 
 
 @dataclass(frozen=True)
@@ -562,7 +588,7 @@ def lti_designs(args: list[dict]) -> LtiBatch | None:
     >>> lti_designs([*pts, {**pts[0], "r": 0.305}]) is None  # off the base grid
     True
     """
-    if not args:
+    if not args or any(a.get("pad") for a in args):  # a padded point: one by one
         return None
     stacked = _stacked_arrays(args)
     if stacked is None:
@@ -655,7 +681,8 @@ def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "
                  {"delay": r_loop, **vector_params("u0", x0)}),
         Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
                  {"T": timing.T, "r": d.r, "tau": d.tau, "mode": d.mode, **matrix_params("A", A),
-                  **matrix_params("B", B), **matrix_params("K", K), **vector_params("u0", u0)}),
+                  **matrix_params("B", B), **matrix_params("K", K), **vector_params("u0", u0),
+                  **({"pad": True} if d.pad else {})}),
         Instance("input_delay", "input_delay", BuiltinFmu("delay", {"n": m}),
                  {"delay": tau_loop, **vector_params("u0", u0)}),
     )
@@ -667,18 +694,19 @@ def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "
 def lti_loop(A, B, K, T: float, r: float, tau: float, N: int, mode: str, x0, u0,
              state: str = "x", inp: str = "u", r_true: float | None = None,
              tau_true: float | None = None, name: str = "loop", title: str = "",
-             stop_time: float | None = None) -> Loop:
+             stop_time: float | None = None, pad: bool = False) -> Loop:
     """Plant, measurement delay r, ZOH controller and input delay tau around an LTI plant.
 
     ``plant.x -> meas_delay -> controller -> input_delay -> plant.u``, with ``u = K x``
     (the paper's sign). The history of x on ``[-r, 0]`` is the constant ``x0`` (the
     measurement delay's initial history), the controller's output history on
     ``[-r - tau, 0)`` the constant ``u0``. The delay FMUs apply the loop's true delays
-    ``r_true``, ``tau_true`` (default: the assumed ``r``, ``tau``). The same as
-    ``design_loop(lti_design(...))``.
+    ``r_true``, ``tau_true`` (default: the assumed ``r``, ``tau``). ``pad``: a ``tau``
+    that is no multiple of ``T`` is padded up to the next one by the controller (Remark
+    3.3(b)). The same as ``design_loop(lti_design(...))``.
     """
-    return design_loop(lti_design(A, B, K, T, r, tau, N, mode, x0, u0, r_true, tau_true),
-                       state, inp, name, title, stop_time)
+    return design_loop(lti_design(A, B, K, T, r, tau, N, mode, x0, u0, r_true, tau_true,
+                                  pad), state, inp, name, title, stop_time)
 
 
 def check_model_loop(model, T: float, r: float, tau: float, N: int, x0, u0,

@@ -26,8 +26,9 @@ Extensions (optional keys): top-level ``name`` and ``title``; ``[plant] state`` 
 ``input`` (base names of the LTI signals, default ``x`` and ``u``), ``[plant] tolerance``
 (a model plant without exact ``step``: its ODE tolerance; a plant FMU: the relative
 tolerance of its ``fmi2SetupExperiment``, in (0, 1)); ``[controller] predictor``
-(``closed`` or ``numerical``, for models), ``pad`` (pad ``tau`` up to a multiple of T,
-Remark 3.3(b)), ``tolerance`` and ``allow_unstable``.
+(``closed`` or ``numerical``, for models), ``pad`` (the LTI controller and a
+zero-order-hold model's: pad ``tau`` up to a multiple of T, Remark 3.3(b)), ``tolerance``
+and ``allow_unstable``.
 
 A plant FMU from another tool (``.plantfmu``): ``[plant] fmu``, ``states`` (its
 outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start there),
@@ -651,6 +652,8 @@ def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str
     args = dict(A=A, B=B, K=K, T=top["T"], r=top["r"], tau=top["tau"], N=top["N"],
                 mode=top["mode"], x0=x0, u0=u0, r_true=top["r_true"],
                 tau_true=top["tau_true"])
+    if check_value("controller.pad", ctrl.get("pad", DEFAULTS["controller.pad"])):
+        args["pad"] = True  # only where true: an unpadded design's arguments as before
     return args, names, guard
 
 
@@ -683,7 +686,15 @@ def design(data: dict, where: str = "loop") -> LtiPoint | None:
     if _stamped(data):
         raise ParameterError(f"{where}: controller.stamps = true is not supported by the "
                              "batch engine yet (use --engine inprocess or fmu)")
+    if _padded(data):
+        raise ParameterError(f"{where}: controller.pad = true is not supported by the "
+                             "batch engine yet (use --engine inprocess or fmu)")
     return _lti(top, where)[0]
+
+
+def _padded(data: dict) -> bool:
+    """Does the loop file's ``[controller]`` ask the LTI controller to pad ``tau``?"""
+    return (data.get("controller") or {}).get("pad", False) is True
 
 
 def _stamped(data: dict) -> bool:
@@ -712,7 +723,7 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         for data in datas:
             top = _top(data, where)
             if "fmu" in top["plant"] or "A" not in top["plant"] or any(
-                    t in data for t in CHANNEL_TABLES) or _stamped(data):
+                    t in data for t in CHANNEL_TABLES) or _stamped(data) or _padded(data):
                 return None
             points.append(_lti_args(top, where, array))
         batch = lti_designs([args for args, _, _ in points])
@@ -995,7 +1006,8 @@ def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
     source: BuiltinFmu | ModelFmu
     if model is None:
         assert isinstance(ctrl.source, BuiltinFmu)  # checked above
-        params = {k: v for k, v in ctrl.parameters.items() if k != "r"}
+        # pad: the time-stamp controller predicts over any tau, as the model branch's
+        params = {k: v for k, v in ctrl.parameters.items() if k not in ("r", "pad")}
         source = BuiltinFmu("stamped_controller", dict(ctrl.source.config))
     else:  # the model controller's settings that the time-stamp controller has
         params = {k: v for k, v in ctrl.parameters.items()

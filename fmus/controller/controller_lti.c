@@ -5,10 +5,14 @@
  *   Q_p B = e^{A(p-1)T} G(T)        (p = 1 .. l+q),   G(s) = int_0^s e^{Aw} dw B
  *   Q_{l+q+1} B = e^{A(l+q)T} G(r~)
  *
- * (compensated), or u_i = K y_i (uncompensated), held over [t_i, t_{i+1}). The twin of
+ * (compensated), or u_i = K y_i (uncompensated), held over [t_i, t_{i+1}). With pad = true
+ * a tau that is no multiple of T is padded up to tau_eff = ceil(tau / T) T (Remark 3.3(b)):
+ * Phi predicts over tau_eff and u_i reaches the output at t_i + (tau_eff - tau), the
+ * output held before it shown until then (pad_line). The twin of
  * fmus/controller/delaycomp_controller_lti.py (delaycomp.maths.zoh.ZOHController and
  * delaycomp.maths.lti.LTIPredictor): same variables, checks, messages and timing, held_sample
  * included. Matrices are computed once, at fmi2ExitInitializationMode. */
+#include <float.h>
 #include <limits.h>
 #include <math.h>
 #include <stdlib.h>
@@ -44,10 +48,11 @@ static int resolve_mode_index(Instance *c) {
     return resolve_choice_index(c, "mode", VR_MODE, VR_MODE_INDEX, choices, 2);
 }
 
-/* What initialization derives from the parameters: tau = l T, q = [r/T], L = l + q + 1. */
+/* What initialization derives from the parameters: tau_eff = l T (tau padded up with pad),
+ * q = [r/T], L = l + q + 1, the padding tau_eff - tau. */
 typedef struct {
     long l, q, L;
-    double r_tilde;
+    double r_tilde, tau_eff, padding;
 } Sizes;
 
 /* The checks of fmi2ExitInitializationMode (the Python FMU's order) and the sizes they give
@@ -73,11 +78,25 @@ static int configure(Instance *c, void *out) {
     }
     double tau_rest = 0.0;
     z->l = 0;
+    z->tau_eff = tau;
+    z->padding = 0.0;
     if (tau >= 0) split_delay(tau, T, &z->l, &tau_rest);
-    if (tau < 0 || tau_rest != 0.0) {
+    if (tau < 0) {
         log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T (l >= 0) "
                   "of T = %s", num(tau).s, num(T).s);  /* delaycomp.maths.grid.periods */
         return -1;
+    }
+    if (tau_rest != 0.0) {
+        double padded = (double)(z->l + 1) * T;  /* delaycomp.maths.grid.padded_delay */
+        if (!d->boolean[VR_PAD]) {
+            log_error(c, "tau = %s is not allowed: zero-order hold needs a multiple l*T "
+                      "(l >= 0) of T = %s; pad = true pads it up to %s (Remark 3.3(b))",
+                      num(tau).s, num(T).s, num(padded).s);  /* delaycomp.maths.grid.periods */
+            return -1;
+        }
+        z->l += 1;
+        z->tau_eff = padded;
+        z->padding = padded - tau;
     }
     if (strcmp(mode_of(c), "compensated") != 0 && strcmp(mode_of(c), "uncompensated") != 0) {
         log_error(c, "mode = '%s' is not allowed: must be one of compensated, uncompensated",
@@ -98,7 +117,7 @@ static size_t buffer_size(long L) {
  * out of memory. */
 static int predictor_matrices(Instance *c, const Sizes *z) {
     const Data *d = &c->d;
-    double T = d->real[VR_T], r = d->real[VR_R], tau = d->real[VR_TAU];
+    double T = d->real[VR_T], r = d->real[VR_R], tau = z->tau_eff;
     long L = z->L;
     size_t nE = (size_t)NX * NX;
     double *E = c->buf, *QB = c->buf + nE;
@@ -149,6 +168,9 @@ int model_setup(Instance *c) {
         alloc_buf(c, 0);
         return -1;
     }
+    if (z.padding > 0)
+        log_info(c, "input delay padded from tau = %s to %s: the controller delays its "
+                 "output by %s s", num(d->real[VR_TAU]).s, num(z.tau_eff).s, num(z.padding).s);
     size_t nEQ = (size_t)NX * NX + (size_t)NX * NU * (size_t)z.L;
     if (compensated(c)) {
         int finite = 1;
@@ -168,6 +190,10 @@ int model_setup(Instance *c) {
     for (long p = 0; p < z.L; p++)
         memcpy(hist + (size_t)p * NU, &d->real[VR_U0], NU * sizeof(double));
     memcpy(m->held, &d->real[VR_U0], NU * sizeof(double));
+    if (z.padding > 0) memcpy(m->pad_line, &d->real[VR_U0], NU * sizeof(double));
+    else memset(m->pad_line, 0, sizeof m->pad_line);
+    m->padding = z.padding;
+    m->released = 1;
     m->l = z.l;
     m->q = z.q;
     m->L = z.L;
@@ -207,11 +233,10 @@ static void propose(Instance *c, const double *y, double *u) {
     }
 }
 
-/* The current output; -1 (logged) when the feedback overflows */
-static int output(Instance *c, const double **u) {
+/* u_i of the current sample (computed once per measurement); -1 (logged) when the
+ * feedback overflows */
+static int proposed(Instance *c, const double **u) {
     ModelData *m = &c->d.m;
-    if (!m->built) { *u = &c->d.real[VR_U0]; return 0; }
-    if (!m->at_sample) { *u = m->held; return 0; }
     if (!m->proposal_valid) {
         const double *y = &c->d.real[VR_Y];
         const double *sample = c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? m->y_held : y;
@@ -226,6 +251,18 @@ static int output(Instance *c, const double **u) {
     }
     *u = m->proposal;
     return 0;
+}
+
+/* The current output; -1 (logged) when the feedback overflows */
+static int output(Instance *c, const double **u) {
+    ModelData *m = &c->d.m;
+    if (!m->built) { *u = &c->d.real[VR_U0]; return 0; }
+    if (m->padding > 0) {  /* padded: u_i reaches the output at t_i + padding */
+        *u = m->at_sample || m->released ? m->held : m->pad_line;
+        return 0;
+    }
+    if (!m->at_sample) { *u = m->held; return 0; }
+    return proposed(c, u);
 }
 
 int model_output(Instance *c, ValueRef vr, double *value) {
@@ -253,6 +290,9 @@ static int unbuilt_ok(const StateView *v) {
            state_long_is(v, "proposal_valid", m->proposal_valid, 0, why) &&
            state_long_is(v, "y_held_valid", m->y_held_valid, 0, why) &&
            state_double_is(v, "r_tilde", m->r_tilde, 0.0, why) &&
+           state_double_is(v, "padding", m->padding, 0.0, why) &&
+           state_long_is(v, "released", m->released, 0, why) &&
+           state_zeros(v, "pad_line", m->pad_line, NU, why) &&
            state_zeros(v, "proposal", m->proposal, NU, why) &&
            state_zeros(v, "y_held", m->y_held, NX, why) && state_zeros(v, "held", m->held, NU, why);
 }
@@ -284,12 +324,13 @@ static int sample_time_ok(const StateView *v) {
 static int built_ok(const StateView *v) {
     const Data *d = v->d;
     const ModelData *m = &d->m;
-    Sizes z = {0, 0, 0, 0.0};
+    Sizes z = {0, 0, 0, 0.0, 0.0, 0.0};
     if (!state_parameters(v, configure, &z, "built = 1") ||
-        !state_long_is(v, "l", m->l, z.l, "tau / T") ||
+        !state_long_is(v, "l", m->l, z.l, "tau / T, padded up with pad") ||
         !state_long_is(v, "q", m->q, z.q, "[r / T]") ||
         !state_long_is(v, "L", m->L, z.L, "l + q + 1") ||
         !state_double_is(v, "r_tilde", m->r_tilde, z.r_tilde, "r - q T") ||
+        !state_double_is(v, "padding", m->padding, z.padding, "tau padded, less tau") ||
         !state_nbuf(v, buffer_size(m->L), "E, Q_1 B .. Q_L B and L inputs: built = 1") ||
         !state_index(v, "hist_head", m->hist_head, m->L) ||
         !state_range(v, "next", m->next, 0, LONG_MAX - 1))
@@ -304,6 +345,10 @@ static int built_ok(const StateView *v) {
     return (m->y_held_valid ? state_finite(v, "y_held", m->y_held, NX)
                             : state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0")) &&
            state_finite(v, "held", m->held, NU) && proposal_ok(v) &&
+           (m->padding > 0 ? state_finite(v, "pad_line", m->pad_line, NU)
+                           : state_zeros(v, "pad_line", m->pad_line, NU, "padding = 0")) &&
+           (m->padding > 0 || m->released ||
+            state_refuse(v, "released = 0: must be 1 without padding")) &&
            state_finite(v, "history", v->buf + nEQ, (size_t)m->L * NU) &&
            (!compensated_mode || state_finite(v, "predictor", v->buf, nEQ)) &&
            (!state_in(v, StateStepComplete) || sample_time_ok(v));
@@ -312,6 +357,7 @@ static int built_ok(const StateView *v) {
 int model_state_ok(const StateView *v) {
     const ModelData *m = &v->d->m;
     if (!state_flag(v, "built", m->built) || !state_flag(v, "at_sample", m->at_sample) ||
+        !state_flag(v, "released", m->released) ||
         !state_flag(v, "proposal_valid", m->proposal_valid) ||
         !state_flag(v, "y_held_valid", m->y_held_valid))
         return 0;
@@ -324,15 +370,31 @@ int model_step(Instance *c, double t, double h) {
     if (check_inputs_finite(c, VR_Y, NX, t) != 0) return -1;
     if (m->at_sample) {  /* commit u_i: held, and the newest entry of the history */
         const double *u;
-        if (output(c, &u) != 0) return -1;
+        if (proposed(c, &u) != 0) return -1;
         double committed[NU];
         memcpy(committed, u, NU * sizeof(double));
+        if (m->padding > 0) {  /* the output before t_i + padding: u_{i-1} */
+            memcpy(m->pad_line, m->held, NU * sizeof(double));
+            m->released = 0;
+        }
         memcpy(m->held, committed, NU * sizeof(double));
         double *hist = c->buf + (size_t)NX * NX + (size_t)NX * NU * (size_t)m->L;
         m->hist_head = (m->hist_head + m->L - 1) % m->L;
         memcpy(hist + (size_t)m->hist_head * NU, committed, NU * sizeof(double));
         m->next += 1;
         m->proposal_valid = 0;
+    }
+    if (!m->released) {  /* delaycomp.fmu.slave.reaches_release */
+        double T = c->d.real[VR_T], t_end = t + h;
+        double release = c->d.t0 + (double)(m->next - 1) * T + m->padding;
+        double tol = GRID_RTOL * T + fmax(4 * DBL_EPSILON * fabs(t_end), drift(t_end, h, c->d.t0));
+        if (t_end > release + tol) {
+            log_error(c, "step [%s, %s] is not allowed: it passes over the padded output's "
+                      "instant %s; steps must end on t0 + iT + padding", num(t).s,
+                      num(t_end).s, num(release).s);
+            return -1;
+        }
+        m->released = t_end >= release - tol;
     }
     if (ends_on_sample(c, t, h, c->d.real[VR_T], m->next, &m->at_sample) != 0) return -1;
     if (c->d.boolean[VR_HELD_SAMPLE]) {

@@ -14,8 +14,12 @@
 
 typedef struct {
     int built;               /* the predictor matrices exist (initialized) */
-    long l, q, L;            /* tau = l T, q = [r/T], L = l + q + 1 */
+    long l, q, L;            /* tau_eff = l T, q = [r/T], L = l + q + 1 */
     double r_tilde;
+    double padding;          /* pad: tau_eff - tau (Remark 3.3(b)), 0 without */
+    int released;            /* pad: the time is at or after t_{next-1} + padding */
+    double pad_line[NU];     /* pad: the output held before the last commit, shown until
+                              * t_{next-1} + padding */
     long next;               /* index of the next sampling instant t0 + i T */
     int at_sample;           /* the current time is a sampling instant not yet committed */
     int proposal_valid;      /* proposal[] = u_i from the current y */
