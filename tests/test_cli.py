@@ -108,14 +108,14 @@ def test_list_says_which_delays_lie_on_the_base_grid():
     """``list`` states the grid rule the checks enforce: ``r`` (and the true delays) a
     whole number of base steps everywhere; ``tau`` a multiple of ``T`` under zero-order
     hold (base steps with ``pad=1``), base steps under continuous input."""
-    from delaycomp.paper.scenarios import ON_BASE_GRID, SCENARIOS, ZOH_TAU, ZOH_TAU_PAD
+    from delaycomp.paper.scenarios import ON_BASE_GRID, SCENARIOS, ZOH_TAU_PAD
 
     proc = cli("list")
     assert proc.returncode == 0
     assert max(len(line) for line in proc.stdout.splitlines()) <= 100
     blocks = {b.split(":", 1)[0]: " ".join(b.split()) for b in proc.stdout.split("\n\n")}
     assert blocks.keys() == SCENARIOS.keys()
-    tau = {"example-3.6": ZOH_TAU, "corollary-3.7": ZOH_TAU,
+    tau = {"example-3.6": ZOH_TAU_PAD, "corollary-3.7": ZOH_TAU_PAD,  # the LTI loop pads too
            "example-3.8": ZOH_TAU_PAD, "proposition-4.2": ZOH_TAU_PAD,
            "example-2.4": ON_BASE_GRID, "corollary-4.1": ON_BASE_GRID}
     assert ON_BASE_GRID == "a finite number >= 0, a whole number of base steps h = T/N"

@@ -75,13 +75,13 @@ def check_zoh_line(line: str, tau: float, T: float, pad: bool) -> None:
 
 
 @pytest.mark.parametrize("args,tau,T,pad", [
-    (["run", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, False),
+    (["run", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, True),  # the LTI loop pads too
     (["run", "example-3.8", "--set", "tau=0.5"], 0.5, 1.0, True),
     (["run", "example-3.8", "--set", "tau=2.5", "--set", "T=0.7", "--set", "r=0.7"], 2.5,
      0.7, True),
-    (["run", str(LOOPS / "example-3.6.toml"), "--set", "tau=0.5"], 0.5, 1.0, False),
+    (["run", str(LOOPS / "example-3.6.toml"), "--set", "tau=0.5"], 0.5, 1.0, True),
     (["run", str(LOOPS / "example-3.8.toml"), "--set", "tau=1.5"], 1.5, 1.0, True),
-    (["critical-delay", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, False),
+    (["critical-delay", "example-3.6", "--set", "tau=0.5"], 0.5, 1.0, True),
 ], ids=["scenario", "scenario-pad", "scenario-pad-T", "loop", "loop-pad", "critical"])
 def test_the_zoh_rule_names_the_nearest_values_and_pad(args, tau, T, pad):
     check_zoh_line(one_error_line(cli(*args)), tau, T, pad)
@@ -89,9 +89,9 @@ def test_the_zoh_rule_names_the_nearest_values_and_pad(args, tau, T, pad):
 
 @pytest.mark.parametrize("engine", ["batch", "inprocess"])
 @pytest.mark.parametrize("source,sets,pad", [
-    ("example-3.6", [], False),
+    ("example-3.6", [], True),  # the LTI loop pads too (issue 50, item 5)
     ("example-3.8", ["--set", "r=0"], True),
-    (str(LOOPS / "example-3.6.toml"), [], False),
+    (str(LOOPS / "example-3.6.toml"), [], True),
 ], ids=["lti", "model-pad", "loop"])
 def test_a_sweep_over_T_tells_the_zoh_fix_not_raise_N(tmp_path, engine, source, sets, pad):
     """tau = 1 and T = 0.3 (h = 0.003): tau is off the base grid too, but no N puts it on

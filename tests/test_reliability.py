@@ -40,7 +40,7 @@ VARIANTS = {
 }
 #: parameters per variant (checked below, so that a new parameter cannot go unchecked)
 #: (with the Integer twin <name>_index of each String choice: mode, predictor, p, law)
-N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 10, "model_plant-zoh": 5,
+N_PARAMETERS = {"plant": 3, "delay": 2, "controller": 11, "model_plant-zoh": 5,
                 "model_plant-continuous": 6, "model_controller-zoh": 16,
                 "model_controller-continuous": 17}
 #: Boolean parameters have no bad value

@@ -130,11 +130,22 @@ def held_fixed(params: dict) -> str:
     --------
     >>> held_fixed({"k": 2.0, "T": 1.0, "r": 0.3, "tau": 0.0, "N": 100, "x0": 1.0})
     'T = 1, tau = 0, k = 2'
+    >>> held_fixed({"k": 2.0, "T": 0.5, "r": 0.3, "tau": 0.7, "N": 10, "pad": True})
+    'T = 0.5, tau = 0.7 (padded to 1), k = 2'
     """
-    skip = {"r", "r_true", "tau_true", "N", "x0", "u0", "mode", "T", "tau"}
+    skip = {"r", "r_true", "tau_true", "N", "x0", "u0", "mode", "T", "tau", "pad"}
     rest = [f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}"
             for k, v in params.items() if k not in skip and v is not None]
-    return ", ".join([f"T = {params['T']:g}", f"tau = {params['tau']:g}", *rest])
+    return ", ".join([f"T = {params['T']:g}", _tau(params["tau"], params["T"],
+                                                   bool(params.get("pad"))), *rest])
+
+
+def _tau(tau: float, T: float, pad: bool) -> str:
+    """``tau = 0.7``, with where ``pad`` takes it (``tau = 0.7 (padded to 1)``)."""
+    from delaycomp.maths.grid import padded_delay
+
+    padded = padded_delay(tau, T) if pad else tau
+    return f"tau = {tau:g}" + (f" (padded to {padded:g})" if padded != tau else "")
 
 
 def _held_fixed(source, loop: Loop, d: LtiDesign, sets: list[str]) -> str:
@@ -143,7 +154,9 @@ def _held_fixed(source, loop: Loop, d: LtiDesign, sets: list[str]) -> str:
     if hasattr(source, "params"):  # a scenario: its own parameter names
         return held_fixed(source.resolve(["r=0", *sets]))
     gain = np.array2string(np.asarray(d.K, dtype=float), precision=6, separator=", ")
-    return f"T = {loop.T:g}, tau = {d.tau:g}, K = {' '.join(gain.split())}"
+    lti = loop.lti
+    assert lti is not None  # _design refused a loop without one
+    return f"T = {loop.T:g}, {_tau(lti.tau, loop.T, lti.pad)}, K = {' '.join(gain.split())}"
 
 
 def _r_c(A, B, K, T: float, tau: float, mode: str, r_max: float) -> float | str:
