@@ -197,6 +197,7 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
             self._proposal = None
             self._released = not self.ctrl.pad_line
         if not self._released:
+            assert self.ctrl is not None  # steps only when initialized
             release = self.t0 + (self._next - 1) * self.T + self.ctrl.padding
             self._released = reaches_release(current_time, step_size, self.t0, self.T,
                                              release)
