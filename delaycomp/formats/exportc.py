@@ -256,33 +256,46 @@ _COMMON_STATE = """    int started;        /* t0 is set (by the first sample) */
 
 def _export_lti(prefix, loop, slave) -> tuple[str, str]:
     from delaycomp import __version__
+    from delaycomp.maths.grid import steps_of
     ctrl = slave.ctrl
-    if ctrl.padding:  # never the unpadded controller in its place
-        raise ParameterError(f"loop {loop.name}: the LTI controller with pad = true (tau = "
-                             f"{float(slave.tau)!r} padded up to {ctrl.tau_effective!r}) "
-                             "cannot be exported yet: give tau a multiple of T")
     pred = ctrl.predictor
     n, m, L = ctrl.n, ctrl.m, pred.L
     compensated = ctrl.mode == "compensated"
+    # pad (Remark 3.3(b)): u_i reaches the output D base steps after t_i (the native
+    # controller's pad line: one held value, the output before it; padding < T)
+    try:
+        D = steps_of(ctrl.padding, loop.h, "padding") if ctrl.padding else 0
+    except ValueError as exc:  # tau on the base grid (the loop's check): never here
+        raise ParameterError(f"loop {loop.name}: {exc}") from None
     QB = np.hstack(pred.QB)  # n x (m L)
-    state = "\n".join([_COMMON_STATE,
-                       "    long head;          /* ring position of u_{i-1} in hist */",
-                       f"    double held[{prefix}_NU];  /* the control held over the period */",
-                       f"    double pending[{prefix}_NU];  /* u_i from the current sample */",
-                       f"    double hist[{prefix}_L][{prefix}_NU];  /* u_{{i-1}}, u_{{i-2}}, "
-                       "..., a ring */"])
+    state = [_COMMON_STATE,
+             "    long head;          /* ring position of u_{i-1} in hist */",
+             f"    double held[{prefix}_NU];  /* the control held over the period */",
+             f"    double pending[{prefix}_NU];  /* u_i from the current sample */",
+             f"    double hist[{prefix}_L][{prefix}_NU];  /* u_{{i-1}}, u_{{i-2}}, ..., a "
+             "ring */"]
+    if D:
+        state.append(f"    double pad_line[{prefix}_NU];  /* u_{{i-1}}, the output until "
+                     f"t_i + {prefix}_D h */")
+    tau = f"tau = {float(slave.tau)!r}"
+    if D:
+        tau += (f" (padded to {float(ctrl.tau_effective)!r}, Remark 3.3(b): u_i reaches "
+                f"the output at t_i + {D} h)")
     notes = [f"Zero-order hold with the LTI predictor (Corollary 3.4): n = {n} states, "
              f"m = {m} inputs,",
-             f"T = {loop.T!r}, r = {float(slave.r)!r}, tau = {float(slave.tau)!r}, "
-             f"mode {ctrl.mode};",
+             f"T = {loop.T!r}, r = {float(slave.r)!r}, {tau}, mode {ctrl.mode};",
              f"the predictor stores the last L = {L} controls."]
-    header = _header(prefix, loop, {"NY": n, "NU": m, "L": L}, state, notes)
+    dims = {"NY": n, "NU": m, "L": L} | ({"D": D} if D else {})
+    header = _header(prefix, loop, dims, "\n".join(state), notes)
     template = (_templates() / "export" / "lti.c.in").read_text(encoding="utf-8")
+    split = (f"tau_eff = l T = {float(ctrl.tau_effective)!r}, tau = {float(slave.tau)!r} "
+             "padded" if D else "tau = l T")
     source = _fill(template, prefix, {
         "LOOP": loop.name, "VERSION": __version__,
-        "MATRIX_NOTE": f"n = {n}, m = {m}, L = l + q + 1 = {L} (tau = l T, r = q T + r~).",
+        "MATRIX_NOTE": f"n = {n}, m = {m}, L = l + q + 1 = {L} ({split}, r = q T + r~).",
         "GRID_RTOL": repr(GRID_RTOL),
         "COMPENSATED": "1" if compensated else "0",
+        "PAD_STEPS": "NAME_D" if D else "0",
         "E": _array(pred.E), "QB": _array(QB), "K": _array(ctrl.K),
         "U0": _array(slave.u0),
         "COMMON": _common()})
