@@ -210,7 +210,8 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         N: int = DEFAULT_N, x0, u0=None, mode: str = "compensated",
         r_true: float | None = None, tau_true: float | None = None,
         stop_time: float | None = None, name: str = "loop",
-        allow_unstable: bool = False, meas_channel: Channel | None = None,
+        allow_unstable: bool = False, pad: bool = False,
+        meas_channel: Channel | None = None,
         input_channel: Channel | None = None) -> Loop:
     """An LTI loop: plant ``x' = A x + B u(t - tau)``, measured as ``x(t - r)`` every ``T``,
     controlled by ``u = K x`` on the predicted state (``mode="compensated"``) or on the
@@ -227,14 +228,19 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         The gain (m x n) of ``u = K x``, the paper's sign. python-control's ``lqr`` and
         ``dlqr`` return ``K`` for ``u = -K x``: pass ``-K``.
     T, r, tau, N : float, float, float, int
-        Sampling period, measurement delay, input delay (a multiple of ``T``), base steps
-        per period (``r`` and ``tau`` are multiples of ``h = T/N``).
+        Sampling period, measurement delay, input delay (a multiple of ``T`` unless
+        ``pad``), base steps per period (``r`` and ``tau`` are multiples of ``h = T/N``).
     x0, u0 : array_like
         Constant histories of ``x`` on ``[-r, 0]`` and of ``u`` on ``[-r - tau, 0)``
         (``u0`` defaults to zeros).
     allow_unstable : bool
         Let through a ``K`` with which the delay-free sampled loop is unstable (otherwise
         ``SignError``, which gives its spectral radius).
+    pad : bool
+        Accept a ``tau`` that is no multiple of ``T`` (Remark 3.3(b)): the controller
+        predicts over ``tau_eff = ceil(tau/T) T`` and delays its own output by ``tau_eff -
+        tau``, so the plant sees ``u(t - tau_eff)`` (the loop file's ``[controller] pad``).
+        Without it such a ``tau`` is refused, the message naming ``pad``.
     meas_channel, input_channel : delaycomp.maths.channel.Channel, optional
         A network channel in the place of the measurement or the input delay (the loop
         file's ``[meas_delay]`` and ``[input_delay]``): per-packet delays, loss, a
@@ -263,8 +269,9 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         raise ParameterError("lti(): K (u = K x) is required")
     K = np.atleast_2d(np.asarray(K, dtype=float))
     u0 = np.zeros(B.shape[1]) if u0 is None else u0
+    pad = bool(pad)
     loop = _lti_loop(A, B, K, T, r, tau, N, mode, x0, u0, r_true=r_true, tau_true=tau_true,
-                     name=name, title=f"LTI loop {name}", stop_time=stop_time)
+                     name=name, title=f"LTI loop {name}", stop_time=stop_time, pad=pad)
     if not allow_unstable:
         check_sign(A, B, K, T)
     d = loop.lti
@@ -274,7 +281,8 @@ def lti(plant, B=None, K=None, *, T: float, r: float = 0.0, tau: float = 0.0,
         loop, d.r, d.tau, d.r_true, d.tau_true,
         plant={"A": d.A.tolist(), "B": d.B.tolist(), "x0": np.ravel(d.x0).tolist()},
         controller={"K": d.K.tolist(), "u0": np.ravel(d.u0).tolist(), "mode": d.mode,
-                    "allow_unstable": bool(allow_unstable)}, **tables)
+                    "allow_unstable": bool(allow_unstable),
+                    **({"pad": True} if pad else {})}, **tables)
     return with_channels(loop, tables, Path.cwd(), f"loop {name!r}").replace(
         origin=Origin(data))
 

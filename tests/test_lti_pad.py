@@ -167,3 +167,24 @@ def test_native_state_inside_the_padding_restores_bit_identically(native_dir):
     first, second, third = _restore_run(fmus, spec, 3.0, N + 2)
     assert len(first) > 5
     assert second == first and third == first
+
+
+# -- the Python API -----------------------------------------------------------------------
+def test_api_lti_takes_pad():
+    """``api.lti(..., pad=True)``: the loop of ``lti_loop(pad=True)``; the plant's state
+    bit for bit that of the unpadded loop with ``tau = 1.0``; its loop-file data carries
+    ``pad`` (a sweep of it rebuilds padded points); without ``pad`` the refusal names it."""
+    from delaycomp import api
+
+    kw = dict(T=T, r=R, N=N, x0=X0, u0=U0)
+    loop = api.lti(A, B, K, tau=TAU, pad=True, **kw)
+    assert loop.lti is not None and loop.lti.pad and loop.lti.tau == TAU
+    assert loop.origin is not None and loop.origin.data["controller"]["pad"] is True
+    res = api.run(loop, STOP, engine="inprocess")
+    want = run_loop(padded(), STOP, engine="inprocess")
+    assert np.array_equal(res.data, want.data)
+    plain = api.run(api.lti(A, B, K, tau=TAU_EFF, **kw), STOP, engine="inprocess")
+    assert np.array_equal(res.data[:, :2], plain.data[:, :2])
+    assert "pad" not in api.lti(A, B, K, tau=TAU_EFF, **kw).origin.data["controller"]
+    with pytest.raises(ParameterError, match=r"tau = 0.7 is not allowed: .*pad = true"):
+        api.lti(A, B, K, tau=TAU, **kw)
