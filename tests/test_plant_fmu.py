@@ -166,6 +166,26 @@ def test_one_delay_breaks_the_cycle(folder):
     assert res.success, res.message
 
 
+def test_lti_controller_pads_tau_around_a_plant_fmu(folder):
+    """``[controller] pad = true`` (Remark 3.3(b)) with the user's plant FMU: ``tau = 0.7``,
+    ``T = 0.5`` padded to 1.0, the controller delaying its output by 0.3 (30 base steps).
+    The plant receives the very inputs of the unpadded loop with ``tau = 1.0``, so its
+    states (and what it receives) are bit for bit that loop's; the controller's column is
+    that loop's 30 steps later. Without ``pad`` the refusal is one line naming it."""
+    pad = run_loop(read_loop(folder / "osc.toml", ["tau=0.7", "controller.pad=true"]), 6.0)
+    plain = run_loop(read_loop(folder / "osc.toml", ["tau=1.0"]), 6.0)
+    assert pad.success and plain.success, (pad.message, plain.message)
+    assert pad.names == plain.names == ["plant.position", "plant.velocity", "controller.u",
+                                        "plant.force"]
+    assert np.array_equal(pad.data[:, [0, 1, 3]], plain.data[:, [0, 1, 3]])
+    assert np.array_equal(pad.data[30:, 2], plain.data[:-30, 2])
+    assert len(np.unique(pad.data[:, 3])) > 5  # the input moves: the equality means something
+    with pytest.raises(ParameterError) as err:
+        read_loop(folder / "osc.toml", ["tau=0.7"])
+    text = str(err.value)
+    assert "tau = 0.7 is not allowed" in text and "pad = true" in text and "\n" not in text
+
+
 @pytest.mark.parametrize("sets,message", [
     (['plant.states=["position", "speed"]'],
      "plant.states: 'speed' is no variable of Oscillator.fmu: must be a Real output "

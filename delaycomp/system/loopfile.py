@@ -26,9 +26,9 @@ Extensions (optional keys): top-level ``name`` and ``title``; ``[plant] state`` 
 ``input`` (base names of the LTI signals, default ``x`` and ``u``), ``[plant] tolerance``
 (a model plant without exact ``step``: its ODE tolerance; a plant FMU: the relative
 tolerance of its ``fmi2SetupExperiment``, in (0, 1)); ``[controller] predictor``
-(``closed`` or ``numerical``, for models), ``pad`` (the LTI controller and a
-zero-order-hold model's: pad ``tau`` up to a multiple of T, Remark 3.3(b)), ``tolerance``
-and ``allow_unstable``.
+(``closed`` or ``numerical``, for models), ``pad`` (the LTI controller, a plant FMU's
+included, and a zero-order-hold model's: pad ``tau`` up to a multiple of T, Remark
+3.3(b)), ``tolerance`` and ``allow_unstable``.
 
 A plant FMU from another tool (``.plantfmu``): ``[plant] fmu``, ``states`` (its
 outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start there),
@@ -1144,9 +1144,10 @@ def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mo
         B = _array("controller.B", ctrl["B"], 2)
         K = _array("controller.K", ctrl["K"], 2)
         u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
+        pad = check_value("controller.pad", ctrl.get("pad", DEFAULTS["controller.pad"]))
         loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
                               plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
-                              mode=mode, start=plant.get("start"), **common)
+                              mode=mode, start=plant.get("start"), pad=pad, **common)
         if not _flag("controller.allow_unstable",
                      ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"])):
             check_sign(A, B, K, T)

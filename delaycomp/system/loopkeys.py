@@ -139,7 +139,7 @@ TABLE: tuple[Entry, ...] = (
       shown="the measurement channel's largest delay + `T`"),
     E("controller", "allow_unstable", ("lti", "model", "fmu-lti"), "let through an LTI `K` "
       "with which the delay-free sampled loop is unstable (the sign guard)", default=False),
-    E("controller", "pad", (*MODEL_CONTROLLERS, "lti"), "accept a `tau` that is not a "
+    E("controller", "pad", (*MODEL_CONTROLLERS, "lti", "fmu-lti"), "accept a `tau` that is not a "
       "multiple of `T` under zero-order hold: the controller delays its output to the next "
       "multiple (Remark 3.3(b))", default=False),
     E("controller", "tolerance", (*MODEL_CONTROLLERS, "fmu-plant-fmu"), "the numerical "

@@ -468,12 +468,13 @@ def _delay_source(n: int, delay: float, h: float) -> BuiltinFmu:
     return BuiltinFmu("delay", {"n": n})
 
 
-def _zoh_of(model, controller_parameters: Mapping | None) -> Literal["hold", "pad"] | None:
-    """How the controller constrains ``tau`` (``check_delays``):
-    the LTI controller holds without padding; a model's, under zero-order hold, unless it
-    pads."""
+def _zoh_of(model, controller_parameters: Mapping | None,
+            pad: bool = False) -> Literal["hold", "pad"] | None:
+    """How the controller constrains ``tau`` (``check_delays``): the LTI controller's and
+    a model's under zero-order hold, unless it pads (``pad``, the LTI controller's;
+    ``controller_parameters["pad"]``, a model's)."""
     if model is None:
-        return "hold"
+        return None if pad else "pad"
     from delaycomp.maths.model import load_model
 
     if load_model(model).control != "zoh" or (controller_parameters or {}).get("pad", False):
@@ -488,11 +489,14 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
                    controller_parameters: Mapping | None = None,
                    r_true: float | None = None, tau_true: float | None = None,
                    name: str = "loop", title: str = "",
-                   stop_time: float | None = None, start: Mapping | None = None) -> Loop:
+                   stop_time: float | None = None, start: Mapping | None = None,
+                   pad: bool = False) -> Loop:
     """The loop plant FMU (as it is) -> measurement delay -> controller -> input delay.
 
     The controller is delaycomp's LTI controller with the model ``A``, ``B`` and gain
-    ``K`` (``u = K x``, the paper's sign), or the controller FMU of the model file
+    ``K`` (``u = K x``, the paper's sign; ``pad``: a ``tau`` that is no multiple of ``T``
+    padded up to one, Remark 3.3(b), the controller delaying its output by the
+    difference), or the controller FMU of the model file
     ``model`` (with ``controller_parameters``: its parameters and settings, as
     ``model_loop`` takes them). ``x0`` is the history of the measured
     state on ``[-r, 0]`` (the measurement delay's initial output); the FMU's own initial
@@ -508,10 +512,10 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
     x0, u0 = histories(x0, u0, states, inputs)
     timing = Timing(T, N)
     r_loop, tau_loop = check_delays(timing, r, tau, r_true, tau_true,
-                                    zoh=_zoh_of(model, controller_parameters))
+                                    zoh=_zoh_of(model, controller_parameters, pad))
     if model is None:
         ctrl, ctrl_in, ctrl_out = _lti_controller(A, B, K, states, inputs, T, r, tau, mode,
-                                                  u0)
+                                                  u0, pad)
     else:
         ctrl, ctrl_in, ctrl_out = _model_controller(model, controller_parameters, n, m, T,
                                                     r, tau, N, x0, u0)
@@ -550,10 +554,10 @@ def histories(x0, u0, states: list[str], inputs: list[str]
 
 
 def _lti_controller(A, B, K, states: list[str], inputs: list[str], T: float, r: float,
-                    tau: float, mode: str, u0: np.ndarray
+                    tau: float, mode: str, u0: np.ndarray, pad: bool = False
                     ) -> tuple[Instance, list[str], list[str]]:
     """delaycomp's LTI controller of ``A``, ``B``, ``K`` (shapes checked), its inputs and
-    outputs."""
+    outputs; ``pad``: its ``pad`` parameter (Remark 3.3(b))."""
     n, m = len(states), len(inputs)
     A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
     if A.shape != (n, n):
@@ -565,11 +569,13 @@ def _lti_controller(A, B, K, states: list[str], inputs: list[str], T: float, r: 
     if K.shape != (m, n):
         raise ParameterError(f"controller.K has shape {K.shape}: must be m x n = {m} x {n} "
                              "(u = K x)")
-    check_zoh_delay(tau, T)
+    if not pad:
+        check_zoh_delay(tau, T, padding=True)
     ctrl = Instance("controller", "controller", BuiltinFmu("controller", {"n": n, "m": m}),
                     {"T": T, "r": r, "tau": tau, "mode": mode, **matrix_params("A", A),
                      **matrix_params("B", B), **matrix_params("K", K),
-                     **vector_params("u0", u0)})
+                     **vector_params("u0", u0),
+                     **({"pad": True} if pad else {})})  # unpadded: the parameters as before
     # no LtiDesign: the exact analyses (lifted loop, critical delay) would take A, B
     # for the plant, and the plant here is the FMU
     return ctrl, indexed("y", n), indexed("u", m)
