@@ -188,3 +188,79 @@ def test_api_lti_takes_pad():
     assert "pad" not in api.lti(A, B, K, tau=TAU_EFF, **kw).origin.data["controller"]
     with pytest.raises(ParameterError, match=r"tau = 0.7 is not allowed: .*pad = true"):
         api.lti(A, B, K, tau=TAU, **kw)
+
+
+# -- sweeps and the batch engine ----------------------------------------------------------
+PADDED_SETS = ["T=0.5", "tau=0.7", "pad=1", "N=10"]
+
+
+def test_a_sweep_runs_padded_points_on_the_per_point_engine():
+    """The batch engine has no padded LTI controller: a sweep of a padded scenario (the
+    default engine, batch) runs each point on the per-point engine, its notes saying why
+    (before: every point refused, ``controller.pad = true is not supported by the batch
+    engine yet``). Its rows are the unpadded ``tau = 1.0`` sweep's: the same arithmetic
+    as the per-point engine's (the plant sees the same inputs), the batch engine's to its
+    bound against the per-point engine (tests/test_batch.py's ``LTI_REL``), and with
+    ``--exact`` the very same numbers."""
+    from delaycomp import api
+
+    from .roundoff import SAME_ARITHMETIC_ULPS, assert_same_values
+    from .test_batch import LTI_REL, assert_same
+
+    grid = {"r": [0.0, 0.3]}
+    notes: list[str] = []
+    rows = api.sweep("example-3.6", grid, sets=PADDED_SETS, stop_time=8.0, notes=notes)
+    assert notes == ["batch engine (numpy, cpu): 0 of 2 points in 0 chunks",
+                     "per-point engine (inprocess): 2 points, because controller.pad = true "
+                     "(the batch engine has no padded LTI controller)"], notes
+    unpadded = ["T=0.5", "tau=1.0", "N=10"]
+    per_point = api.sweep("example-3.6", grid, sets=unpadded, stop_time=8.0,
+                          engine="inprocess")
+    assert [row["r"] for row in rows] == [0.0, 0.3] and all(row["stable"] for row in rows)
+    assert_same_values(rows, per_point, SAME_ARITHMETIC_ULPS, "rows")
+    batched = api.sweep("example-3.6", grid, sets=unpadded, stop_time=8.0)
+    for got, want in zip(rows, batched):
+        assert_same(got, want, LTI_REL)
+    # --exact: the lifted loop of the padded delay (LtiDesign.equivalent), bit for bit
+    assert api.sweep("example-3.6", grid, sets=PADDED_SETS, exact=True) == api.sweep(
+        "example-3.6", grid, sets=unpadded, exact=True)
+
+
+def test_the_cli_sweep_of_a_padded_scenario_runs(tmp_path):
+    out = tmp_path / "s.csv"
+    proc = subprocess.run([sys.executable, "-m", "delaycomp", "sweep", "example-3.6",
+                           *(a for s in PADDED_SETS for a in ("--set", s)), "--grid",
+                           "r=0:0.3:2", "--stop-time", "8", "--out", str(out), "-v"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "per-point engine (inprocess): 2 points, because controller.pad = true" in \
+        proc.stderr + proc.stdout
+    assert len(out.read_text().splitlines()) == 3
+
+
+def test_the_batch_engine_takes_no_padded_loop_and_says_why(tmp_path):
+    """No design for the batch engine (``loopfile.design``: ``None``, the point's loop
+    built instead), ``lti_point``'s reason names pad; ``robustness`` (the batch engine
+    only) refuses a padded loop file in one line naming it."""
+    from delaycomp.paper import scenarios
+    from delaycomp.studies.sweep_batch import lti_point
+
+    sc = scenarios.get("example-3.6")
+    params = sc.resolve(PADDED_SETS)
+    assert sc.design(params) is None and sc.designs([params]) is None
+    assert sc.design(sc.resolve(["T=0.5", "tau=1.0", "N=10"])) is not None
+    assert lti_point(sc.make(params)) == ("controller.pad = true (the batch engine has no "
+                                          "padded LTI controller)")
+    path = tmp_path / "pad.toml"
+    path.write_text("T = 0.5\nN = 10\nr = 0.2\ntau = 0.7\nstop_time = 4.0\n[plant]\n"
+                    "A = [[0.0, 1.0], [0.5, -0.2]]\nB = [[0.0], [1.0]]\nx0 = [1.0, -0.5]\n"
+                    "[controller]\nK = [[-1.2, -1.5]]\npad = true\n", encoding="utf-8")
+    proc = subprocess.run([sys.executable, "-m", "delaycomp", "robustness", str(path),
+                           "--jitter", "0:0.1:2", "--loss", "0:0.1:2", "--runs", "2",
+                           "--out", str(tmp_path / "rob.csv")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "robustness takes an LTI loop" in lines[0] and "controller.pad = true" in lines[0]
+    assert not (tmp_path / "rob.csv").exists()
