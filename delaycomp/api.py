@@ -532,7 +532,7 @@ def plot(results, title: str = "", labels: Sequence[str] | None = None):
 def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
           fmus: str = "auto", info: Callable[[str], None] | None = None,
           sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2,
-          clocked: bool = False):
+          clocked: bool = False, platforms: str | Sequence[str] | None = None):
     """Write the FMUs of ``loop`` into the folder ``out``, named after the loop
     (``<name>_plant.fmu``, ``<name>_meas_delay.fmu``, ``<name>_controller.fmu``,
     ``<name>_input_delay.fmu``) with the loop's values as their start values, and
@@ -562,6 +562,11 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     clocked : bool, optional
         With ``fmi=3``: the controller's clocked variant (its sampling driven by an FMI 3.0
         clock of interval T; LTI controllers).
+    platforms : str or sequence of str, optional
+        The native FMUs' binaries (``--platforms``): platform tuples (``x86_64-linux``,
+        ``aarch64-linux``, ``x86_64-windows``, ``x86_64-darwin``, ``aarch64-darwin``) or
+        FMI 2.0 names (``linux64``, ``win64``, ``darwin64``), a list or one
+        comma-separated string; default all five (``delaycomp.fmu.toolchain``).
 
     Returns
     -------
@@ -584,8 +589,21 @@ def build(loop: LoopLike, out: str | Path, *, only: Sequence[str] | None = None,
     if fmi == 3 and fmus == "python":
         raise ParameterError("fmi = 3 is not allowed with fmus = python: delaycomp's FMI 3.0 "
                              "FMUs are the native C ones")
-    return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info, fmi=fmi,
-                      clocked=clocked)
+    if platforms is None:
+        return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info,
+                          fmi=fmi, clocked=clocked)
+    from delaycomp.fmu.toolchain import NativeBuildError, chosen, parse_platforms
+
+    text = platforms if isinstance(platforms, str) else ",".join(platforms)
+    try:
+        names = parse_platforms(text, "platforms")
+    except NativeBuildError as exc:
+        raise ParameterError(str(exc)) from None
+    if not names:
+        raise ParameterError("platforms names no platform: give at least one")
+    with chosen(names):
+        return build_loop(_as_loop(loop, sets), out, only=only, fmus=fmus, info=info,
+                          fmi=fmi, clocked=clocked)
 
 
 def export_c(loop: LoopLike, out: str | Path, prefix: str, *,

@@ -281,6 +281,29 @@ def _build_parser(sub) -> None:
                         "(docs: reference/model-files)")
     _fmi_flag(b, "build FMI 3.0 FMUs (native C only; without LOOP.toml the FMUs alone, no "
                  "SSP archives)")
+    _platforms_flag(b)
+
+
+def _platforms_flag(p: argparse.ArgumentParser) -> None:
+    """``--platforms LIST``: the platforms of the native FMUs' binaries."""
+    p.add_argument("--platforms", type=_platform_list, default=None, metavar="LIST",
+                   help="the native FMUs' binaries: comma-separated, of x86_64-linux, "
+                        "aarch64-linux, x86_64-windows, x86_64-darwin, aarch64-darwin "
+                        "(or linux64, win64, darwin64: both macOS); default all five "
+                        "(docs: reference/native)")
+
+
+def _platform_list(text: str) -> tuple[str, ...]:
+    """``--platforms``' value: the platforms it names (``toolchain.parse_platforms``)."""
+    from delaycomp.fmu.toolchain import NativeBuildError, parse_platforms
+
+    try:
+        names = parse_platforms(text, "--platforms")
+    except NativeBuildError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--platforms ")) from None
+    if not names:
+        raise argparse.ArgumentTypeError("names no platform: give at least one")
+    return names
 
 
 def _run_parser(sub) -> None:
@@ -1407,7 +1430,13 @@ def main(argv: list[str] | None = None) -> int:
                        "crosscheck": _cmd_crosscheck, "export-loop": _cmd_export_loop,
                        "export-c": _cmd_export_c,
                        "ssp": _cmd_ssp, "list": _cmd_list}[args.command]
-            rc = handler(args)
+            if getattr(args, "platforms", None) is not None:
+                from delaycomp.fmu.toolchain import chosen
+
+                with chosen(args.platforms):
+                    rc = handler(args)
+            else:
+                rc = handler(args)
             if interrupted and rc != 0:  # a failure that Ctrl-C caused
                 return _stopped(KeyboardInterrupt(), command)
             _platform_notes(args)

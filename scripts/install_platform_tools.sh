@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The tools that build and run the native FMUs' other platforms (Debian/Ubuntu, as root):
-# the mingw-w64 and aarch64 cross-compilers (win64 and aarch64-linux binaries in every
-# native FMU), wine and qemu-user (the tests run the C host built for those platforms),
+# the mingw-w64 and aarch64 cross-compilers (win64 and aarch64-linux binaries where no Zig
+# is installed: the tests of that fallback, export-c's strict builds), wine and qemu-user
+# with Debian's aarch64 C library (the tests run the C host built for those platforms),
 # clang (the FMUs' sources are compiled alone with gcc and clang), valgrind, and the
 # bare-metal Arm compiler with its C library (gcc-arm-none-eabi, libnewlib-arm-none-eabi:
 # `delaycomp export-c` controllers are built for a Cortex-M4).

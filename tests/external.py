@@ -56,6 +56,11 @@ TOOLS: dict[str, Tool] = {
     "arm-none-eabi-nm": Tool(_apt("gcc-arm-none-eabi")),
     "wine": Tool(_apt("wine wine64")),
     "qemu-aarch64": Tool(_apt("qemu-user")),
+    # the aarch64 C library qemu-user runs an aarch64 Linux program with
+    "aarch64-libc": Tool(_apt("libc6-arm64-cross")),
+    # the test extra's: Zig (the ziglang wheel of the native extra) and LIEF
+    "zig": Tool("pip install 'delaycomp[native]' (the test extra has it), or a zig on PATH"),
+    "lief": Tool("pip install lief (the test extra has it)"),
     "clang": Tool(_apt("clang")),
     "valgrind": Tool(_apt("valgrind")),
     "nm": Tool(_apt("binutils")),

@@ -335,16 +335,20 @@ def test_build_is_reproducible(native_dir, tmp_path):
 
 
 def test_no_compiler_is_one_line_naming_what_to_install(monkeypatch, tmp_path):
+    """No zig (``DELAYCOMP_ZIG`` empty: the ziglang wheel is not used) and no system
+    compiler: one line naming both ways to get one."""
     monkeypatch.delenv("CC", raising=False)
+    monkeypatch.setenv("DELAYCOMP_ZIG", "")
     monkeypatch.setenv("PATH", str(tmp_path))  # an empty folder: no cc, gcc or clang
     with pytest.raises(NativeBuildError) as info:
         build_native_fmu("delay", tmp_path)
     msg = str(info.value)
     assert "\n" not in msg and "no C compiler found" in msg and "apt-get install gcc" in msg
+    assert "pip install 'delaycomp[native]'" in msg
 
 
 def test_cli_no_compiler_exit_status_and_one_line(tmp_path):
-    env = {**os.environ, "PATH": str(tmp_path), "CC": ""}
+    env = {**os.environ, "PATH": str(tmp_path), "CC": "", "DELAYCOMP_ZIG": ""}
     env.pop("CC")
     from delaycomp.child import module_argv
 

@@ -50,7 +50,8 @@ import pytest
 from fmpy.fmi1 import FMICallException
 
 from delaycomp.fmu.build import PACKAGE_DIR
-from delaycomp.fmu.native import compiler, native_fmu_path
+from delaycomp.fmu.native import native_fmu_path
+from delaycomp.fmu.toolchain import system_compiler
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 
 from .external import Absent, need
@@ -341,10 +342,11 @@ def test_the_crafted_states_of_the_issue_are_refused_naming_the_field(fmus, case
 
 # -- the same under AddressSanitizer ---------------------------------------------------
 def _asan_library() -> str:
-    """The sanitizer's runtime library of the C compiler (``Absent`` where it has none)."""
+    """The sanitizer's runtime library of the system C compiler (``Absent`` where it has
+    none; Zig's has no shared one)."""
     try:
-        lib = subprocess.run([*compiler(), "-print-file-name=libasan.so"], capture_output=True,
-                             text=True, check=True).stdout.strip()
+        lib = subprocess.run([*system_compiler(), "-print-file-name=libasan.so"],
+                             capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError) as exc:
         raise Absent(f"the C compiler cannot name libasan.so: {exc}") from None
     if not (os.path.isabs(lib) and os.path.exists(lib)):
@@ -360,7 +362,7 @@ def _asan_build(fmu: Path, dest: Path) -> Path:
         names = zf.namelist()
     binary = next(n for n in names if n.startswith("binaries/linux64/"))
     sources = sorted(str(p) for p in (work / "sources").glob("*.c"))
-    subprocess.run([*compiler(), "-std=c99", "-O1", "-g", "-fPIC", "-shared",
+    subprocess.run([*system_compiler(), "-std=c99", "-O1", "-g", "-fPIC", "-shared",
                     "-fsanitize=address", "-fno-omit-frame-pointer", "-Wall", "-Wextra",
                     "-Werror", "-I", str(work / "sources"), "-o", str(work / binary),
                     *sources, "-lm"], check=True)

@@ -20,8 +20,9 @@ FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs
    A fault returns ``fmi2Error`` with the Python FMU's message logged.
 3. **Sources inside.** Each FMU carries its C sources and the FMI headers under
    ``sources/`` (listed in modelDescription), so an importer can compile it for another
-   platform, and a binary for this one built with the system C compiler
-   (``$CC``, else ``cc``, ``gcc`` or ``clang``), ``-Wall -Wextra -Werror``.
+   platform, and binaries for five platforms (``delaycomp.fmu.toolchain``: Zig's C
+   compiler builds them all on any machine; without it a system compiler builds what it
+   can), ``-Wall -Wextra -Werror``.
 
 The FMI 2.0 headers are fmpy's copy (``fmpy/c-code``; fmpy is a dependency, so a wheel
 install has them) and go into each FMU's ``sources/``.
@@ -32,7 +33,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shlex
 import shutil
 import subprocess
 import tempfile
@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, cast
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import delaycomp
-from delaycomp.errors import DelaycompError
+from delaycomp.fmu import toolchain
 from delaycomp.fmu.build import (
     CONFIG_NAME,
     DEFAULT_CONFIG,
@@ -53,6 +53,7 @@ from delaycomp.fmu.build import (
     check_dimensions,
     model_identifier,
 )
+from delaycomp.fmu.toolchain import NativeBuildError
 from delaycomp.tmpfiles import zip_folder
 
 if TYPE_CHECKING:
@@ -66,9 +67,9 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli packag
 
 __all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "NativeTwin", "build_native",
            "build_native_fmu", "build_native_model", "built_config", "check_native",
-           "compile_host", "compiler", "fmus_in_dir", "host_argv", "native_archive",
-           "native_fmu_dir", "native_fmu_path", "native_fmus", "native_or_why",
-           "native_twin", "unpack", "why_not_native"]
+           "compile_host", "compiler", "emulator", "fmus_in_dir", "host_argv",
+           "native_archive", "native_fmu_dir", "native_fmu_path", "native_fmus",
+           "native_or_why", "native_twin", "pop_notes", "unpack", "why_not_native"]
 
 #: the shared C sources (``fmus/native/`` in the repository, package data of
 #: delaycomp.fmus): the FMI layer, the linear algebra, DOP853, the host, export-c's templates
@@ -89,29 +90,8 @@ FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 #: the FMI versions a native FMU is built for
 FMI_VERSIONS = (2, 3)
-CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
-          "-Werror")
-
-
-#: The other platforms a native FMU carries binaries for, cross-compiled where their
-#: compiler is here: FMI 2.0 folder -> (the variable that names the compiler, the
-#: compiler's default name, the Debian package, the library's suffix, flags beside CFLAGS).
-#: ``win64`` is FMI 2.0's name; Linux on aarch64 has none in FMI 2.0, whose 2.0.4+
-#: clarification names the FMI 3.0 platform tuple for such platforms: ``aarch64-linux``.
-CROSS_TARGETS = {
-    "win64": ("CC_WIN64", "x86_64-w64-mingw32-gcc", "gcc-mingw-w64-x86-64", ".dll",
-              ("-static-libgcc", "-D__USE_MINGW_ANSI_STDIO=1")),
-    "aarch64-linux": ("CC_AARCH64", "aarch64-linux-gnu-gcc", "gcc-aarch64-linux-gnu", ".so",
-                      ()),
-}
-
-#: notes of this process about platforms left out (each once; see ``pop_notes``)
-_NOTES: list[str] = []
-_NOTED: set[str] = set()
-
-
-class NativeBuildError(DelaycompError, RuntimeError):
-    """A native FMU cannot be built here (no C compiler, or the compiler failed)."""
+CFLAGS = ("-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-ffp-contract=off",
+          "-Wall", "-Wextra", "-Werror")
 
 
 @dataclass(frozen=True)
@@ -206,98 +186,30 @@ def native_twin(kind: str) -> NativeTwin:
                       tuple(optional))
 
 
-def _note(text: str) -> None:
-    if text not in _NOTED:
-        _NOTED.add(text)
-        _NOTES.append(text)
-
-
 def pop_notes() -> list[str]:
     """The notes about platforms left out since the last call (each note once per
-    process): the commands print them, ``delaycomp.api.build`` returns them."""
-    out = list(_NOTES)
-    _NOTES.clear()
-    return out
-
-
-def requested_platforms() -> tuple[str, ...]:
-    """The cross platforms to build: ``$DELAYCOMP_PLATFORMS`` (comma-separated names of
-    ``CROSS_TARGETS``; empty: none), by default all of them."""
-    text = os.environ.get("DELAYCOMP_PLATFORMS")
-    if text is None:
-        return tuple(CROSS_TARGETS)
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if n not in CROSS_TARGETS]
-    if bad:
-        raise NativeBuildError(f"DELAYCOMP_PLATFORMS names {bad[0]!r}: allowed are "
-                               f"{', '.join(CROSS_TARGETS)} (comma-separated; empty: this "
-                               "platform only)")
-    return names
-
-
-def cross_compilers() -> dict[str, list[str]]:
-    """The cross platforms that will be built (``requested_platforms``) with their
-    compiler commands (``$CC_WIN64``, ``$CC_AARCH64``, else the default name on PATH).
-    A platform whose compiler is absent is left out with a note (``pop_notes``);
-    a variable naming no program is an error."""
-    found = {}
-    for platform in requested_platforms():
-        argv = _cross_compiler(platform)
-        if argv is not None:
-            found[platform] = argv
-        else:
-            var, default, package, _, _ = CROSS_TARGETS[platform]
-            _note(f"note: native FMUs without {platform} binaries: no {default} here "
-                  f"(`apt-get install {package}`, or set {var}; DELAYCOMP_PLATFORMS chooses "
-                  "the platforms)")
-    return found
-
-
-def _cross_compiler(platform: str) -> list[str] | None:
-    """The compiler command for ``platform`` (its variable, else the default name on
-    PATH), ``None`` where the default is absent; a variable naming no program is an
-    error."""
-    var, default, _, _, _ = CROSS_TARGETS[platform]
-    given = os.environ.get(var)
-    argv = shlex.split(given) if given else [default]
-    if argv and shutil.which(argv[0]):
-        return argv
-    if given:
-        raise NativeBuildError(f"{var} = {given!r} is not allowed: no such program on PATH "
-                               f"(set {var} to a C compiler for {platform}, or unset it)")
-    return None
+    process; ``delaycomp.fmu.toolchain.pop_notes``)."""
+    return toolchain.pop_notes()
 
 
 def platforms_tag() -> str:
-    """The platforms native FMUs get here, as a name part of the build cache: this
-    machine's (fmpy's name) and the cross platforms with a compiler."""
-    import fmpy
-
-    return "+".join([fmpy.platform, *cross_compilers()])
+    """The platforms native FMUs get here and whether Zig builds them, as a name part of
+    the build cache (an FMU built by a system compiler is not one built by Zig)."""
+    built = toolchain.targets()
+    return "+".join(built) + ("-zig" if any(c.label.startswith("zig") for c in
+                                            built.values()) else "")
 
 
 def compiler() -> list[str]:
-    """The C compiler command: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang``.
+    """The C compiler command for this machine (``delaycomp.fmu.toolchain.host_compiler``:
+    ``$CC`` if set, else ``zig cc``, else ``cc``, ``gcc`` or ``clang``).
 
     Raises
     ------
     NativeBuildError
         No compiler found; the message names what to install.
     """
-    cc = os.environ.get("CC")
-    if cc:
-        argv = shlex.split(cc)
-        if argv and shutil.which(argv[0]):
-            return argv
-        raise NativeBuildError(f"CC = {cc!r} is not allowed: no such program on PATH "
-                               "(set CC to a C compiler, or unset it)")
-    for name in ("cc", "gcc", "clang"):
-        path = shutil.which(name)
-        if path:
-            return [path]
-    raise NativeBuildError("no C compiler found (looked for $CC, cc, gcc, clang): install "
-                           "one, e.g. `apt-get install gcc` (Debian/Ubuntu) or "
-                           "`xcode-select --install` (macOS), or set CC")
+    return toolchain.host_compiler()
 
 
 def fmi_header_dir() -> Path:
@@ -553,8 +465,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         raise ValueError(f"clocked = true is not allowed for {'FMI 2.0' if fmi != 3 else kind}: "
                          "a clocked controller is an FMI 3.0 LTI controller (fmi = 3, kind "
                          f"{', '.join(k for k in NATIVE_KINDS if native_twin(k).clock)})")
-    cc = compiler()
-    crosses = cross_compilers()
+    built = toolchain.targets()
     config, translation, ident = _native_config(
         kind, {k: v for k, v in config.items() if k != "clocked"} if config else config)
     if clocked:
@@ -575,16 +486,13 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
             root, table3, ident, guid, f"delaycomp {delaycomp.__version__} (native C)")
     else:
         description = _native_description(kind, root, ident, guid, sources)
-    import fmpy
-
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / (file_name or f"{ident}.fmu")
     from delaycomp.progress import detail
 
-    folder = _platform_folder(fmi)
     detail(f"building {ident} (native{', FMI 3.0' if fmi == 3 else ''}, "
-           f"{' '.join([folder(fmpy.platform), *map(folder, crosses)])}) into {out_dir} ...")
+           f"{_compilers_text(built, fmi)}) into {out_dir} ...")
     with tempfile.TemporaryDirectory(prefix="delaycomp-native-") as tmp:
         stage = Path(tmp) / "fmu"
         src = stage / "sources"
@@ -596,22 +504,21 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
             from delaycomp.fmu.fmi3 import build_description
 
             (src / "buildDescription.xml").write_bytes(build_description(ident, sources))
-        targets = [(folder(fmpy.platform), cc, ".so", ())] + [
-            (folder(platform), argv, CROSS_TARGETS[platform][3], CROSS_TARGETS[platform][4])
-            for platform, argv in crosses.items()]
-        _compile_binaries(kind, stage, src, ident, sources, targets)
+        _compile_binaries(kind, stage, src, ident, sources, built, fmi)
         _write_metadata(kind, stage, description, full)
         zip_folder(stage, target)
     return target
 
 
-def _platform_folder(fmi: int):
-    """FMI 2.0 platform folder -> the folder of version ``fmi`` (FMI 3.0's tuples)."""
-    if fmi == 2:
-        return lambda platform: platform
-    from delaycomp.fmu.fmi3 import PLATFORMS
-
-    return lambda platform: PLATFORMS.get(platform, platform)
+def _compilers_text(built: dict, fmi: int) -> str:
+    """What ``-v`` says of a build: the binaries folders each compiler fills, this
+    machine's first (``linux64 aarch64-linux win64 darwin64 aarch64-darwin with zig
+    0.17.1``)."""
+    by: dict[str, list[str]] = {}
+    for name, c in built.items():
+        by.setdefault(c.label, []).extend(toolchain.folders(name, fmi))
+    return "; ".join(f"{' '.join(dict.fromkeys(fs))} with {label}"
+                     for label, fs in by.items())
 
 
 def _native_config(kind: str, config: dict | None
@@ -652,25 +559,32 @@ def _write_sources(src: Path, twin: NativeTwin, translation: Translation | None,
 
 
 def _compile_binaries(kind: str, stage: Path, src: Path, ident: str, sources: list[str],
-                      targets: list) -> None:
-    """Compile the sources for each (platform, compiler, suffix, flags) of ``targets``
-    into ``stage/binaries``, the compilers at once; the first failure raises."""
+                      built: dict, fmi: int) -> None:
+    """Compile the sources for each platform of ``built`` (platform -> its
+    ``toolchain.Compiler``), the compilers at once, each into a folder of its own beside
+    ``stage`` (Zig and MinGW write import libraries and debug files beside a DLL), then
+    place the libraries in ``stage/binaries`` (``toolchain.place``); the first failure
+    raises."""
     builds = []
-    for platform, argv0, suffix, extra in targets:  # the compilers run at once
-        binary = stage / "binaries" / platform / f"{ident}{suffix}"
-        binary.parent.mkdir(parents=True)
-        argv = [*argv0, *CFLAGS, *extra, "-I", str(src), "-o", str(binary),
+    for platform, c in built.items():  # the compilers run at once
+        lib = stage.parent / "objects" / platform / f"{ident}{toolchain.suffix(platform)}"
+        lib.parent.mkdir(parents=True)
+        # a macOS library names itself by its file, not by this build's folder
+        own = ([f"-Wl,-install_name,@rpath/{lib.name}"] if lib.suffix == ".dylib" else [])
+        argv = [*c.argv, *CFLAGS, *c.flags, *own, "-I", str(src), "-o", str(lib),
                 *(str(src / s) for s in sources), "-lm"]
-        builds.append((platform, argv, subprocess.Popen(
+        builds.append((platform, lib, c.label, subprocess.Popen(
             argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
     failed = []
-    for platform, argv, proc in builds:
+    for platform, _, label, proc in builds:
         _, err = proc.communicate()
         if proc.returncode != 0:
             failed.append(f"compiling the native {kind} FMU for {platform} failed "
-                          f"({argv[0]}):\n{err.strip()}")
+                          f"({label}):\n{err.strip()}")
     if failed:
         raise NativeBuildError(failed[0])
+    toolchain.place({platform: lib for platform, lib, _, _ in builds}, stage / "binaries",
+                    ident, fmi)
 
 
 def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> None:
@@ -867,23 +781,24 @@ def _wrong_kind(kind: str, wanted: str, fmus: str, fmi: int, fmu_dir: Path) -> s
 
 def compile_host(exe: Path, platform: str | None = None) -> Path:
     """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
-    machine, or cross-compiled for ``platform`` (a key of ``CROSS_TARGETS``: the host
-    then loads that platform's binaries of the FMUs; run it with ``host_command``)."""
-    argv: list[str] | None
-    extra: tuple[str, ...]
+    machine, or for ``platform`` (a key of ``delaycomp.fmu.toolchain.PLATFORMS``, or its
+    FMI 2.0 name: ``win64``), by the compiler that builds that platform's FMU binaries
+    (``toolchain.compiler_for``: Zig where it is here); the host then loads that
+    platform's binaries of the FMUs (run it with ``host_argv``'s ``platform``)."""
+    flags: tuple[str, ...] = ()
     if platform is None:
-        argv, extra, libs = compiler(), (), ["-ldl", "-lm"]
-    elif platform in CROSS_TARGETS:
-        var, default, package, _, extra = CROSS_TARGETS[platform]
-        argv = _cross_compiler(platform)
-        if argv is None:
-            raise NativeBuildError(f"no {default} here to build the C host for {platform} "
-                                   f"(`apt-get install {package}`, or set {var})")
-        libs = ["-lm"] if platform == "win64" else ["-ldl", "-lm"]
+        argv, libs = compiler(), ["-ldl", "-lm"]
     else:
-        raise ValueError(f"platform {platform!r} is not allowed: allowed are "
-                         f"{', '.join(CROSS_TARGETS)} (or None: this machine)")
-    proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *extra,
+        name = _platform_name(platform)
+        c = toolchain.compiler_for(name)
+        if c is None:
+            p = toolchain.PLATFORMS[name]
+            how = f" (`apt-get install {p.system[2]}`, or set {p.system[0]})" if p.system else ""
+            raise NativeBuildError(f"no C compiler here to build the C host for {name}: "
+                                   f"`pip install 'delaycomp[native]'` brings zig{how}")
+        argv, flags = list(c.argv), c.flags
+        libs = ["-lm"] if toolchain.PLATFORMS[name].os == "windows" else ["-ldl", "-lm"]
+    proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *flags,
                            "-I", str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"),
                            "-o", str(exe), *libs], capture_output=True, text=True)
     if proc.returncode != 0:
@@ -891,30 +806,46 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
     return Path(exe)
 
 
+def _platform_name(platform: str) -> str:
+    """A platform's tuple from its tuple or FMI 2.0 name (``win64``, ``linux64``)."""
+    names = toolchain.ALIASES.get(platform, (platform,))
+    if len(names) != 1 or names[0] not in toolchain.PLATFORMS:
+        raise ValueError(f"platform {platform!r} is not allowed: allowed are "
+                         f"{', '.join(toolchain.PLATFORMS)}, linux64, win64 (or None: this "
+                         "machine)")
+    return names[0]
+
+
 #: how this machine runs a C host built for another platform: the emulator (a Debian
 #: package), its arguments before the program
-EMULATORS = {"win64": (("wine",), "wine"),
+EMULATORS = {"x86_64-windows": (("wine",), "wine"),
              "aarch64-linux": (("qemu-aarch64", "-L", "/usr/aarch64-linux-gnu"), "qemu-user")}
 
 
 def emulator(platform: str) -> tuple[list[str], dict[str, str]]:
     """The command prefix that runs a program built for ``platform`` here (wine for
-    ``win64``, qemu-user for ``aarch64-linux``) and the environment variables it needs
-    (wine: no debug output, no Mono or Gecko installers; ``WINEPREFIX`` is the caller's).
-    Raises ``NativeBuildError`` naming the package to install where it is absent."""
-    prefix, package = EMULATORS[platform]
+    ``x86_64-windows``, alias ``win64``; qemu-user for ``aarch64-linux``, with Debian's
+    aarch64 C library) and the environment variables it needs (wine: no debug output, no
+    Mono or Gecko installers; ``WINEPREFIX`` is the caller's). Raises
+    ``NativeBuildError`` naming the package to install where it is absent."""
+    name = _platform_name(platform)
+    if name not in EMULATORS:
+        raise ValueError(f"platform {platform!r} is not allowed: this machine runs "
+                         f"{', '.join(EMULATORS)} programs in an emulator")
+    prefix, package = EMULATORS[name]
     if shutil.which(prefix[0]) is None:
-        raise NativeBuildError(f"no {prefix[0]} here to run {platform} programs "
+        raise NativeBuildError(f"no {prefix[0]} here to run {name} programs "
                                f"(`apt-get install {package}`)")
     env = {"WINEDEBUG": "-all", "WINEDLLOVERRIDES": "mscoree=d;mshtml=d"} \
-        if platform == "win64" else {}
+        if name == "x86_64-windows" else {}
     return list(prefix), env
 
 
 def _host_path(path: Path, platform: str | None) -> str:
     """A folder as the host built for ``platform`` names it (wine maps / to drive Z:)."""
     text = str(Path(path).resolve())
-    return "Z:" + text.replace("/", "\\") if platform == "win64" else text
+    windows = platform is not None and _platform_name(platform) == "x86_64-windows"
+    return "Z:" + text.replace("/", "\\") if windows else text
 
 
 def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
@@ -1072,11 +1003,11 @@ def why_not_native(exc: Exception) -> str:
 def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
                 clocked: bool = False, found: dict[str, Path] | None = None
                 ) -> dict[str, Path]:
-    """Native FMU files for every instance of ``loop`` (a
-    ``Loop``), to pass as ``fmus=`` to
-    ``delaycomp.orchestrator.simulate.run_loop``; FMI 3.0 ones with ``fmi=3``, where a
-    user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant) keeps its file: a
-    mixed loop; ``clocked`` (FMI 3.0): the controller driven by a clock (the LTI
+    """Native FMU files for every instance of ``loop`` (a ``Loop``), to pass as ``fmus=``
+    to ``delaycomp.orchestrator.simulate.run_loop``, with this machine's binary alone
+    (they run here; ``delaycomp build`` writes FMUs for elsewhere); FMI 3.0 ones with
+    ``fmi=3``, where a user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant)
+    keeps its file: a mixed loop; ``clocked`` (FMI 3.0): the controller driven by a clock (the LTI
     controller's variant; ``ValueError`` for a loop whose controller has none).
     ``found``: native files already checked for some instances, by name (``fmus_in_dir``:
     those ``delaycomp build --out`` wrote), taken as they are; the others from
@@ -1091,11 +1022,14 @@ def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
 
     check_native(loop, fmi, clocked)
     found = found or {}
-    return {inst.name: found.get(inst.name) or native_fmu_path(
-                inst.source.kind,
-                _clocked(dict(inst.source.config), inst.source.kind,
-                         clocked and inst.role == "controller"), fmu_dir, fmi)
-            for inst in loop.instances if not isinstance(inst.source, FmuFile)}
+    here = toolchain.this_platform()
+    # FMUs to run here: this machine's binary alone (a first run compiles one platform)
+    with toolchain.chosen((here,) if here else None):
+        return {inst.name: found.get(inst.name) or native_fmu_path(
+                    inst.source.kind,
+                    _clocked(dict(inst.source.config), inst.source.kind,
+                             clocked and inst.role == "controller"), fmu_dir, fmi)
+                for inst in loop.instances if not isinstance(inst.source, FmuFile)}
 
 
 def check_native(loop, fmi: int = 2, clocked: bool = False) -> None:
