@@ -155,8 +155,8 @@ def test_every_binary_loads_anywhere_its_platform_runs(kind, fmi, built):
 def test_no_system_compiler_a_loop_and_a_model_build_for_every_platform(tmp_path,
                                                                         model_file):
     """With no gcc, cc or clang on PATH (an empty PATH, CC unset), ``delaycomp build
-    LOOP.toml`` and ``build --model`` give native FMUs with all five platforms, and -v says
-    which compiler built which folders."""
+    LOOP.toml`` and ``build --model`` give native FMUs with all five platforms, -v says
+    which compiler built which folders, and the loop's FMUs run in our master."""
     need_zig()
     env = {k: v for k, v in os.environ.items()
            if k not in ("CC", "CC_WIN64", "CC_AARCH64", "DELAYCOMP_PLATFORMS")}
@@ -177,6 +177,24 @@ def test_no_system_compiler_a_loop_and_a_model_build_for_every_platform(tmp_path
                              "with zig " in line for line in lines), proc.stderr
         path = next(p for p in out.iterdir() if p.name.startswith(fmu))
         assert sorted(binaries(path)) == sorted(FMI2_FOLDERS)
+    # the loop's x86_64 Linux FMUs, built by Zig for the run (still no system compiler),
+    # run in our master: the Python FMUs' run to 1e-12 of each signal's peak (check's
+    # native-vs-python bound)
+    runs = {}
+    for kind, extra in (("native", ["--native"]), ("python", ["--python"])):
+        csv = tmp_path / f"{kind}.csv"
+        proc = subprocess.run(module_argv("delaycomp.cli", "run", str(loop), "--stop-time",
+                                          "4", *extra, "--out", str(csv), "-v"),
+                              capture_output=True, text=True, env=env, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        built = [line for line in proc.stderr.splitlines() if line.startswith("building")]
+        assert kind == "python" or (built and all(
+            "(native, linux64 with zig " in line for line in built)), proc.stderr
+        runs[kind] = np.loadtxt(csv, delimiter=",", skiprows=1)
+    peak = np.max(np.abs(runs["python"]), axis=0)
+    assert runs["native"].shape == runs["python"].shape
+    assert np.all(np.abs(runs["native"] - runs["python"]) <= 1e-12 * peak)
+    assert np.max(np.abs(runs["python"][:, 1:])) > 0.1  # the loop moves
 
 
 def test_platforms_narrows_the_set(tmp_path):
