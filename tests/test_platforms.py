@@ -181,6 +181,7 @@ def test_no_system_compiler_a_loop_and_a_model_build_for_every_platform(tmp_path
     # run in our master: the Python FMUs' run to 1e-12 of each signal's peak (check's
     # native-vs-python bound)
     runs = {}
+    env["DELAYCOMP_CACHE_DIR"] = str(tmp_path / "cache")  # its own: the run builds them
     for kind, extra in (("native", ["--native"]), ("python", ["--python"])):
         csv = tmp_path / f"{kind}.csv"
         proc = subprocess.run(module_argv("delaycomp.cli", "run", str(loop), "--stop-time",
