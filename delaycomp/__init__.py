@@ -24,8 +24,7 @@ import sys
 import types
 
 from delaycomp import layout
-
-__version__ = "0.1.0"
+from delaycomp.version import __version__ as __version__
 
 # in a Python FMU's bundled copy, the rest of the package too (delaycomp.layout.whole)
 __path__ = layout.whole(__name__, __path__)

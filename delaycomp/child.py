@@ -11,8 +11,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import delaycomp
-
 
 def module_argv(module: str, *args: str) -> list[str]:
     """The argv of a child that runs ``module`` as ``__main__`` with ``args``.
@@ -23,7 +21,7 @@ def module_argv(module: str, *args: str) -> list[str]:
     >>> argv[0] == sys.executable and argv[-1] == "{}"
     True
     """
-    root = str(Path(delaycomp.__file__).resolve().parent.parent)
+    root = str(Path(__file__).resolve().parent.parent)  # the folder holding delaycomp/
     code = (f"import runpy, sys; sys.path.insert(0, {root!r}); "
             f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
     return [sys.executable, "-c", code, *args]

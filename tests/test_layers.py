@@ -126,6 +126,36 @@ def test_imports_point_down(module, path, is_package):
     assert not bad, f"{module} ({own[0]}, floor {own[1]}) imports sideways or up: {bad}"
 
 
+def face_imports(module: str, path: Path, is_package: bool) -> list[str]:
+    """The imports of the package's face (``delaycomp/__init__.py``, which hands on the
+    API) in a module: ``import delaycomp`` or a name of the face (``from delaycomp import
+    __version__``); a submodule taken from it (``from delaycomp import progress``) is not."""
+    out = []
+    for target, names, line in imports(module, path, is_package):
+        if target == "delaycomp" and (not names or any(
+                f"delaycomp.{n}" not in NAMES for n in names)):
+            out.append(f"line {line}: {', '.join(names) or 'import delaycomp'}")
+    return out
+
+
+@pytest.mark.parametrize("module,path,is_package", CASES, ids=[m for m, _, _ in CASES])
+def test_nothing_below_the_face_imports_the_package_face(module, path, is_package):
+    """The version lives in a leaf (``delaycomp.version``): only the face (the API, the
+    command line) imports ``delaycomp`` itself."""
+    if unit(module) == ("face", 8) or module == "delaycomp":
+        return
+    assert face_imports(module, path, is_package) == [], module
+
+
+def test_a_face_import_is_found(tmp_path):
+    """The check finds what it is for (a check that could not fail would prove nothing)."""
+    bad = tmp_path / "m.py"
+    bad.write_text("import delaycomp\nfrom delaycomp import __version__, progress\n"
+                   "from delaycomp import errors\n")
+    assert face_imports("delaycomp.maths.m", bad, False) == [
+        "line 1: import delaycomp", "line 2: __version__, progress"]
+
+
 def _rings(graph: dict[str, set[str]]) -> list[list[str]]:
     """The strongly connected components of more than one node (Tarjan)."""
     index: dict[str, int] = {}

@@ -23,12 +23,12 @@ from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import escape
 
-import delaycomp
 from delaycomp.child import module_argv
 from delaycomp.fmu.runtime import is_runtime, patch_runtime
 from delaycomp.maths.model import model_id
 from delaycomp.names import CONFIG_NAME
 from delaycomp.tmpfiles import temp_dir
+from delaycomp.version import __version__
 
 
 def _fmus_folder() -> Path:
@@ -48,7 +48,8 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent
 #: package's light base, the maths (``delaycomp.maths``) and the base slave
 #: (``delaycomp.fmu.slave``). The paper's models (``paper/models/*.py``) are bundled too:
 #: their modules import each other. The packages' ``__init__.py`` import nothing.
-BUNDLED_MODULES = ("__init__.py", "errors.py", "names.py", "layout.py", "fmu/__init__.py",
+BUNDLED_MODULES = ("__init__.py", "version.py", "errors.py", "names.py", "layout.py",
+                   "fmu/__init__.py",
                    "fmu/slave.py",
                    "paper/__init__.py",
                    *sorted(f"maths/{p.name}" for p in (PACKAGE_DIR / "maths").glob("*.py")),
@@ -174,7 +175,7 @@ def check_dimensions(config: dict) -> None:
 def source_digest() -> str:
     """Digest of everything that goes into a Python FMU: it names the build cache, and
     each Python FMU records it as ``sources`` in its build configuration."""
-    h = hashlib.sha256(delaycomp.__version__.encode())
+    h = hashlib.sha256(__version__.encode())
     # the fix of pythonfmu's runtime library (delaycomp.fmu.runtime) goes into every FMU too
     files = [PACKAGE_DIR / m for m in BUNDLED_MODULES] + [PACKAGE_DIR / "fmu" / "runtime.py"]
     for spec in FMUS.values():
@@ -198,7 +199,7 @@ def build_fmu(kind: str, out_dir: Path, config: dict | None = None,
     check_dimensions(config)
     if spec.template:
         check_model_control(kind, config["model"])
-    config["version"] = delaycomp.__version__
+    config["version"] = __version__
 
     # what a run checks an FMU of --fmu-dir against (the cache's folders are named by it)
     config["sources"] = source_digest()

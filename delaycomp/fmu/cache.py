@@ -14,7 +14,6 @@ import stat
 import zipfile
 from pathlib import Path
 
-import delaycomp
 from delaycomp.errors import BadFileError
 from delaycomp.fmu.build import (
     CONFIG_NAME,
@@ -26,6 +25,7 @@ from delaycomp.fmu.build import (
 )
 from delaycomp.system import FmuFile, Source
 from delaycomp.tmpfiles import build_lock
+from delaycomp.version import __version__
 
 __all__ = ["cache_hit", "check_fmu", "check_sources", "default_fmu_dir", "fmu_file_name",
            "fmu_path", "source_digest", "source_fmu"]
@@ -35,7 +35,7 @@ def default_fmu_dir() -> Path:
     """Build cache: ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, per source digest."""
     root = os.environ.get("DELAYCOMP_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "delaycomp")
-    return Path(root) / f"fmus-{delaycomp.__version__}-{source_digest()}"
+    return Path(root) / f"fmus-{__version__}-{source_digest()}"
 
 
 def fmu_file_name(kind: str, config: dict) -> str:
@@ -172,9 +172,9 @@ def _check_fmu(path: Path, kind: str, config: dict, sources: bool = False) -> No
         cfg = json.loads(built)
     except ValueError:
         raise BadFileError(path, f"has a corrupt resources/{CONFIG_NAME}") from None
-    if cfg.get("version") != delaycomp.__version__:
+    if cfg.get("version") != __version__:
         raise BadFileError(path, f"was built by delaycomp {cfg.get('version')!r}, this is "
-                                 f"{delaycomp.__version__!r} ("
+                                 f"{__version__!r} ("
                                  + (_rebuild_hint(path) if sources else "delete it to rebuild")
                                  + ")")
     if sources and not cfg.get("native"):
@@ -192,7 +192,7 @@ def check_sources(path: Path, built: dict, digest: str) -> None:
     build configuration ``built`` records other sources than ``digest``: stale."""
     if built.get("sources") != digest:
         raise BadFileError(path, f"is stale: it was built from other sources than this "
-                                 f"delaycomp {delaycomp.__version__}'s "
+                                 f"delaycomp {__version__}'s "
                                  f"({_rebuild_hint(path)})")
 
 

@@ -42,7 +42,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 from xml.etree.ElementTree import Element, SubElement, tostring
 
-import delaycomp
 from delaycomp.fmu import toolchain
 from delaycomp.fmu.build import (
     CONFIG_NAME,
@@ -55,6 +54,7 @@ from delaycomp.fmu.build import (
 )
 from delaycomp.fmu.toolchain import NativeBuildError
 from delaycomp.tmpfiles import zip_folder
+from delaycomp.version import __version__
 
 if TYPE_CHECKING:
     from delaycomp.fmu.fmi3 import Fmi3Table
@@ -221,7 +221,7 @@ def fmi_header_dir() -> Path:
 
 def sources_digest() -> str:
     """Digest of the C sources and this version (names the native build cache)."""
-    h = hashlib.sha256(delaycomp.__version__.encode())
+    h = hashlib.sha256(__version__.encode())
     shared = sorted((*SOURCE_DIR.glob("*.c"), *SOURCE_DIR.glob("*.h")))
     for path in (*shared, SOURCE_DIR / "README.md",
                  *(f for kind in (*NATIVE_KINDS, *MODEL_KINDS)
@@ -406,7 +406,7 @@ def check_closed_form(kind: str, translation) -> None:
 def _native_description(kind: str, root: Element, ident: str, guid: str,
                         sources: list[str]) -> bytes:
     root.set("guid", guid)
-    root.set("generationTool", f"delaycomp {delaycomp.__version__} (native C)")
+    root.set("generationTool", f"delaycomp {__version__} (native C)")
     root.attrib.pop("generationDateAndTime", None)  # a rebuild gives the same file
     cs = root.find("CoSimulation")
     assert cs is not None  # the table tree (slave.to_xml) is a co-simulation FMU's
@@ -472,7 +472,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         config = {**config, "clocked": True}
     root = _python_table(kind, {k: v for k, v in config.items() if k != "clocked"})
     _exact_starts(root, config.get("start") or {})
-    full = {**config, "version": delaycomp.__version__, **({"fmi": 3} if fmi == 3 else {})}
+    full = {**config, "version": __version__, **({"fmi": 3} if fmi == 3 else {})}
     guid = "{" + str(pinned_guid(f"{ident}/native" + ("/fmi3" if fmi == 3 else ""),
                                  full)) + "}"
     sources = twin.sources(fmi)
@@ -483,7 +483,7 @@ def build_native_fmu(kind: str, out_dir: Path, config: dict | None = None,
         table3 = fmi3.fmi3_table(root, twin.structural, twin.arrays,
                                  twin.clock if clocked else None, twin.optional)
         description = fmi3.model_description(
-            root, table3, ident, guid, f"delaycomp {delaycomp.__version__} (native C)")
+            root, table3, ident, guid, f"delaycomp {__version__} (native C)")
     else:
         description = _native_description(kind, root, ident, guid, sources)
     out_dir = Path(out_dir).resolve()
@@ -647,7 +647,7 @@ def native_fmu_dir(fmi: int = 2) -> Path:
     FMI 3.0 ones in a folder of their own: same file names)."""
     from delaycomp.fmu.cache import default_fmu_dir
 
-    return default_fmu_dir().parent / (f"native-{delaycomp.__version__}-{sources_digest()}-"
+    return default_fmu_dir().parent / (f"native-{__version__}-{sources_digest()}-"
                                        f"{platforms_tag()}" + ("-fmi3" if fmi == 3 else ""))
 
 
@@ -787,7 +787,9 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
     platform's binaries of the FMUs (run it with ``host_argv``'s ``platform``)."""
     flags: tuple[str, ...] = ()
     if platform is None:
-        argv, libs = compiler(), ["-ldl", "-lm"]
+        here = toolchain.this_platform()
+        windows = here is not None and toolchain.PLATFORMS[here].os == "windows"
+        argv, libs = compiler(), ["-lm"] if windows else ["-ldl", "-lm"]
     else:
         name = _platform_name(platform)
         c = toolchain.compiler_for(name)
@@ -975,7 +977,7 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
     if model_identifier(kind, config) != ident:
         raise ValueError(f"{label} ({ident}) is not allowed in a native archive: it was "
                          f"built by delaycomp {built_with!r}, this is "
-                         f"{delaycomp.__version__!r} (rebuild the archive)")
+                         f"{__version__!r} (rebuild the archive)")
     return kind, config
 
 

@@ -76,10 +76,10 @@ import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
-import delaycomp
 from delaycomp.errors import ParameterError  # the one ParameterError (DelaycompError, ValueError)
 from delaycomp.maths.grid import GRID_RTOL, drift
 from delaycomp.names import CONFIG_NAME, INDEX_SUFFIX
+from delaycomp.version import __version__
 
 #: pythonfmu 0.7's runtime releases one reference to the slave module's ``__dict__`` each
 #: time it instantiates the slave class (measured: a module whose dict nothing else holds
@@ -93,6 +93,12 @@ _GUID_NAMESPACE = uuid.UUID("6f1c9a4e-3d52-4b7a-9e0f-d3e1a2c4b5f6")
 #: a step: masters that add ``h`` to their time (OMSimulator: ``t += h``) fall behind the
 #: grid by ~1e-13 s and then take a sliver step to the stop time
 ROUNDOFF_STEP_FRACTION = 1e-6
+
+
+def _package_folder() -> str:
+    """The folder of the delaycomp package loaded in this process (the first one: an FMU's
+    bundled copy or an install), as the version clash names it."""
+    return os.path.dirname(sys.modules["delaycomp"].__file__ or "")
 
 
 def is_roundoff_step(step_size: float, h: float) -> bool:
@@ -314,7 +320,7 @@ class TableSlave(Fmi2Slave):
     description = "delaycomp FMU"
     author = "delaycomp contributors"
     license = "MIT"
-    version = delaycomp.__version__
+    version = __version__
 
     #: True when a step needs no ``np.errstate(all="ignore")`` of its own (1.5 us a step):
     #: the caller provides it (the in-process engine, once per run), or the slave's step
@@ -334,13 +340,13 @@ class TableSlave(Fmi2Slave):
         #: a fault found at instantiation (version clash); survives re-initialization
         self.instantiation_error: str | None = None
         built_with = self.config.get("version")
-        if built_with != delaycomp.__version__:
+        if built_with != __version__:
             # Raising here would be fmi2Fatal with the object dropped (see point 5): refuse
             # instead. The message reaches the host with the first FMI call after
             # fmi2Instantiate; every later initialization and step is refused.
             self.instantiation_error = (
                 f"version clash: this FMU bundles delaycomp {built_with!r}, but delaycomp "
-                f"{delaycomp.__version__!r} (from {os.path.dirname(delaycomp.__file__)}) is "
+                f"{__version__!r} (from {_package_folder()}) is "
                 "already loaded in this process; pythonfmu FMUs share one interpreter, so "
                 "this FMU would run the other version's code. Load FMUs of one delaycomp "
                 "version per process"

@@ -11,8 +11,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
-import delaycomp
 from delaycomp.fmu.build import FMUS, check_model_control, model_id, model_identifier
+from delaycomp.version import __version__
 
 __all__ = ["slave_class"]
 
@@ -42,7 +42,7 @@ def slave_class(kind: str, config: dict) -> tuple[type, dict]:
     generates it inside the FMU.
     """
     spec = FMUS[kind]
-    cfg = {**config, "version": delaycomp.__version__}
+    cfg = {**config, "version": __version__}
     key = (kind, tuple(sorted((k, str(v)) for k, v in cfg.items())))
     module = importlib.import_module(f"delaycomp.fmus.{spec.kind}.{spec.script_path.stem}")
     if not spec.template:

@@ -194,7 +194,7 @@ def _fill(template: str, prefix: str, values: dict[str, str]) -> str:
 def _header(prefix: str, loop, dims: dict[str, int], state: str, notes: list[str]) -> str:
     """``NAME.h``: the notes on the loop, the use, the dimensions, the return codes, the
     state's struct and the three functions."""
-    from delaycomp import __version__
+    from delaycomp.version import __version__
     P = prefix
     codes = "\n".join(
         "\n".join(textwrap.wrap(why.replace("NAME", P), 86, initial_indent="/* ",
@@ -255,8 +255,8 @@ _COMMON_STATE = """    int started;        /* t0 is set (by the first sample) */
 
 
 def _export_lti(prefix, loop, slave) -> tuple[str, str]:
-    from delaycomp import __version__
     from delaycomp.maths.grid import steps_of
+    from delaycomp.version import __version__
     ctrl = slave.ctrl
     pred = ctrl.predictor
     n, m, L = ctrl.n, ctrl.m, pred.L
@@ -319,10 +319,10 @@ def _call(translation, name: str, branch: int, values: dict[str, str], out: str 
 
 
 def _export_model(prefix, loop, slave) -> tuple[str, str]:
-    from delaycomp import __version__
     from delaycomp.fmu.native import check_closed_form
     from delaycomp.fmu.translate import translate
     from delaycomp.maths.nlcontrol import ZOHModelController
+    from delaycomp.version import __version__
 
     ctrl = slave.ctrl
     model = slave.model

@@ -34,11 +34,11 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import delaycomp
 from delaycomp.errors import ParameterError
 from delaycomp.names import FMU_KINDS, LOOP_GROUPS, array_element, flat_index
 from delaycomp.system.loop import ROLES, FmuFile, Instance, Loop, ModelFmu, Role
 from delaycomp.tmpfiles import write_text
+from delaycomp.version import __version__
 
 #: what the roles are, for the sheet
 ROLE_TEXT = {"plant": "the plant", "meas_delay": "the measurement delay (r)",
@@ -351,7 +351,7 @@ def _sheet_timing(loop: Loop, by_role, cp, native: bool, fmi: int = 2) -> list[s
     T, h = loop.T, loop.h
     kind = ("native C: no Python in the host" if native else
             "Python: the host needs Python, see the FMUs' README")
-    L = [f"Wiring sheet of loop {loop.name} (delaycomp {delaycomp.__version__})", ""]
+    L = [f"Wiring sheet of loop {loop.name} (delaycomp {__version__})", ""]
     if loop.title:
         L += [loop.title, ""]
     L += [f"FMI {fmi}.0 co-simulation FMUs ({kind}). Their start values are the",

@@ -158,10 +158,10 @@ def _check_shapes(label, f, k, control, n, m, params) -> None:
 
 def model_id(model_path: str | Path) -> str:
     """Identifier of a model file: its name and a digest of its content and our version."""
-    import delaycomp
+    from delaycomp.version import __version__
 
     path = Path(model_path)
-    digest = hashlib.sha256(path.read_bytes() + delaycomp.__version__.encode()).hexdigest()
+    digest = hashlib.sha256(path.read_bytes() + __version__.encode()).hexdigest()
     return f"{_slug(path.stem)}_{digest[:8]}"
 
 
