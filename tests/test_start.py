@@ -143,7 +143,7 @@ def test_the_probe_sees_an_import_when_there_is_one():
 #: every Python FMU imports these: the package's finder of earlier names (``layout``), the
 #: two packages (their ``__init__`` imports nothing), the names and the errors (the one
 #: ``ParameterError``; the standard library only)
-FMU_BASE = {"layout", "maths", "fmu", "fmu.slave", "names", "errors"}
+FMU_BASE = {"layout", "version", "maths", "fmu", "fmu.slave", "names", "errors"}
 FMU_NEEDS = {
     "delay": (("numpy", "pythonfmu"),
               FMU_BASE | {"maths.delayline", "maths.grid"}),

@@ -32,9 +32,9 @@ def build_with_version(tmp_path, version: str):
     for folder in (FMU_ROOT, Path(orchestrator_init).parent):
         shutil.copytree(folder, src / "delaycomp" / folder.name,
                         ignore=shutil.ignore_patterns("__pycache__"))
-    init = src / "delaycomp" / "__init__.py"
-    text = init.read_text(encoding="utf-8")
-    init.write_text(text.replace('__version__ = "', f'__version__ = "{version}" #'),
+    leaf = src / "delaycomp" / "version.py"  # where the version lives
+    text = leaf.read_text(encoding="utf-8")
+    leaf.write_text(text.replace('__version__ = "', f'__version__ = "{version}" #'),
                     encoding="utf-8")
     out = tmp_path / "other"
     code = ("import delaycomp, delaycomp.fmu.build as b\n"
