@@ -33,12 +33,8 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 from delaycomp.errors import DelaycompError
 from delaycomp.names import array_element
 
-__all__ = ["PLATFORMS", "Fmi3Table", "Fmi3TableError", "Fmi3Variable", "build_description",
+__all__ = ["Fmi3Table", "Fmi3TableError", "Fmi3Variable", "build_description",
            "config_block", "fmi3_table", "model_description"]
-
-#: FMI 2.0 platform folder -> FMI 3.0 platform tuple (FMI 3.0, 2.5.1.1)
-PLATFORMS = {"linux64": "x86_64-linux", "win64": "x86_64-windows",
-             "aarch64-linux": "aarch64-linux", "darwin64": "x86_64-darwin"}
 
 _TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
 _CODE = {"Float64": "r", "Int32": "i", "Boolean": "b", "String": "s", "UInt64": "n",

@@ -196,8 +196,7 @@ def platforms_tag() -> str:
     """The platforms native FMUs get here and whether Zig builds them, as a name part of
     the build cache (an FMU built by a system compiler is not one built by Zig)."""
     built = toolchain.targets()
-    return "+".join(built) + ("-zig" if any(c.label.startswith("zig") for c in
-                                            built.values()) else "")
+    return "+".join(built) + ("-zig" if any(c.zig for c in built.values()) else "")
 
 
 def compiler() -> list[str]:
@@ -787,19 +786,16 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
     platform's binaries of the FMUs (run it with ``host_argv``'s ``platform``)."""
     flags: tuple[str, ...] = ()
     if platform is None:
-        here = toolchain.this_platform()
-        windows = here is not None and toolchain.PLATFORMS[here].os == "windows"
-        argv, libs = compiler(), ["-lm"] if windows else ["-ldl", "-lm"]
+        name, argv = toolchain.this_platform(), compiler()
     else:
         name = _platform_name(platform)
         c = toolchain.compiler_for(name)
         if c is None:
-            p = toolchain.PLATFORMS[name]
-            how = f" (`apt-get install {p.system[2]}`, or set {p.system[0]})" if p.system else ""
             raise NativeBuildError(f"no C compiler here to build the C host for {name}: "
-                                   f"`pip install 'delaycomp[native]'` brings zig{how}")
+                                   f"{toolchain.how_to_get(name)}")
         argv, flags = list(c.argv), c.flags
-        libs = ["-lm"] if toolchain.PLATFORMS[name].os == "windows" else ["-ldl", "-lm"]
+    windows = name is not None and toolchain.PLATFORMS[name].os == "windows"
+    libs = ["-lm"] if windows else ["-ldl", "-lm"]  # dlopen is in libdl before glibc 2.34
     proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *flags,
                            "-I", str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"),
                            "-o", str(exe), *libs], capture_output=True, text=True)

@@ -47,8 +47,9 @@ from pathlib import Path
 from delaycomp.errors import DelaycompError
 
 __all__ = ["ALIASES", "PLATFORMS", "Compiler", "NativeBuildError", "Platform", "chosen",
-           "compiler_for", "host_compiler", "parse_platforms", "place", "pop_notes",
-           "requested", "system_compiler", "targets", "this_platform", "universal", "zig"]
+           "compiler_for", "host_compiler", "how_to_get", "parse_platforms", "place",
+           "pop_notes", "requested", "system_compiler", "targets", "this_platform",
+           "universal", "zig"]
 
 
 class NativeBuildError(DelaycompError, RuntimeError):
@@ -118,6 +119,8 @@ class Compiler:
     flags: tuple[str, ...]
     #: how ``-v`` names it (``zig 0.17.1``, ``gcc``, ``x86_64-w64-mingw32-gcc``)
     label: str
+    #: Zig's (the build cache tells its FMUs from a system compiler's)
+    zig: bool = False
 
 
 def _note(text: str) -> None:
@@ -229,12 +232,6 @@ def _zig_version(argv: tuple[str, ...]) -> str:
     return proc.stdout.strip() or "?"
 
 
-def _zig_compiler(argv: list[str], target: str | None) -> Compiler:
-    version = _zig_version(tuple(argv))
-    return Compiler((*argv, "cc", *(("-target", target) if target else ())), ZIG_FLAGS,
-                    f"zig {version}")
-
-
 def system_compiler() -> list[str]:
     """This machine's system C compiler: ``$CC`` if set, else the first of ``cc``,
     ``gcc``, ``clang`` (what compiler-specific uses need: sanitizers, ``-print-file-name``).
@@ -301,8 +298,8 @@ def compiler_for(name: str) -> Compiler | None:
         return Compiler(tuple(argv), (*flags, *extra), Path(argv[0]).name)
     z = zig()
     if z is not None:
-        c = _zig_compiler(z, p.zig)
-        return Compiler(c.argv, (*c.flags, *extra), c.label)
+        return Compiler((*z, "cc", "-target", p.zig), (*ZIG_FLAGS, *extra),
+                        f"zig {_zig_version(tuple(z))}", zig=True)
     if here:
         with contextlib.suppress(NativeBuildError):
             argv = system_compiler()
@@ -311,6 +308,13 @@ def compiler_for(name: str) -> Compiler | None:
     if p.system is not None and shutil.which(p.system[1]):
         return Compiler((p.system[1],), (*p.system[3], *extra), p.system[1])
     return None
+
+
+def how_to_get(name: str) -> str:
+    """How to get a compiler for platform ``name``: Zig, or its Debian cross compiler."""
+    p = PLATFORMS[name]
+    how = f"; or `apt-get install {p.system[2]}`, or set {p.system[0]}" if p.system else ""
+    return f"`pip install 'delaycomp[native]'` brings zig, which builds every platform{how}"
 
 
 def targets() -> dict[str, Compiler]:
@@ -330,12 +334,9 @@ def targets() -> dict[str, Compiler]:
         if c is not None:
             found[name] = c
             continue
-        p = PLATFORMS[name]
-        how = (f"; or `apt-get install {p.system[2]}`, or set {p.system[0]}"
-               if p.system else "")
         _note(f"note: native FMUs without {name} binaries: no compiler for it here "
-              f"(`pip install 'delaycomp[native]'` brings zig, which builds every "
-              f"platform{how}; --platforms or DELAYCOMP_PLATFORMS chooses the platforms)")
+              f"({how_to_get(name)}; --platforms or DELAYCOMP_PLATFORMS chooses the "
+              "platforms)")
     if here is None and _CHOSEN is None:
         found["host"] = Compiler(tuple(system_compiler()), (), "system")
     if here is not None and here in requested() and here not in found:

@@ -8,9 +8,10 @@ integers, bit for bit (``tests/test_channel_kernel.py``), several times faster.
 
 It is compiled on first use with the C compiler the native FMUs use
 (``delaycomp.fmu.native.compiler``: ``$CC``, else Zig's from the ``native`` extra, else
-``cc``, ``gcc`` or ``clang``; no fused multiply-add, so every double is numpy's) into a temporary folder, loaded, and the folder
-removed. Where no compiler is found or the build fails, ``shown`` returns ``None`` and the
-batch draws with numpy (the same numbers, slower); ``status`` says which and why.
+``cc``, ``gcc`` or ``clang``; no fused multiply-add, so every double is numpy's) into a
+temporary folder, loaded, and the folder removed. Where no compiler is found or the build
+fails, ``shown`` returns ``None`` and the batch draws with numpy (the same numbers,
+slower); ``status`` says which and why.
 """
 
 from __future__ import annotations
