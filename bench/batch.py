@@ -45,6 +45,7 @@ from delaycomp.paper import scenarios  # noqa: E402
 from delaycomp.paper.models import path as model_path  # noqa: E402
 from delaycomp.studies import batch, pool, sweep  # noqa: E402
 from delaycomp.studies.axes import format_value, parse_grid, points  # noqa: E402
+from delaycomp.studies.sweep import SweepOptions  # noqa: E402
 from delaycomp.system import LtiBatch  # noqa: E402
 
 TARGET_3_6 = 1000.0
@@ -107,16 +108,16 @@ def bench_sweep(label, name, sets, grids, stop, repeats, k_sample, cores, gpu):
     idx = sample(P, P, k_sample)
     point_sets = [[*sets, *(f"{n}={format_value(v)}" for n, v in zip(names, pts[i]))]
                   for i in idx]
+    def batch_rows(**options):
+        return sweep.run_sweep(name, axes, sets, SweepOptions(stop=stop, engine="batch",
+                                                              **options))
+
     runs = {
-        "batch_1": lambda: sweep.run_sweep(name, axes, sets, stop, engine="batch",
-                                           workers=1),
-        "batch_all": lambda: sweep.run_sweep(name, axes, sets, stop, engine="batch",
-                                             workers=cores,
-                                             chunk=max(1, math.ceil(P / cores))),
+        "batch_1": lambda: batch_rows(workers=1),
+        "batch_all": lambda: batch_rows(workers=cores, chunk=max(1, math.ceil(P / cores))),
     }
     if gpu:
-        runs["batch_gpu"] = lambda: sweep.run_sweep(name, axes, sets, stop, engine="batch",
-                                                    array_backend=gpu)
+        runs["batch_gpu"] = lambda: batch_rows(array_backend=gpu)
     from delaycomp.studies import sweep_batch
     sc = scenarios.get(name)
     loops = [sc.loop([*sets, *(f"{n}={format_value(v)}" for n, v in zip(names, pt))])
@@ -222,8 +223,8 @@ def bench_million(side, gpu, cores):
         float(r) for r in rs))]
     with threadpool_limits(limits=1, user_api="blas"):
         t = time.perf_counter()
-        rows = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], 20.0,
-                               engine="batch", workers=1, verbosity=0)
+        rows = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"],
+                               SweepOptions(stop=20.0, engine="batch", workers=1, verbosity=0))
         out["end_to_end"] = time.perf_counter() - t
     out["end_to_end_stable_equal"] = sum(r["stable"] for r in rows) == stable
     del rows

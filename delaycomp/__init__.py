@@ -34,8 +34,8 @@ layout.install()
 #: the public API (``delaycomp.api``), each name imported from there on first access
 _API = ("BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError", "Result",
         "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
-        "export_c", "iter_sweep", "load", "lti", "model", "plot", "robustness", "run",
-        "sweep", "to_ssp")
+        "critical_delay_report", "critical_delay_table", "export_c", "iter_sweep", "load",
+        "lti", "model", "plot", "robustness", "run", "sweep", "to_ssp")
 
 __all__ = list(_API)
 

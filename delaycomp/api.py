@@ -71,6 +71,7 @@ import dataclasses
 import json
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -96,10 +97,13 @@ from delaycomp.system.loopfile import (
     with_channels,
 )
 
+if TYPE_CHECKING:
+    from delaycomp.studies.axes import Axis
+
 __all__ = ["BadFileError", "DelaycompError", "Loop", "ModelError", "ParameterError",
            "Result", "SignError", "SimulationFailed", "build", "choose_fmus", "critical_delay",
-           "export_c", "iter_sweep", "load", "lti", "model", "plot", "robustness", "run",
-           "sweep", "to_ssp"]
+           "critical_delay_report", "critical_delay_table", "export_c", "iter_sweep", "load",
+           "lti", "model", "plot", "robustness", "run", "sweep", "to_ssp"]
 
 
 #: a loop, as every function here takes one: a ``Loop``, a loop file's path, or a
@@ -724,11 +728,12 @@ def _to_ssp3(loop: Loop, out: str | Path, jacobi: bool, fmus: str, clocked: bool
         return ssp.pack(scalars, info, out, fmus=built, own_files=True)
 
 
-def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
+def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]] | Sequence[Axis], *,
           sets: Sequence[str] | Mapping[str, object] = (),
           stop_time: float | None = None, engine: str = "batch", workers: int = 1,
           exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
-          scheduler: str | None = None, notes: list[str] | None = None) -> list[dict]:
+          scheduler: str | None = None, notes: list[str] | None = None,
+          fmu_dir: str | Path | None = None, verbosity: int = 0) -> list[dict]:
     """Metrics (``rho``, ``stable``, ``final_norm``, ``peak_norm``, ``deadbeat_time``,
     ``failed``) of ``source`` at every point of ``grid`` (parameter name -> values), one
     dict per point in grid order (the last parameter varies fastest). ``failed`` is empty
@@ -748,7 +753,9 @@ def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
     ``inprocess`` or ``fmu`` (point by point); the results agree (tested). ``workers``
     processes or a Dask ``scheduler`` address share the work; ``array_backend`` (numpy,
     cupy, jax, auto) and ``chunk`` (points per batch) tune the batch engine; what it did is
-    appended to ``notes``. See ``delaycomp.studies.sweep.run_sweep``.
+    appended to ``notes``. The ``fmu`` engine takes the FMUs of ``fmu_dir`` first;
+    ``verbosity`` 1 shows a progress bar on a terminal. See
+    ``delaycomp.studies.sweep.run_sweep``.
 
     The rows are held together: a grid whose rows would not fit in half of the memory is
     refused before anything runs (a ``ParameterError`` naming the points and the
@@ -779,17 +786,17 @@ def sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
     """
     from delaycomp.studies.sweep import run_sweep
 
-    return run_sweep(_source(source), _axes(grid), _assignments(sets), stop_time, engine,
-                     workers, scheduler, None, exact, array_backend, chunk, notes,
-                     verbosity=0)
+    return run_sweep(_source(source), _axes(grid), _assignments(sets),
+                     _sweep_options(stop_time, engine, workers, scheduler, fmu_dir, exact,
+                                    array_backend, chunk, verbosity), notes=notes)
 
 
-def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
+def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]] | Sequence[Axis], *,
                sets: Sequence[str] | Mapping[str, object] = (),
                stop_time: float | None = None, engine: str = "batch", workers: int = 1,
                exact: bool = False, array_backend: str = "numpy", chunk: int | None = None,
-               scheduler: str | None = None,
-               notes: list[str] | None = None) -> Iterator[dict]:
+               scheduler: str | None = None, notes: list[str] | None = None,
+               fmu_dir: str | Path | None = None, verbosity: int = 0) -> Iterator[dict]:
     """``sweep``'s rows one at a time, in grid order, in memory bounded at any grid
     size (``sweep`` holds them all, and refuses a grid whose rows would not fit in half
     of the memory): the points run a stream chunk at a time as the rows are taken. Every
@@ -807,29 +814,45 @@ def iter_sweep(source: LoopLike, grid: Mapping[str, Sequence[float]], *,
     """
     from delaycomp.studies.sweep import iter_sweep as stream
 
-    return stream(_source(source), _axes(grid), _assignments(sets), stop_time, engine,
-                  workers, scheduler, None, exact, array_backend, chunk, notes, verbosity=0)
+    return stream(_source(source), _axes(grid), _assignments(sets),
+                  _sweep_options(stop_time, engine, workers, scheduler, fmu_dir, exact,
+                                 array_backend, chunk, verbosity), notes=notes)
 
 
 def _source(source: LoopLike):
-    """What a sweep runs, read by the same reading as ``_as_loop``
-    (``open_source``): a ``Loop``'s loop-file data, a
-    loop file's path or a scenario's name."""
+    """What a study runs, opened once by the same reading as ``_as_loop``
+    (``open_source``: a ``Loop``'s loop-file data, a loop file, a scenario; an opened
+    one passes as it is) and handed down opened."""
     from delaycomp.paper.scenarios import open_source
 
-    opened = open_source(source)  # refuses what is none of them, in one short line
-    return str(source) if isinstance(source, (str, Path)) else opened
+    return open_source(source)  # refuses what is none of them, in one short line
 
 
-def _axes(grid: Mapping[str, Sequence[float]]) -> list:
-    """The ``Axis`` of each grid parameter."""
+def _sweep_options(stop_time, engine, workers, scheduler, fmu_dir, exact, array_backend,
+                   chunk, verbosity):
+    """``sweep``'s and ``iter_sweep``'s keywords as the study's ``SweepOptions``."""
+    from delaycomp.studies.sweep import SweepOptions
+
+    return SweepOptions(stop=stop_time, engine=engine, workers=workers, scheduler=scheduler,
+                        fmu_dir=None if fmu_dir is None else str(fmu_dir), exact=exact,
+                        array_backend=array_backend, chunk=chunk, verbosity=verbosity)
+
+
+def _axes(grid) -> list:
+    """The ``Axis`` of each grid parameter: of a mapping of name -> values, or a list of
+    ``delaycomp.studies.axes.Axis`` (the command line's ``--grid``, where a name may
+    repeat: the sweep refuses that)."""
     from delaycomp.studies.axes import Axis
 
-    if not isinstance(grid, Mapping):
+    if isinstance(grid, (list, tuple)) and grid and all(isinstance(a, Axis) for a in grid):
+        items = [(a.name, a.values) for a in grid]
+    elif isinstance(grid, Mapping):
+        items = list(grid.items())
+    else:
         raise ParameterError(f"grid = {short(grid)} is not allowed: give a mapping of "
                              "parameter name -> values")
     axes = []
-    for name, values in grid.items():
+    for name, values in items:
         try:
             axes.append(Axis(name, tuple(float(v) for v in np.ravel(values))))
         except (TypeError, ValueError):
@@ -844,7 +867,7 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
                distribution: str = "uniform",
                sets: Sequence[str] | Mapping[str, object] = (),
                stop_time: float | None = None, chunk: int | None = None,
-               array_backend: str = "numpy"):
+               array_backend: str = "numpy", progress: Callable[[int], None] | None = None):
     """A Monte Carlo robustness map of an LTI loop over a network channel's jitter x loss.
 
     At every ``(jitter, loss)`` the channel ``on`` (its loop-file table the base, else the
@@ -881,6 +904,8 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
         The batch engine's array library: ``cupy`` runs on an NVIDIA GPU (the ``cupy``
         extra), ``auto`` there where CuPy reaches one, else numpy; the numbers are the
         same bit for bit.
+    progress : callable, optional
+        ``progress(k)`` hears each ``k`` runs done (a progress bar's update).
 
     Returns
     -------
@@ -902,18 +927,18 @@ def robustness(loop: LoopLike, jitter: Sequence[float], loss: Sequence[float],
     >>> [row["stable"] for row in m.rows if row["mode"] == "uncompensated"]
     [0, 0, 0, 0]
     """
-    from delaycomp.paper.scenarios import open_source
     from delaycomp.studies import robustness as study
     from delaycomp.system.loopfile import LoopFile
 
-    source = open_source(loop)
+    source = _source(loop)
     if not isinstance(source, LoopFile):
         raise ParameterError(f"loop = {short(loop)} is not allowed: give an LTI loop file's "
                              "path or a Loop built from loop-file data (a scenario: its "
                              "loop file, delaycomp.paper.scenarios.loop_file)")
     return study.robustness(source, jitter, loss, runs, seed=seed, on=on, modes=modes,
                             distribution=distribution, sets=_assignments(sets),
-                            stop_time=stop_time, chunk=chunk, array_backend=array_backend)
+                            stop_time=stop_time, chunk=chunk, array_backend=array_backend,
+                            progress=progress)
 
 
 def critical_delay(loop: LoopLike, *,
@@ -944,3 +969,56 @@ def critical_delay(loop: LoopLike, *,
         return lifted_loop(d.A, d.B, d.K, loop.T, r, d.tau, "uncompensated").spectral_radius
 
     return search(rho, r_max=50 * loop.T, step=loop.T / 100)
+
+
+def critical_delay_report(loop: LoopLike, *,
+                          sets: Sequence[str] | Mapping[str, object] = (),
+                          periods: int = 40, fmu_dir: str | Path | None = None):
+    """``critical_delay``'s ``r_c``, confirmed by co-simulation (``delaycomp
+    critical-delay``): the uncompensated loop runs ``periods`` periods just below and just
+    above ``r_c`` on its FMUs (those of ``fmu_dir`` first), and the spectral radius fitted
+    to each trajectory must fall on the side the lifted model says.
+
+    Returns
+    -------
+    delaycomp.studies.critical.CriticalDelayReport
+        ``r_c``, ``confirmed``, ``checks`` (``r``, the lifted model's spectral radius,
+        the fitted one) and the report's ``lines``.
+
+    Examples
+    --------
+    >>> report = critical_delay_report("example-3.6", sets={"k": 2.0}, periods=10)
+    >>> round(report.r_c, 3), report.confirmed
+    (0.203, True)
+    """
+    from delaycomp.studies.critical import critical_delay_report as report
+
+    if isinstance(periods, bool) or not isinstance(periods, int) or periods < 10:
+        raise ParameterError(f"periods = {periods!r} is not allowed: must be an integer >= 10")
+    return report(_source(loop), _assignments(sets), periods,
+                  None if fmu_dir is None else Path(fmu_dir))
+
+
+def critical_delay_table(loop: LoopLike, grid: str, *,
+                         sets: Sequence[str] | Mapping[str, object] = (),
+                         out: str | Path | None = None,
+                         plot: str | Path | None = None) -> list[str]:
+    """``r_c`` of the uncompensated and of the compensated loop along one parameter
+    (``grid``: ``NAME=START:STOP:COUNT``), from the exact lifted model alone (``delaycomp
+    critical-delay --grid``); the table written as CSV to ``out`` and drawn to ``plot``
+    where given. Returns the table's text lines (a header, then one line per value;
+    ``stable r<=R`` where no ``r`` up to the search's end loses stability, ``unstable at
+    r=0`` where ``r = 0`` already does). See ``delaycomp.studies.critical``.
+
+    Examples
+    --------
+    >>> for line in critical_delay_table("example-3.6", "k=1.5:2:2"):
+    ...     print(line)
+             k  r_c uncompensated    r_c compensated
+           1.5        0.281372633        stable r<=5
+             2        0.203267055        stable r<=5
+    """
+    from delaycomp.studies.critical import critical_delay_table as table
+
+    return table(_source(loop), _assignments(sets), grid,
+                 None if out is None else Path(out), None if plot is None else Path(plot))

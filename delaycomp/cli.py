@@ -1117,20 +1117,25 @@ def _sweep(args) -> int:
     from delaycomp.studies.axes import parse_grid, snap_axes
 
     _outputs(args)
-    source, sets = _source(args)
+    source, sets = _source(args)  # the loop, opened once: everything below is handed it
     axes = [parse_grid(g) for g in args.grid]
     if args.plot and len(axes) > 2:
         raise UsageError("--plot draws one or two grid parameters")
     # the arguments read: now the sweep (numpy)
     import numpy as np
 
+    from delaycomp.api import iter_sweep
     from delaycomp.studies import sweep
 
+    options = sweep.SweepOptions(
+        stop=args.stop_time, engine=args.engine, workers=args.workers,
+        scheduler=args.scheduler, fmu_dir=str(args.fmu_dir) if args.fmu_dir else None,
+        exact=args.exact, array_backend=args.array_backend, chunk=args.chunk,
+        verbosity=args.verbosity)
     # the rows are written as they come (held: the plot's rho alone)
-    count, _ = sweep.check_sweep_size(args.scenario, axes, sets, args.stop_time, args.engine,
-                                      1 if args.scheduler else args.workers, args.exact,
-                                      held=False, plot=bool(args.plot))
-    axes, notes = snap_axes(args.scenario, axes, sets)
+    count, _ = sweep.check_sweep_size(source, axes, sets, options, held=False,
+                                      plot=bool(args.plot))
+    axes, notes = snap_axes(source, axes, sets)
     for note in notes:
         info(f"note: {note}", args.verbosity)
     if str(args.scenario).endswith(".toml"):  # a plant FMU's free inputs, said once
@@ -1138,10 +1143,11 @@ def _sweep(args) -> int:
     clear_previous(args.out, args.plot)
     started = time.perf_counter()
     notes = []
-    rows = sweep.iter_sweep(args.scenario, axes, sets, args.stop_time, args.engine,
-                            args.workers, args.scheduler,
-                            str(args.fmu_dir) if args.fmu_dir else None, args.exact,
-                            args.array_backend, args.chunk, notes, verbosity=args.verbosity)
+    rows = iter_sweep(source, axes, sets=sets, stop_time=options.stop, engine=options.engine,
+                      workers=options.workers, exact=options.exact,
+                      array_backend=options.array_backend, chunk=options.chunk,
+                      scheduler=options.scheduler, notes=notes, fmu_dir=options.fmu_dir,
+                      verbosity=options.verbosity)
     tally = sweep.Tally(rho=np.empty(count) if args.plot else None)
     sweep.write_csv(tally.count(rows), [a.name for a in axes], args.out)
     for note in notes:  # what the batch engine did: part of the result (tests/test_batch.py)
@@ -1203,14 +1209,16 @@ def _robustness(args) -> int:
     modes = tuple(m.strip() for m in args.modes.split(","))
     rb.check_grid(jitter, loss, args.runs, args.seed, args.on, modes, args.distribution)
     source, sets = _source(args)
+    from delaycomp.api import robustness  # the arguments are checked: now the study
+
     clear_previous(args.out, args.plot)
     started = time.perf_counter()
     total = len(jitter) * len(loss) * len(modes) * args.runs
     with bar(total, "robustness", args.verbosity, unit="run") as shown:
-        result = rb.robustness(source, jitter, loss, args.runs, seed=args.seed, on=args.on,
-                               modes=modes, distribution=args.distribution, sets=sets,
-                               stop_time=args.stop_time, chunk=args.chunk,
-                               array_backend=args.array_backend, progress=shown.update)
+        result = robustness(source, jitter, loss, args.runs, seed=args.seed, on=args.on,
+                            modes=modes, distribution=args.distribution, sets=sets,
+                            stop_time=args.stop_time, chunk=args.chunk,
+                            array_backend=args.array_backend, progress=shown.update)
     rb.write_csv(result, args.out)
     if args.plot:
         rb.plot_map(result, args.plot, f"{source.name}: {args.runs} runs per point, "
@@ -1227,19 +1235,21 @@ def _cmd_critical_delay(args) -> int:
     if (args.out or args.plot) and not args.grid:
         raise UsageError("--out and --plot write the table of --grid: give --grid")
     # the arguments are checked: now the maths (scipy) the answer needs
-    from delaycomp.studies.critical import critical_delay_report, critical_delay_table
+    from delaycomp.api import critical_delay_report, critical_delay_table
 
     if args.grid:
         from delaycomp.formats.outputs import clear_previous
 
         clear_previous(args.out, args.plot)
-        rows = critical_delay_table(scenario, sets, args.grid, args.out, args.plot)
+        rows = critical_delay_table(scenario, args.grid, sets=sets, out=args.out,
+                                    plot=args.plot)
         for line in rows:
             print(line)
         return 0
     if args.periods < 10:
         raise UsageError(f"--periods {args.periods} is not allowed: must be an integer >= 10")
-    report = critical_delay_report(scenario, sets, args.periods, args.fmu_dir)
+    report = critical_delay_report(scenario, sets=sets, periods=args.periods,
+                                   fmu_dir=args.fmu_dir)
     print(f"r_c = {report.r_c:.9f}")
     for line in report.lines:
         print(line)

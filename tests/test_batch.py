@@ -36,6 +36,7 @@ from delaycomp.paper import scenarios
 from delaycomp.paper.models import path
 from delaycomp.studies import batch, sweep, sweep_batch
 from delaycomp.studies.axes import parse_grid
+from delaycomp.studies.sweep import SweepOptions
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_same_values
 
@@ -167,8 +168,9 @@ def test_padding_and_both_laws_of_proposition_4_2():
     """Remark 3.3(b) padding (tau not a multiple of T) and the printed law, as sweeps."""
     for sets in (["pad=1"], ["law=printed"]):
         axes = [parse_grid("tau=0.3:0.9:3" if sets == ["pad=1"] else "r=0.2:0.6:3")]
-        b = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="batch")
-        s = sweep.run_sweep("proposition-4.2", axes, sets, stop=6.0, engine="inprocess")
+        b = sweep.run_sweep("proposition-4.2", axes, sets, SweepOptions(stop=6.0, engine="batch"))
+        s = sweep.run_sweep("proposition-4.2", axes, sets,
+                            SweepOptions(stop=6.0, engine="inprocess"))
         for x, y in zip(b, s):
             assert_same(x, y, MODEL_REL)
 
@@ -179,11 +181,11 @@ def test_failures_end_the_record_as_the_per_point_engine_does():
     """A control that overflows (refused: tick not recorded) and a plant state that does
     (the run ends after the last finite tick): rho = inf and the same recorded norms."""
     axes = [parse_grid("k=1e150:1e300:2")]
-    b = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
-                        engine="batch")
+    b = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"],
+                        SweepOptions(stop=5.0, engine="batch"))
     with np.errstate(over="ignore"):  # the per-point metric squares states of 1e200
-        s = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], stop=5.0,
-                            engine="inprocess")
+        s = sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"],
+                            SweepOptions(stop=5.0, engine="inprocess"))
     assert all(math.isinf(row["rho"]) for row in s)
     # the loop diverged: unstable, with the reason (in each engine's words)
     assert all(row["stable"] == 0 and "diverged" in row["failed"] for row in b + s)
@@ -195,8 +197,8 @@ def test_finite_time_escape_of_the_printed_law():
     """Example 2.4 with the printed (2.18) escapes in finite time (errata item 1)."""
     axes = [parse_grid("r=0:0.2:2")]
     sets = ["law=printed", "x0=-1.295,2.307,-4.261", "tau=0"]
-    b = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="batch")
-    s = sweep.run_sweep("example-2.4", axes, sets, stop=2.0, engine="inprocess")
+    b = sweep.run_sweep("example-2.4", axes, sets, SweepOptions(stop=2.0, engine="batch"))
+    s = sweep.run_sweep("example-2.4", axes, sets, SweepOptions(stop=2.0, engine="inprocess"))
     assert any(math.isinf(row["rho"]) for row in s)
     for x, y in zip(b, s):
         assert_same(x, y, MODEL_REL)
@@ -219,8 +221,8 @@ def test_sweep_batch_equals_inprocess(name):
     sets, grids, stop = SWEEPS[name]
     axes = [parse_grid(g) for g in grids]
     notes: list[str] = []
-    b = sweep.run_sweep(name, axes, sets, stop=stop, engine="batch", notes=notes)
-    s = sweep.run_sweep(name, axes, sets, stop=stop, engine="inprocess")
+    b = sweep.run_sweep(name, axes, sets, SweepOptions(stop=stop, engine="batch"), notes=notes)
+    s = sweep.run_sweep(name, axes, sets, SweepOptions(stop=stop, engine="inprocess"))
     assert any(f"{len(b)} of {len(b)} points" in note for note in notes), notes
     rel = LTI_REL if name in LTI_GRIDS else MODEL_REL  # the LTI scenarios
     for x, y in zip(b, s):
@@ -233,14 +235,16 @@ def test_chunks_processes_and_dask_give_the_same_rows():
     from distributed import LocalCluster
 
     axes = [parse_grid("k=0.5:3:3"), parse_grid("r=0:0.9:4")]
-    args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=6.0,
-                engine="batch")
-    whole = sweep.run_sweep(**args)
-    chunked = sweep.run_sweep(**args, chunk=5)
-    procs = sweep.run_sweep(**args, chunk=4, workers=2)
+    def rows(**options):
+        return sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"],
+                               SweepOptions(stop=6.0, engine="batch", **options))
+
+    whole = rows()
+    chunked = rows(chunk=5)
+    procs = rows(chunk=4, workers=2)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster:
-        dask_rows = sweep.run_sweep(**args, chunk=3, scheduler=cluster.scheduler_address)
+        dask_rows = rows(chunk=3, scheduler=cluster.scheduler_address)
     # chunks of other sizes, other processes: the same arithmetic, to the last bits
     for name, rows in (("chunked", chunked), ("processes", procs), ("dask", dask_rows)):
         assert_same_values(rows, whole, SAME_ARITHMETIC_ULPS, name)
@@ -249,12 +253,12 @@ def test_chunks_processes_and_dask_give_the_same_rows():
 def test_numerical_predictor_falls_back_and_says_so():
     axes = [parse_grid("r=0.1:0.3:2")]
     notes: list[str] = []
-    rows = sweep.run_sweep("example-3.8", axes, ["predictor=numerical"], stop=4.0,
-                           engine="batch", notes=notes)
+    rows = sweep.run_sweep("example-3.8", axes, ["predictor=numerical"],
+                           SweepOptions(stop=4.0, engine="batch"), notes=notes)
     assert any("per-point engine (inprocess): 2 points" in n and "predictor=numerical" in n
                for n in notes), notes
     assert_same_values(rows, sweep.run_sweep("example-3.8", axes, ["predictor=numerical"],
-                                             stop=4.0, engine="inprocess"),
+                                             SweepOptions(stop=4.0, engine="inprocess")),
                        SAME_ARITHMETIC_ULPS, "rows")
 
 
@@ -335,8 +339,8 @@ def test_critical_curve_is_the_lifted_models_critical_delay():
     assert at2.tolist() == pytest.approx([0.203267055], abs=1e-8)
     at25 = rows[rows[:, 0] == 2.5][:, 1]
     assert len(at25) == 2 and 0 < at25[0] < at25[1] < 0.2
-    b = sweep.run_sweep("example-3.6", [parse_grid("r=0:0.2:21")],
-                        ["k=2.5", "mode=uncompensated"], engine="batch")
+    b = sweep.run_sweep("example-3.6", [parse_grid("r=0:0.2:21")], ["k=2.5", "mode=uncompensated"],
+                        SweepOptions(engine="batch"))
     inside = [row["stable"] for row in b if at25[0] + 0.01 < row["r"] < at25[1] - 0.01]
     outside = [row["stable"] for row in b if row["r"] < at25[0] - 0.01
                or row["r"] > at25[1] + 0.01]
@@ -360,10 +364,10 @@ def test_loop_file_sweeps_on_the_batch_engine():
 
     axes = [parse_grid("r=0:0.9:4")]
     notes: list[str] = []
-    b = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0, engine="batch",
-                        notes=notes)
-    s = sweep.run_sweep(str(loop_file("example-3.6")), axes, [], stop=8.0,
-                        engine="inprocess")
+    b = sweep.run_sweep(str(loop_file("example-3.6")), axes, [],
+                        SweepOptions(stop=8.0, engine="batch"), notes=notes)
+    s = sweep.run_sweep(str(loop_file("example-3.6")), axes, [],
+                        SweepOptions(stop=8.0, engine="inprocess"))
     assert any("4 of 4 points" in n for n in notes), notes
     for x, y in zip(b, s):
         assert_same(x, y, LTI_REL)
@@ -472,8 +476,8 @@ def test_a_batch_sweep_of_a_loop_file_names_a_bad_point(tmp_path):
     mimo = tmp_path / "mimo.toml"
     mimo.write_text(MIMO_LOOP, encoding="utf-8")
     with pytest.raises(ParameterError, match=r"grid point T=0\.3: .*tau = 0\.5"):
-        sweep.run_sweep(str(mimo), [parse_grid("T=0.5:0.3:2")], [], stop=3.0,
-                        engine="batch")
+        sweep.run_sweep(str(mimo), [parse_grid("T=0.5:0.3:2")], [],
+                        SweepOptions(stop=3.0, engine="batch"))
 
 
 def _design_args(k: float, r: float, **changes) -> dict:
@@ -569,9 +573,9 @@ def test_a_batch_sweep_over_the_dimension_runs_each_shape_as_its_own_group():
     shape) and equal the per-point engine."""
     axes = [parse_grid("n=2:4:3"), parse_grid("r=0:0.5:2")]
     notes: list[str] = []
-    b = sweep.run_sweep("corollary-3.7", axes, [], stop=4.0,
-                        engine="batch", notes=notes)
-    s = sweep.run_sweep("corollary-3.7", axes, [], stop=4.0, engine="inprocess")
+    b = sweep.run_sweep("corollary-3.7", axes, [],
+                        SweepOptions(stop=4.0, engine="batch"), notes=notes)
+    s = sweep.run_sweep("corollary-3.7", axes, [], SweepOptions(stop=4.0, engine="inprocess"))
     assert any("6 of 6 points in 3 chunks" in n for n in notes), notes
     for x, y in zip(b, s):
         assert_same(x, y, LTI_REL)
@@ -581,9 +585,8 @@ def test_a_bulk_batch_sweep_names_a_bad_grid_point():
     from delaycomp.errors import ParameterError
 
     with pytest.raises(ParameterError, match=r"grid point k=1, r=0\.105: .*multiple of the"):
-        sweep.run_sweep("example-3.6", [parse_grid("k=1:2:2"),
-                                        parse_grid("r=0.1:0.11:3")], [],
-                        stop=2.0, engine="batch")
+        sweep.run_sweep("example-3.6", [parse_grid("k=1:2:2"), parse_grid("r=0.1:0.11:3")], [],
+                        SweepOptions(stop=2.0, engine="batch"))
 
 
 def test_api_sweep_defaults_to_the_batch_engine_and_equals_per_point():
@@ -610,4 +613,4 @@ def test_a_stop_time_off_some_points_grid_names_the_point(engine):
     axes = [parse_grid("T=0.5:1.5:3"), parse_grid("N=50:100:2")]
     with pytest.raises(ParameterError, match=r"^grid point T=1\.5, N=50: --stop-time 20\.0 "
                                              r"is not allowed: .* h = T/N = 0\.03$"):
-        sweep.run_sweep("example-3.6", axes, ["r=0.3"], stop=20.0, engine=engine)
+        sweep.run_sweep("example-3.6", axes, ["r=0.3"], SweepOptions(stop=20.0, engine=engine))

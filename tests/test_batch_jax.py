@@ -12,6 +12,7 @@ import numpy as np
 
 from delaycomp.studies import batch, sweep
 from delaycomp.studies.axes import parse_grid
+from delaycomp.studies.sweep import SweepOptions
 
 from .test_batch import LTI_REL, assert_close, assert_same
 
@@ -42,10 +43,10 @@ def test_jax_trajectories_and_metrics_equal_numpy():
 def test_sweep_on_jax_says_so_and_equals_numpy():
     axes = [parse_grid("k=1:3:2"), parse_grid("r=0:0.5:2")]
     notes: list[str] = []
-    rows = sweep.run_sweep("example-3.6", axes, ["N=10"], stop=4.0, engine="batch",
-                           array_backend="jax", notes=notes)
+    rows = sweep.run_sweep("example-3.6", axes, ["N=10"],
+                           SweepOptions(stop=4.0, engine="batch", array_backend="jax"), notes=notes)
     assert any(n.startswith("batch engine (jax, ") for n in notes), notes
-    ref = sweep.run_sweep("example-3.6", axes, ["N=10"], stop=4.0, engine="batch")
+    ref = sweep.run_sweep("example-3.6", axes, ["N=10"], SweepOptions(stop=4.0, engine="batch"))
     for b, s in zip(rows, ref):
         assert_same(b, s, LTI_REL)
 

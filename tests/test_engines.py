@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import lti_loop
 from delaycomp.studies import sweep
 from delaycomp.studies.axes import parse_grid
+from delaycomp.studies.sweep import SweepOptions
 
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_columns_close, assert_same_values
 
@@ -84,7 +87,8 @@ def test_inprocess_engine_reports_a_diverging_plant_with_time_and_keeps_the_rows
 
 def test_sweep_inprocess_equals_fmu(fmu_dir):
     axes = [parse_grid("r=0.1:0.3:3")]
-    args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=5.0,
-                fmu_dir=str(fmu_dir))
-    assert_same_values(sweep.run_sweep(**args, engine="inprocess"), sweep.run_sweep(**args),
+    options = SweepOptions(stop=5.0, fmu_dir=str(fmu_dir))
+    inprocess = dataclasses.replace(options, engine="inprocess")
+    assert_same_values(sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], inprocess),
+                       sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"], options),
                        SAME_ARITHMETIC_ULPS, "rows")

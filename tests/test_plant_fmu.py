@@ -304,16 +304,17 @@ def test_fmi3_container_holds_the_users_fmi2_plant_as_it_is(folder, tmp_path):
 
 def test_sweep_over_the_measurement_delay(folder):
     from delaycomp.studies.axes import parse_grid
-    from delaycomp.studies.sweep import run_sweep
+    from delaycomp.studies.sweep import SweepOptions, run_sweep
 
-    rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0)
+    rows = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [],
+                     SweepOptions(stop=6.0))
     assert [row["r"] for row in rows] == [0.0, 0.2, 0.4]
     assert all(row["stable"] == 1 for row in rows), rows
     # the batch engine does not take a plant FMU: every point runs point by point, and the
     # notes say so and why
     notes: list[str] = []
-    batched = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [], stop=6.0,
-                        engine="batch", notes=notes)
+    batched = run_sweep(str(folder / "osc.toml"), [parse_grid("r=0:0.4:3")], [],
+                        SweepOptions(stop=6.0, engine="batch"), notes=notes)
     assert notes == ["batch engine (numpy, cpu): 0 of 3 points in 0 chunks",
                      "per-point engine (fmu): 3 points, because the plant is an FMU file"],\
         notes

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from delaycomp.paper.scenarios import ParameterError, lti_loop
 from delaycomp.studies import sweep
 from delaycomp.studies.axes import parse_grid
 from delaycomp.studies.critical import fitted_spectral_radius
+from delaycomp.studies.sweep import SweepOptions
 
 from .conftest import REPO
 from .roundoff import SAME_ARITHMETIC_ULPS, assert_same_values
@@ -78,8 +81,8 @@ def test_exact_map_agrees_with_simulation(fmu_dir):
     estimator's error on this loop is below 0.02 (measured <= 0.017)."""
     axes = [parse_grid("r=0.05:0.35:4")]
     sets = ["mode=uncompensated"]
-    sim = sweep.run_sweep("example-3.6", axes, sets, fmu_dir=str(fmu_dir))
-    exact = sweep.run_sweep("example-3.6", axes, sets, exact=True)
+    sim = sweep.run_sweep("example-3.6", axes, sets, SweepOptions(fmu_dir=str(fmu_dir)))
+    exact = sweep.run_sweep("example-3.6", axes, sets, SweepOptions(exact=True))
     for s, e in zip(sim, exact):
         assert s["rho"] == pytest.approx(e["rho"], abs=0.02)
         if abs(e["rho"] - 1) > 0.02:
@@ -91,13 +94,17 @@ def test_results_do_not_depend_on_workers_or_dask(fmu_dir):
     from distributed import LocalCluster
 
     axes = [parse_grid("r=0.1:0.3:3")]
-    args = dict(scenario="example-3.6", axes=axes, sets=["mode=uncompensated"], stop=5.0,
-                fmu_dir=str(fmu_dir))
-    serial = sweep.run_sweep(**args)
-    procs = sweep.run_sweep(**args, workers=2)
+    options = SweepOptions(stop=5.0, fmu_dir=str(fmu_dir))
+
+    def rows(**changes):
+        return sweep.run_sweep("example-3.6", axes, ["mode=uncompensated"],
+                               dataclasses.replace(options, **changes))
+
+    serial = rows()
+    procs = rows(workers=2)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster:
-        dask_rows = sweep.run_sweep(**args, scheduler=cluster.scheduler_address)
+        dask_rows = rows(scheduler=cluster.scheduler_address)
     # other processes, the same arithmetic: the same rows to the last bits
     assert_same_values(procs, serial, SAME_ARITHMETIC_ULPS, "workers")
     assert_same_values(dask_rows, serial, SAME_ARITHMETIC_ULPS, "dask")
@@ -174,3 +181,30 @@ def test_critical_delay_grid_table():
     assert "0.361350615" in lines[1] and "stable" in lines[1]
     assert "0.203267055" in lines[2]
     assert "unstable at r=0" in lines[3]  # T = 1.5 violates (3.20): T < ln 3
+
+
+@pytest.mark.parametrize("engine", ["batch", "inprocess", "fmu"])
+def test_a_sweep_reads_its_loop_file_once(tmp_path, monkeypatch, fmu_dir, engine):
+    """``delaycomp sweep LOOP.toml`` reads the file once, whatever the engine: the opened
+    loop is handed down to the checks, the snapping, the validation and every point's
+    job (a worker process gets its data with the job, not the path to read again)."""
+    from delaycomp.cli import main
+    from delaycomp.paper.scenarios import loop_file
+    from delaycomp.system.loopfile import LoopFile
+
+    loop = tmp_path / "loop.toml"
+    loop.write_text(loop_file("example-3.6").read_text())
+    reads = []
+    read = LoopFile.__init__
+
+    def counted(self, path):
+        reads.append(Path(path).name)
+        read(self, path)
+
+    monkeypatch.setattr(LoopFile, "__init__", counted)
+    code = main(["sweep", str(loop), "--grid", "r=0:0.2:3", "--stop-time", "4",
+                 "--engine", engine, "--workers", "1", "--fmu-dir", str(fmu_dir),
+                 "--out", str(tmp_path / "rows.csv"), "-q"])
+    assert code == 0
+    assert reads == ["loop.toml"]
+    assert len((tmp_path / "rows.csv").read_text().splitlines()) == 4  # a header, 3 points

@@ -16,6 +16,7 @@ from delaycomp.errors import ParameterError
 from delaycomp.formats import outputs
 from delaycomp.studies import sweep, sweep_batch
 from delaycomp.studies.axes import Axis, parse_grid
+from delaycomp.studies.sweep import SweepOptions
 
 from .conftest import REPO
 
@@ -97,7 +98,8 @@ def test_a_request_that_cannot_fit_is_refused_up_front(monkeypatch, tmp_path):
     assert "\n" not in msg and msg.startswith("--grid: 2e+07 points need about")
     assert "GB of memory" in msg and "api.iter_sweep" in msg
     axes = [parse_grid("k=0.5:3:20000"), parse_grid("r=0:0.98:1000")]
-    count, _ = sweep.check_sweep_size("example-3.6", axes, [], 5.0, "batch", held=False)
+    count, _ = sweep.check_sweep_size("example-3.6", axes, [],
+                                      SweepOptions(stop=5.0, engine="batch"), held=False)
     assert count == 20_000_000
     total, rows = sweep.sweep_memory(count, 2, held=False, kept=sweep.BYTES_PER_KEPT_LTI)
     assert rows == 0 and total < 2 * 10**9
@@ -147,14 +149,14 @@ def test_streamed_results_are_the_unstreamed_ones(monkeypatch, source, grids, se
     depends on a chunk's size in the last bits (tests/test_batch.py), not on the stream.
     The groups of Corollary 3.7 (one per chain length ``n``) are a stream chunk each."""
     axes = [parse_grid(g) for g in grids]
-    kwargs = dict(engine=engine, exact=exact, chunk=chunk, verbosity=0)
+    options = SweepOptions(stop=stop, engine=engine, exact=exact, chunk=chunk, verbosity=0)
     whole_notes: list[str] = []
-    whole = sweep.run_sweep(source, axes, sets, stop, notes=whole_notes, **kwargs)
+    whole = sweep.run_sweep(source, axes, sets, options, notes=whole_notes)
     monkeypatch.setattr(sweep, "STREAM_POINTS", 4)
     monkeypatch.setattr(sweep, "PIECE_POINTS", 2)
     monkeypatch.setattr(sweep, "KEEP_BYTES", 0)
     notes: list[str] = []
-    rows = sweep.iter_sweep(source, axes, sets, stop, notes=notes, **kwargs)
+    rows = sweep.iter_sweep(source, axes, sets, options, notes=notes)
     assert notes == []  # the notes come with the last row
     rows = list(rows)
     assert [repr(list(r.items())) for r in rows] == [repr(list(r.items())) for r in whole]
@@ -172,9 +174,9 @@ def test_every_piece_is_validated_before_any_point_runs(monkeypatch):
     axes = [Axis("r", (0.0, 0.01, 0.02, 0.03, 0.035))]
     for engine in ("batch", "inprocess"):
         with pytest.raises(ParameterError, match=r"^grid point r=0\.035: .*multiple of"):
-            sweep.iter_sweep("example-3.6", axes, [], 2.0, engine)
+            sweep.iter_sweep("example-3.6", axes, [], SweepOptions(stop=2.0, engine=engine))
         with pytest.raises(ParameterError, match=r"^grid point r=0\.035: .*multiple of"):
-            sweep.run_sweep("example-3.6", axes, [], 2.0, engine)
+            sweep.run_sweep("example-3.6", axes, [], SweepOptions(stop=2.0, engine=engine))
     assert ran == []
 
 

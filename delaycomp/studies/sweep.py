@@ -41,6 +41,7 @@ before anything runs, with the estimate (``check_sweep_size``, ``sweep_memory``)
 from __future__ import annotations
 
 import contextlib
+import copy
 import csv
 import dataclasses
 import gc
@@ -49,16 +50,17 @@ import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeAlias
 
 import numpy as np
 
 from delaycomp.errors import ParameterError, is_divergence
-from delaycomp.paper.scenarios import open_source
+from delaycomp.paper.scenarios import Scenario, open_source
 from delaycomp.studies.axes import Axis, base_loop, format_value
 from delaycomp.studies.pool import Progress, on_dask, on_processes
 from delaycomp.system import FmuFile, Loop, LtiBatch, Timing
 from delaycomp.system.loop import refuse_channel
-from delaycomp.system.loopfile import LoopData
+from delaycomp.system.loopfile import LoopData, LoopFile
 from delaycomp.tmpfiles import new_file
 
 #: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
@@ -70,9 +72,9 @@ METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time", "failed"
 class Job:
     """Everything one grid point needs; picklable for worker processes and Dask."""
 
-    #: a scenario name, a loop file's path, or a loop's own loop-file data (a sweep of a
-    #: ``Loop``: ``LoopData``)
-    scenario: str | LoopData
+    #: a scenario's name, or the opened loop file or loop-file data (``LoopFile``,
+    #: ``LoopData``: its data travel with the job, so a worker process reads no file)
+    scenario: str | LoopFile
     sets: tuple[str, ...]
     stop: float
     engine: str
@@ -261,38 +263,49 @@ def sweep_memory(count: int, axes: int, held: bool = True, kept: int = 0) -> tup
     return rows + working, rows
 
 
-def check_sweep_size(scenario: str | LoopData, axes: list[Axis], sets: list[str],
-                     stop: float | None = None, engine: str = "inprocess", workers: int = 1,
-                     exact: bool = False, held: bool = True,
+def check_sweep_size(source: Source, axes: list[Axis], sets: list[str],
+                     options: SweepOptions | None = None, held: bool = True,
                      plot: bool = False) -> tuple[int, float]:
     """Refuse, in one line with the estimate, a grid that cannot finish or fit in memory.
 
+    ``source``: what ``open_source`` takes (an opened one is not read again);
     ``held``: the rows are returned together (``run_sweep``), else streamed
     (``iter_sweep``, ``delaycomp sweep``); ``plot``: ``--plot`` draws them (at most
     ``PLOT_MAX_POINTS``). Returns the number of points and the estimated seconds (a
     lower bound).
+
+    Examples
+    --------
+    >>> from delaycomp.studies.axes import parse_grid
+    >>> check_sweep_size("example-3.6", [parse_grid("k=1:2:11")], [],
+    ...                  SweepOptions(stop=10.0, engine="batch"))[0]
+    11
     """
+    opts = options or SweepOptions()
+    sc = open_source(source)
     count = math.prod(len(a.values) for a in axes)
     if plot and count > PLOT_MAX_POINTS:
         raise ParameterError(
             f"--plot: {count:.4g} points are more than a map can draw ({PLOT_MAX_POINTS:.4g} "
             "at most, more than its pixels); drop --plot or use fewer points")
-    base = None if exact else base_loop(scenario, sets)
-    seconds = _check_time(scenario, axes, count, base, stop, engine, workers, exact)
+    base = None if opts.exact else base_loop(sc, sets)
+    workers = 1 if opts.scheduler else opts.workers
+    seconds = _check_time(sc, axes, count, base, opts.stop, opts.engine, workers, opts.exact)
     kept = 0
-    if engine == "batch" and not exact:
+    if opts.engine == "batch" and not opts.exact:
         kept = BYTES_PER_KEPT_MODEL if base is None or base.lti is None else \
             BYTES_PER_KEPT_LTI + 8 * (base.lti.A.size + base.lti.B.size + base.lti.K.size - 3)
     _check_memory(count, len(axes), held, kept)
     return count, seconds
 
 
-def _check_time(scenario: str | LoopData, axes: list[Axis], count: int, base, stop: float | None,
+def _check_time(sc, axes: list[Axis], count: int, base, stop: float | None,
                 engine: str, workers: int, exact: bool) -> float:
     """Refuse, in one line with the estimate, a sweep that cannot finish in
     ``MAX_RUN_SECONDS``; return its estimated seconds (a lower
-    bound): every point resolved here, then run on the workers (``base``: the loop at
-    ``r = 0``, for its timing; ``None`` where unknown or not needed)."""
+    bound): every point resolved here, then run on the workers (``sc``: the opened source;
+    ``base``: the loop at ``r = 0``, for its timing; ``None`` where unknown or not
+    needed)."""
     from delaycomp.formats.outputs import MAX_RUN_SECONDS, SECONDS_PER_TICK, format_duration
 
     run = SECONDS_PER_EXACT_POINT
@@ -303,8 +316,7 @@ def _check_time(scenario: str | LoopData, axes: list[Axis], count: int, base, st
                 T = min(a.values)
             if a.name == "N" and max(a.values) >= 1:
                 N = max(a.values)
-        source = open_source(scenario)
-        stop_time = stop if stop is not None else (source.default_stop_time or base.stop_time)
+        stop_time = stop if stop is not None else (sc.default_stop_time or base.stop_time)
         ticks = (stop_time / T) * N if stop_time else 0.0
         run = ticks * (SECONDS_PER_BATCH_TICK if engine == "batch"
                        else SECONDS_PER_TICK.get(engine, 10e-6))
@@ -341,43 +353,72 @@ def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
 SWEEP_ENGINES = ("batch", "inprocess", "fmu")
 
 
-def run_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
-              stop: float | None = None,
-              engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
-              fmu_dir: str | None = None, exact: bool = False,
-              array_backend: str = "numpy", chunk: int | None = None,
-              notes: list[str] | None = None, verbosity: int = 1) -> list[dict]:
+@dataclass(frozen=True)
+class SweepOptions:
+    """How a sweep runs (``run_sweep``, ``iter_sweep``, ``check_sweep_size``); each is
+    checked, in one line naming it, before anything runs.
+
+    Examples
+    --------
+    >>> SweepOptions(stop=10.0, engine="batch", workers=2).engine
+    'batch'
+    """
+
+    #: each point's stop time [s] (``None``: the source's default)
+    stop: float | None = None
+    #: ``SWEEP_ENGINES``: ``batch`` advances the points together on ``array_backend``,
+    #: ``inprocess`` and ``fmu`` run them point by point
+    engine: str = "fmu"
+    #: local worker processes (the points, or the batch engine's chunks, shared out)
+    workers: int = 1
+    #: a Dask scheduler's address: the points run on its cluster (``workers`` unused)
+    scheduler: str | None = None
+    #: a folder of FMUs the ``fmu`` engine takes first (built there where missing)
+    fmu_dir: str | None = None
+    #: ``rho`` from the exact lifted model of an LTI loop, no run (``stop`` unused)
+    exact: bool = False
+    #: the batch engine's array library: numpy, cupy, jax or auto
+    #: (``delaycomp.studies.batch.get_backend``)
+    array_backend: str = "numpy"
+    #: the batch engine's points per chunk at most (default: from the available memory)
+    chunk: int | None = None
+    #: 0 hides the progress bar (shown on a terminal otherwise)
+    verbosity: int = 1
+
+
+#: what a sweep runs: anything ``open_source`` takes (a scenario's name, a loop file's
+#: path, a ``Loop``), or a source it opened (read once: it is passed on as it is)
+Source: TypeAlias = "str | Path | Loop | LoopFile | Scenario"
+
+
+def run_sweep(source: Source, axes: list[Axis], sets: list[str],
+              options: SweepOptions | None = None, *,
+              notes: list[str] | None = None) -> list[dict]:
     """Run the grid; return one row (grid values + metrics) per point, in grid order.
 
-    ``scenario`` is a scenario name, a loop file's path (``.toml``) or a
-    ``Loop`` (built by the loop-file reader, ``api.lti`` or
-    ``api.model``: the grid's and ``sets``' names are then its loop-file keys, or their
-    short names: ``r``, ``T``, ``x0``, ``K``, a model's own parameters; the rows are those
-    of the same loop given as a loop file). ``engine="batch"``
-    advances the points together on ``array_backend`` (numpy, cupy, jax or auto;
-    ``delaycomp.studies.batch.get_backend``) in chunks of at most ``chunk`` points (default:
-    from the available memory); what it did, and which points fell back to the per-point
-    in-process engine and why, is appended to ``notes``. ``verbosity`` 0 hides the progress
-    bar (shown on a terminal otherwise).
+    ``source`` is a scenario name, a loop file's path (``.toml``), a source opened by
+    ``open_source`` (read once, by whoever opened it) or a ``Loop`` (built by the loop-file
+    reader, ``api.lti`` or ``api.model``: the grid's and ``sets``' names are then its
+    loop-file keys, or their short names: ``r``, ``T``, ``x0``, ``K``, a model's own
+    parameters; the rows are those of the same loop given as a loop file). ``options``
+    (``SweepOptions``) say how it runs; with ``engine="batch"``, what the batch engine
+    did, and which points fell back to the per-point in-process engine and why, is
+    appended to ``notes``.
 
     The rows are held together: a grid whose rows would not fit in half of the memory is
     refused before anything runs (``check_sweep_size``); ``iter_sweep`` hands them
     on as they come instead.
     """
-    plan = _plan(scenario, axes, sets, stop, engine, workers, scheduler, fmu_dir, exact,
-                 array_backend, chunk, held=True)
+    plan = _plan(source, axes, sets, options or SweepOptions(), held=True)
     rows: list[dict] = []
-    for part in _stream(plan, notes if notes is not None else [], verbosity):
+    for part in _stream(plan, notes if notes is not None else []):
         rows.extend(part)
     return rows
 
 
-def iter_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
-               stop: float | None = None,
-               engine: str = "fmu", workers: int = 1, scheduler: str | None = None,
-               fmu_dir: str | None = None, exact: bool = False,
-               array_backend: str = "numpy", chunk: int | None = None,
-               notes: list[str] | None = None, verbosity: int = 1) -> Iterator[dict]:
+def iter_sweep(source: Source, axes: list[Axis], sets: list[str],
+               options: SweepOptions | None = None, *,
+               notes: list[str] | None = None) -> Iterator[dict]:
     """``run_sweep``'s rows, one at a time, in grid order, in memory bounded at any
     grid size: the points are resolved, run and handed on a stream chunk
     (``STREAM_POINTS``) at a time.
@@ -389,15 +430,14 @@ def iter_sweep(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str
     Examples
     --------
     >>> from delaycomp.studies.axes import parse_grid
-    >>> rows = iter_sweep("example-3.6", [parse_grid("k=1.5:2:2")], ["r=0"], stop=10.0,
-    ...                   engine="batch")
+    >>> rows = iter_sweep("example-3.6", [parse_grid("k=1.5:2:2")], ["r=0"],
+    ...                   SweepOptions(stop=10.0, engine="batch"))
     >>> [(row["k"], row["stable"]) for row in rows]
     [(1.5, 1), (2.0, 1)]
     """
-    plan = _plan(scenario, axes, sets, stop, engine, workers, scheduler, fmu_dir, exact,
-                 array_backend, chunk, held=False)
+    plan = _plan(source, axes, sets, options or SweepOptions(), held=False)
     return itertools.chain.from_iterable(
-        _stream(plan, notes if notes is not None else [], verbosity))
+        _stream(plan, notes if notes is not None else []))
 
 
 @dataclass
@@ -414,6 +454,7 @@ class _SweepPlan:
     workers: int
     scheduler: str | None
     chunk: int | None
+    verbosity: int
     piece: int  # points resolved together
     stream: int  # points run together: a multiple of ``piece``
     kept: dict[int, _Piece] = dataclasses.field(default_factory=dict)  # by piece number
@@ -424,65 +465,75 @@ class _SweepPlan:
         return [a.name for a in self.axes]
 
 
-def _plan(scenario: str | Loop | LoopData, axes: list[Axis], sets: list[str],
-          stop: float | None, engine: str, workers: int, scheduler: str | None,
-          fmu_dir: str | None, exact: bool, backend: str, chunk: int | None,
+def _plan(source: Source, axes: list[Axis], sets: list[str], opts: SweepOptions,
           held: bool) -> _SweepPlan:
     """The sweep's arguments checked, and every point validated (a piece at a time), before
-    anything runs; the validated points of the first pieces kept (``KEEP_BYTES``)."""
-    names = [a.name for a in axes]
-    if isinstance(scenario, Loop):  # its loop-file data, read once (and checked)
-        scenario = LoopData.of(scenario)
-    sc, stop = _checked(scenario, axes, names, sets, stop, engine, workers, scheduler,
-                        exact, chunk, held)
-    source = scenario if isinstance(scenario, LoopData) else (
-        str(Path(scenario).resolve()) if str(scenario).endswith(".toml") else scenario)
-    batched = engine == "batch" and not exact
+    anything runs; the validated points of the first pieces kept (``KEEP_BYTES``). The
+    source is opened here, once (an opened one passes as it is), and handed down."""
+    sc = open_source(source)
+    stop = _checked(sc, axes, sets, opts, held)
+    batched = opts.engine == "batch" and not opts.exact
     # a stream chunk holds whole pieces and whole chunks of --chunk points, so that its
     # chunks are cut as from the whole grid (a larger --chunk makes pieces that large)
+    chunk = opts.chunk
     piece = chunk * max(1, PIECE_POINTS // chunk) if chunk else PIECE_POINTS
     plan = _SweepPlan(sc, list(axes), list(sets), float(stop),
-                 Job(source, tuple(sets), float(stop), "inprocess" if batched else engine,
-                     fmu_dir, exact),
-                 batched, backend, workers, scheduler, chunk, piece,
-                 piece * max(1, STREAM_POINTS // piece))
+                      Job(_job_source(sc), tuple(sets), float(stop),
+                          "inprocess" if batched else opts.engine, opts.fmu_dir, opts.exact),
+                      batched, opts.array_backend, opts.workers, opts.scheduler, chunk,
+                      opts.verbosity, piece, piece * max(1, STREAM_POINTS // piece))
     _validate(plan)
     if batched:
         from delaycomp.studies import batch
         try:
-            plan.backend = batch.get_backend(backend).name
+            plan.backend = batch.get_backend(opts.array_backend).name
         except batch.BatchError as exc:
             raise ParameterError(f"--array-backend: {exc}") from None
     return plan
 
 
-def _checked(scenario: str | LoopData, axes: list[Axis], names: list[str], sets: list[str],
-             stop: float | None, engine: str, workers: int, scheduler: str | None,
-             exact: bool, chunk: int | None, held: bool = True):
-    """The sweep's arguments checked (in one line each, before anything runs): the opened
-    source and the stop time (the source's default where ``stop`` is ``None``)."""
-    check_sweep_size(scenario, axes, sets, stop, engine, workers if not scheduler else 1,
-                     exact, held)
-    sc = open_source(scenario)
-    if exact:
+def _job_source(sc) -> str | LoopFile:
+    """What a job carries of the opened source ``sc``: a scenario's name; a loop file
+    as read (its data and its path made absolute, for its relative paths in a worker
+    process whose working directory differs); a loop's data as they are."""
+    if isinstance(sc, LoopData):
+        return sc
+    if isinstance(sc, LoopFile):
+        if sc.path.is_absolute():
+            return sc
+        held = copy.copy(sc)
+        held.path = sc.path.resolve()
+        return held
+    return sc.name
+
+
+def _checked(sc, axes: list[Axis], sets: list[str], opts: SweepOptions,
+             held: bool = True) -> float:
+    """The sweep's arguments checked (in one line each, before anything runs), on the
+    opened source ``sc``: its stop time (the source's default where ``stop`` is
+    ``None``)."""
+    names = [a.name for a in axes]
+    check_sweep_size(sc, axes, sets, opts, held)
+    if opts.exact:
         refuse_channel(sc.loop(list(sets)), "`sweep --exact` (its lifted model has constant "
                        "delays; run the points: --engine inprocess or fmu)")
-    if exact and sc.loop(list(sets)).lti is None:
+    if opts.exact and sc.loop(list(sets)).lti is None:
         raise ParameterError(f"--exact needs an LTI scenario or loop file; {_label(sc)} is "
                              "not")
-    if workers < 1:
-        raise ParameterError(f"--workers {workers} is not allowed: must be a positive integer")
+    if opts.workers < 1:
+        raise ParameterError(f"--workers {opts.workers} is not allowed: must be a positive "
+                             "integer")
     if len(set(names)) != len(names):
         raise ParameterError("--grid: each parameter may be swept once")
-    if engine not in SWEEP_ENGINES:
-        raise ParameterError(f"--engine {engine!r} is not allowed: must be one of "
+    if opts.engine not in SWEEP_ENGINES:
+        raise ParameterError(f"--engine {opts.engine!r} is not allowed: must be one of "
                              f"{', '.join(SWEEP_ENGINES)}")
-    if chunk is not None and chunk < 1:
-        raise ParameterError(f"--chunk {chunk} is not allowed: must be a positive integer")
-    stop = sc.default_stop_time if stop is None else stop
+    if opts.chunk is not None and opts.chunk < 1:
+        raise ParameterError(f"--chunk {opts.chunk} is not allowed: must be a positive integer")
+    stop = sc.default_stop_time if opts.stop is None else opts.stop
     if stop is None:
         raise ParameterError(f"{_label(sc)} has no stop time: give --stop-time")
-    return sc, stop
+    return stop
 
 
 def _label(sc) -> str:
@@ -632,11 +683,11 @@ def _named(point_texts: tuple[str, ...], fn, arg):
         raise ParameterError(f"grid point {', '.join(point_texts)}: {exc}") from None
 
 
-def _stream(plan: _SweepPlan, notes: list[str], verbosity: int) -> Iterator[list[dict]]:
+def _stream(plan: _SweepPlan, notes: list[str]) -> Iterator[list[dict]]:
     """The rows of the validated sweep ``plan``, a stream chunk at a time; the notes of the
     batch engine appended after the last."""
     names = plan.names
-    progress = Progress(math.prod(len(a.values) for a in plan.axes), verbosity)
+    progress = Progress(math.prod(len(a.values) for a in plan.axes), plan.verbosity)
     tally = _BatchNotes()
     for k, (texts, values) in enumerate(_pieces(plan.axes, plan.stream, values=True)):
         if plan.batched:
