@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -286,8 +287,21 @@ def test_bad_ingredients_are_refused_in_one_line(kwargs, match):
     assert "\n" not in str(info.value)
 
 
-def test_zero_matches_the_sweep():
-    assert batch.ZERO == sweep.ZERO
+def test_zero_and_the_rate_rule_are_written_once():
+    """The per-point metric and the batch engine read one ``ZERO`` and one tail rule
+    (``delaycomp.studies.metrics``); no other study module defines its own."""
+    import re
+
+    from delaycomp.studies import metrics
+
+    assert batch.ZERO is metrics.ZERO and sweep.ZERO is metrics.ZERO
+    folder = Path(metrics.__file__).parent
+    for module in folder.glob("*.py"):
+        if module.name == "metrics.py":
+            continue
+        text = module.read_text()
+        assert not re.search(r"^ZERO\s*=", text, re.M), module.name
+        assert not re.search(r"//\s*5\b", text), module.name
 
 
 def cli(*args):

@@ -66,10 +66,9 @@ from delaycomp.maths.grid import periods as zoh_periods
 from delaycomp.maths.lti import MODES, LTIPredictor, discretize
 from delaycomp.maths.nlcontrol import padded_delay
 from delaycomp.maths.stamped import SNAP
+from delaycomp.studies.metrics import ZERO, tail_start
 from delaycomp.system import LtiBatch
 
-#: ``|x|`` below this counts as zero for the dead-beat time (``delaycomp.studies.sweep.ZERO``).
-ZERO = 1e-9
 #: Array libraries ``get_backend`` knows; ``auto`` takes the first GPU library found.
 BACKENDS = ("numpy", "cupy", "jax", "auto")
 
@@ -914,7 +913,7 @@ def _rates(envsq: np.ndarray, periods: np.ndarray) -> np.ndarray:
     rho = np.full(P, np.nan)
     for S in np.unique(periods):
         sel = np.flatnonzero(periods == S)
-        start = max(1, int(S) // 5)
+        start = tail_start(int(S))
         tail = np.sqrt(envsq[start:S, sel]).T  # (points, tail length)
         if tail.shape[1] < 2:
             continue  # too few periods to estimate a rate: nan, as the per-point metric

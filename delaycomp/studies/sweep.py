@@ -57,15 +57,12 @@ import numpy as np
 from delaycomp.errors import ParameterError, is_divergence
 from delaycomp.paper.scenarios import Scenario, open_source
 from delaycomp.studies.axes import Axis, base_loop, format_value
+from delaycomp.studies.metrics import METRICS, ZERO, tail_start
 from delaycomp.studies.pool import Progress, on_dask, on_processes
 from delaycomp.system import FmuFile, Loop, LtiBatch, Timing
 from delaycomp.system.loop import refuse_channel
 from delaycomp.system.loopfile import LoopData, LoopFile
 from delaycomp.tmpfiles import new_file
-
-#: ``|x|`` below this counts as zero for the dead-beat time (the issues' definition).
-ZERO = 1e-9
-METRICS = ("rho", "stable", "final_norm", "peak_norm", "deadbeat_time", "failed")
 
 
 @dataclass(frozen=True)
@@ -119,7 +116,7 @@ def metrics_of(times: np.ndarray, states: np.ndarray, N: int, success: bool = Tr
     periods = (len(norms) - 1) // N
     env = np.array([math.sqrt(float(np.sum(norms[j * N:(j + 1) * N] ** 2)))
                     for j in range(periods)])
-    tail = env[max(1, periods // 5):]
+    tail = env[tail_start(periods):]
     if tail.size < 2:
         rho = math.nan  # too few periods to estimate a rate
     elif np.any(tail == 0.0):

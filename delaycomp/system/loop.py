@@ -415,9 +415,24 @@ def refuse_channel(loop: Loop, what: str) -> None:
 
 # -- the standard loop ---------------------------------------------------------------------
 
-def _chain(plant_out: list[str], ctrl_in: list[str], ctrl_out: list[str],
-           plant_in: list[str]) -> tuple[Connection, ...]:
-    """plant -> meas_delay -> controller -> input_delay -> plant, channel by channel."""
+def standard_wiring(plant_out: list[str], ctrl_in: list[str], ctrl_out: list[str],
+                    plant_in: list[str]) -> tuple[Connection, ...]:
+    """The standard loop's connections: plant -> meas_delay -> controller -> input_delay
+    -> plant, channel by channel (a delay's ports ``u``, ``y``, numbered ``u1``, ``y1``,
+    ... where it carries several), whatever the plant and the controller are (built in, a
+    model file's, an FMU file).
+
+    Examples
+    --------
+    >>> for c in standard_wiring(["x1", "x2"], ["y1", "y2"], ["u"], ["force"]):
+    ...     print(c)
+    plant.x1 -> meas_delay.u1
+    plant.x2 -> meas_delay.u2
+    meas_delay.y1 -> controller.y1
+    meas_delay.y2 -> controller.y2
+    controller.u -> input_delay.u
+    input_delay.y -> plant.force
+    """
     n, m = len(plant_out), len(plant_in)
     ys_in, ys_out = indexed("u", n), indexed("y", n)
     dl_in, dl_out = indexed("u", m), indexed("y", m)
@@ -687,7 +702,7 @@ def design_loop(point: LtiPoint, state: str = "x", inp: str = "u", name: str = "
                  {"delay": tau_loop, **vector_params("u0", u0)}),
     )
     recorded = tuple([Port("plant", x) for x in xs] + [Port("controller", u) for u in us])
-    return Loop(instances, _chain(xs, indexed("y", n), us, us), timing, recorded, name,
+    return Loop(instances, standard_wiring(xs, indexed("y", n), us, us), timing, recorded, name,
                 title, stop_time, d, origin=origin)
 
 
@@ -777,6 +792,6 @@ def model_loop(model_path, T: float, r: float, tau: float, N: int, x0, u0, z0=No
     )
     recorded = tuple([Port("plant", s) for s in model.states]
                      + [Port("controller", u) for u in model.inputs])
-    connections = _chain(list(model.states), [f"y_{s}" for s in model.states],
-                         list(model.inputs), list(model.inputs))
+    connections = standard_wiring(list(model.states), [f"y_{s}" for s in model.states],
+                                  list(model.inputs), list(model.inputs))
     return Loop(instances, connections, timing, recorded, name, title, stop_time)

@@ -30,7 +30,6 @@ from delaycomp.errors import BadFileError, ParameterError
 from delaycomp.names import indexed
 from delaycomp.system.loop import (
     BuiltinFmu,
-    Connection,
     FmuFile,
     Instance,
     Loop,
@@ -40,6 +39,7 @@ from delaycomp.system.loop import (
     check_delays,
     check_zoh_delay,
     matrix_params,
+    standard_wiring,
     vector_params,
 )
 from delaycomp.unpack import Budget, measure
@@ -527,7 +527,7 @@ def fmu_plant_loop(fmu_path, states: Sequence[str], inputs: Sequence[str],
         Instance("input_delay", "input_delay", _delay_source(m, tau_loop, timing.h),
                  {"delay": tau_loop, **vector_params("u0", u0)}),
     )
-    connections = _plant_connections(states, inputs, ctrl_in, ctrl_out)
+    connections = standard_wiring(states, ctrl_in, ctrl_out, inputs)
     # what the plant receives, under the FMU's own input names: the input delay's outputs
     received = [Port("input_delay", o) for o in indexed("y", m)]
     recorded = tuple([Port("plant", s) for s in states]
@@ -601,23 +601,6 @@ def _model_controller(model, controller_parameters: Mapping | None, n: int, m: i
                     {"T": T, "r": r, "tau": tau, "N": N, **vector_params("u0", u0),
                      **vector_params("z0", x0), **params})
     return ctrl, [f"y_{s}" for s in mdl.states], list(mdl.inputs)
-
-
-def _plant_connections(states: list[str], inputs: list[str], ctrl_in: list[str],
-                       ctrl_out: list[str]) -> tuple[Connection, ...]:
-    """plant -> meas_delay -> controller -> input_delay -> plant, channel by channel."""
-    n, m = len(states), len(inputs)
-    ys_in, ys_out = indexed("u", n), indexed("y", n)
-    dl_in, dl_out = indexed("u", m), indexed("y", m)
-
-    def c(a, av, b, bv):
-        return Connection(Port(a, av), Port(b, bv))
-
-    return tuple(
-        [c("plant", x, "meas_delay", i) for x, i in zip(states, ys_in)]
-        + [c("meas_delay", o, "controller", i) for o, i in zip(ys_out, ctrl_in)]
-        + [c("controller", u, "input_delay", i) for u, i in zip(ctrl_out, dl_in)]
-        + [c("input_delay", o, "plant", u) for o, u in zip(dl_out, inputs)])
 
 
 def check_tolerance(value, where: str = "plant.tolerance") -> float:
