@@ -6,22 +6,17 @@ the typed loop (``delaycomp.system``), the paper as data (``delaycomp.paper``), 
 FMUs' build side (``delaycomp.fmu``), the master (``delaycomp.orchestrator``) and
 the FMUs (``delaycomp.fmus``), what it writes and reads (``delaycomp.formats``),
 studies (``delaycomp.studies``) and verification (``delaycomp.verify``), and the face
-(``delaycomp.api``, ``delaycomp.cli``). ``delaycomp.layout`` keeps the modules'
-earlier names importable.
+(``delaycomp.api``, ``delaycomp.cli``). ``delaycomp.layout`` finds a checkout's top-level
+folders (``orchestrator/``, ``fmus/``, ``reference/``) under these names.
 
 The Python API is importable from here: ``delaycomp.run``, ``delaycomp.load``,
 ``delaycomp.lti``, ``delaycomp.sweep``, ... are ``delaycomp.api``'s, imported on first
-use (PEP 562), so that ``import delaycomp`` stays light. The earlier module names that are
-now API names (``delaycomp.lti``, ``delaycomp.model``, ``delaycomp.build``,
-``delaycomp.sweep``) still import as modules (``importlib.import_module``), but the
-attribute is the API function.
+use (PEP 562), so that ``import delaycomp`` stays light.
 
 This module must stay light: it is imported inside every FMU.
 """
 
 import importlib
-import sys
-import types
 
 from delaycomp import layout
 from delaycomp.version import __version__ as __version__
@@ -50,17 +45,3 @@ def __getattr__(name: str):
 def __dir__() -> list[str]:
     """The module's names and the API's."""
     return sorted({*globals(), *_API})
-
-
-class _Package(types.ModuleType):
-    """The package's module type: a submodule imported under an earlier name that is an
-    API name now (``import delaycomp.lti``, ``delaycomp.layout.MOVED``) is not bound
-    over the API function (the import system binds each submodule on its package)."""
-
-    def __setattr__(self, name: str, value) -> None:
-        if name in _API and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package

@@ -24,8 +24,6 @@ from pathlib import Path
 
 import pytest
 
-from delaycomp.layout import MOVED
-
 REPO = Path(__file__).resolve().parent.parent
 
 #: the units, their floors (1 = the ground) and what they hold; a module takes the unit of
@@ -271,20 +269,15 @@ def test_reference_shares_no_code_with_delaycomp():
     assert {t for m in ref for t in EDGES[m]} <= set(ref)
 
 
-# -- the earlier names, and a checkout as it installs (delaycomp.layout) -------------------
+# -- a checkout as it installs (delaycomp.layout) ------------------------------------------
 
-@pytest.mark.parametrize("old,new", sorted(MOVED.items()), ids=sorted(MOVED))
-def test_an_earlier_name_is_the_module_at_its_new_place(old, new):
-    module = importlib.import_module(old)
-    assert module is importlib.import_module(new)
-    assert module.__name__ == module.__spec__.name == new  # the earlier name took nothing
-
-
-def test_a_submodule_of_a_moved_package_is_the_same_module():
-    import delaycomp.models.unicycle as before
-    import delaycomp.paper.models.unicycle as now
-
-    assert before is now
+@pytest.mark.parametrize("old", ["delaycomp.lti", "delaycomp.simulate",
+                                 "delaycomp.models.unicycle", "delaycomp.fmuslave"])
+def test_the_names_before_the_layers_are_gone(old):
+    """The modules' names before the layers became folders import no more (they had no
+    user left): only the names where the modules are."""
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(old)
 
 
 def test_a_name_that_never_existed_is_still_refused():

@@ -249,7 +249,6 @@ before = set(sys.modules)
 import delaycomp
 light = sorted(set(sys.modules) - before)
 names = dir(delaycomp)
-import delaycomp.lti, delaycomp.sweep   # earlier module names: not bound over the API
 import delaycomp.api
 print(json.dumps({"light": light, "names": names, "all": delaycomp.__all__,
                   "same": [getattr(delaycomp, n) is getattr(delaycomp.api, n)

@@ -140,7 +140,7 @@ def test_the_probe_sees_an_import_when_there_is_one():
 #: The LTI plant and controller need a matrix exponential (scipy.linalg); the delay copies
 #: values; the model FMUs of Example 2.4 use the model's own exact step and Phi (scipy's
 #: ODE solver is loaded at a model's first numerical solve, never at instantiation).
-#: every Python FMU imports these: the package's finder of earlier names (``layout``), the
+#: every Python FMU imports these: the package's finder of its bundled part (``layout``), the
 #: two packages (their ``__init__`` imports nothing), the names and the errors (the one
 #: ``ParameterError``; the standard library only)
 FMU_BASE = {"layout", "version", "maths", "fmu", "fmu.slave", "names", "errors"}
