@@ -1105,8 +1105,8 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
 
 
 def _cmd_sweep(args) -> int:
-    """``delaycomp sweep``; SIGTERM and SIGHUP stop it as Ctrl-C does (issue 30, item 4:
-    the workers end with it, none is left)."""
+    """``delaycomp sweep``; SIGTERM and SIGHUP stop it as Ctrl-C does (the workers end
+    with it, none is left behind)."""
     with _ending_signals():
         return _sweep(args)
 

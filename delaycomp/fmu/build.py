@@ -100,13 +100,13 @@ FMUS: dict[str, FmuSpec] = {
                      native="plant_lti"),
     "delay": FmuSpec("delay", "delaycomp_delay.py", "DelaycompDelay", _FIXED_STEP + _STATE,
                      native="delay"),
-    # a network channel in a delay's place (issue 29); its folder is the delay's
+    # a network channel in a delay's place; its folder is the delay's
     "channel": FmuSpec("delay", "delaycomp_channel.py", "DelaycompChannel",
                        _FIXED_STEP + _STATE, native="channel"),
     "controller": FmuSpec("controller", "delaycomp_controller_lti.py",
                           "DelaycompControllerLTI", _FIXED_STEP + _STATE,
                           native="controller_lti"),
-    # the time-stamp controller of an LTI plant (issue 29, item 2)
+    # the time-stamp controller of an LTI plant
     "stamped_controller": FmuSpec("controller", "delaycomp_controller_stamped.py",
                                   "DelaycompControllerStamped", _FIXED_STEP + _STATE,
                                   native="controller_stamped"),
@@ -115,7 +115,7 @@ FMUS: dict[str, FmuSpec] = {
     "model_controller": FmuSpec("controller", "delaycomp_model_controller.py",
                                 "DelaycompController", _FIXED_STEP + _STATE,
                                 template="ModelControllerSlave", native="model_controller"),
-    # the time-stamp controller of a model plant under zero-order hold (issue 29)
+    # the time-stamp controller of a model plant under zero-order hold
     "stamped_model_controller": FmuSpec("controller", "delaycomp_model_controller_stamped.py",
                                         "DelaycompControllerStamped", _FIXED_STEP + _STATE,
                                         template="StampedModelControllerSlave",

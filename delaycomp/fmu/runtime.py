@@ -1,4 +1,4 @@
-"""pythonfmu's runtime library as the Python FMUs ship it: with one fix (issue 30, item 10).
+"""pythonfmu's runtime library as the Python FMUs ship it: with one fix.
 
 pythonfmu copies its C++ runtime (``libpythonfmu-export.so``, sources
 ``src/pythonfmu/PySlaveInstance.cpp`` of https://github.com/NTNU-IHB/PythonFMU, version

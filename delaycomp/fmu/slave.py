@@ -306,10 +306,10 @@ class _StateHandle:
 
 def _never_freed(pins: list) -> None:
     """Hold one reference to ``pins`` that nothing drops, not even the interpreter's
-    teardown (issue 30, item 10): a pin list is never freed, so a token the host freed more
-    than once never reaches zero. Before, the pins lay in a module variable, which the
-    teardown frees: a token freed twice by the host then reached zero one pin early, and
-    freeing the rest read and wrote the freed token (valgrind: "Invalid read of size 8 ...
+    teardown: a pin list is never freed, so a token the host freed more than once never
+    reaches zero. Pins in a module variable would be freed by the teardown: a token freed
+    twice by the host would then reach zero one pin early, and freeing the rest would read
+    and write the freed token (valgrind: "Invalid read of size 8 ...
     list_dealloc", 0 bytes inside a block of 40 freed by the same ``list_dealloc``)."""
     ctypes.pythonapi.Py_IncRef(ctypes.py_object(pins))
 

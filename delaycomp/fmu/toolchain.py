@@ -15,7 +15,7 @@ headers of every target. Its targets are chosen for reach:
   importers on either architecture load it (fmpy, OMSimulator); the arm64 one also goes
   into ``aarch64-darwin``, the folder FMI 2.0.4 names for it. FMI 3.0 has a folder each.
 
-Where no Zig is found, a system compiler builds what it can, as before: this machine's
+Where no Zig is found, a system compiler builds what it can: this machine's
 platform with ``$CC``, ``cc``, ``gcc`` or ``clang``; ``x86_64-windows`` and
 ``aarch64-linux`` with Debian's cross compilers (``$CC_WIN64``, ``$CC_AARCH64``); a
 platform without a compiler is left out with one note. A compiler variable that is set

@@ -1,6 +1,6 @@
 """A model file's functions as C: traced with CasADi symbols, emitted as straight-line C.
 
-The first piece of the native nonlinear FMUs (issue 23): ``translate`` calls the
+The first piece of the native nonlinear FMUs: ``translate`` calls the
 model's ``f``, ``k`` and ``step`` once per combination of its string parameters' choices
 (``CHOICES``) with symbolic arguments (CasADi's ``SX``): the state, the input, the time or
 the step, and every numeric parameter (``T``, the sampling period, among them), so one C

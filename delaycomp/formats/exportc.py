@@ -2,8 +2,8 @@
 
 The controller of a loop (an LTI loop's, or a model file's, either family) is written as
 ``DIR/NAME.h`` and ``DIR/NAME.c``: C99, no heap, no I/O, no global state (everything lives
-in ``NAME_state``, a struct of fixed size; two controllers live in one program), and the
-interface of issue 33::
+in ``NAME_state``, a struct of fixed size; two controllers live in one program), with this
+interface::
 
     void NAME_init(NAME_state *s);
     int  NAME_sample(NAME_state *s, double t, const double *y);

@@ -109,7 +109,7 @@ def check_output(path: str | Path | None, option: str, kind: str = "csv") -> Pat
         missing = missing.parent
     if missing.exists() and not missing.is_dir():
         raise OutputError(f"{option} {text!r}: {missing} is a file, not a folder")
-    if not parent.is_dir():  # created by us, silently, before: the user's typo kept
+    if not parent.is_dir():  # never created silently: a typo in the path would be kept
         raise OutputError(f"{option} {text!r}: folder {parent} does not exist (create it "
                           "first)")
     why = _unwritable(parent)

@@ -215,7 +215,7 @@ def critical_delay(
     ``ValueError`` if the loop is unstable at ``r = 0`` or stays stable up to ``r_max``.
     """
     # the one root search of the module: scipy.optimize (0.1 s to import) is loaded here,
-    # not by the FMUs that import this module for its flows (issue "Start fast", item 2)
+    # not by the FMUs that import this module for its flows (an FMU instantiates faster)
     from scipy.optimize import brentq
 
     if rho_of_r(0.0) >= 1.0:

@@ -1,4 +1,4 @@
-"""The time-stamp predictor-controller for LTI and model plants (issue 29, item 2).
+"""The time-stamp predictor-controller for LTI and model plants.
 
 Over a network the measurement's delay varies from packet to packet and packets are
 lost, but each sample carries the time it was taken (its **stamp**, the channel's

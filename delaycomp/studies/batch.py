@@ -1256,7 +1256,7 @@ def _np_put(a, index, value):
     return a
 
 
-# -- LTI loops through network channels (issue 29, item 4) -------------------------------
+# -- LTI loops through network channels -------------------------------------------------
 
 #: how close to ``age_max`` (in ``T``) a sample's age counts as within it: the time-stamp
 #: controller's own (``delaycomp.maths.stamped.SNAP``)

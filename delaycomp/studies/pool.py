@@ -2,7 +2,7 @@
 (``on_processes``, one BLAS thread each) or on a Dask cluster (``on_dask``), their
 results in the jobs' order, a progress bar (``Progress``) ticking as each finishes.
 
-No worker outlives the process that started it (issue 30, item 4). When the pool is left
+No worker outlives the process that started it. When the pool is left
 by an exception (Ctrl-C's ``KeyboardInterrupt``, the command line's SIGTERM and SIGHUP, a
 job's error) the jobs not started are cancelled and the workers are terminated at once,
 not waited for. When the main process dies without a word (SIGKILL, a crash) each worker

@@ -395,7 +395,7 @@ class Loop:
                                    for i in self.instances)
 
 
-# -- network channels (issue 29) -------------------------------------------------------
+# -- network channels ------------------------------------------------------------------
 
 def channel_roles(loop: Loop) -> list[str]:
     """The roles of ``loop`` (``meas_delay``, ``input_delay``) that a network channel

@@ -36,7 +36,7 @@ outputs measured), ``inputs``, ``x0`` (the measured history: the FMU must start 
 predictor from ``[controller]`` ``A``, ``B`` and ``K``, ``model``, or ``predictor =
 "plant-fmu"`` with ``K`` (the FMU's own Model Exchange derivatives, ``.fmumodel``).
 
-A network channel in a delay's place (issue 29): a ``[meas_delay]`` or ``[input_delay]``
+A network channel in a delay's place: a ``[meas_delay]`` or ``[input_delay]``
 table with the keys of ``delaycomp.maths.channel.Channel`` (``distribution``, ``jitter``,
 ``loss_model``, ``seed``, a ``trace`` CSV file, ...; ``with_channels``).
 
@@ -736,7 +736,7 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         return None
 
 
-# -- network channels ([meas_delay], [input_delay]; issue 29) -------------------------------
+# -- network channels ([meas_delay], [input_delay]) ----------------------------------------
 
 #: the longest delay trace a channel takes (``delaycomp.fmu.build.TRACE_MAX``, the channel
 #: FMU's ``trace[1..L]``, which the tests hold it to)

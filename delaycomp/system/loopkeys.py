@@ -129,8 +129,8 @@ TABLE: tuple[Entry, ...] = (
       "(the feedback on the sample itself)", default="compensated"),
     E("controller", "u0", ALL, "the constant input history on `[-r - tau, 0)` (`m` numbers)",
       shown="zeros"),
-    E("controller", "stamps", ("lti", "model"), "`true`: the time-stamp controller (issue "
-      "29): the predictor integrates over each sample's actual age, the measurement "
+    E("controller", "stamps", ("lti", "model"), "`true`: the time-stamp controller: "
+      "the predictor integrates over each sample's actual age, the measurement "
       "channel's `stamp`, plus `tau`; a lost sample means predicting from the last one "
       "received (`[meas_delay]` becomes a constant channel where it is no table); a model "
       "loop's model must have `CONTROL = \"zoh\"`", default=False),
@@ -147,7 +147,7 @@ TABLE: tuple[Entry, ...] = (
       "`[plant] tolerance` where given)"),
     E("controller", "(any other key)", MODEL_CONTROLLERS, "a model parameter, by its name "
       "in the module's `PARAMETERS`", shown="the model's value"),
-    # [meas_delay], [input_delay]: a network channel in the delay's place (issue 29)
+    # [meas_delay], [input_delay]: a network channel in the delay's place
     E("channel", "distribution", ALL, "the delay's random part: `\"constant\"` (none), "
       "`\"uniform\"` on `[0, jitter)`, `\"exponential\"` of mean `jitter`, `\"gamma\"` of mean "
       "`jitter` and shape `shape`, or `\"trace\"` (the delays of `trace`, replayed in order "
@@ -195,7 +195,7 @@ del E
 
 #: the tables a loop file may hold (``[reference]`` describes something besides the loop)
 TABLES = ("plant", "controller", "meas_delay", "input_delay", "reference")
-#: the tables of a network channel in a delay's place (issue 29), each named by the role of
+#: the tables of a network channel in a delay's place, each named by the role of
 #: the delay it replaces; their keys are the ``"channel"`` entries of ``TABLE`` (no entry
 #: has a ``default``: a key written out makes the table, and the table the channel, so
 #: their defaults are in words, the channel's, ``delaycomp.maths.channel.Channel``)

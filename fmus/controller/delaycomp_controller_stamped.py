@@ -1,4 +1,4 @@
-"""FMU slave: the time-stamp predictor-controller for an LTI plant (issue 29, item 2).
+"""FMU slave: the time-stamp predictor-controller for an LTI plant.
 
 The maths is ``delaycomp.maths.stamped.StampedController``: at each sampling instant it
 reads the sample ``y`` and its send time ``stamp`` (a network channel's outputs), carries

@@ -1,4 +1,4 @@
-"""FMU slave template: the time-stamp predictor-controller of a user model (issue 29).
+"""FMU slave template: the time-stamp predictor-controller of a user model.
 
 The model's zero-order-hold law ``k(x, p)`` (``CONTROL = "zoh"``) on the estimate of
 ``delaycomp.maths.stamped.StampedModelController``: at each sampling instant it reads the

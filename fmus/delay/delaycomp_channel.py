@@ -1,4 +1,4 @@
-"""FMU slave: a network channel on n signals, in a delay's place (issue 29).
+"""FMU slave: a network channel on n signals, in a delay's place.
 
 The maths is ``delaycomp.maths.channel.ChannelLine``: packets every ``period`` stamped with
 their send time, each delayed by ``delay`` plus a draw of ``distribution`` (``jitter``,
