@@ -147,7 +147,7 @@ class _Same:
 
     def __init__(self, target: str):
         self.target = target
-        self._spec = None
+        self._spec: importlib.machinery.ModuleSpec | None = None
 
     def create_module(self, spec):
         module = importlib.import_module(self.target)
@@ -167,7 +167,9 @@ class _Finder:
             return None
         new = now(fullname)
         if new is not None:
-            return importlib.util.spec_from_loader(fullname, _Same(new))
+            # typeshed's loader protocol asks for load_module, which the import system
+            # calls only on loaders without exec_module
+            return importlib.util.spec_from_loader(fullname, _Same(new))  # type: ignore[arg-type]
         name = fullname[len("delaycomp."):]
         if name in BESIDE and not os.path.isdir(os.path.join(_PACKAGE_DIR, name)):
             folder = os.path.join(_ROOT, name)
