@@ -480,6 +480,7 @@ class FmuComponent(ComponentBase):
                 raw.append(self._raw(self._fn("GetReal")))
             fast = raw[0]
             if fast is None:
+                assert self.fmu is not None  # after setup()
                 try:
                     out = (self.fmu.getFloat64 if self.fmi3 else self.fmu.getReal)(vrs)
                 except FMICallException as exc:
@@ -526,6 +527,7 @@ class FmuComponent(ComponentBase):
                 raw.append(self._raw(self._fn("SetReal")))
             fast = raw[0]
             if fast is None:
+                assert self.fmu is not None  # after setup()
                 try:
                     (self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal)(vrs, values)
                 except FMICallException as exc:

@@ -69,7 +69,7 @@ import sys
 import uuid
 import warnings
 from collections.abc import Callable, Iterable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NoReturn
 from xml.etree.ElementTree import SubElement
 
 import numpy as np
@@ -480,7 +480,7 @@ class TableSlave(Fmi2Slave):
         )
         self.dependencies[name] = list(depends_on)
 
-    def fail(self, message: str) -> None:
+    def fail(self, message: str) -> NoReturn:
         """Abandon ``_setup`` or ``_step`` with ``message`` (logged by the caller)."""
         raise ParameterError(message)
 
@@ -938,7 +938,7 @@ class StampedSlaveMixin(HeldSampleMixin):
     output_names: list
     mode: str
     _refuse: Callable[[str], None]
-    fail: Callable[[str], None]
+    fail: Callable[[str], NoReturn]
     real_input: Callable[..., None]
     real_output: Callable[..., None]
     parameter: Callable[..., None]

@@ -242,7 +242,8 @@ class ZOHModelController(_Base):
 
 def make_controller(model: Model, params: dict, T: float, r: float, tau: float, N: int, u0,
                     z0=None, mode: str | None = None, predictor: str | None = None,
-                    tol: float = DEFAULT_TOL, pad: bool = False):
+                    tol: float = DEFAULT_TOL,
+                    pad: bool = False) -> ContinuousController | ZOHModelController:
     """The controller for ``model`` in ``mode`` (default: the model's CONTROL)."""
     mode = mode or model.control
     predictor = predictor or ("closed" if model.predictor is not None else "numerical")

@@ -171,6 +171,7 @@ def _scaled_segment(slot: _Slot, z, duration, u, elapsed, size) -> np.ndarray:
     ("step size becomes too small", "larger nsteps is needed", a 0/0 error norm)."""
     s = 2.0 ** round(math.log2(size))
     f = slot.f
+    assert f is not None  # integrate set it for this solve
 
     def scaled(y, u_, p_):
         return np.asarray(f(y * s, u_, p_), dtype=float) / s
@@ -221,6 +222,7 @@ class _Slot:
                 # seconds, measured). NaN ends it within a few thousand cheap calls
                 # ("step size becomes too small"); the caller reports f's exception.
                 return np.full(len(s), np.nan)
+            assert slot.f is not None  # the solver calls rhs only within integrate's solve
             try:
                 return slot.f(s, u, slot.p)
             except BaseException as exc:

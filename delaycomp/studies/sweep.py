@@ -153,8 +153,8 @@ def evaluate(job: Job) -> dict:
         rho = lifted.spectral_radius
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
                 "deadbeat_time": None, "failed": ""}
-    kwargs = {} if job.engine == "fmu" else {"engine": job.engine}
-    return result_metrics(spec, run_loop(spec, job.stop, job.fmu_dir, **kwargs))
+    fmu_dir = Path(job.fmu_dir) if job.fmu_dir is not None else None
+    return result_metrics(spec, run_loop(spec, job.stop, fmu_dir, engine=job.engine))
 
 
 def _prebuild(jobs: list[Job]) -> None:

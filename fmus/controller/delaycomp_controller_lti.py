@@ -59,8 +59,8 @@ class DelaycompControllerLTI(HeldSampleMixin, TableSlave):
             ("tau", "input delay assumed by the predictor [s], a multiple of T (unless "
                     "pad)"),
         ):
-            self.parameter(name, (lambda a=name: getattr(self, a)),
-                           (lambda v, a=name: setattr(self, a, v)), text)
+            get, put = (lambda a=name: getattr(self, a)), (lambda v, a=name: setattr(self, a, v))
+            self.parameter(name, get, put, text)
         self.register_variable(Boolean(
             "pad", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
             getter=lambda: self.pad, setter=lambda v: setattr(self, "pad", bool(v)),

@@ -26,7 +26,12 @@ from delaycomp.fmu.slave import (
 )
 from delaycomp.maths.grid import grid_step, same_step
 from delaycomp.maths.model import CONTROLS, from_module
-from delaycomp.maths.nlcontrol import PREDICTORS, make_controller
+from delaycomp.maths.nlcontrol import (
+    PREDICTORS,
+    ContinuousController,
+    ZOHModelController,
+    make_controller,
+)
 from delaycomp.maths.predictors import DEFAULT_TOL, IntegrationError
 
 
@@ -49,7 +54,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         self.pad = False
         self.u0, self.z0, self.y = np.zeros(m), np.zeros(n), np.zeros(n)
         self.t0 = 0.0
-        self.ctrl = None
+        self.ctrl: ContinuousController | ZOHModelController | None = None  # made by _setup
         self._declare_settings()
         self._declare_model_variables(model)
 
@@ -59,8 +64,8 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
                            ("r", "measurement delay [s], >= 0, a multiple of T/N"),
                            ("tau", "input delay [s], >= 0, a multiple of T/N (zoh: of T, "
                                    "unless pad)")):
-            self.parameter(name, (lambda a=name: getattr(self, a)),
-                           (lambda v, a=name: setattr(self, a, v)), text)
+            get, put = (lambda a=name: getattr(self, a)), (lambda v, a=name: setattr(self, a, v))
+            self.parameter(name, get, put, text)
         self.register_variable(Integer(
             "N", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
             getter=lambda: self.N, setter=lambda v: setattr(self, "N", v),
@@ -85,12 +90,12 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         self.values: dict = {}
         self.model_parameters(self.values, model.parameters, model.choices)
         for j, s in enumerate(model.inputs):
-            self.parameter(f"u0[{j + 1}]", (lambda j=j: float(self.u0[j])),
-                           (lambda v, j=j: self.u0.__setitem__(j, v)),
+            get, put = (lambda j=j: float(self.u0[j])), (lambda v, j=j: self.u0.__setitem__(j, v))
+            self.parameter(f"u0[{j + 1}]", get, put,
                            f"history of {s}, constant on [t0 - r - tau, t0)")
         for i, s in enumerate(model.states):
-            self.parameter(f"z0[{i + 1}]", (lambda i=i: float(self.z0[i])),
-                           (lambda v, i=i: self.z0.__setitem__(i, v)),
+            get, put = (lambda i=i: float(self.z0[i])), (lambda v, i=i: self.z0.__setitem__(i, v))
+            self.parameter(f"z0[{i + 1}]", get, put,
                            f"continuous mode: initial predictor state for {s}")
         self.register_held_sample()
         inputs = [f"y_{s}" for s in model.states]
@@ -127,7 +132,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
                                         self.predictor, self.tolerance, self.pad)
         except ValueError as exc:
             self.fail(str(exc))
-        if getattr(self.ctrl, "padding", 0.0):
+        if isinstance(self.ctrl, ZOHModelController) and self.ctrl.padding:
             self.log(f"input delay padded from tau = {self.tau!r} to "
                      f"{self.ctrl.tau_effective!r}: the controller delays its output by "
                      f"{self.ctrl.padding!r} s")
@@ -136,10 +141,12 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         self._y_held = None
 
     def _hidden_state(self) -> dict:
+        assert self.ctrl is not None  # saved only when initialized: _setup() made it
         return {"ctrl": self.ctrl.get_state(),
                 "y_held": self._held_state()}
 
     def _restore_hidden(self, hidden: dict) -> None:
+        assert self.ctrl is not None  # called after _setup() made it
         ctrl = hidden.get("ctrl")
         if not isinstance(ctrl, dict):
             raise state_refused("hidden.ctrl", ctrl, "an object (k_tick, history, ...)")
@@ -179,6 +186,7 @@ class ModelControllerSlave(HeldSampleMixin, TableSlave):
         return np.full(self.model.m, np.nan)
 
     def _step(self, t, h):
+        assert self.ctrl is not None  # steps follow _setup(), which made it
         expected = self.t0 + self.ctrl.k_tick * self.ctrl.h
         if is_roundoff_step(h, self.ctrl.h) and abs(t + h - expected) <= 1e-9 * max(
                 self.T, abs(t)):

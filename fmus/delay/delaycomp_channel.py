@@ -86,8 +86,9 @@ class DelaycompChannel(TableSlave):
                               "the delay's random part: constant (none), uniform, "
                               "exponential, gamma, or trace", DISTRIBUTIONS)
         for name, _, text in _REALS:
-            self.parameter(name, (lambda a=name: self.values[a]),
-                           (lambda v, a=name: self.values.__setitem__(a, v)), text)
+            get, put = ((lambda a=name: self.values[a]),
+                        (lambda v, a=name: self.values.__setitem__(a, v)))
+            self.parameter(name, get, put, text)
         self.string_parameter("loss_model", lambda: self.loss_model,
                               lambda v: setattr(self, "loss_model", v),
                               "none, bernoulli (loss) or gilbert_elliott (p_gb, p_bg, "
@@ -104,13 +105,13 @@ class DelaycompChannel(TableSlave):
             getter=lambda: self.seed, setter=lambda v: setattr(self, "seed", int(v)),
             description=f"the draws' seed, 0 .. {SEED_MAX}"))
         for i in range(self.L):
-            self.parameter(f"trace[{i + 1}]", (lambda i=i: self.trace[i]),
-                           (lambda v, i=i: self.trace.__setitem__(i, v)),
+            get, put = (lambda i=i: self.trace[i]), (lambda v, i=i: self.trace.__setitem__(i, v))
+            self.parameter(f"trace[{i + 1}]", get, put,
                            "distribution = trace: a measured delay [s], >= delay, replayed in "
                            "order from an offset drawn from the seed; negative: a lost packet")
         for i in range(n):
-            self.parameter(f"u0[{i + 1}]", (lambda i=i: self.u0[i]),
-                           (lambda v, i=i: self.u0.__setitem__(i, v)),
+            get, put = (lambda i=i: self.u0[i]), (lambda v, i=i: self.u0.__setitem__(i, v))
+            self.parameter(f"u0[{i + 1}]", get, put,
                            "input history, shown until the first packet is delivered")
         self.input_names = indexed("u", n)
         self.output_names = indexed("y", n)

@@ -39,12 +39,12 @@ class DelaycompDelay(TableSlave):
         self.u0 = [0.0] * n
         self.u = [0.0] * n
         self.line: DelayLine | None = None  # made at the first step, when h is known
-        self._h = None
+        self._h: float | None = None  # the line's step, set with it
         self.parameter("delay", lambda: self.delay, lambda v: setattr(self, "delay", v),
                        "delay [s], >= 0, an integer multiple of the communication step")
         for i in range(n):
-            self.parameter(f"u0[{i + 1}]", (lambda i=i: self.u0[i]),
-                           (lambda v, i=i: self.u0.__setitem__(i, v)),
+            get, put = (lambda i=i: self.u0[i]), (lambda v, i=i: self.u0.__setitem__(i, v))
+            self.parameter(f"u0[{i + 1}]", get, put,
                            "input history, constant on [t0 - delay, t0)")
         self.input_names = indexed("u", n)
         self.output_names = indexed("y", n)
@@ -113,13 +113,17 @@ class DelaycompDelay(TableSlave):
                           f">= one communication step, {step_size!r}")
             self.line = DelayLine(self.n, D, self.u0)
             self._h = step_size
-        elif is_roundoff_step(step_size, self._h):
-            return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
-        elif not (same_step(step_size, self._h, t) or grid_step(t, step_size, self._h, self.t0)):
-            # round-off is not another step size: libcosim keeps time in integer
-            # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s; a host
-            # whose clock drifts (t += h) ends its last step on the stop time (grid_step)
-            self.fail(f"step size {step_size!r} is not allowed: this delay runs on a fixed "
-                      f"communication step, {self._h!r}")
+        else:
+            assert self._h is not None  # set with the line
+            if is_roundoff_step(step_size, self._h):
+                return  # the master's round-off (fmuslave.ROUNDOFF_STEP_FRACTION): nothing moves
+            if not (same_step(step_size, self._h, t)
+                    or grid_step(t, step_size, self._h, self.t0)):
+                # round-off is not another step size: libcosim keeps time in integer
+                # nanoseconds and passes t_{k+1} - t_k, off by ~1e-12 relative at t = 60 s; a
+                # host whose clock drifts (t += h) ends its last step on the stop time
+                # (grid_step)
+                self.fail(f"step size {step_size!r} is not allowed: this delay runs on a "
+                          f"fixed communication step, {self._h!r}")
         check_inputs(self.input_names, self.u, t)
         self.line.push(self.u)

@@ -41,8 +41,8 @@ class ModelPlantSlave(TableSlave):
         self.u = np.zeros(m)
         self.plant: ModelPlant | None = None
         for i, s in enumerate(self.model.states):
-            self.parameter(f"x0[{i + 1}]", (lambda i=i: float(self.x0[i])),
-                           (lambda v, i=i: self.x0.__setitem__(i, v)),
+            get, put = (lambda i=i: float(self.x0[i])), (lambda v, i=i: self.x0.__setitem__(i, v))
+            self.parameter(f"x0[{i + 1}]", get, put,
                            f"initial state {s}(t0)")
         self.parameter("tolerance", lambda: self.tolerance,
                        lambda v: setattr(self, "tolerance", v),
@@ -80,6 +80,7 @@ class ModelPlantSlave(TableSlave):
             self.fail(f"step size {h!r} at t = {t!r} is not allowed: must be a finite "
                       "number > 0")
         check_inputs(self.model.inputs, self.u, t)
+        assert self.plant is not None  # steps follow _setup(), which built it
         try:
             self.plant.step(self.u, h)
         except IntegrationError as exc:

@@ -30,8 +30,9 @@ class DelaycompPlantLTI(TableSlave):
         self.x0 = np.zeros(n)
         self.x = np.zeros(n)
         self.u = np.zeros(m)
-        self._h = None  # step size of the cached discretization (grid.same_step keys it)
-        self._Ad = self._Bd = None
+        self._h: float | None = None  # step size of the cached discretization (same_step keys it)
+        self._Ad: np.ndarray | None = None
+        self._Bd: np.ndarray | None = None
 
         def elem(mat, i, j):
             return (lambda: float(mat[i, j])), (lambda v: mat.__setitem__((i, j), v))
@@ -45,8 +46,8 @@ class DelaycompPlantLTI(TableSlave):
                 g, s = elem(self.B, i, j)
                 self.parameter(f"B[{i + 1},{j + 1}]", g, s, "input matrix B")
         for i in range(n):
-            self.parameter(f"x0[{i + 1}]", (lambda i=i: float(self.x0[i])),
-                           (lambda v, i=i: self.x0.__setitem__(i, v)), "initial state x(t0)")
+            get, put = (lambda i=i: float(self.x0[i])), (lambda v, i=i: self.x0.__setitem__(i, v))
+            self.parameter(f"x0[{i + 1}]", get, put, "initial state x(t0)")
         self.input_names = indexed(self.config.get("input", "u"), m)
         self.output_names = indexed(self.config.get("state", "x"), n)
         for j, name in enumerate(self.input_names):
@@ -87,6 +88,7 @@ class DelaycompPlantLTI(TableSlave):
             self._Ad, self._Bd = discretize(self.A, self.B, step_size)
             self._zeros = np.zeros(self.n)
             self._h = step_size
+        assert self._Ad is not None and self._Bd is not None  # made with _h, above at the latest
         x = self._Ad.dot(self.x) + self._Bd.dot(self.u)
         # x . 0 is 0 for a finite x and nan as soon as an entry is inf or nan: one cheap
         # test of the whole state on the hot path (np.isfinite(x).all() costs 2.5 times more)
