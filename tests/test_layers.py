@@ -413,6 +413,31 @@ def test_each_native_model_lives_beside_its_python_twin():
     assert '#include "native.h"' not in (SHARED_C / "pyrepr.c").read_text(encoding="utf-8")
 
 
+def test_the_grid_and_held_sample_rules_are_written_once_in_c():
+    """The rule whether a value is a whole number of a step (delaycomp.maths.grid's
+    ``nearest_multiple``: within GRID_RTOL of ``max(1, |ratio|)``) is written once in C,
+    ``fmus/native/grid.c``, and so are the controllers' held sample and proposal
+    (``HeldSampleMixin``), ``held.c``: the delay, the channel and the controllers call
+    them, so no copy can drift from the Python rule on its own."""
+    import re
+
+    def literals(path: Path) -> str:
+        return " ".join(re.findall(r'"((?:\\.|[^"\\])*)"', path.read_text(encoding="utf-8")))
+
+    def where(pattern: str, text=_c_code) -> set[str]:
+        return {p.name for p in _c_files() if re.search(pattern, text(p))}
+
+    assert where(r"GRID_RTOL\s*\*\s*fmax\(\s*1\.0\b") == {"grid.c"}
+    for rule in ("nearest_multiple", "steps_up", "split", "padded_delay"):  # defined once
+        # (fates.c, the batch's kernel outside any FMU, has channel_batch.steps_up: numpy's)
+        assert where(rf"(?m)^[A-Za-z_][\w \t*]*\b{rule}\s*\([^;{{]*\)\s*\{{") - {
+            "fates.c"} == {"grid.c"}
+    assert where(r"y_held_valid\s*\?\s*[\w>.-]*y_held\b") == {"held.c"}  # the sample read
+    assert where(r"memcpy\(\s*[\w>.-]*y_held\b") == {"held.c"}  # the sample held
+    assert where(r"must be 0 with held_sample = false", literals) == {"held.c"}
+    assert where(r"u_i of the current sample", literals) == {"held.c"}
+
+
 # -- errors (item 2): one class per name, every one a DelaycompError --------------------
 def _error_classes() -> dict[str, list[tuple[str, list[str]]]]:
     """Every class of the package that is an exception, by name: ``[(module, bases)]``

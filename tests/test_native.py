@@ -61,8 +61,8 @@ LTI_CASES = [c for c in CASES if c.scenario in ("example-3.6", "corollary-3.7")]
 # -- the maths in C ---------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def linalg(tmp_path_factory):
-    """linalg.c and fmi2.c with a stub model, compiled with their symbols visible, called
-    through ctypes."""
+    """linalg.c, grid.c and fmi2.c with a stub model, compiled with their symbols visible,
+    called through ctypes."""
     tmp = tmp_path_factory.mktemp("linalg")
     (tmp / "config.h").write_text(
         "#define MODEL_HEADER \"stub.h\"\n#define NIN 1\n#define NOUT 1\n#define NVR 1\n"
@@ -89,7 +89,7 @@ def linalg(tmp_path_factory):
     flags = [f for f in CFLAGS if f != "-fvisibility=hidden"]
     subprocess.run([*compiler(), *flags, "-I", str(tmp), "-I", str(SOURCE_DIR), "-I",
                     str(fmi_header_dir()), "-o", str(lib),
-                    *(str(SOURCE_DIR / f) for f in ("linalg.c", *COMMON_SOURCES)),
+                    *(str(SOURCE_DIR / f) for f in ("linalg.c", "grid.c", *COMMON_SOURCES)),
                     str(tmp / "stub.c"), "-lm"], check=True)
     return ctypes.CDLL(str(lib))
 
@@ -110,6 +110,49 @@ def test_numbers_in_messages_are_written_as_python_repr(linalg):
     values += list(rng.random(300) * 10.0 ** rng.integers(-12, 12, 300))
     for v in values:
         assert linalg.num(v).s.decode() == repr(float(v))
+
+
+def test_grid_rules_are_python_s(linalg):
+    """grid.c, the one copy of the grid's rules in C (every native model's answer whether a
+    value is a whole number of a step), answers as delaycomp.maths.grid on each value:
+    round-off of decimal inputs, just inside and outside GRID_RTOL, ties (to even), huge,
+    tiny, zero, negative and non-finite ratios."""
+    from delaycomp.maths import grid
+
+    dbl = ctypes.c_double
+    linalg.nearest_multiple.restype = ctypes.c_int
+    linalg.nearest_multiple.argtypes = [dbl, dbl, ctypes.POINTER(dbl)]
+    linalg.steps_up.restype = dbl
+    linalg.steps_up.argtypes = [dbl, dbl]
+    linalg.split.restype = None
+    linalg.split.argtypes = [dbl, dbl, ctypes.POINTER(dbl), ctypes.POINTER(dbl)]
+    linalg.padded_delay.restype = dbl
+    linalg.padded_delay.argtypes = [dbl, dbl]
+    rng = np.random.default_rng(52)
+    steps = [0.01, 0.1, 0.3, 1.0, 0.005, 1e-7, 3.0]
+    values = [0.0, -0.0, 0.3, 0.36, 0.361, 0.305, 2.5, 0.5, 1.5, 2.0, 1e6, 1e-320,
+              float("inf"), -float("inf"), float("nan"), -0.3, -2.5, 1e300]
+    cases = [(v, s) for v in values for s in steps]
+    for s in steps:  # k s, and k s (1 +- d) for d on either side of GRID_RTOL
+        for k in (*range(0, 40), *rng.integers(0, 10 ** 6, 30)):
+            for d in (0.0, 1e-16, 5e-10, 9.9e-10, 1.01e-9, 2e-9, 1e-6):
+                for sign in (1.0, -1.0):
+                    cases.append((float(k) * s * (1 + sign * d), s))
+            cases.append(((float(k) + 0.5) * s, s))
+    cases += [(float(v), float(s)) for v, s in zip(rng.random(500) * 100,
+                                                   rng.random(500) * 0.1 + 1e-3)]
+    for value, step in cases:
+        k = dbl(-7.0)
+        on = linalg.nearest_multiple(value, step, ctypes.byref(k))
+        want = grid.nearest_multiple(value, step)
+        assert (k.value if on else None) == want, (value, step)
+        if not (np.isfinite(value) and value >= 0):
+            continue
+        assert linalg.steps_up(value, step) == grid.steps_up(value, step), (value, step)
+        q, rest = dbl(), dbl()
+        linalg.split(value, step, ctypes.byref(q), ctypes.byref(rest))
+        assert (q.value, rest.value) == grid.split(value, step), (value, step)
+        assert linalg.padded_delay(value, step) == grid.padded_delay(value, step)
 
 
 def _c_expm(lib, a: np.ndarray) -> np.ndarray:
@@ -308,7 +351,9 @@ def test_native_model_description_is_the_python_table(native_dir, fmu_dir, kind)
     cs = nat.coSimulation
     assert not cs.needsExecutionTool and cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
     # the FMI layer, the shared sources of the model's manifest, the model's own C
-    uses = {"delay": [], "channel": ["draws.c"]}.get(kind, ["linalg.c"])
+    uses = {"plant": ["linalg.c"], "delay": ["grid.c"], "channel": ["draws.c", "grid.c"],
+            "controller": ["linalg.c", "grid.c", "held.c"],
+            "stamped_controller": ["linalg.c", "held.c"]}[kind]
     assert _source_files(nat) == ["fmi2.c", "core.c", "native.c", "pyrepr.c", *uses,
                                   NATIVE_KINDS[kind]]
     assert nat.guid != py.guid

@@ -404,7 +404,7 @@ def test_the_model_description_is_the_python_table_and_the_sources_compile(
     assert nat.coSimulation.modelIdentifier == py.coSimulation.modelIdentifier
     files = nat.buildConfigurations[0].sourceFileSets[0].sourceFiles
     assert files == ["fmi2.c", "core.c", "native.c", "pyrepr.c", "ode.c", "model_common.c",
-                     "model_controller.c", "model.c"]
+                     "grid.c", "held.c", "model_controller.c", "model.c"]
     src = tmp_path / "src"
     with zipfile.ZipFile(nat_path) as zf:
         zf.extractall(src, [n for n in zf.namelist() if n.startswith("sources/")])

@@ -20,6 +20,8 @@
 #include <string.h>
 
 #include "native.h"
+#include "grid.h"    /* split: the grid's rule for a delay in periods */
+#include "held.h"    /* held_sample and the proposal, as the other controllers */
 #include "linalg.h"  /* expm, flow, matmul, with the caller's work memory */
 
 
@@ -27,18 +29,12 @@ static const char *mode_of(const Instance *c) { return c->d.string[STRING_SLOT[V
 
 static int compensated(const Instance *c) { return strcmp(mode_of(c), "compensated") == 0; }
 
-/* delaycomp.maths.lti.split_delay: q = [r/T] and r~ = r - qT, integer up to round-off */
+/* delaycomp.maths.lti.split_delay (delaycomp.maths.grid.split): q = [r/T] and r~ = r - qT,
+ * integer up to round-off; r >= 0 with r / T at most MAX_STEPS (configure checks both) */
 static void split_delay(double r, double T, long *q, double *rest) {
-    double ratio = r / T;
-    double nearest = nearbyint(ratio);
-    if (fabs(ratio - nearest) <= GRID_RTOL * fmax(1.0, ratio)) {
-        *q = (long)nearest;
-        *rest = 0.0;
-        return;
-    }
-    double fl = floor(ratio);
-    *q = (long)fl;
-    *rest = fmax(r - fl * T, 0.0);
+    double whole;
+    split(r, T, &whole, rest);
+    *q = (long)whole;
 }
 
 /* The Integer twin of mode (delaycomp.fmu.slave, item 9): k = 1, 2 selects compensated,
@@ -233,24 +229,26 @@ static void propose(Instance *c, const double *y, double *u) {
     }
 }
 
+/* The sample the controller reads now: y, or (held_sample) the input held. */
+static const double *sampled(const Instance *c) {
+    const ModelData *m = &c->d.m;
+    return held_sample(c->d.boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held,
+                       &c->d.real[VR_Y]);
+}
+
+/* propose as proposal_once calls it: ctx is the sample, which is never refused */
+static int propose_sample(Instance *c, const void *ctx, double *u) {
+    propose(c, ctx, u);
+    return 0;
+}
+
 /* u_i of the current sample (computed once per measurement); -1 (logged) when the
- * feedback overflows */
+ * feedback overflows for a finite input y */
 static int proposed(Instance *c, const double **u) {
     ModelData *m = &c->d.m;
-    if (!m->proposal_valid) {
-        const double *y = &c->d.real[VR_Y];
-        const double *sample = c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? m->y_held : y;
-        propose(c, sample, m->proposal);
-        m->proposal_valid = 1;
-        if (check_control_finite(c, m->proposal, y,
-                                 c->d.t0 + (double)m->next * c->d.real[VR_T],
-                                 "the feedback diverged: overflow") != 0) {
-            *u = m->proposal;
-            return -1;
-        }
-    }
-    *u = m->proposal;
-    return 0;
+    return proposal_once(c, propose_sample, sampled(c), &m->proposal_valid, m->proposal,
+                         &c->d.real[VR_Y], c->d.t0 + (double)m->next * c->d.real[VR_T],
+                         m->proposal, u);
 }
 
 /* The current output; -1 (logged) when the feedback overflows */
@@ -304,15 +302,10 @@ static int proposal_ok(const StateView *v) {
     if (!m->proposal_valid) return 1;
     Instance *s = state_scratch(v, 1);
     if (s == NULL) return 0;
-    const double *sample = s->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? s->d.m.y_held
-                                                                           : &s->d.real[VR_Y];
     double u[NU];
-    propose(s, sample, u);
+    propose(s, sampled(s), u);
     state_scratch_free(s);
-    if (memcmp(u, m->proposal, sizeof u) == 0) return 1;
-    return state_refuse(v, "proposal = %s: must be %s, u_i of the current sample "
-                        "(proposal_valid = 1)", vector_text(m->proposal, NU).s,
-                        vector_text(u, NU).s);
+    return proposal_same(v, m->proposal, u);
 }
 
 static int sample_time_ok(const StateView *v) {
@@ -335,15 +328,10 @@ static int built_ok(const StateView *v) {
         !state_index(v, "hist_head", m->hist_head, m->L) ||
         !state_range(v, "next", m->next, 0, LONG_MAX - 1))
         return 0;
-    if (m->proposal_valid && !m->at_sample)
-        return state_refuse(v, "proposal_valid = 1: must be 0 between sampling instants "
-                            "(at_sample = 0)");
-    if (m->y_held_valid && !d->boolean[VR_HELD_SAMPLE])
-        return state_refuse(v, "y_held_valid = 1: must be 0 with held_sample = false");
     size_t nEQ = (size_t)NX * NX + (size_t)NX * NU * (size_t)m->L;
     int compensated_mode = strcmp(d->string[STRING_SLOT[VR_MODE]], "compensated") == 0;
-    return (m->y_held_valid ? state_finite(v, "y_held", m->y_held, NX)
-                            : state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0")) &&
+    return proposal_flag_ok(v, m->proposal_valid, m->at_sample) &&
+           held_state_ok(v, d->boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held, NX) &&
            state_finite(v, "held", m->held, NU) && proposal_ok(v) &&
            (m->padding > 0 ? state_finite(v, "pad_line", m->pad_line, NU)
                            : state_zeros(v, "pad_line", m->pad_line, NU, "padding = 0")) &&
@@ -397,10 +385,8 @@ int model_step(Instance *c, double t, double h) {
         m->released = t_end >= release - tol;
     }
     if (ends_on_sample(c, t, h, c->d.real[VR_T], m->next, &m->at_sample) != 0) return -1;
-    if (c->d.boolean[VR_HELD_SAMPLE]) {
-        memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
-        m->y_held_valid = 1;
-        m->proposal_valid = 0;
-    }
+    if (held_keep(c->d.boolean[VR_HELD_SAMPLE], &c->d.real[VR_Y], NX, m->y_held,
+                  &m->y_held_valid))
+        m->proposal_valid = 0;  /* the held input is sampled at the next instant */
     return 0;
 }

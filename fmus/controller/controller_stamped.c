@@ -1,5 +1,5 @@
-/* DelaycompControllerStamped, native: the time-stamp predictor-controller of an LTI plant
- * (issue 29, item 2). At each sampling instant t_i = t0 + i T it reads the sample y = x(s)
+/* DelaycompControllerStamped, native: the time-stamp predictor-controller of an LTI plant.
+ * At each sampling instant t_i = t0 + i T it reads the sample y = x(s)
  * and its stamp s (a network channel's outputs) and keeps the estimate z_i of x(t_i):
  *
  *   a new sample (s later than the last one used), no older than age_max: z_i = y carried
@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "native.h"
+#include "held.h"    /* held_sample and the proposal, as the other controllers */
 #include "linalg.h"  /* flow, with the caller's work memory */
 
 #define SNAP 1e-9  /* delaycomp.maths.stamped.SNAP: a time this close (in T) to a breakpoint */
@@ -219,12 +220,21 @@ static int propose(Instance *c, const double *y, double stamp, double *u) {
 /* The sample read now and its stamp (held_sample: those held over the step that ended). */
 static const double *sampled(const Instance *c, double *stamp) {
     const ModelData *m = &c->d.m;
-    if (c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid) {
-        *stamp = m->stamp_held;
-        return m->y_held;
-    }
-    *stamp = c->d.real[VR_STAMP];
-    return &c->d.real[VR_Y];
+    const double *y = held_sample(c->d.boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held,
+                                  &c->d.real[VR_Y]);
+    *stamp = y == m->y_held ? m->stamp_held : c->d.real[VR_STAMP];  /* held with it */
+    return y;
+}
+
+/* A sample and its stamp, as proposal_once hands them to propose_sample. */
+typedef struct {
+    const double *y;
+    double stamp;
+} Sample;
+
+static int propose_sample(Instance *c, const void *ctx, double *u) {
+    const Sample *s = ctx;
+    return propose(c, s->y, s->stamp, u);
 }
 
 /* The current output; -1 (logged) for a stamp from the future or an overflow. After a
@@ -233,26 +243,16 @@ static int output(Instance *c, const double **u) {
     ModelData *m = &c->d.m;
     if (!m->built) { *u = &c->d.real[VR_U0]; return 0; }
     if (!m->at_sample) { *u = m->held; return 0; }
+    Sample s = {NULL, 0.0};
     if (!m->proposal_valid) {
-        double stamp;
-        const double *y = sampled(c, &stamp);
-        if (compensated(c) && c->d.state == StateError && !stamp_fine(c, stamp)) {
+        s.y = sampled(c, &s.stamp);
+        if (compensated(c) && c->d.state == StateError && !stamp_fine(c, s.stamp)) {
             *u = m->held;
             return 0;
         }
-        if (propose(c, y, stamp, m->proposal) != 0) {
-            *u = m->held;
-            return -1;
-        }
-        m->proposal_valid = 1;
-        if (check_control_finite(c, m->proposal, y, instant(c),
-                                 "the feedback diverged: overflow") != 0) {
-            *u = m->proposal;
-            return -1;
-        }
     }
-    *u = m->proposal;
-    return 0;
+    return proposal_once(c, propose_sample, &s, &m->proposal_valid, m->proposal, s.y,
+                         instant(c), m->held, u);
 }
 
 int model_output(Instance *c, ValueRef vr, double *value) {
@@ -286,10 +286,9 @@ int model_step(Instance *c, double t, double h) {
         m->proposal_valid = 0;
     }
     if (ends_on_sample(c, t, h, c->d.real[VR_T], m->next, &m->at_sample) != 0) return -1;
-    if (c->d.boolean[VR_HELD_SAMPLE]) {
-        memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
-        m->stamp_held = c->d.real[VR_STAMP];
-        m->y_held_valid = 1;
+    if (held_keep(c->d.boolean[VR_HELD_SAMPLE], &c->d.real[VR_Y], NX, m->y_held,
+                  &m->y_held_valid)) {
+        m->stamp_held = c->d.real[VR_STAMP];  /* the stamp is held with its sample */
         m->proposal_valid = 0;
     }
     return 0;
@@ -332,10 +331,7 @@ static int proposal_ok(const StateView *v) {
     if (rc != 0)
         return state_refuse(v, "proposal_valid = 1: must be 0 where the sample's stamp %s is "
                             "refused", num(stamp).s);
-    if (memcmp(u, m->proposal, sizeof u) == 0) return 1;
-    return state_refuse(v, "proposal = %s: must be %s, u_i of the current sample "
-                        "(proposal_valid = 1)", vector_text(m->proposal, NU).s,
-                        vector_text(u, NU).s);
+    return proposal_same(v, m->proposal, u);
 }
 
 static int sample_time_ok(const StateView *v) {
@@ -369,16 +365,11 @@ static int built_ok(const StateView *v) {
         !state_index(v, "hist_head", m->hist_head, m->L) ||
         !state_range(v, "next", m->next, 0, LONG_MAX - 1))
         return 0;
-    if (m->proposal_valid && !m->at_sample)
-        return state_refuse(v, "proposal_valid = 1: must be 0 between sampling instants "
-                            "(at_sample = 0)");
-    if (m->y_held_valid && !d->boolean[VR_HELD_SAMPLE])
-        return state_refuse(v, "y_held_valid = 1: must be 0 with held_sample = false");
-    if (m->y_held_valid ? !state_finite(v, "y_held", m->y_held, NX) ||
-                              !state_finite(v, "stamp_held", &m->stamp_held, 1)
-                        : !state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0") ||
-                              !state_double_is(v, "stamp_held", m->stamp_held, 0.0,
-                                               "y_held_valid = 0"))
+    if (!proposal_flag_ok(v, m->proposal_valid, m->at_sample) ||
+        !held_state_ok(v, d->boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held, NX) ||
+        !(m->y_held_valid ? state_finite(v, "stamp_held", &m->stamp_held, 1)
+                          : state_double_is(v, "stamp_held", m->stamp_held, 0.0,
+                                            "y_held_valid = 0")))
         return 0;
     /* held and the history may be any numbers (a step commits u unchecked, as the Python
      * FMU's); the proposal is checked by recomputing it, with the estimate it starts from */

@@ -21,6 +21,8 @@
 #include <string.h>
 
 #include "native.h"
+#include "grid.h"  /* nearest_multiple, padded_delay: the grid's rules */
+#include "held.h"  /* held_sample, as the other controllers */
 #include "model.h"
 #include "model_common.h"
 #include "model_config.h"
@@ -47,15 +49,6 @@ static const char *string_of(const Instance *c, ValueRef vr) {
     return c->d.string[STRING_SLOT[vr]];
 }
 
-/* delaycomp.maths.grid.nearest_multiple: k with value = k step up to GRID_RTOL, else -1 */
-static long nearest_multiple(double value, double step) {
-    double ratio = value / step;
-    if (!isfinite(ratio)) return -1;
-    double k = nearbyint(ratio);  /* Python's round: to even on ties */
-    if (fabs(ratio - k) <= GRID_RTOL * fmax(1.0, fabs(ratio))) return (long)k;
-    return -1;
-}
-
 /* delaycomp.maths.grid.steps_of(value, h, name): base steps in value, 0 .. MAX_STEPS */
 static int steps_of(Instance *c, double value, double h, const char *name, long *steps) {
     if (!(isfinite(h) && h > 0)) {
@@ -73,22 +66,14 @@ static int steps_of(Instance *c, double value, double h, const char *name, long 
                   "h = %s (it needs %.6g)", name, num(value).s, MAX_STEPS, num(h).s, need);
         return -1;
     }
-    long k = nearest_multiple(value, h);
-    if (k < 0) {
+    double k;
+    if (!nearest_multiple(value, h, &k)) {
         log_error(c, "%s = %s is not allowed: must be a multiple of the base step h = %s",
                   name, num(value).s, num(h).s);
         return -1;
     }
-    *steps = k;
+    *steps = (long)k;
     return 0;
-}
-
-/* delaycomp.maths.nlcontrol.padded_delay: ceil(tau / T) T, a multiple up to round-off kept */
-static double padded_delay(double tau, double T) {
-    if (nearest_multiple(tau, T) >= 0) return tau;
-    double q = floor(tau / T);
-    double rest = fmax(tau - q * T, 0.0);
-    return rest == 0.0 ? tau : (q + 1) * T;
 }
 
 /* The buffers, in c->buf: the input history (W x NU, a ring), the padding line (D x NU,
@@ -352,7 +337,8 @@ static double sample_time(const Instance *c) {  /* t_k = t0 + k h, as the Python
 /* The sample the controller reads now: the input, or (held_sample) the held one. */
 static const double *sample(const Instance *c) {
     const ModelData *m = &c->d.m;
-    return c->d.boolean[VR_HELD_SAMPLE] && m->y_held_valid ? m->y_held : &c->d.real[VR_Y];
+    return held_sample(c->d.boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held,
+                       &c->d.real[VR_Y]);
 }
 
 /* The evaluation at the current tick of ContinuousController._evaluate (z after a reset,
@@ -480,10 +466,8 @@ int model_step(Instance *c, double t, double hs) {
     }
     if (check_inputs_finite(c, VR_Y, NX, t) != 0) return -1;
     if (advance(c, t) != 0) return -1;
-    if (c->d.boolean[VR_HELD_SAMPLE]) {
-        memcpy(m->y_held, &c->d.real[VR_Y], NX * sizeof(double));
-        m->y_held_valid = 1;
-    }
+    /* advance left no evaluation cached: the held input needs no invalidation here */
+    held_keep(c->d.boolean[VR_HELD_SAMPLE], &c->d.real[VR_Y], NX, m->y_held, &m->y_held_valid);
     return 0;
 }
 
@@ -575,12 +559,9 @@ static int built_ok(const StateView *v) {
     if (state_in(v, StateStepComplete) && !(fabs(d->time - t_tick) <= tol))
         return state_refuse(v, "k_tick = %ld: must give t0 + k_tick h = %s, the time %s",
                             m->k_tick, num(t_tick).s, num(d->time).s);
-    if (m->y_held_valid && !d->boolean[VR_HELD_SAMPLE])
-        return state_refuse(v, "y_held_valid = 1: must be 0 with held_sample = false");
     const char *u0 = "u0: continuous input holds no control", *z0 = "z0: zero-order hold "
                      "keeps no copy of the plant";
-    return (m->y_held_valid ? state_finite(v, "y_held", m->y_held, NX)
-                            : state_zeros(v, "y_held", m->y_held, NX, "y_held_valid = 0")) &&
+    return held_state_ok(v, d->boolean[VR_HELD_SAMPLE], m->y_held_valid, m->y_held, NX) &&
            (m->zoh ? state_same(v, "z", m->z, &d->real[VR_Z0], NX, z0)
                    : state_same(v, "held", m->held, &d->real[VR_U0], NU, u0)) &&
            cache_ok(v);

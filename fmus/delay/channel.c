@@ -13,6 +13,7 @@
 
 #include "draws.h"  /* mix, draw, packet_draw, gamma_draw: shared with the batch */
 #include "native.h"
+#include "grid.h"   /* nearest_multiple, steps_up: the grid's rules */
 
 enum { DIST_CONSTANT, DIST_UNIFORM, DIST_EXPONENTIAL, DIST_GAMMA, DIST_TRACE, NDIST };
 enum { LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT_ELLIOTT, NLOSS };
@@ -95,17 +96,6 @@ static int draw_fate(const Instance *c, const Chan *ch, uint64_t j, int *bad, do
     }
     *d = delay_of(c, ch, j);
     return lost;
-}
-
-/* delaycomp.maths.grid.steps_up: the least k with k step >= value, a whole multiple up to
- * GRID_RTOL taken as it is */
-static double steps_up(double value, double step) {
-    double ratio = value / step;
-    if (isfinite(ratio)) {
-        double k = nearbyint(ratio);  /* round half to even, as Python's round */
-        if (fabs(ratio - k) <= GRID_RTOL * fmax(1.0, fabs(ratio))) return k;
-    }
-    return ceil(ratio);
 }
 
 /* ChannelLine.fate: the steps until packet j is seen (lost: until its timeout, Q) */
@@ -263,8 +253,8 @@ static int line_sizes(Instance *c, const Chan *ch, double h, long *out) {
                   num(h).s, ratio);
         return -1;
     }
-    double P = nearbyint(ratio);
-    if (fabs(ratio - P) > GRID_RTOL * fmax(1.0, fabs(ratio))) {
+    double P;
+    if (!nearest_multiple(ch->period, h, &P)) {
         log_error(c, "period = %s is not allowed: must be a multiple of the communication step "
                   "%s", num(ch->period).s, num(h).s);
         return -1;

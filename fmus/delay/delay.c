@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "native.h"
+#include "grid.h"  /* nearest_multiple: the grid's rule */
 
 /* The checks of fmi2ExitInitializationMode: 0, or -1 with the refusal logged. */
 static int parameters_ok(Instance *c) {
@@ -88,8 +89,8 @@ static long steps_of(Instance *c, double delay, double h) {
                   ratio);
         return -1;
     }
-    double D = nearbyint(ratio);
-    if (fabs(ratio - D) > GRID_RTOL * fmax(1.0, ratio)) {
+    double D;
+    if (!nearest_multiple(delay, h, &D)) {
         log_error(c, "delay = %s is not allowed: must be a multiple of the communication "
                   "step %s", num(delay).s, num(h).s);
         return -1;
