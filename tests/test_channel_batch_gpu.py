@@ -28,6 +28,7 @@ from delaycomp.cli import main
 from delaycomp.maths import channel_batch as cb
 from delaycomp.maths.channel import Channel
 from delaycomp.studies import batch
+from delaycomp.studies.batch import channels as batch_channels  # reads its get_backend
 from delaycomp.system import LtiBatch
 
 from .external import need
@@ -167,7 +168,7 @@ def test_jax_is_refused_in_one_line_and_auto_falls_back_to_numpy(monkeypatch):
     with pytest.raises(batch.BatchError, match=r"^array backend jax is not allowed with a "
                        r"network channel: must be numpy, cupy or auto"):
         batch.channel_backend("jax")
-    monkeypatch.setattr(batch, "get_backend", _no_cupy(batch.get_backend))
+    monkeypatch.setattr(batch_channels, "get_backend", _no_cupy(batch.get_backend))
     assert batch.channel_backend("auto").name == "numpy"
 
 
@@ -181,7 +182,7 @@ def _no_cupy(get_backend):
 
 
 def test_the_command_without_cupy_says_so_in_one_line(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(batch, "get_backend", _no_cupy(batch.get_backend))
+    monkeypatch.setattr(batch_channels, "get_backend", _no_cupy(batch.get_backend))
     from delaycomp.paper.scenarios import loop_file
 
     rc = main(["robustness", str(loop_file("example-3.6")), "--jitter", "0:0.2:2",

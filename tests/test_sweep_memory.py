@@ -14,7 +14,7 @@ import pytest
 from delaycomp import api
 from delaycomp.errors import ParameterError
 from delaycomp.formats import outputs
-from delaycomp.studies import sweep, sweep_batch
+from delaycomp.studies import sweep, sweep_batch, sweep_size
 from delaycomp.studies.axes import Axis, parse_grid
 from delaycomp.studies.sweep import SweepOptions
 
@@ -24,8 +24,8 @@ from .conftest import REPO
 #: peak of its address space (VmPeak, kB) written to the file named last.
 CHILD = """
 import atexit, sys
-from delaycomp.studies import sweep
-sweep.STREAM_POINTS, sweep.PIECE_POINTS = int(sys.argv[1]), int(sys.argv[2])
+from delaycomp.studies import sweep_size
+sweep_size.STREAM_POINTS, sweep_size.PIECE_POINTS = int(sys.argv[1]), int(sys.argv[2])
 peak_file = sys.argv[-1]
 
 def peak():
@@ -152,9 +152,9 @@ def test_streamed_results_are_the_unstreamed_ones(monkeypatch, source, grids, se
     options = SweepOptions(stop=stop, engine=engine, exact=exact, chunk=chunk, verbosity=0)
     whole_notes: list[str] = []
     whole = sweep.run_sweep(source, axes, sets, options, notes=whole_notes)
-    monkeypatch.setattr(sweep, "STREAM_POINTS", 4)
-    monkeypatch.setattr(sweep, "PIECE_POINTS", 2)
-    monkeypatch.setattr(sweep, "KEEP_BYTES", 0)
+    monkeypatch.setattr(sweep_size, "STREAM_POINTS", 4)
+    monkeypatch.setattr(sweep_size, "PIECE_POINTS", 2)
+    monkeypatch.setattr(sweep_size, "KEEP_BYTES", 0)
     notes: list[str] = []
     rows = sweep.iter_sweep(source, axes, sets, options, notes=notes)
     assert notes == []  # the notes come with the last row
@@ -169,8 +169,8 @@ def test_every_piece_is_validated_before_any_point_runs(monkeypatch):
     ran = []
     monkeypatch.setattr(sweep_batch, "run_chunks", lambda *a, **k: ran.append(a) or [])
     monkeypatch.setattr(sweep, "_run_jobs", lambda *a, **k: ran.append(a) or [])
-    monkeypatch.setattr(sweep, "STREAM_POINTS", 2)
-    monkeypatch.setattr(sweep, "PIECE_POINTS", 2)
+    monkeypatch.setattr(sweep_size, "STREAM_POINTS", 2)
+    monkeypatch.setattr(sweep_size, "PIECE_POINTS", 2)
     axes = [Axis("r", (0.0, 0.01, 0.02, 0.03, 0.035))]
     for engine in ("batch", "inprocess"):
         with pytest.raises(ParameterError, match=r"^grid point r=0\.035: .*multiple of"):
@@ -196,8 +196,8 @@ def test_a_sweep_that_stops_midway_leaves_no_result(monkeypatch, tmp_path):
         return run_batch(*args)
 
     monkeypatch.setattr(sweep, "_run_batch", failing)
-    monkeypatch.setattr(sweep, "STREAM_POINTS", 4)
-    monkeypatch.setattr(sweep, "PIECE_POINTS", 4)
+    monkeypatch.setattr(sweep_size, "STREAM_POINTS", 4)
+    monkeypatch.setattr(sweep_size, "PIECE_POINTS", 4)
     out = tmp_path / "map.csv"
     rc = cli.main(["sweep", "example-3.6", "--grid", "r=0:0.5:6", "--stop-time", "3",
                    "--workers", "1", "--out", str(out)])

@@ -364,7 +364,7 @@ def write_csv(result: RobustnessMap, path: str | Path) -> None:
     ``repr`` writes them), through a ``.part`` file moved into place once written (removed
     if writing stops: no half-written file looks like a result)."""
     from delaycomp.studies.axes import format_value
-    from delaycomp.studies.sweep import write_table
+    from delaycomp.studies.sweep_output import write_table
 
     write_table(path, COLUMNS, ([format_value(row["jitter"]), format_value(row["loss"]),
                                  row["mode"], *(_cell(row[c]) for c in COLUMNS[3:])]

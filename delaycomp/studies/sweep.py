@@ -42,12 +42,11 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import csv
 import dataclasses
 import gc
 import itertools
 import math
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeAlias
@@ -56,13 +55,69 @@ import numpy as np
 
 from delaycomp.errors import ParameterError, is_divergence
 from delaycomp.paper.scenarios import Scenario, open_source
+from delaycomp.studies import sweep_size
 from delaycomp.studies.axes import Axis, base_loop, format_value
 from delaycomp.studies.metrics import METRICS, ZERO, tail_start
 from delaycomp.studies.pool import Progress, on_dask, on_processes
+from delaycomp.studies.sweep_output import Tally, plot_sweep, write_csv, write_table
+from delaycomp.studies.sweep_size import (
+    BYTES_PER_KEPT_LTI,
+    BYTES_PER_KEPT_MODEL,
+    BYTES_PER_RESOLVED,
+    BYTES_PER_ROW,
+    BYTES_PER_ROW_WIDE,
+    BYTES_PER_RUN,
+    BYTES_PER_STREAMED,
+    KEEP_BYTES,
+    PIECE_POINTS,
+    PLOT_MAX_POINTS,
+    SECONDS_PER_BATCH_TICK,
+    SECONDS_PER_EXACT_POINT,
+    SECONDS_PER_POINT,
+    STREAM_POINTS,
+    check_memory,
+    check_time,
+    sweep_memory,
+)
 from delaycomp.system import FmuFile, Loop, LtiBatch, Timing
 from delaycomp.system.loop import refuse_channel
 from delaycomp.system.loopfile import LoopData, LoopFile
-from delaycomp.tmpfiles import new_file
+
+#: the sweep's names, its estimates' and its output's (``.sweep_size``, ``.sweep_output``)
+#: among them: what ``delaycomp.studies.sweep`` offers
+__all__ = [
+    "BYTES_PER_KEPT_LTI",
+    "BYTES_PER_KEPT_MODEL",
+    "BYTES_PER_RESOLVED",
+    "BYTES_PER_ROW",
+    "BYTES_PER_ROW_WIDE",
+    "BYTES_PER_RUN",
+    "BYTES_PER_STREAMED",
+    "KEEP_BYTES",
+    "METRICS",
+    "PIECE_POINTS",
+    "PLOT_MAX_POINTS",
+    "SECONDS_PER_BATCH_TICK",
+    "SECONDS_PER_EXACT_POINT",
+    "SECONDS_PER_POINT",
+    "STREAM_POINTS",
+    "SWEEP_ENGINES",
+    "ZERO",
+    "Job",
+    "Source",
+    "SweepOptions",
+    "Tally",
+    "check_sweep_size",
+    "evaluate",
+    "iter_sweep",
+    "metrics_of",
+    "plot_sweep",
+    "result_metrics",
+    "run_sweep",
+    "sweep_memory",
+    "write_csv",
+    "write_table",
+]
 
 
 @dataclass(frozen=True)
@@ -174,92 +229,6 @@ def _prebuild(jobs: list[Job]) -> None:
                 fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
 
 
-#: Lower bound of the cost of one point of ``--exact`` (a lifted-model eigenvalue
-#: problem), in seconds.
-SECONDS_PER_EXACT_POINT = 50e-6
-#: Lower bound of resolving and validating one point, in seconds: done in this process,
-#: whatever the workers (10.7 us measured end to end on the development machine, less the
-#: batch engine's share: docs/reference/sweeps.md; 14 us on a busy machine).
-SECONDS_PER_POINT = 8e-6
-#: Lower bound of the batch engine's cost per point and base step, in seconds, shared by
-#: the workers (3.5 ns measured: 7.0 s for 10^6 points of 2000 steps on one core).
-SECONDS_PER_BATCH_TICK = 3e-9
-
-# -- memory: a sweep streams its grid ------------------------------------------------------
-#
-# No stage holds the whole grid. The points are resolved and validated a piece at a time
-# (PIECE_POINTS), every piece before any point runs (the validation pass); then a stream
-# chunk at a time (STREAM_POINTS) they are resolved again, or taken from the validation
-# pass (up to KEEP_BYTES of it), run, and handed on as rows. What grows with the grid is
-# only what the caller keeps: run_sweep's list of rows; `delaycomp sweep` writes the rows
-# to its CSV as they come. The byte constants below were measured with tracemalloc
-# (Python 3.11, numpy 2; /proc VmHWM agrees): the bytes a stage holds, or its peak over
-# what was held before it, divided by its points, on Example 3.6 (an LTI scenario, one
-# state, 5 s) and Example 2.4 (a model scenario, 1 s), the larger, rounded up.
-
-#: Points resolved and validated together (a piece): the batch engine's chunk on numpy
-#: (``CHUNK_MAX``).
-PIECE_POINTS = 16384
-#: Points run together (a stream chunk, 16 pieces): their chunks go to the workers at once
-#: (one pool of worker processes, or one Dask client, per stream chunk), and their rows are
-#: handed on before the next stream chunk is resolved.
-STREAM_POINTS = 1 << 18
-#: Bytes of validated points kept from the validation pass for the run, so that they are
-#: not resolved twice (at most: beyond it, the points are resolved again as they run).
-KEEP_BYTES = 1 << 29
-#: Bytes per point at the peak of resolving a piece: the loop-file data (a dict per point,
-#: freed with the piece) and the point's design (LTI: 1.8 kB measured) or loop (a model
-#: scenario's: 6.9 kB).
-BYTES_PER_RESOLVED = 7000
-#: Bytes per point of a batch chunk run in this process (one at a time; on workers, in
-#: theirs): 2.5 kB (Example 3.6) and 3.9 kB (Example 2.4) measured; more for long runs at
-#: large N, where the batch engine cuts smaller chunks (at most a quarter of the available
-#: memory: ``MEMORY_SHARE``).
-BYTES_PER_RUN = 4000
-#: Bytes per point of a stream chunk in flight: its points' assignments and values, their
-#: batches or per-point jobs, their metrics as they come back and their rows (batch
-#: engine: 640 measured; per-point engines: about 1 kB).
-BYTES_PER_STREAMED = 1000
-#: Bytes of a point kept from the validation pass, grouped as the batch engine takes it
-#: (``_Piece``): an LTI design with one state and one input (144 measured; 8 more per
-#: further matrix entry), a model loop's timing and histories (178 measured).
-BYTES_PER_KEPT_LTI = 144
-BYTES_PER_KEPT_MODEL = 180
-#: Bytes of one held result row (``run_sweep``, ``api.sweep``): a dict of the grid
-#: values and the six metrics, its four floats and its slot in the list (356 measured with
-#: 2, 3 or 4 grid parameters); a dict of 11 to 21 keys is 192 bytes larger.
-BYTES_PER_ROW = 360
-BYTES_PER_ROW_WIDE = 560
-#: The most points ``--plot`` draws: its figure has 770 x 495 pixels, a map of more cells
-#: than this draws several per pixel (and matplotlib needs about 250 bytes a cell).
-PLOT_MAX_POINTS = 1_000_000
-
-
-def sweep_memory(count: int, axes: int, held: bool = True, kept: int = 0) -> tuple[int, int]:
-    """An estimate of the bytes a sweep of ``count`` points over ``axes`` grid parameters
-    holds at its peak, and of those its rows' (``held``: ``run_sweep`` returns them
-    together; else they are handed on as they come, ``iter_sweep``). ``kept``: bytes
-    per point kept from the validation pass (a batch sweep's).
-
-    Examples
-    --------
-    >>> total, rows = sweep_memory(10**7, 2)
-    >>> rows, total - rows
-    (3600000000, 442368000)
-    >>> sweep_memory(10**7, 2, held=False) == sweep_memory(10**8, 2, held=False)
-    True
-    """
-    from delaycomp.studies.sweep_batch import CHUNK_MAX
-
-    row = BYTES_PER_ROW if axes <= 4 else BYTES_PER_ROW_WIDE + 400 * (axes > 15)
-    rows = count * row if held else 0
-    working = (min(count, PIECE_POINTS) * BYTES_PER_RESOLVED
-               + min(count, CHUNK_MAX) * BYTES_PER_RUN
-               + min(count, STREAM_POINTS) * BYTES_PER_STREAMED
-               + min(count * kept, KEEP_BYTES))
-    return rows + working, rows
-
-
 def check_sweep_size(source: Source, axes: list[Axis], sets: list[str],
                      options: SweepOptions | None = None, held: bool = True,
                      plot: bool = False) -> tuple[int, float]:
@@ -287,62 +256,13 @@ def check_sweep_size(source: Source, axes: list[Axis], sets: list[str],
             "at most, more than its pixels); drop --plot or use fewer points")
     base = None if opts.exact else base_loop(sc, sets)
     workers = 1 if opts.scheduler else opts.workers
-    seconds = _check_time(sc, axes, count, base, opts.stop, opts.engine, workers, opts.exact)
+    seconds = check_time(sc, axes, count, base, opts.stop, opts.engine, workers, opts.exact)
     kept = 0
     if opts.engine == "batch" and not opts.exact:
         kept = BYTES_PER_KEPT_MODEL if base is None or base.lti is None else \
             BYTES_PER_KEPT_LTI + 8 * (base.lti.A.size + base.lti.B.size + base.lti.K.size - 3)
-    _check_memory(count, len(axes), held, kept)
+    check_memory(count, len(axes), held, kept)
     return count, seconds
-
-
-def _check_time(sc, axes: list[Axis], count: int, base, stop: float | None,
-                engine: str, workers: int, exact: bool) -> float:
-    """Refuse, in one line with the estimate, a sweep that cannot finish in
-    ``MAX_RUN_SECONDS``; return its estimated seconds (a lower
-    bound): every point resolved here, then run on the workers (``sc``: the opened source;
-    ``base``: the loop at ``r = 0``, for its timing; ``None`` where unknown or not
-    needed)."""
-    from delaycomp.formats.outputs import MAX_RUN_SECONDS, SECONDS_PER_TICK, format_duration
-
-    run = SECONDS_PER_EXACT_POINT
-    if base is not None:
-        T, N = base.T, base.N
-        for a in axes:  # the most expensive point when T or N is swept
-            if a.name == "T" and min(a.values) > 0:
-                T = min(a.values)
-            if a.name == "N" and max(a.values) >= 1:
-                N = max(a.values)
-        stop_time = stop if stop is not None else (sc.default_stop_time or base.stop_time)
-        ticks = (stop_time / T) * N if stop_time else 0.0
-        run = ticks * (SECONDS_PER_BATCH_TICK if engine == "batch"
-                       else SECONDS_PER_TICK.get(engine, 10e-6))
-    elif engine == "batch" and not exact:
-        run = 0.0  # no timing known: the resolution alone
-    workers = max(1, workers)
-    seconds = count * (SECONDS_PER_POINT + run / workers)
-    if seconds > MAX_RUN_SECONDS:
-        raise ParameterError(
-            f"--grid: {count:.4g} points at least {seconds / count * workers * 1e3:.3g} ms each "
-            f"on {workers} workers take at least {format_duration(seconds)}, over the limit of "
-            f"{format_duration(MAX_RUN_SECONDS)}; use fewer points or a shorter --stop-time")
-    return seconds
-
-
-def _check_memory(count: int, axes: int, held: bool, kept: int) -> None:
-    """Refuse, in one line with the estimate (``sweep_memory``), a sweep that would
-    not fit in half of this machine's memory."""
-    from delaycomp.formats.outputs import format_bytes, physical_memory
-
-    need, rows = sweep_memory(count, axes, held, kept)
-    ram = physical_memory()
-    if ram is not None and need > ram / 2:
-        what = (f"{format_bytes(rows)} of it for the rows returned together; stream them "
-                "(delaycomp sweep --out, api.iter_sweep) or use fewer points") if held \
-            else "use fewer points"
-        raise ParameterError(
-            f"--grid: {count:.4g} points need about {format_bytes(need)} of memory, over half "
-            f"of this machine's {format_bytes(ram)} ({what})")
 
 
 #: engines of ``run_sweep``: ``batch`` advances all points together (vectorized);
@@ -473,12 +393,15 @@ def _plan(source: Source, axes: list[Axis], sets: list[str], opts: SweepOptions,
     # a stream chunk holds whole pieces and whole chunks of --chunk points, so that its
     # chunks are cut as from the whole grid (a larger --chunk makes pieces that large)
     chunk = opts.chunk
-    piece = chunk * max(1, PIECE_POINTS // chunk) if chunk else PIECE_POINTS
+    # the streaming sizes read through sweep_size, as its estimate reads them: one
+    # assignment there changes both
+    piece = (chunk * max(1, sweep_size.PIECE_POINTS // chunk) if chunk
+             else sweep_size.PIECE_POINTS)
     plan = _SweepPlan(sc, list(axes), list(sets), float(stop),
                       Job(_job_source(sc), tuple(sets), float(stop),
                           "inprocess" if batched else opts.engine, opts.fmu_dir, opts.exact),
                       batched, opts.array_backend, opts.workers, opts.scheduler, chunk,
-                      opts.verbosity, piece, piece * max(1, STREAM_POINTS // piece))
+                      opts.verbosity, piece, piece * max(1, sweep_size.STREAM_POINTS // piece))
     _validate(plan)
     if batched:
         from delaycomp.studies import batch
@@ -565,9 +488,9 @@ def _validate(plan: _SweepPlan) -> None:
                                 timings=not plan.batched)
         if not plan.job.exact:  # --exact takes rho from the lifted model: no stop time
             _check_stop(loops, texts, plan.stop, seen)
-        if plan.batched and (k == 0 or kept_bytes < KEEP_BYTES):
+        if plan.batched and (k == 0 or kept_bytes < sweep_size.KEEP_BYTES):
             piece = _Piece.of(loops)
-            if k == 0 or kept_bytes + piece.nbytes() <= KEEP_BYTES:
+            if k == 0 or kept_bytes + piece.nbytes() <= sweep_size.KEEP_BYTES:
                 plan.kept[k] = piece
             kept_bytes += piece.nbytes()
             del piece
@@ -821,148 +744,3 @@ def _run_jobs(jobs: list[Job], workers: int, scheduler: str | None,
                 progress.tick()
     return results
 
-
-@dataclass
-class Tally:
-    """What the end of a streamed sweep needs of its rows, counted as they pass
-    (``count``): the points, the stable ones, the failed ones (neither stable nor
-    unstable) and the first failure's reason; with ``rho`` (an array of one float per
-    point), each point's ``rho`` (``nan`` where empty), for ``--plot``.
-
-    Examples
-    --------
-    >>> tally = Tally(rho=np.empty(2))
-    >>> rows = [{"rho": 0.5, "stable": 1, "failed": ""},
-    ...         {"rho": None, "stable": None, "failed": "plant failed at t = 1"}]
-    >>> len(list(tally.count(rows))), tally.points, tally.stable, tally.failed
-    (2, 2, 1, 1)
-    >>> tally.first_failed, tally.rho.tolist()[1]
-    ('plant failed at t = 1', nan)
-    """
-
-    points: int = 0
-    stable: int = 0
-    failed: int = 0
-    first_failed: str = ""
-    rho: np.ndarray | None = None
-
-    def count(self, rows: Iterable[dict]) -> Iterator[dict]:
-        """``rows`` passed on, one at a time, counted."""
-        for row in rows:
-            if self.rho is not None:
-                self.rho[self.points] = math.nan if row["rho"] is None else row["rho"]
-            self.points += 1
-            if row["stable"] == 1:
-                self.stable += 1
-            elif row["failed"] and row["stable"] is None:
-                self.failed += 1
-                self.first_failed = self.first_failed or row["failed"]
-            yield row
-
-
-def write_csv(rows: Iterable[dict], names: list[str], path: str | Path) -> None:
-    """Write the sweep's rows to ``path`` as CSV: the grid columns ``names``, then
-    ``METRICS``. ``rows`` may be an iterator (``iter_sweep``): each row is written
-    as it comes, to a ``.part`` file (a new file: never through a link) moved into place
-    once the last is written (and removed if the rows stop with an error, Ctrl-C or
-    SIGTERM included: no half-written file looks like a result).
-    """
-    # grid values as written (15 digits), metrics to the bit
-    write_table(path, [*names, *METRICS],
-                ([*(format_value(row[k]) for k in names), *(_cell(row[k]) for k in METRICS)]
-                 for row in rows))
-
-
-def write_table(path: str | Path, header: Sequence[str],
-                lines: Iterable[Sequence[str]]) -> None:
-    """Write CSV ``lines`` (each written as it comes) under ``header`` to ``path``, through a
-    ``.part`` file (a new file: never through a link) moved into place once the last line
-    is written, removed if the lines stop (an error, Ctrl-C, SIGTERM, a full disk: no
-    half-written file looks like a result). ``write_csv``'s and the robustness map's."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with new_file(tmp) as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            for line in lines:
-                w.writerow(line)
-    except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-written file is left
-        tmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(path)
-
-
-def _cell(value) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, str):
-        return value
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    return repr(float(value))
-
-
-def plot_sweep(rows: list[dict] | np.ndarray, axes: list[Axis], path: str | Path, title: str,
-               critical: np.ndarray | None = None) -> None:
-    """A curve of ``rho`` for one grid parameter, a heat map of it for two.
-
-    ``rows``: the sweep's rows, or their ``rho`` alone as an array in grid order
-    (``Tally.rho``); at most ``PLOT_MAX_POINTS``. ``critical``: rows ``(a, r)``
-    where the exact lifted model has ``rho = 1``
-    (``delaycomp.studies.critical.critical_curve``), drawn over the map and labelled.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if len(rows) > PLOT_MAX_POINTS:
-        raise ParameterError(f"--plot draws at most {PLOT_MAX_POINTS:.4g} points")
-    rho = (np.asarray(rows, dtype=float) if isinstance(rows, np.ndarray)
-           else np.array([r["rho"] for r in rows], dtype=float))
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    if len(axes) == 1:
-        ax.plot(axes[0].values, rho, "o-", ms=3)
-        ax.axhline(1.0, color="k", lw=0.8, ls="--")
-        ax.set_xlabel(axes[0].name)
-        ax.set_ylabel("rho (growth per period)")
-        ax.set_yscale("symlog", linthresh=1e-3)
-        ax.grid(True, alpha=0.3)
-    elif len(axes) == 2:
-        Z = np.clip(rho.reshape(len(axes[0].values), len(axes[1].values)), 0, 2)
-        mesh = ax.pcolormesh(axes[1].values, axes[0].values, Z, cmap="RdYlGn_r", vmin=0,
-                             vmax=2, shading="nearest")
-        if np.nanmin(Z) < 1 < np.nanmax(Z):
-            ax.contour(axes[1].values, axes[0].values, Z, levels=[1.0], colors="k")
-        fig.colorbar(mesh, ax=ax, label="rho (clipped to [0, 2]); black: rho = 1")
-        ax.set_xlabel(axes[1].name)
-        ax.set_ylabel(axes[0].name)
-    else:
-        raise ParameterError("--plot draws one or two grid parameters")
-    if critical is not None:
-        _draw_critical(ax, axes, critical)
-    ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    from delaycomp.plotting import save
-
-    try:
-        save(fig, path)  # whole, never through a link
-    finally:
-        plt.close(fig)
-
-
-def _draw_critical(ax, axes: list[Axis], points: np.ndarray) -> None:
-    label = "exact lifted model: rho = 1 (critical delays)"
-    if len(points) == 0:
-        return
-    if len(axes) == 1:
-        for j, r in enumerate(points[:, 1]):
-            ax.axvline(r, color="tab:blue", ls="--", lw=1.2,
-                       label=f"{label}: r = {r:.6g}" if j < 3 else None)
-    elif axes[1].name == "r":  # r on the horizontal axis
-        ax.plot(points[:, 1], points[:, 0], "o", color="tab:blue", ms=3.5, label=label)
-    else:
-        ax.plot(points[:, 0], points[:, 1], "o", color="tab:blue", ms=3.5, label=label)
-    ax.legend(fontsize=8, loc="upper right")
