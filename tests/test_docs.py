@@ -35,6 +35,27 @@ def test_tutorial_code_runs_and_prints_what_the_page_shows(tmp_path, monkeypatch
     assert (tmp_path / "cart.png").stat().st_size > 0
 
 
+def test_the_api_page_shows_every_api_name():
+    """``::: delaycomp.api`` lists its members, in the order the page reads (most functions
+    live in the package's private modules, re-exported): every name of ``__all__`` and
+    every public function or class defined in ``delaycomp.api`` itself is there, but
+    ``Result``, shown under Running with its module."""
+    import inspect
+
+    from delaycomp import api
+
+    page = (REPO / "docs" / "reference" / "api.md").read_text(encoding="utf-8")
+    listed = re.search(r"^::: delaycomp\.api\n    options:\n      members: \[(.*?)\]$", page,
+                       flags=re.M)
+    assert listed is not None
+    members = [name.strip() for name in listed.group(1).split(",")]
+    public = {name for name, value in vars(api).items() if not name.startswith("_")
+              and (inspect.isfunction(value) or inspect.isclass(value))
+              and value.__module__ == "delaycomp.api"}
+    assert set(members) == (set(api.__all__) | public) - {"Result"}
+    assert len(members) == len(set(members))
+
+
 def test_every_page_in_the_nav_exists():
     nav = (REPO / "mkdocs.yml").read_text(encoding="utf-8")
     pages = re.findall(r"([\w/.-]+\.md)\s*$", nav, flags=re.M)

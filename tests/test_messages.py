@@ -402,10 +402,10 @@ def test_a_failure_that_follows_ctrl_c_is_reported_as_the_interrupt(monkeypatch,
             raise ParameterError(f"controller: initialization failed: {exc!r}") from None
         return 0
 
-    monkeypatch.setattr(cli, "_cmd_list", swallowing)
+    monkeypatch.setattr(cli, "cmd_list", swallowing)
     assert cli.main(["list"]) == 130
     assert capsys.readouterr().err == "delaycomp: interrupted\n"
-    monkeypatch.setattr(cli, "_cmd_list", lambda args: 0)
+    monkeypatch.setattr(cli, "cmd_list", lambda args: 0)
     assert cli.main(["list"]) == 0  # the watch ended with the command
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 

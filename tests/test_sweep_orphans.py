@@ -236,6 +236,7 @@ def test_sigterm_and_sighup_are_handled_during_a_sweep_only(tmp_path, monkeypatc
     """The sweep's handlers raise Terminated; an ignored SIGHUP (``nohup``) stays ignored;
     the handlers before the sweep come back after it."""
     from delaycomp import cli
+    from delaycomp.cli import signals, studies
 
     seen = {}
 
@@ -243,13 +244,13 @@ def test_sigterm_and_sighup_are_handled_during_a_sweep_only(tmp_path, monkeypatc
         seen.update(term=signal.getsignal(signal.SIGTERM), hup=signal.getsignal(signal.SIGHUP))
         return 0
 
-    monkeypatch.setattr(cli, "_sweep", sweep)
+    monkeypatch.setattr(studies, "_sweep", sweep)
     monkeypatch.chdir(tmp_path)
     before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:
         term = signal.getsignal(signal.SIGTERM)
         assert cli.main(["sweep", "example-3.6", "--grid", "k=1:2:2", "--out", "m.csv"]) == 0
-        assert seen == {"term": cli._raise_terminated, "hup": signal.SIG_IGN}
+        assert seen == {"term": signals._raise_terminated, "hup": signal.SIG_IGN}
         assert signal.getsignal(signal.SIGTERM) is term
         assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
     finally:

@@ -27,7 +27,7 @@ def _typecheck():
 def test_the_tree_holds_the_top_level_folders_inside_the_package(tmp_path):
     _typecheck().assemble(tmp_path)
     package = tmp_path / "delaycomp"
-    for inside, source in (("api.py", "delaycomp/api.py"),
+    for inside, source in (("api/__init__.py", "delaycomp/api/__init__.py"),
                            ("orchestrator/master.py", "orchestrator/master.py"),
                            ("fmus/controller/delaycomp_model_controller.py",
                             "fmus/controller/delaycomp_model_controller.py"),
@@ -54,7 +54,8 @@ def test_files_named_on_its_command_line_are_the_trees():
     typecheck = _typecheck()
     assert (typecheck.to_tree(str(REPO / "orchestrator" / "fmu.py"))
             == "delaycomp/orchestrator/fmu.py")
-    assert typecheck.to_tree(str(REPO / "delaycomp" / "api.py")) == "delaycomp/api.py"
+    assert (typecheck.to_tree(str(REPO / "delaycomp" / "api" / "__init__.py"))
+            == "delaycomp/api/__init__.py")
     assert typecheck.to_tree("--strict") == "--strict"
 
 

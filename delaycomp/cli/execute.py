@@ -1,0 +1,171 @@
+"""One co-simulation from the command line (``delaycomp run``, a scenario, a loop file or
+an SSP archive): the CSV streamed to ``--out``, the progress bar, the other mode of
+``--compare``, the run's notes, the plot and the one-line summary."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from delaycomp.errors import SimulationFailed
+
+
+def compare_path(out: Path, mode: str) -> Path:
+    """Where ``run --compare --out FILE.csv`` writes the run of the other controller
+    ``mode``: beside ``FILE.csv``, as ``FILE.<mode>.csv``.
+
+    Examples
+    --------
+    >>> compare_path(Path("out/example-3.6.csv"), "uncompensated").as_posix()
+    'out/example-3.6.uncompensated.csv'
+    >>> compare_path(Path("run"), "compensated").as_posix()
+    'run.compensated'
+    """
+    return out.with_name(f"{out.stem}.{mode}{out.suffix}")
+
+
+def execute(args, loop, stop: float, name: str, title: str, timing, units,
+            label: str | None = None, others: dict | None = None, fmus=None,
+            runner=None, other_fmus: dict | None = None) -> int:
+    """Run ``loop`` (and, for ``--compare``, the ``others``, each with its
+    ``other_fmus``) to ``stop`` with the CSV streamed to ``--out`` (an other run's to
+    ``compare_path``) and decimated by ``--output-interval``; then plot and report.
+
+    ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
+    and are decimated afterwards)."""
+    from delaycomp.api import run
+    from delaycomp.formats.outputs import CsvStream, check_budget, clear_previous, output_every
+    from delaycomp.progress import bar, info
+
+    def run_or_failed(loop, **options):
+        try:
+            return run(loop, stop, engine=args.engine, fmu_dir=args.fmu_dir, every=every,
+                       watchdog=args.watchdog, **options)
+        except SimulationFailed as exc:  # reported with its rows so far below
+            return exc.result
+
+    ticks = loop.timing.ticks(stop)
+    every = output_every(args.output_interval, loop.T, loop.N)
+    undriven_note(loop, args.verbosity)
+    keep = bool(args.plot)
+    seconds, memory = check_budget(loop, ticks * (1 + len(others or {})),
+                                   args.engine, every, keep)
+    info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
+         f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
+    other_paths = {other: compare_path(args.out, other) if args.out else None
+                   for other in others or {}}
+    clear_previous(args.out, args.plot, *other_paths.values())
+    names = loop.columns
+    stream = CsvStream(args.out, names) if args.out else None
+    started = time.perf_counter()
+    try:
+        if runner is None:
+            with bar(ticks, name, args.verbosity, unit="step") as progress:
+                def tick(k, progress=progress):
+                    progress.update(k - progress.n)
+
+                result = run_or_failed(loop, fmus="python" if fmus is None else fmus,
+                                       sink=stream, keep=keep, progress=tick)
+        else:
+            result = runner(stop)
+            if stream is not None and result.success:
+                for k, (t, row) in enumerate(zip(result.times, result.data)):
+                    if k % every == 0 or k == len(result.times) - 1:
+                        stream(t, row)
+    except BaseException:
+        if stream is not None:
+            stream.finish(False)
+        raise
+    elapsed = time.perf_counter() - started
+    where = stream.finish(result.success) if stream is not None else None
+    runs = None
+    if others and result.success:
+        runs = {label or "this run": result}
+        for other_label, other_loop in others.items():
+            path = other_paths[other_label]
+            other_stream = CsvStream(path, other_loop.columns) if path else None
+            try:
+                with bar(ticks, f"{name}, {other_label}", args.verbosity,
+                         unit="step") as progress:
+                    def other_tick(k, progress=progress):
+                        progress.update(k - progress.n)
+
+                    chosen = (other_fmus or {}).get(other_label)
+                    other = run_or_failed(other_loop,
+                                          fmus="python" if chosen is None else chosen,
+                                          sink=other_stream, keep=keep,
+                                          progress=other_tick)
+            except BaseException:
+                if other_stream is not None:
+                    other_stream.finish(False)
+                raise
+            other_where = (other_stream.finish(other.success) if other_stream is not None
+                           else None)
+            if not other.success:  # as this run's failure: its rows kept apart, no plot
+                show_notes(other, args.verbosity)
+                kept = ""
+                if other_where is not None and other.row_count:
+                    kept = (f"; {other.row_count} rows to t = {other.times[-1]:.6g} kept "
+                            f"in {other_where}")
+                print(f"delaycomp: error: --compare, the {other_label} run: "
+                      f"{other.message}{kept}", file=sys.stderr)
+                return 1
+            runs[other_label] = other
+    code = _report_run(args, result, elapsed, name, title, where, timing, units, runs)
+    if code == 0 and runs:
+        for other_label, path in other_paths.items():
+            if path is not None:
+                print(f"{name}, {other_label}: {runs[other_label].row_count} rows in {path}")
+    return code
+
+
+def undriven_note(loop, verbosity: int) -> None:
+    """The note (once, unless ``-q``) naming the inputs of a user's FMU that the loop does
+    not drive, with the start values they keep
+    (``delaycomp.system.plantfmu.undriven_notes``)."""
+    from delaycomp.progress import info
+    from delaycomp.system.plantfmu import undriven_notes
+
+    for note in undriven_notes(loop):
+        info(f"note: {note}", verbosity)
+
+
+def show_notes(result, verbosity: int) -> None:
+    """A run's notes on standard error: an FMU's information (its messages of status OK)
+    with ``-v`` only, as ``instance: text``; its warnings always (``-q`` too), as
+    ``instance: warning: text``; delaycomp's own notes unless ``-q``, as ``note: ...``."""
+    from delaycomp.progress import QUIET, VERBOSE, info
+
+    logged = {f"{name}: {text}": (name, status, text)
+              for name, status, text in getattr(result, "logged", ())}
+    for note in result.notes:
+        name, status, text = logged.get(note, ("", "", note))
+        if status == "warning":
+            print(f"{name}: warning: {text}", file=sys.stderr)
+        elif status == "ok":
+            info(note, verbosity, VERBOSE)
+        elif verbosity > QUIET:
+            info(f"note: {note}", verbosity)
+
+
+def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
+                timing=None, units=None, runs=None) -> int:
+    """Plot a successful run and print its summary; on failure nothing that looks like a
+    result (no FILE.csv, no plot): the rows recorded before it are in FILE.csv.partial."""
+    show_notes(result, args.verbosity)
+    if not result.success:
+        kept = ""
+        if where is not None and result.row_count:
+            kept = (f"; {result.row_count} rows to t = {result.times[-1]:.6g} kept in "
+                    f"{where}")
+        print(f"delaycomp: error: {result.message}{kept}", file=sys.stderr)
+        return 1
+    if args.plot:
+        from delaycomp.plotting import plot_result
+
+        plot_result(result, args.plot, title, timing, units, runs)
+    last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
+    print(f"{name}: {result.row_count} rows to t = {result.times[-1]:.6g} "
+          f"in {elapsed:.2f} s; final {last}")
+    return 0
