@@ -189,7 +189,8 @@ def bench_native(repeats, fmu_dir, work: Path):
     host, and the whole process: loading, initialization and exit included)."""
     import subprocess
 
-    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.fmu.host import compile_host, host_argv, unpack
+    from delaycomp.fmu.twins import native_fmus
 
     sc = scenarios.get("example-3.6")
     spec = sc.make(sc.resolve([]))
@@ -309,7 +310,8 @@ def bench_exact_grid(repeats, work: Path, steps: int = 50_000):
     stepping loop, timed inside it, and the whole process under ``env -i``)."""
     import subprocess
 
-    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.fmu.host import compile_host, host_argv, unpack
+    from delaycomp.fmu.twins import native_fmus
     from delaycomp.paper.scenarios import lti_loop
 
     exe = compile_host(work / "host-exact-grid")
@@ -540,7 +542,8 @@ def bench_speed(cases, repeats, fmu_dir, work: Path, max_periods: int = 20):
     its stepping loop and the whole process against real time."""
     import subprocess
 
-    from delaycomp.fmu.native import compile_host, host_argv, native_fmus, unpack
+    from delaycomp.fmu.host import compile_host, host_argv, unpack
+    from delaycomp.fmu.twins import native_fmus
     from delaycomp.verify.omsimulator import cli_env
 
     samples, loops = [], []

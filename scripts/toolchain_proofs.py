@@ -39,7 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from delaycomp.fmu.native import compile_host, host_argv, native_archive, native_fmus, unpack
+from delaycomp.fmu.host import compile_host, host_argv, unpack
+from delaycomp.fmu.native import native_archive
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.formats.ssp import Archive, loop_system, pack
 from delaycomp.orchestrator.simulate import run_loop, stop_ticks
 from delaycomp.paper import scenarios

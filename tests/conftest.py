@@ -85,8 +85,8 @@ def native_dir() -> Path:
 @pytest.fixture(scope="session")
 def chost(tmp_path_factory) -> Path:
     """The C closed-loop host (``fmus/native/host/host.c``) for this machine, compiled once
-    per test session for every worker (``delaycomp.fmu.native.compile_host``)."""
-    from delaycomp.fmu.native import compile_host
+    per test session for every worker (``delaycomp.fmu.host.compile_host``)."""
+    from delaycomp.fmu.host import compile_host
 
     return built_once(tmp_path_factory, "chost", lambda out: compile_host(out / "host")) / "host"
 

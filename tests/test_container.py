@@ -131,7 +131,7 @@ def test_fmi3_container_is_the_fmi2_container_bit_for_bit(case_id, tmp_path):
     gives the FMI 2.0 container of the FMI 2.0 native FMUs at every sampling instant bit
     for bit (the same C arithmetic in the same order, on this machine), and so meets the
     reference within check's tolerances."""
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
 
     c = check.case(case_id)
     spec = _spec(c)

@@ -121,7 +121,7 @@ def test_the_fmpy_example_wires_the_controller_in_a_host_of_your_own(tmp_path):
     import shutil
     import sys
 
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
 
     examples = Path(__file__).resolve().parent.parent / "docs" / "examples"
     for name in ("cart.toml", "cart.py", "controller_alone.py"):

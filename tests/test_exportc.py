@@ -126,7 +126,7 @@ def test_the_export_equals_the_controller_fmu(name, tmp_path):
 def test_the_aarch64_build_prints_the_same_numbers(name, tmp_path):
     """Under qemu-aarch64 (ISO C: no contraction into fused multiply-adds; the same libm
     algorithms): the very numbers of this machine's build."""
-    from delaycomp.fmu.native import emulator
+    from delaycomp.fmu.host import emulator
 
     _tool("aarch64-linux-gnu-gcc")
     _tool("qemu-aarch64")

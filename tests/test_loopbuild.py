@@ -25,7 +25,7 @@ import pytest
 
 from delaycomp import api
 from delaycomp.fmu.cache import fmu_path
-from delaycomp.fmu.native import native_fmus
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loopfile import read_loop
 

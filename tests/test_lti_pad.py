@@ -145,7 +145,7 @@ def test_state_saved_inside_the_padding_carries_the_pad_line():
 @pytest.mark.fmu
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_native_equals_python_fmus(native_dir, fmu_dir, fmi):
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
 
     spec = padded()
     native = run_loop(spec, STOP, fmus=native_fmus(spec, native_dir / f"pad{fmi}", fmi=fmi))
@@ -158,7 +158,7 @@ def test_native_equals_python_fmus(native_dir, fmu_dir, fmi):
 
 @pytest.mark.fmu
 def test_native_state_inside_the_padding_restores_bit_identically(native_dir):
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
 
     from .test_native import _restore_run
 

@@ -30,6 +30,7 @@ from fmpy.fmi1 import FMICallException
 from scipy.linalg import expm
 
 from delaycomp.fmu.build import DEFAULT_CONFIG, FMUS
+from delaycomp.fmu.host import host_argv, unpack
 from delaycomp.fmu.native import (
     CFLAGS,
     COMMON_SOURCES,
@@ -39,10 +40,8 @@ from delaycomp.fmu.native import (
     build_native_fmu,
     compiler,
     fmi_header_dir,
-    host_argv,
-    native_fmus,
-    unpack,
 )
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.orchestrator.fmu import FmuComponent, FmuRefused
 from delaycomp.orchestrator.inprocess import SlaveComponent, SlaveRefused
 from delaycomp.orchestrator.simulate import make_master, parameters_of, run_loop, stop_ticks

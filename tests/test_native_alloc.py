@@ -21,7 +21,9 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from delaycomp.fmu.native import compiler, host_argv, native_fmus, unpack
+from delaycomp.fmu.host import host_argv, unpack
+from delaycomp.fmu.native import compiler
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.paper import scenarios
 from delaycomp.paper.scenarios import lti_loop
 

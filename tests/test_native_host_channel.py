@@ -29,7 +29,8 @@ import numpy as np
 import pytest
 import tomllib
 
-from delaycomp.fmu.native import host_argv, native_fmus, unpack
+from delaycomp.fmu.host import host_argv, unpack
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.system.loopfile import build
 

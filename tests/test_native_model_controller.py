@@ -22,14 +22,10 @@ import numpy as np
 import pytest
 
 from delaycomp.fmu.build import build_fmu
-from delaycomp.fmu.native import (
-    build_native_fmu,
-    host_argv,
-    native_fmu_path,
-    native_fmus,
-    unpack,
-)
+from delaycomp.fmu.host import host_argv, unpack
+from delaycomp.fmu.native import build_native_fmu, native_fmu_path
 from delaycomp.fmu.translate import TranslationError
+from delaycomp.fmu.twins import native_fmus
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.inprocess import SlaveComponent
 from delaycomp.orchestrator.simulate import run_loop, stop_ticks

@@ -31,16 +31,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from delaycomp.fmu import native, toolchain
-from delaycomp.fmu.native import (
-    NativeBuildError,
-    build_native_fmu,
-    compile_host,
-    emulator,
-    host_argv,
-    pop_notes,
-    unpack,
-)
+from delaycomp.fmu import toolchain
+from delaycomp.fmu.host import EMULATORS, compile_host, emulator, host_argv, unpack
+from delaycomp.fmu.native import NativeBuildError, build_native_fmu, pop_notes
 from delaycomp.formats.loopbuild import file_stem
 
 from .binimports import fmi_functions, images, loads_anywhere
@@ -305,7 +298,7 @@ def test_a_run_builds_its_fmus_for_this_machine_alone(monkeypatch):
     import fmpy
 
     from delaycomp import api
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
 
     monkeypatch.delenv("DELAYCOMP_PLATFORMS", raising=False)
     assert toolchain.requested() == tuple(toolchain.PLATFORMS)
@@ -420,9 +413,9 @@ def test_the_c_host_runs_the_platform_binaries_as_linux64(platform, case, wine_p
     the FMUs' binaries are built by Zig (with no Zig: skipped, saying so)."""
     need_zig()
     name = "x86_64-windows" if platform == "win64" else platform
-    need(native.EMULATORS[name][0][0], what=f"the {platform} binaries run")
+    need(EMULATORS[name][0][0], what=f"the {platform} binaries run")
     if platform == "aarch64-linux":
-        sysroot = Path(native.EMULATORS[name][0][2])
+        sysroot = Path(EMULATORS[name][0][2])
 
         def libc():
             if not (sysroot / "lib" / "ld-linux-aarch64.so.1").exists():

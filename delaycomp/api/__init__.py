@@ -332,7 +332,7 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     command line choose through here.
 
     ``fmu_dir``: the FMUs there under their own names come first, what ``delaycomp build
-    --out fmu_dir`` wrote (``delaycomp.fmu.native.fmus_in_dir``): ``auto`` takes their kind,
+    --out fmu_dir`` wrote (``delaycomp.fmu.twins.fmus_in_dir``): ``auto`` takes their kind,
     native or Python, and builds nothing they cover; one that is stale (another delaycomp
     version, other sources) or of the wrong kind (a Python FMU where native ones run or the
     reverse, another FMI version, other dimensions) raises ``BadFileError``, one line
@@ -365,17 +365,17 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
             raise ParameterError("fmus = 'native' is not allowed with engine = 'inprocess' "
                                  "(the Python slaves run in this process)")
         return None, None
-    from delaycomp.fmu import native
+    from delaycomp.fmu import twins
 
     native_dir = Path(fmu_dir) / "native" if fmu_dir else None
     found: dict[str, Path] = {}
     if fmu_dir:
-        there, found = native.fmus_in_dir(loop, Path(fmu_dir), fmus, fmi, clocked)
+        there, found = twins.fmus_in_dir(loop, Path(fmu_dir), fmus, fmi, clocked)
         if there == "python" and fmus == "auto":  # what build --out left there
             try:  # the note of a loop that has no native FMUs anyway
-                native.check_native(loop, fmi, clocked)
+                twins.check_native(loop, fmi, clocked)
             except ValueError as exc:
-                return None, native.why_not_native(exc)
+                return None, twins.why_not_native(exc)
             from delaycomp.progress import detail
 
             detail(f"the Python FMUs run this loop: {fmu_dir} holds Python ones")
@@ -383,8 +383,8 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
     if fmus == "python":
         return None, None
     if fmus == "native" or fmi == 3:
-        return native.native_fmus(loop, native_dir, fmi, clocked, found), None
-    return native.native_or_why(loop, native_dir, found=found)
+        return twins.native_fmus(loop, native_dir, fmi, clocked, found), None
+    return twins.native_or_why(loop, native_dir, found=found)
 
 
 def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",

@@ -24,6 +24,9 @@ FMUs whose binary needs only the C library and libm, twins of the pythonfmu FMUs
    compiler builds them all on any machine; without it a system compiler builds what it
    can), ``-Wall -Wextra -Werror``.
 
+The C host that runs these FMUs without Python is ``delaycomp.fmu.host``; which native
+FMUs a loop runs, and from where, is ``delaycomp.fmu.twins``.
+
 The FMI 2.0 headers are fmpy's copy (``fmpy/c-code``; fmpy is a dependency, so a wheel
 install has them) and go into each FMU's ``sources/``.
 """
@@ -32,7 +35,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import subprocess
 import tempfile
@@ -66,10 +68,9 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli packag
     import tomli as tomllib
 
 __all__ = ["MODEL_KINDS", "NATIVE_KINDS", "NativeBuildError", "NativeTwin", "build_native",
-           "build_native_fmu", "build_native_model", "built_config", "check_native",
-           "compile_host", "compiler", "emulator", "fmus_in_dir", "host_argv",
-           "native_archive", "native_fmu_dir", "native_fmu_path", "native_fmus",
-           "native_or_why", "native_twin", "pop_notes", "unpack", "why_not_native"]
+           "build_native_fmu", "build_native_model", "built_config", "clocked_config",
+           "compiler", "native_archive", "native_fmu_dir", "native_fmu_path", "native_twin",
+           "pop_notes"]
 
 #: the shared C sources (``fmus/native/`` in the repository, package data of
 #: delaycomp.fmus): the FMI layer, the linear algebra, DOP853, the host, export-c's templates
@@ -606,11 +607,11 @@ def _write_metadata(kind: str, stage: Path, description: bytes, full: dict) -> N
 def build_native(out_dir: Path, fmi: int = 2, clocked: bool = False) -> list[Path]:
     """Build the three native FMUs of the scalar LTI loop (default dimensions), for FMI
     version ``fmi`` (2 or 3); ``clocked`` (FMI 3.0): the controller driven by a clock."""
-    return [build_native_fmu(kind, out_dir, _clocked({}, kind, clocked) or None, fmi=fmi)
+    return [build_native_fmu(kind, out_dir, clocked_config({}, kind, clocked) or None, fmi=fmi)
             for kind in NATIVE_KINDS if kind in LOOP_KINDS]
 
 
-def _clocked(config: dict, kind: str, clocked: bool) -> dict:
+def clocked_config(config: dict, kind: str, clocked: bool) -> dict:
     """``config`` with ``clocked`` where asked and the kind has a clocked variant."""
     return {**config, "clocked": True} if clocked and native_twin(kind).clock else config
 
@@ -708,186 +709,6 @@ def built_config(path: Path) -> dict:
             return {}
 
 
-def fmus_in_dir(loop, fmu_dir: Path, fmus: str = "auto", fmi: int = 2,
-                clocked: bool = False) -> tuple[str | None, dict[str, Path]]:
-    """What ``delaycomp build --out fmu_dir`` (or an earlier run) left in ``fmu_dir`` for
-    ``loop``: the kind of the FMUs there under their own names (``fmu_file_name``: the
-    names ``build --out`` writes), ``"native"`` or ``"python"`` (``None``: none there),
-    and those files by instance.
-
-    Each file is checked (``check_fmu``: a delaycomp FMU of the instance's model and
-    dimensions, built by this delaycomp from these sources), then against the FMUs the
-    run asks for: ``fmus`` (``auto``: the kind of the first file there; ``native``;
-    ``python``) and ``fmi`` (3: native FMI 3.0 ones; ``clocked``: the controller's clocked
-    variant).
-
-    Raises
-    ------
-    delaycomp.errors.BadFileError
-        A file there is stale or of the wrong kind: one line naming it and what to do.
-    """
-    from delaycomp.errors import BadFileError
-    from delaycomp.fmu.cache import cache_hit, check_fmu, check_sources, fmu_file_name
-    from delaycomp.system.loop import FmuFile
-
-    fmu_dir = Path(fmu_dir)
-    kind_there: str | None = None
-    found: dict[str, Path] = {}
-    for inst in loop.instances:
-        src = inst.source
-        if isinstance(src, FmuFile):
-            continue
-        config = _clocked(dict(src.config), src.kind, clocked and inst.role == "controller")
-        path = fmu_dir / fmu_file_name(src.kind, config)
-        if not os.path.lexists(path):
-            continue
-        check_fmu(path, src.kind, config, sources=True)
-        built = built_config(path)
-        if built.get("native"):
-            check_sources(path, built, sources_digest())
-        kind = "native" if built.get("native") else "python"
-        wanted = ("native" if fmi == 3 or fmus == "native" else fmus if fmus == "python"
-                  else kind_there or kind)
-        if kind != wanted:
-            raise BadFileError(path, _wrong_kind(kind, wanted, fmus, fmi, fmu_dir))
-        if kind == "native" and built.get("fmi", 2) != fmi:
-            had = built.get("fmi", 2)
-            raise BadFileError(path, f"is an FMI {had}.0 FMU, this run needs FMI {fmi}.0 ("
-                                     + ("--fmi 3 runs it" if had == 3 else
-                                        "run without --fmi 3 to use it")
-                                     + f", or rebuild the folder: delaycomp build"
-                                       f"{' --fmi 3' if fmi == 3 else ''} --out {fmu_dir})")
-        kind_there = kind
-        found[inst.name] = path
-        cache_hit(path, model_identifier(src.kind, config))
-    return kind_there, found
-
-
-def _wrong_kind(kind: str, wanted: str, fmus: str, fmi: int, fmu_dir: Path) -> str:
-    """The reason of ``fmus_in_dir``'s error for a ``kind`` FMU where ``wanted`` ones run:
-    what it is, what the run asks for, and what to do."""
-    name = {"native": "native", "python": "Python"}
-    if fmus == "auto" and fmi == 2:  # the first file there was of the other kind
-        return (f"is a {name[kind]} FMU beside {name[wanted]} ones of this loop (rebuild the "
-                f"folder: delaycomp build --out {fmu_dir}, or delete the file)")
-    if wanted == "python":
-        return ("is a native FMU, --python runs Python ones (run without --python to use "
-                f"it, or rebuild the folder: delaycomp build --python --out {fmu_dir})")
-    flag = "--fmi 3" if fmi == 3 else "--native"
-    return (f"is a Python FMU, {flag} runs native ones (run without {flag} to use it, or "
-            f"rebuild the folder: delaycomp build {flag} --out {fmu_dir})")
-
-
-def compile_host(exe: Path, platform: str | None = None) -> Path:
-    """Compile the C closed-loop host (``fmus/native/host/host.c``) to ``exe``: for this
-    machine, or for ``platform`` (a key of ``delaycomp.fmu.toolchain.PLATFORMS``, or its
-    FMI 2.0 name: ``win64``), by the compiler that builds that platform's FMU binaries
-    (``toolchain.compiler_for``: Zig where it is here); the host then loads that
-    platform's binaries of the FMUs (run it with ``host_argv``'s ``platform``)."""
-    flags: tuple[str, ...] = ()
-    if platform is None:
-        name, argv = toolchain.this_platform(), compiler()
-    else:
-        name = _platform_name(platform)
-        c = toolchain.compiler_for(name)
-        if c is None:
-            raise NativeBuildError(f"no C compiler here to build the C host for {name}: "
-                                   f"{toolchain.how_to_get(name)}")
-        argv, flags = list(c.argv), c.flags
-    windows = name is not None and toolchain.PLATFORMS[name].os == "windows"
-    libs = ["-lm"] if windows else ["-ldl", "-lm"]  # dlopen is in libdl before glibc 2.34
-    proc = subprocess.run([*argv, "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", *flags,
-                           "-I", str(fmi_header_dir()), str(SOURCE_DIR / "host" / "host.c"),
-                           "-o", str(exe), *libs], capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
-    return Path(exe)
-
-
-def _platform_name(platform: str) -> str:
-    """A platform's tuple from its tuple or FMI 2.0 name (``win64``, ``linux64``)."""
-    names = toolchain.ALIASES.get(platform, (platform,))
-    if len(names) != 1 or names[0] not in toolchain.PLATFORMS:
-        raise ValueError(f"platform {platform!r} is not allowed: allowed are "
-                         f"{', '.join(toolchain.PLATFORMS)}, linux64, win64 (or None: this "
-                         "machine)")
-    return names[0]
-
-
-#: how this machine runs a C host built for another platform: the emulator (a Debian
-#: package), its arguments before the program
-EMULATORS = {"x86_64-windows": (("wine",), "wine"),
-             "aarch64-linux": (("qemu-aarch64", "-L", "/usr/aarch64-linux-gnu"), "qemu-user")}
-
-
-def emulator(platform: str) -> tuple[list[str], dict[str, str]]:
-    """The command prefix that runs a program built for ``platform`` here (wine for
-    ``x86_64-windows``, alias ``win64``; qemu-user for ``aarch64-linux``, with Debian's
-    aarch64 C library) and the environment variables it needs (wine: no debug output, no
-    Mono or Gecko installers; ``WINEPREFIX`` is the caller's). Raises
-    ``NativeBuildError`` naming the package to install where it is absent."""
-    name = _platform_name(platform)
-    if name not in EMULATORS:
-        raise ValueError(f"platform {platform!r} is not allowed: this machine runs "
-                         f"{', '.join(EMULATORS)} programs in an emulator")
-    prefix, package = EMULATORS[name]
-    if shutil.which(prefix[0]) is None:
-        raise NativeBuildError(f"no {prefix[0]} here to run {name} programs "
-                               f"(`apt-get install {package}`)")
-    env = {"WINEDEBUG": "-all", "WINEDLLOVERRIDES": "mscoree=d;mshtml=d"} \
-        if name == "x86_64-windows" else {}
-    return list(prefix), env
-
-
-def _host_path(path: Path, platform: str | None) -> str:
-    """A folder as the host built for ``platform`` names it (wine maps / to drive Z:)."""
-    text = str(Path(path).resolve())
-    windows = platform is not None and _platform_name(platform) == "x86_64-windows"
-    return "Z:" + text.replace("/", "\\") if windows else text
-
-
-def unpack(fmus: dict[str, Path], into: Path) -> dict[str, Path]:
-    """Unpack each FMU of ``fmus`` (instance -> file) into ``into/<instance>``."""
-    from delaycomp.unpack import extract
-
-    dirs = {}
-    for name, path in fmus.items():
-        dirs[name] = extract(path, Path(into) / name)  # within delaycomp.unpack's limits
-    return dirs
-
-
-def host_argv(exe: Path, loop, stop: float, dirs: dict[str, Path],
-              timing: bool = False, exact_grid: bool = False,
-              platform: str | None = None, start: float = 0.0) -> list[str]:
-    """The C host's command line for the LTI loop ``loop`` (a
-    ``Loop``, scalar or with vectors, its delays network channels or not) with the FMUs unpacked
-    in ``dirs`` (instance -> folder): stop time, base step, folders, every parameter.
-
-    Parameters
-    ----------
-    timing : bool
-        The host prints the wall time of its stepping loop to stderr (``--timing``).
-    exact_grid : bool
-        The host keeps time as the FMI guides ask (``--exact-grid``): ``t_k = t0 + k h``
-        computed from ``k``, each step ``t_{k+1} - t_k``; else every step is ``h``.
-    platform : str, optional
-        The host was built for this platform (``compile_host``): the command starts
-        with its emulator (``emulator``; its environment is the caller's to pass) and
-        names the folders as the emulated program sees them.
-    start : float
-        The start time ``t0`` (``--start=T0``); the run ends at ``stop``, an absolute time.
-    """
-    sets = [f"{inst.name}.{k}={str(v).lower() if isinstance(v, bool) else v}"
-            for inst in loop.instances for k, v in inst.parameters.items()]
-    prefix = emulator(platform)[0] if platform is not None else []
-    return [*prefix, str(exe), *(["--timing"] if timing else []),
-            *(["--exact-grid"] if exact_grid else []),
-            *([f"--start={start!r}"] if start else []), repr(stop), repr(loop.T / loop.N),
-            *(f"{n}={_host_path(dirs[n], platform)}"
-              for n in ("plant", "meas_delay", "controller", "input_delay")),
-            *sets]
-
-
 def native_archive(src: Path, dest: Path, fmu_dir: Path | None = None) -> Path:
     """Copy the SSP archive ``src`` to ``dest`` with each delaycomp FMU of ``resources/``
     replaced by its native twin (same file name, variables and value references, built
@@ -975,82 +796,3 @@ def _twin_of(fmu: Path, label: str, models: Path) -> tuple[str, dict]:
                          f"built by delaycomp {built_with!r}, this is "
                          f"{__version__!r} (rebuild the archive)")
     return kind, config
-
-
-def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2,
-                  found: dict[str, Path] | None = None
-                  ) -> tuple[dict[str, Path] | None, str | None]:
-    """The native FMUs of ``loop`` where they can be had here (``native_fmus``), else
-    ``(None, why)``: an instance without a native twin (a user's FMU file), no C compiler,
-    or a model that does not translate (or CasADi missing). The commands' default: native
-    where it exists, the Python FMUs otherwise."""
-    from delaycomp.maths.model import ModelError
-
-    try:
-        return native_fmus(loop, fmu_dir, fmi, found=found), None
-    except (ValueError, NativeBuildError, ModelError) as exc:
-        return None, why_not_native(exc)
-
-
-def why_not_native(exc: Exception) -> str:
-    """The reason ``exc`` gives why a loop runs no native FMUs here, as the commands' note
-    says it (``native_or_why``)."""
-    return str(exc).splitlines()[0].removeprefix("--native is not allowed for this loop: ")
-
-
-def native_fmus(loop, fmu_dir: Path | None = None, fmi: int = 2,
-                clocked: bool = False, found: dict[str, Path] | None = None
-                ) -> dict[str, Path]:
-    """Native FMU files for every instance of ``loop`` (a ``Loop``), to pass as ``fmus=``
-    to ``delaycomp.orchestrator.simulate.run_loop``, with this machine's binary alone
-    (they run here; ``delaycomp build`` writes FMUs for elsewhere); FMI 3.0 ones with
-    ``fmi=3``, where a user's FMU file (``FmuFile``, e.g. another tool's FMI 2.0 plant)
-    keeps its file: a mixed loop; ``clocked`` (FMI 3.0): the controller driven by a clock (the LTI
-    controller's variant; ``ValueError`` for a loop whose controller has none).
-    ``found``: native files already checked for some instances, by name (``fmus_in_dir``:
-    those ``delaycomp build --out`` wrote), taken as they are; the others from
-    ``fmu_dir``.
-
-    Raises
-    ------
-    ValueError
-        An instance has no native twin (a user model's plant or controller, a user's FMU).
-    """
-    from delaycomp.system.loop import FmuFile
-
-    check_native(loop, fmi, clocked)
-    found = found or {}
-    here = toolchain.this_platform()
-    # FMUs to run here: this machine's binary alone (a first run compiles one platform)
-    with toolchain.chosen((here,) if here else None):
-        return {inst.name: found.get(inst.name) or native_fmu_path(
-                    inst.source.kind,
-                    _clocked(dict(inst.source.config), inst.source.kind,
-                             clocked and inst.role == "controller"), fmu_dir, fmi)
-                for inst in loop.instances if not isinstance(inst.source, FmuFile)}
-
-
-def check_native(loop, fmi: int = 2, clocked: bool = False) -> None:
-    """``ValueError`` where ``loop`` has no native FMUs (``native_fmus``), before any
-    build: an instance without a native twin, or ``clocked`` for a loop whose controller
-    has no clocked variant."""
-    from delaycomp.system.loop import BuiltinFmu, FmuFile, ModelFmu
-
-    for inst in loop.instances:
-        src = inst.source
-        if fmi == 3 and isinstance(src, FmuFile):
-            continue
-        if not ((isinstance(src, BuiltinFmu) and src.kind in NATIVE_KINDS)
-                or (isinstance(src, ModelFmu) and src.kind in MODEL_KINDS)):
-            what = f"a {src.kind} FMU" if hasattr(src, "kind") else "a user's FMU file"
-            raise ValueError(f"--native is not allowed for this loop: instance {inst.name!r} "
-                             f"is {what}; native FMUs exist for the delay, the network "
-                             "channel, the LTI plant and controller, the time-stamp "
-                             "controller, and a model file's plant and controller")
-    if clocked:
-        ctrl = loop.by_role("controller")
-        if ctrl is None or isinstance(ctrl.source, FmuFile) or not native_twin(
-                ctrl.source.kind).clock or fmi != 3:
-            raise ValueError("clocked = true is not allowed for this loop: a clocked "
-                             "controller is the FMI 3.0 LTI controller (fmi = 3, an LTI "
-                             "loop's controller)")

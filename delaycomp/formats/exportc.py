@@ -433,7 +433,7 @@ def closed_loop_io(loop, ticks: int, fmu_dir: str | Path | None = None):
     (numpy.ndarray, numpy.ndarray)
         ``ys`` (ticks x n: the controller's inputs) and ``us`` (ticks x m: its outputs).
     """
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
     from delaycomp.orchestrator.fmu import FmuComponent
 
     fmus = native_fmus(loop, Path(fmu_dir) if fmu_dir is not None else None)

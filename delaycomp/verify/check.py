@@ -145,7 +145,7 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     """The native C FMUs (``delaycomp.fmu.native``) in our master, for the cases whose loop
     has native FMUs (the LTI ones): one row against the reference, one against the Python
     FMUs (``native-vs-python``)."""
-    from delaycomp.fmu.native import native_fmus
+    from delaycomp.fmu.twins import native_fmus
     from delaycomp.orchestrator.simulate import run_loop
 
     for c in cases:

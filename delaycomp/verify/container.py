@@ -210,7 +210,7 @@ def export_loop(spec: Loop, out: Path, fmu_dir: Path | None = None,
         Folder of built Python FMUs (default: the per-version cache).
     fmus : dict, optional
         The FMU file of some instances (e.g. the native ones of
-        ``delaycomp.fmu.native.native_fmus``); the others come from their sources. Not
+        ``delaycomp.fmu.twins.native_fmus``); the others come from their sources. Not
         with ``fmi=3``, which builds its own.
     fmi : {2, 3}
         The FMI version of the container's interface and of delaycomp's FMUs inside it:
