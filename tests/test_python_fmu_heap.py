@@ -11,7 +11,7 @@ Before, two writes into freed memory at a host's exit:
   ships the library with that function returning at once;
 - a state the host freed twice (pythonfmu drops one reference per free) reached zero while
   the interpreter's teardown still freed its pins, which then read and wrote the freed
-  token (``delaycomp.fmu.slave._never_freed``): the pins are now never freed.
+  token (``delaycomp.fmu.statehandle._never_freed``): the pins are now never freed.
 
 Every host here is a fresh plain-fmpy process (``scripts/fmi_sequence_child.py``) that
 leaves through the interpreter's normal exit. Whether such a write aborts a host depends on
@@ -117,7 +117,7 @@ def test_no_invalid_access_under_valgrind(fmu_dir, tmp_path):
     finalizePythonInterpreter, 8 bytes inside a block of size 128 free'd by
     __run_exit_handlers" (the runtime library), and "Invalid read of size 8 at Py_DECREF,
     list_dealloc, 0 bytes inside a block of size 40 free'd" (a state's token freed twice by
-    the host, then once more by the teardown: ``delaycomp.fmu.slave._never_freed``)."""
+    the host, then once more by the teardown: ``delaycomp.fmu.statehandle._never_freed``)."""
     valgrind = need("valgrind")
     log = tmp_path / "valgrind.txt"
     env = dict(os.environ, PYTHONMALLOC="malloc")  # every object on the C heap: checked

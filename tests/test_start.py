@@ -141,21 +141,23 @@ def test_the_probe_sees_an_import_when_there_is_one():
 #: values; the model FMUs of Example 2.4 use the model's own exact step and Phi (scipy's
 #: ODE solver is loaded at a model's first numerical solve, never at instantiation).
 #: every Python FMU imports these: the package's finder of its bundled part (``layout``), the
-#: two packages (their ``__init__`` imports nothing), the names and the errors (the one
-#: ``ParameterError``; the standard library only)
-FMU_BASE = {"layout", "version", "maths", "fmu", "fmu.slave", "names", "errors"}
+#: two packages (their ``__init__`` imports nothing), the base slave and its FMU-state
+#: handles, the names and the errors (the one ``ParameterError``; the standard library
+#: only); the sampled controllers add ``fmu.sampling``, which the others never import
+FMU_BASE = {"layout", "version", "maths", "fmu", "fmu.slave", "fmu.statehandle", "names",
+            "errors"}
 FMU_NEEDS = {
     "delay": (("numpy", "pythonfmu"),
               FMU_BASE | {"maths.delayline", "maths.grid"}),
     "plant": (("numpy", "pythonfmu", "scipy.linalg"),
               FMU_BASE | {"maths.grid", "maths.lti"}),
     "controller": (("numpy", "pythonfmu", "scipy.linalg"),
-                   FMU_BASE | {"maths.zoh", "maths.grid", "maths.lti"}),
+                   FMU_BASE | {"fmu.sampling", "maths.zoh", "maths.grid", "maths.lti"}),
     "model_plant": (("numpy", "pythonfmu"),
                     FMU_BASE | {"maths.delayline", "maths.grid", "maths.history",
                                 "maths.model", "maths.nlcontrol", "maths.predictors"}),
     "model_controller": (("numpy", "pythonfmu"),
-                         FMU_BASE | {"maths.delayline", "maths.grid",
+                         FMU_BASE | {"fmu.sampling", "maths.delayline", "maths.grid",
                                      "maths.history", "maths.model", "maths.nlcontrol",
                                      "maths.predictors"}),
 }

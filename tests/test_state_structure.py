@@ -503,19 +503,19 @@ def test_python_fmus_refuse_inconsistent_states_by_name_and_keep_their_own(name,
     (before, a truncated delay line or input history was taken as it came, and a refused
     state left the instance half restored), the instance keeps its own state (only its
     error is the refusal), and nothing else ever escapes (a TypeError of the restore)."""
-    from delaycomp.fmu.slave import _StateHandle
+    from delaycomp.fmu.statehandle import StateHandle
 
     good, h = KINDS[name].good, KINDS[name].h
     counts = {"tried": 0, "refused": 0}
     for phase, base in _python_phases(name, tmp_path).items():
         slave = _python_slave(name, good, tmp_path)
         slave.exit_initialization_mode()
-        slave._set_fmu_state(_StateHandle.new(base))
+        slave._set_fmu_state(StateHandle.new(base))
         assert slave.error == base["error"], phase  # legitimate: restored
         own = {k: v for k, v in slave._state_data().items() if k != "error"}
         for what, mutated in _json_mutations(base):
             slave.log_queue.clear()
-            slave._set_fmu_state(_StateHandle.new(mutated))
+            slave._set_fmu_state(StateHandle.new(mutated))
             errors = [m.msg for m in slave.log_queue if m.status.name == "error"]
             counts["tried"] += 1
             if errors and errors[-1] != base["error"]:
@@ -526,6 +526,6 @@ def test_python_fmus_refuse_inconsistent_states_by_name_and_keep_their_own(name,
             else:  # taken: it runs (a slave never raises) and saves again
                 slave.do_step(float(mutated["t_next"] or 0.0), h)
                 slave._state_data()
-            slave._set_fmu_state(_StateHandle.new(base))
+            slave._set_fmu_state(StateHandle.new(base))
     print(f"{name} (Python): {counts}")
     assert counts["refused"] > 0.3 * counts["tried"]

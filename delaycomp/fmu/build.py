@@ -45,12 +45,13 @@ FMU_ROOT = _fmus_folder()
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
 
 #: Modules of ``delaycomp`` that run inside the FMUs (no CLI, no plotting, no fmpy): the
-#: package's light base, the maths (``delaycomp.maths``) and the base slave
-#: (``delaycomp.fmu.slave``). The paper's models (``paper/models/*.py``) are bundled too:
+#: package's light base, the maths (``delaycomp.maths``), the base slave
+#: (``delaycomp.fmu.slave``, ``.statehandle``) and the sampled controllers' part
+#: (``delaycomp.fmu.sampling``). The paper's models (``paper/models/*.py``) are bundled too:
 #: their modules import each other. The packages' ``__init__.py`` import nothing.
 BUNDLED_MODULES = ("__init__.py", "version.py", "errors.py", "names.py", "layout.py",
                    "fmu/__init__.py",
-                   "fmu/slave.py",
+                   "fmu/slave.py", "fmu/statehandle.py", "fmu/sampling.py",
                    "paper/__init__.py",
                    *sorted(f"maths/{p.name}" for p in (PACKAGE_DIR / "maths").glob("*.py")),
                    *sorted(f"paper/models/{p.name}"

@@ -1,7 +1,8 @@
 """The system model: the typed description of a closed loop (``.loop``), the loop file
-that describes one in TOML (``.loopfile``) and the rewrites that work on roles
-(``.jacobi``). It stands on the maths and ``delaycomp.maths.grid``, and imports nothing
-above it (no FMI, no master).
+that describes one in TOML (``.loopfile``, its values checked by ``.loopvalues``, its
+network channels and time stamps ``.loopchannels``, a plant FMU's tables
+``.loopplantfmu``) and the rewrites that work on roles (``.jacobi``). It stands on the
+maths and ``delaycomp.maths.grid``, and imports nothing above it (no FMI, no master).
 
 The names below are ``.loop``'s, imported on first use (PEP 562): importing the package,
 or its light modules alone (``.loopkeys``: the keys of a loop file and their allowed values

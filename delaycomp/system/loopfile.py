@@ -55,11 +55,7 @@ unstable (spectral radius of ``Ad + Bd K`` at least 1) is refused: the controlle
 
 from __future__ import annotations
 
-import functools
-import math
 import re
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -72,24 +68,46 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as the tomli packag
 
 from delaycomp.errors import BadFileError, ParameterError, shown
 from delaycomp.maths.grid import on_grid
-from delaycomp.names import MODES
 from delaycomp.system.loop import (
-    Instance,
     Loop,
     LtiBatch,
     LtiPoint,
     Origin,
     check_model_loop,
-    check_zoh_delay,
     design_loop,
     lti_design,
     lti_designs,
     model_loop,
 )
-from delaycomp.system.loopkeys import ALLOWED, CHANNEL_TABLES, DEFAULTS, PREDICTORS, allowed
+from delaycomp.system.loopchannels import TRACE_MAX as TRACE_MAX  # importable here as before
+from delaycomp.system.loopchannels import (
+    channel_of,
+    check_stamped_model,
+    refuse_channel_data,
+    with_channels,
+    with_stamps,
+)
+from delaycomp.system.loopchannels import channel_parameters as channel_parameters
+from delaycomp.system.loopchannels import read_trace as read_trace
+from delaycomp.system.loopkeys import CHANNEL_TABLES, DEFAULTS, allowed
 from delaycomp.system.loopkeys import ON_BASE_GRID as ON_BASE_GRID  # importable here as before
 from delaycomp.system.loopkeys import ZOH_TAU as ZOH_TAU
 from delaycomp.system.loopkeys import ZOH_TAU_PAD as ZOH_TAU_PAD
+from delaycomp.system.loopplantfmu import fmu_plant, fmu_tolerance
+from delaycomp.system.loopvalues import KEYS as KEYS  # importable here as before
+from delaycomp.system.loopvalues import (
+    NESTED,
+    array_value,
+    check_keys,
+    check_sign,
+    check_value,
+    flag_value,
+    model_value,
+    parse_value,
+    real_value,
+)
+from delaycomp.system.loopvalues import Key as Key
+from delaycomp.system.loopvalues import SignError as SignError
 
 #: the keys of each table, required or not, and the defaults: ``.loopkeys``
 TOP_KEYS = allowed("", "lti")
@@ -98,248 +116,7 @@ SECTIONS = ("plant", "controller")
 OTHER_TABLES = ("reference",)
 DEFAULT_N: int = int(DEFAULTS["N"])  # type: ignore[call-overload]
 
-_DECIMAL = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
-
-
-class SignError(ParameterError):
-    """An LTI gain with which the delay-free sampled loop is unstable (the sign guard)."""
-
-
-# -- values ---------------------------------------------------------------------------------
-
-#: why a value or file nested beyond what the parser can read is refused
-NESTED = ("its arrays or tables are nested too deeply to read (a loop needs at most a "
-          "matrix: two levels)")
-
-
-def parse_value(text: str) -> Any:
-    """A ``--set`` value: an ASCII decimal number, ``a,b,c`` (a list), ``a,b;c,d`` (rows),
-    a TOML array ``[[a, b], [c, d]]``, a TOML inline table ``{name = value}``,
-    ``true``/``false``, or else the text itself.
-
-    Examples
-    --------
-    >>> parse_value("0.4"), parse_value("1,0"), parse_value("1,2;3,4")
-    (0.4, [1.0, 0.0], [[1.0, 2.0], [3.0, 4.0]])
-    >>> parse_value("[[1, 2]]"), parse_value("uncompensated"), parse_value("true")
-    ([[1, 2]], 'uncompensated', True)
-    """
-    text = text.strip()
-    if _DECIMAL.match(text):
-        return float(text)
-    if text in ("true", "false"):
-        return text == "true"
-    if text.startswith("{"):  # a TOML inline table: plant.parameters={mass = 2.0}
-        try:
-            return tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"not a TOML inline table: {exc}") from None
-        except RecursionError:
-            raise ValueError(NESTED) from None
-    if text.startswith("["):
-        if "_" in text:
-            raise ValueError("plain decimal numbers only (no '_')")
-        try:
-            return tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"not a TOML array: {exc}") from None
-        except RecursionError:
-            raise ValueError(NESTED) from None
-    if "," in text or ";" in text:
-        rows = [[_number(part) for part in row.split(",")] for row in text.split(";")]
-        return rows if ";" in text else rows[0]
-    return text
-
-
-def _number(text: str) -> float:
-    text = text.strip()
-    if not _DECIMAL.match(text):
-        raise ValueError(f"{text!r} is not an ASCII decimal number")
-    return float(text)
-
-
-def _real(where: str, value, positive=False, nonneg=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be a number")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be a finite number")
-    if positive and not value > 0:
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be > 0")
-    if nonneg and not value >= 0:
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be >= 0")
-    return value
-
-
-def _int(where: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-            isinstance(value, float) and not value.is_integer()) or not value >= 1:
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be a positive integer")
-    return int(value)
-
-
-def _array(where: str, value, ndim: int) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{where} is not allowed: must be "
-                             f"{'a list of numbers' if ndim == 1 else 'a list of rows'}"
-                             ) from None
-    if ndim == 2 and arr.ndim == 1:
-        arr = arr.reshape(1, -1) if arr.size else arr.reshape(0, 0)
-    if arr.ndim != ndim or arr.size == 0 or _has_bool(value):
-        raise ParameterError(f"{where} is not allowed: must be "
-                             f"{'a list of numbers' if ndim == 1 else 'a list of rows of numbers'}")
-    if not np.all(np.isfinite(arr)):
-        raise ParameterError(f"{where} is not allowed: every entry must be a finite number")
-    return arr
-
-
-def _has_bool(value) -> bool:
-    """Whether a (nested) list holds a TOML boolean, which numpy would take for 0 or 1."""
-    if isinstance(value, (list, tuple)):
-        return any(_has_bool(v) for v in value)
-    return isinstance(value, bool)
-
-
-def _flag(where: str, value) -> bool:
-    if not isinstance(value, bool):
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be true or false")
-    return value
-
-
-def _mode(where: str, value) -> str:
-    if value not in MODES:
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be "
-                             f"{' or '.join(MODES)}")
-    return value
-
-
-def _predictor(where: str, value) -> str:
-    if value not in PREDICTORS:
-        raise ParameterError(f"{where} = {value!r} is not allowed: must be "
-                             f"{' or '.join(PREDICTORS)}")
-    return value
-
-
-@dataclass(frozen=True)
-class Key:
-    """A loop-file key whose value is checked on its own: ``check(where, value)`` returns
-    the value checked (or raises ``ParameterError`` naming ``where``); ``allowed`` says
-    the range in words (the rules between keys, such as the base grid, are ``check``'s)."""
-
-    check: Callable[[str, Any], Any]
-    allowed: str
-
-
-def _nonneg(where: str, value) -> float:
-    return _real(where, value, nonneg=True)
-
-
-def _positive(where: str, value) -> float:
-    return _real(where, value, positive=True)
-
-
-def _vector(where: str, value) -> np.ndarray:
-    return _array(where, value, 1)
-
-
-def _matrix(where: str, value) -> np.ndarray:
-    return _array(where, value, 2)
-
-
-#: the keys checked on their own, each rule written once (what ``check_value`` and the
-#: reader apply), each with its allowed values in words (``.loopkeys.ALLOWED``); a model's
-#: own parameters are checked against the model (``check``)
-_CHECKS: dict[str, Callable[[str, Any], Any]] = {
-    "T": _positive,
-    "N": _int,
-    **dict.fromkeys(("r", "tau", "r_true", "tau_true"), _nonneg),
-    "stop_time": _positive,
-    "plant.A": _matrix,
-    "plant.B": _matrix,
-    "plant.x0": _vector,
-    "controller.K": _matrix,
-    "controller.u0": _vector,
-    "controller.mode": _mode,
-    "controller.predictor": _predictor,
-    "controller.pad": _flag,
-    "controller.allow_unstable": _flag,
-    "controller.stamps": _flag,
-    "controller.age_max": _nonneg,
-}
-KEYS: dict[str, Key] = {key: Key(check, ALLOWED[key]) for key, check in _CHECKS.items()}
-assert KEYS.keys() == ALLOWED.keys()  # every key checked, and said in words
-
-
-def check_value(key: str, value, where: str | None = None) -> Any:
-    """``value`` of loop-file ``key`` (``"T"``, ``"plant.x0"``, ``"controller.mode"``)
-    checked on its own, as the reader checks it; a key not in ``KEYS`` passes as it is.
-
-    Examples
-    --------
-    >>> check_value("N", 20.0), check_value("controller.mode", "uncompensated")
-    (20, 'uncompensated')
-    >>> check_value("T", 0)
-    Traceback (most recent call last):
-    ...
-    delaycomp.errors.ParameterError: T = 0.0 is not allowed: must be > 0
-    """
-    spec = KEYS.get(key)
-    return value if spec is None else spec.check(where or key, value)
-
-
-# -- the sign guard ------------------------------------------------------------------------
-
-def check_sign(A, B, K, T: float) -> float:
-    """Refuse (``SignError``) a gain with which the delay-free sampled loop
-    ``x_{i+1} = (Ad + Bd K) x_i`` is unstable; return its spectral radius otherwise.
-
-    Examples
-    --------
-    >>> round(check_sign([[1.0]], [[1.0]], [[-2.0]], 1.0), 6)    # Example 3.6: stable
-    0.718282
-    >>> check_sign([[1.0]], [[1.0]], [[2.0]], 1.0)   # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    ...
-    delaycomp.system.loopfile.SignError: controller K: the delay-free sampled loop ...
-    """
-    A, B, K = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, K))
-    rho = _radius(A.shape, A.tobytes(), B.shape, B.tobytes(), K.shape, K.tobytes(), T)
-    if math.isnan(rho):  # e^(A T) overflowed: there is no sampled loop to judge
-        raise SignError(
-            f"plant A = {A.tolist()} with T = {T!r} is not allowed: the sampled plant "
-            "e^(A T) overflows (it is not finite), so the delay-free sampled loop cannot be "
-            "judged; set allow_unstable = true (--allow-unstable) to run it anyway")
-    if not rho < 1.0:
-        raise SignError(
-            f"controller K: the delay-free sampled loop is unstable (spectral radius of "
-            f"Ad + Bd K = {rho:.6g} >= 1 at T = {T!r}); delaycomp applies u = K x, whereas "
-            "python-control's lqr/dlqr return K for u = -K x (pass -K); set "
-            "allow_unstable = true (--allow-unstable) to study an unstable design")
-    return rho
-
-
-@functools.lru_cache(maxsize=256)
-def _radius(sa, a, sb, b, sk, k, T: float) -> float:
-    """``sampled_radius`` by value, remembered: a sweep's grid points
-    share their matrices and repeat the guard."""
-    from delaycomp.maths.lti import sampled_radius
-
-    def mat(shape, data):
-        return np.frombuffer(data, dtype=float).reshape(shape)
-
-    return sampled_radius(mat(sa, a), mat(sb, b), mat(sk, k), T)
-
-
 # -- the file ------------------------------------------------------------------------------
-
-def _check_keys(where: str, table: dict, allowed, extra=()) -> None:
-    for key in table:
-        if key not in allowed and key not in extra:
-            raise ParameterError(f"{where}: unknown key {key!r}: allowed are "
-                                 f"{', '.join(allowed)}")
-
 
 class LoopFile:
     """A loop file read from disk: ``loop`` builds the ``Loop``, with overrides.
@@ -394,7 +171,7 @@ class LoopFile:
     def default_stop_time(self) -> float | None:
         """The file's ``stop_time`` (checked), or ``None`` where it gives none."""
         stop = self.data.get("stop_time")
-        return None if stop is None else _real("stop_time", stop, positive=True)
+        return None if stop is None else real_value("stop_time", stop, positive=True)
 
     def resolve(self, assignments: list[str] | dict | None = None) -> dict:
         """The file's data with ``NAME=VALUE`` overrides (``r``, ``plant.x0``,
@@ -415,7 +192,7 @@ class LoopFile:
                 raise ParameterError(f"--set {key}={shown(text)}: {exc}") from None
             value = _listed(key, value)
             if section == "":
-                _check_keys(self.where, {name: 0}, TOP_KEYS)
+                check_keys(self.where, {name: 0}, TOP_KEYS)
                 data[name] = value
             elif section in SECTIONS or section in CHANNEL_TABLES:
                 table = data.setdefault(section, {})
@@ -604,8 +381,8 @@ def _split(assignment: str) -> tuple[str, str]:
 
 def _top(data: dict, where: str) -> dict:
     """The loop file's top-level values (timing, delays, mode), checked."""
-    _check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS,
-                (*OTHER_TABLES, *CHANNEL_TABLES))
+    check_keys(where, {k: v for k, v in data.items() if k not in SECTIONS}, TOP_KEYS,
+               (*OTHER_TABLES, *CHANNEL_TABLES))
     plant = data.get("plant")
     if not isinstance(plant, dict):
         raise ParameterError(f"{where}: a [plant] table is required (A and B, or model)")
@@ -631,14 +408,14 @@ def _top(data: dict, where: str) -> dict:
     return top
 
 
-def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str], bool]:
+def _lti_args(top: dict, where: str, array=array_value) -> tuple[dict, tuple[str, str], bool]:
     """The ``lti_design`` arguments of an LTI loop file
     (``[plant] A, B``), its state and input names, and whether the sign guard applies;
     the keys and values checked as ``build`` checks them (``array`` parses a list)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = array("plant.x0", plant["x0"], 1)
-    _check_keys(f"{where} [plant]", plant, allowed("plant", "lti"))
-    _check_keys(f"{where} [controller]", ctrl, allowed("controller", "lti"))
+    check_keys(f"{where} [plant]", plant, allowed("plant", "lti"))
+    check_keys(f"{where} [controller]", ctrl, allowed("controller", "lti"))
     if "B" not in plant or "K" not in ctrl:
         raise ParameterError(f"{where}: an LTI loop needs plant.B and controller.K")
     A = array("plant.A", plant["A"], 2)
@@ -647,8 +424,8 @@ def _lti_args(top: dict, where: str, array=_array) -> tuple[dict, tuple[str, str
     u0 = array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else np.zeros(B.shape[1])
     names = (_ident("plant.state", plant.get("state", DEFAULTS["plant.state"])),
              _ident("plant.input", plant.get("input", DEFAULTS["plant.input"])))
-    guard = not _flag("controller.allow_unstable",
-                      ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"]))
+    guard = not flag_value("controller.allow_unstable",
+                           ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"]))
     args = dict(A=A, B=B, K=K, T=top["T"], r=top["r"], tau=top["tau"], N=top["N"],
                 mode=top["mode"], x0=x0, u0=u0, r_true=top["r_true"],
                 tau_true=top["tau_true"])
@@ -716,7 +493,7 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         key = (what, id(value), ndim)
         hit = parsed.get(key)
         if hit is None or hit[0] is not value:  # the list itself kept: its id stays its own
-            hit = parsed[key] = (value, _array(what, value, ndim))
+            hit = parsed[key] = (value, array_value(what, value, ndim))
         return hit[1]
 
     try:
@@ -736,16 +513,8 @@ def designs(datas: list[dict], where: str = "loop") -> LtiBatch | None:
         return None
 
 
-# -- network channels ([meas_delay], [input_delay]) ----------------------------------------
-
-#: the longest delay trace a channel takes (``delaycomp.fmu.build.TRACE_MAX``, the channel
-#: FMU's ``trace[1..L]``, which the tests hold it to)
-TRACE_MAX = 10_000
 #: the loop's true delay that each channel table's ``delay`` defaults to
 _TRUE = {"meas_delay": "r", "input_delay": "tau"}
-_CHANNEL_NUMBERS = ("delay", "jitter", "shape", "max_delay", "loss", "p_gb", "p_bg",
-                    "loss_good", "loss_bad", "period")
-_CHANNEL_WORDS = ("distribution", "loss_model", "policy")
 
 
 def _true_delay(top: dict, table: str) -> float:
@@ -754,173 +523,6 @@ def _true_delay(top: dict, table: str) -> float:
     name = _TRUE[table]
     true = top[f"{name}_true"]
     return float(top[name] if true is None else true)
-
-
-def read_trace(path: Path, where: str) -> tuple[float, ...]:
-    """The delays [s] of a trace CSV: the column headed ``delay`` (else the first; a
-    file whose first row is a number has no header), an empty cell or ``nan`` a lost
-    packet (NaN); at most ``TRACE_MAX`` rows. ``where`` names the key in messages.
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> f = pathlib.Path(tempfile.mkdtemp()) / "trace.csv"
-    >>> _ = f.write_text("time,delay\\n0,0.02\\n1,\\n2,nan\\n3,0.05\\n")
-    >>> read_trace(f, "meas_delay.trace")
-    (0.02, nan, nan, 0.05)
-    """
-    import csv
-
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadFileError(path, f"no such file ({where})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BadFileError(path, f"cannot be read ({where}): {exc}") from None
-    rows = [row for row in csv.reader(text.splitlines()) if any(c.strip() for c in row)]
-    if not rows:
-        raise ParameterError(f"{where} = {path.name!r} is not allowed: the file holds no "
-                             "delays")
-    column, first = 0, rows[0]
-    if not _DECIMAL.match(first[0].strip()) and first[0].strip().lower() != "nan":
-        names = [c.strip() for c in first]
-        column = names.index("delay") if "delay" in names else 0
-        rows = rows[1:]
-    if not 1 <= len(rows) <= TRACE_MAX:
-        raise ParameterError(f"{where} = {path.name!r} ({len(rows)} delays) is not allowed: "
-                             f"must hold 1 to {TRACE_MAX} delays")
-    delays = []
-    for i, row in enumerate(rows):
-        cell = row[column].strip() if column < len(row) else ""
-        if cell == "" or cell.lower() == "nan":
-            delays.append(math.nan)
-            continue
-        if not _DECIMAL.match(cell) or float(cell) < 0:
-            raise ParameterError(f"{where} = {path.name!r}: delay {i + 1} ({cell!r}) is not "
-                                 "allowed: must be a finite number >= 0 [s], or empty or nan "
-                                 "(a lost packet)")
-        delays.append(float(cell))
-    return tuple(delays)
-
-
-def channel_of(table: dict, name: str, base: Path, true_delay: float, where: str = "loop"):
-    """The ``delaycomp.maths.channel.Channel`` of a loop file's channel table ``name``
-    (``[meas_delay]`` or ``[input_delay]``): its keys and values checked, each refusal one
-    line naming ``name.key`` and what is allowed; ``delay`` defaults to the loop's true
-    delay ``true_delay`` (with a trace, to the trace's smallest delay).
-
-    Examples
-    --------
-    >>> from pathlib import Path
-    >>> channel_of({"distribution": "uniform", "jitter": 0.05}, "meas_delay", Path("."),
-    ...            0.1).bound()
-    0.15000000000000002
-    >>> channel_of({"loss": 2}, "input_delay", Path("."), 0.0)  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    ...
-    delaycomp.errors.ParameterError: input_delay.loss = 2.0 is not allowed: must be a ...
-    """
-    from delaycomp.maths.channel import Channel
-
-    if not isinstance(table, dict):
-        raise ParameterError(f"{where}: {name} must be a table ([{name}])")
-    _check_keys(f"{where} [{name}]", table, allowed("channel", "lti"))
-    values: dict[str, Any] = {}
-    for key in _CHANNEL_NUMBERS:
-        if key in table:
-            values[key] = _real(f"{name}.{key}", table[key])
-    for key in _CHANNEL_WORDS:
-        if key in table:
-            if not isinstance(table[key], str):
-                raise ParameterError(f"{name}.{key} = {table[key]!r} is not allowed: must be "
-                                     "a string")
-            values[key] = table[key]
-    if "seed" in table:
-        seed = table["seed"]
-        if isinstance(seed, float) and seed.is_integer():  # --set seed=3 reads 3.0
-            seed = int(seed)
-        values["seed"] = seed
-    if "trace" in table:
-        given = table["trace"]
-        if isinstance(given, (list, tuple)):  # the delays themselves (the API's Channel)
-            trace = tuple(_real(f"{name}.trace[{i + 1}]", d) if not (
-                isinstance(d, float) and math.isnan(d)) else math.nan
-                for i, d in enumerate(given))
-        elif isinstance(given, str):
-            path = Path(given)
-            trace = read_trace(path if path.is_absolute() else base / path, f"{name}.trace")
-        else:
-            raise ParameterError(f"{name}.trace = {given!r} is not allowed: must be a CSV "
-                                 "file's path")
-        values["trace"] = trace
-        if values.get("distribution", "constant") == "trace" and "delay" not in values:
-            finite = [d for d in trace if not math.isnan(d)]
-            values["delay"] = min(finite) if finite else true_delay
-    values.setdefault("delay", float(true_delay))
-    channel = Channel(**values)
-    try:
-        channel.check()
-    except ValueError as exc:
-        raise ParameterError(f"{name}.{exc}") from None
-    if channel.distribution == "trace" and not channel.trace:
-        raise ParameterError(f"{name}.trace is required for distribution = 'trace': a CSV "
-                             "file of measured delays")
-    return channel
-
-
-def channel_parameters(channel, u0_params: dict) -> dict:
-    """The channel FMU's parameter values (``fmus/delay/README.md``) of ``channel``, with
-    the delay's input history ``u0[i]`` (``u0_params``)."""
-    params: dict[str, Any] = {
-        "delay": channel.delay, "distribution": channel.distribution,
-        "jitter": channel.jitter, "shape": channel.shape,
-        "max_delay": 0.0 if channel.max_delay is None else channel.max_delay,
-        "loss_model": channel.loss_model, "loss": channel.loss, "p_gb": channel.p_gb,
-        "p_bg": channel.p_bg, "loss_good": channel.loss_good, "loss_bad": channel.loss_bad,
-        "policy": channel.policy, "seed": channel.seed, "period": channel.period}
-    for i, d in enumerate(channel.trace):
-        params[f"trace[{i + 1}]"] = -1.0 if math.isnan(d) else d
-    return {**params, **u0_params}
-
-
-def with_channels(loop: Loop, data: dict, base: Path, where: str = "loop") -> Loop:
-    """``loop`` with a network channel in the place of each delay whose role names a table
-    of ``data`` (``[meas_delay]``, ``[input_delay]``): the instance becomes the channel
-    FMU (``BuiltinFmu("channel", {"n": n, "L": L})``, ``L`` the trace's length, none
-    without a trace: the registry's default build) with the
-    table's channel and the delay's input history; without those tables, ``loop`` as it
-    is."""
-    from delaycomp.system.loop import BuiltinFmu
-
-    tables = [t for t in CHANNEL_TABLES if t in data]
-    if not tables:
-        return loop
-    instances = []
-    for inst in loop.instances:
-        if inst.role not in tables:
-            instances.append(inst)
-            continue
-        src = inst.source
-        if not (isinstance(src, BuiltinFmu) and src.kind == "delay"):
-            raise ParameterError(f"{where}: [{inst.role}] is not allowed: the loop's "
-                                 f"{inst.role} is not delaycomp's delay FMU")
-        channel = channel_of(data[inst.role], inst.role, base, float(inst.parameters["delay"]),
-                             where)
-        u0 = {k: v for k, v in inst.parameters.items() if k.startswith("u0[")}
-        config = {"n": int(src.config["n"])}
-        if channel.trace:  # the default build (and its file) where there is no trace
-            config["L"] = len(channel.trace)
-        instances.append(Instance(inst.name, inst.role, BuiltinFmu("channel", config),
-                                  channel_parameters(channel, u0)))
-    return loop.with_instances(instances)
-
-
-def refuse_channel_data(data: dict, what: str, where: str = "loop") -> None:
-    """``refuse_channel`` for loop-file ``data`` (before a loop is built)."""
-    for table in CHANNEL_TABLES:
-        if table in data:
-            raise ParameterError(f"{where}: the [{table}] channel is not supported by {what} "
-                                 "yet")
 
 
 def build(data: dict, base: Path, name: str = "loop", title: str = "",
@@ -936,8 +538,8 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
                   stop_time=stop)
     origin = Origin(data, base)
     if "fmu" in plant:
-        loop = _fmu_tolerance(plant, lambda: _fmu_plant(plant, ctrl, base, where, T, N, r,
-                                                        tau, mode, common))
+        loop = fmu_tolerance(plant, lambda: fmu_plant(plant, ctrl, base, where, T, N, r,
+                                                      tau, mode, common))
     elif "A" in plant:
         point, state, inp = _lti(top, where)
         loop = design_loop(point, state, inp, name=name, title=title, stop_time=stop)
@@ -946,110 +548,6 @@ def build(data: dict, base: Path, name: str = "loop", title: str = "",
         loop = model_loop(model_path, T, r, tau, N, **args, **common)
     loop = with_stamps(with_channels(loop, data, base, where), data, where)
     return loop.replace(origin=origin)
-
-
-def _channel_from(params: Mapping[str, Any]):
-    """The ``Channel`` of a channel instance's parameters (``channel_parameters`` read
-    back)."""
-    from delaycomp.maths.channel import Channel
-
-    trace = tuple(math.nan if v < 0 else v for k, v in sorted(
-        ((k, v) for k, v in params.items() if k.startswith("trace[")),
-        key=lambda kv: int(kv[0][6:-1])))
-    names = ("delay", "distribution", "jitter", "shape", "loss_model", "loss", "p_gb", "p_bg",
-             "loss_good", "loss_bad", "policy", "seed", "period")
-    return Channel(**{k: params[k] for k in names}, trace=trace,
-                   max_delay=params["max_delay"] or None)
-
-
-def with_stamps(loop: Loop, data: dict, where: str = "loop") -> Loop:
-    """``loop`` with the time-stamp controller where ``[controller] stamps = true``: an
-    LTI loop's controller becomes ``BuiltinFmu("stamped_controller", ...)`` (parameters
-    ``T``, ``tau``, ``age_max``, ``mode``, ``A``, ``B``, ``K``, ``u0``), a model loop's
-    zero-order-hold controller ``ModelFmu("stamped_model_controller", model)`` (``T``,
-    ``tau``, ``age_max``, ``mode``, ``tolerance``, ``u0``, the model's parameters); its
-    input ``stamp`` connected to the measurement channel's (a constant channel in the
-    place of a plain measurement delay); otherwise ``loop`` as it is."""
-    from delaycomp.system.loop import BuiltinFmu, Connection, ModelFmu, Port
-
-    ctrl_data = data.get("controller") or {}
-    if not check_value("controller.stamps", ctrl_data.get("stamps", False),
-                       f"{where}: controller.stamps"):
-        if "age_max" in ctrl_data:
-            raise ParameterError(f"{where}: controller.age_max is not allowed without "
-                                 "controller.stamps = true")
-        return loop
-    ctrl, meas = loop.by_role("controller"), loop.by_role("meas_delay")
-    model = (ctrl.source.model if ctrl is not None and isinstance(ctrl.source, ModelFmu)
-             and ctrl.source.kind == "model_controller" else None)
-    if not (ctrl is not None and meas is not None
-            and (model is not None or (isinstance(ctrl.source, BuiltinFmu)
-                                       and ctrl.source.kind == "controller"))
-            and isinstance(meas.source, BuiltinFmu)
-            and meas.source.kind in ("delay", "channel")):
-        raise ParameterError(f"{where}: controller.stamps = true is not allowed for this "
-                             "loop: the time-stamp controller is an LTI loop's ([plant] A, B) "
-                             "or a zero-order-hold model loop's ([plant] model)")
-    if model is not None:
-        _stamped_model_control(model, where)
-    if meas.source.kind == "delay":  # a constant channel: the same numbers, and a stamp
-        from delaycomp.maths.channel import Channel
-
-        u0 = {k: v for k, v in meas.parameters.items() if k.startswith("u0[")}
-        meas = Instance(meas.name, meas.role,
-                        BuiltinFmu("channel", {"n": int(meas.source.config["n"])}),
-                        channel_parameters(Channel(delay=float(meas.parameters["delay"])),
-                                           u0))
-    T = float(ctrl.parameters["T"])
-    age_max = ctrl_data.get("age_max")
-    age_max = (_channel_from(meas.parameters).bound() + T if age_max is None
-               else check_value("controller.age_max", age_max, f"{where}: controller.age_max"))
-    source: BuiltinFmu | ModelFmu
-    if model is None:
-        assert isinstance(ctrl.source, BuiltinFmu)  # checked above
-        # pad: the time-stamp controller predicts over any tau, as the model branch's
-        params = {k: v for k, v in ctrl.parameters.items() if k not in ("r", "pad")}
-        source = BuiltinFmu("stamped_controller", dict(ctrl.source.config))
-    else:  # the model controller's settings that the time-stamp controller has
-        params = {k: v for k, v in ctrl.parameters.items()
-                  if k not in ("r", "N", "pad", "predictor", "mode") and not k.startswith("z0[")}
-        params["mode"] = ("uncompensated" if ctrl.parameters.get("predictor") == "none"
-                          else "compensated")
-        source = ModelFmu("stamped_model_controller", model)
-    params["age_max"] = float(age_max)
-    stamped = Instance(ctrl.name, ctrl.role, source, params)
-    instances = [stamped if i.name == ctrl.name else meas if i.name == meas.name else i
-                 for i in loop.instances]
-    wire = Connection(Port(meas.name, "stamp"), Port(ctrl.name, "stamp"))
-    return loop.replace(instances=tuple(instances), connections=(*loop.connections, wire))
-
-
-def _stamped_model_control(model_path, where: str) -> None:
-    """A model loop's time-stamp controller holds ``k(x, p)`` over each period: a model
-    whose ``CONTROL`` is not ``"zoh"`` is refused in one line naming ``controller.stamps``."""
-    from delaycomp.maths.model import load_model
-
-    model = load_model(model_path)
-    if model.control != "zoh":
-        raise ParameterError(f"{where}: controller.stamps = true is not allowed for model "
-                             f"{model.name!r}: its CONTROL is {model.control!r}; the time-stamp "
-                             "controller holds k(x, p) over each period (CONTROL = 'zoh')")
-
-
-def model_value(model, key: str, value, where: str | None = None) -> Any:
-    """``value`` of a model's own parameter ``key`` (``[controller] law = "printed"``)
-    checked against the model (``delaycomp.maths.model``): a string among its choices,
-    or a finite number."""
-    where = where or f"controller.{key}"
-    if isinstance(model.parameters[key], str):
-        if not isinstance(value, str):
-            raise ParameterError(f"{where} = {value!r} is not allowed: must be a string")
-        choices = model.choices.get(key)
-        if choices and value not in choices:
-            raise ParameterError(f"{where} = {value!r} is not allowed: must be one of "
-                                 f"{', '.join(choices)}")
-        return value
-    return _real(where, value)
 
 
 def model_path(plant: dict, base: Path) -> Path:
@@ -1064,7 +562,7 @@ def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, An
     file, its keys and values checked (``model``: the file's model, already loaded)."""
     plant, ctrl = top["plant"], top["ctrl"]
     x0 = check_value("plant.x0", plant["x0"])
-    _check_keys(f"{where} [plant]", plant, allowed("plant", "model"))
+    check_keys(f"{where} [plant]", plant, allowed("plant", "model"))
     path = model_path(plant, base)
     from delaycomp.maths.model import load_model
 
@@ -1083,7 +581,7 @@ def _model_args(top: dict, base: Path, where: str, model=None) -> tuple[Path, An
     if top["mode"] == "uncompensated":
         predictor = "none"
     tol = ctrl.get("tolerance", plant.get("tolerance"))
-    tol = None if tol is None else _real("tolerance", tol, positive=True)
+    tol = None if tol is None else real_value("tolerance", tol, positive=True)
     pad = check_value("controller.pad", ctrl.get("pad", DEFAULTS["controller.pad"]))
     return path, model, dict(x0=x0, u0=u0, params=params, predictor=predictor,
                              tolerance=tol, pad=pad)
@@ -1108,138 +606,10 @@ def check(data: dict, base: Path, where: str = "loop", model=None) -> None:
     else:
         path, model, args = _model_args(top, base, where, model)
         if _stamped(data):
-            _stamped_model_control(path, where)
+            check_stamped_model(path, where)
         check_model_loop(model, top["T"], top["r"], top["tau"], top["N"], args["x0"],
                          args["u0"], args["params"], args["pad"], top["r_true"],
                          top["tau_true"])
-
-
-def _fmu_plant(plant: dict, ctrl: dict, base: Path, where: str, T, N, r, tau, mode,
-               common: dict) -> Loop:
-    """``[plant] fmu = "Plant.fmu"``: a user's FMU as the plant (``.plantfmu``)."""
-    from delaycomp.system.plantfmu import fmu_plant_loop
-
-    _check_keys(f"{where} [plant]", plant, allowed("plant", "fmu-lti"))
-    for key in ("states", "inputs", "x0"):
-        if key not in plant:
-            raise ParameterError(f"{where}: plant.{key} is required with plant.fmu ("
-                                 + {"states": "the FMU outputs that form the measured state x",
-                                    "inputs": "the FMU inputs that receive u",
-                                    "x0": "the history of x on [-r, 0]"}[key] + ")")
-    if not isinstance(plant["fmu"], str):
-        raise ParameterError(f"plant.fmu = {plant['fmu']!r} is not allowed: must be a path")
-    fmu = Path(plant["fmu"])
-    fmu = fmu if fmu.is_absolute() else (base / fmu).resolve()
-    x0 = _array("plant.x0", plant["x0"], 1)
-    if ctrl.get("predictor") == "plant-fmu":
-        return _plant_fmu_predictor(plant, ctrl, fmu, where, T, N, r, tau, x0, common)
-    if ("A" in ctrl) == ("model" in ctrl):
-        raise ParameterError(f"{where}: with plant.fmu the predictor's model comes from "
-                             "[controller]: A and B (LTI, with K) or model = \"file.py\"")
-    if "A" in ctrl:
-        _check_keys(f"{where} [controller]", ctrl, allowed("controller", "fmu-lti"))
-        if "B" not in ctrl or "K" not in ctrl:
-            raise ParameterError(f"{where}: an LTI predictor needs controller.A, "
-                                 "controller.B and controller.K")
-        A = _array("controller.A", ctrl["A"], 2)
-        B = _array("controller.B", ctrl["B"], 2)
-        K = _array("controller.K", ctrl["K"], 2)
-        u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
-        pad = check_value("controller.pad", ctrl.get("pad", DEFAULTS["controller.pad"]))
-        loop = fmu_plant_loop(fmu, plant["states"], plant["inputs"],
-                              plant.get("parameters"), T, r, tau, N, x0, u0, A=A, B=B, K=K,
-                              mode=mode, start=plant.get("start"), pad=pad, **common)
-        if not _flag("controller.allow_unstable",
-                     ctrl.get("allow_unstable", DEFAULTS["controller.allow_unstable"])):
-            check_sign(A, B, K, T)
-        return loop
-    model_path = Path(str(ctrl["model"]))
-    if not model_path.is_absolute():
-        model_path = (base / model_path).resolve()
-    from delaycomp.maths.model import load_model
-
-    model = load_model(model_path)
-    keys = allowed("controller", "fmu-model")
-    params = {}
-    for key, value in ctrl.items():
-        if key in ("model", "u0", "mode"):
-            # mode (compensated or not) is the loop's, applied below as predictor = none;
-            # the model controller FMU's own "mode" parameter is its model's CONTROL
-            continue
-        if key not in keys and key not in model.parameters:
-            raise ParameterError(f"{where} [controller]: unknown key {key!r}: allowed are "
-                                 f"{', '.join([*keys, *model.parameters])}")
-        params[key] = (model_value(model, key, value) if key in model.parameters
-                       else _real("controller.tolerance", value, positive=True)
-                       if key == "tolerance" else check_value(f"controller.{key}", value))
-    params.setdefault("pad", DEFAULTS["controller.pad"])
-    if mode == "uncompensated":
-        params["predictor"] = "none"
-    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
-    return fmu_plant_loop(fmu, plant["states"], plant["inputs"], plant.get("parameters"),
-                          T, r, tau, N, x0, u0, model=model_path,
-                          controller_parameters=params, start=plant.get("start"), **common)
-
-
-def _plant_fmu_predictor(plant: dict, ctrl: dict, fmu: Path, where: str, T, N, r, tau,
-                         x0, common: dict) -> Loop:
-    """``predictor = "plant-fmu"``: the plant FMU's Model Exchange derivatives as the
-    predictor's model (``.fmumodel``), its state found from the measured outputs, with
-    ``u = K y``."""
-    from delaycomp.maths.predictors import DEFAULT_TOL
-    from delaycomp.system.fmumodel import start_from_outputs, write_model
-    from delaycomp.system.plantfmu import (
-        check_mapping,
-        check_output_map,
-        fmu_plant_loop,
-        histories,
-        read_interface,
-    )
-
-    _check_keys(f"{where} [controller]", ctrl, allowed("controller", "fmu-plant-fmu"))
-    if "K" not in ctrl:
-        raise ParameterError(f"{where}: controller.predictor = \"plant-fmu\" needs "
-                             "controller.K (u = K x)")
-    iface = read_interface(fmu)
-    if iface.model_exchange is None:
-        raise ParameterError(f"controller.predictor = \"plant-fmu\" is not allowed: "
-                             f"{fmu.name} has no Model Exchange interface (give A and B, or "
-                             "model)")
-    states, inputs, values = check_mapping(iface, plant["states"], plant["inputs"],
-                                           plant.get("parameters"), start=plant.get("start"))
-    check_output_map(iface, states)
-    K = _array("controller.K", ctrl["K"], 2)
-    tol = DEFAULT_TOL
-    if "tolerance" in ctrl:
-        tol = _real("controller.tolerance", ctrl["tolerance"], positive=True)
-        if not tol < 1:
-            raise ParameterError(f"controller.tolerance = {tol!r} is not allowed: must be in "
-                                 "(0, 1)")
-    model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
-    start = plant.get("start")
-    x0, _ = histories(x0, None, states, inputs)  # x0 checked before it is inverted
-    if start is None and all(iface.variables[x].initial == "exact" for x in iface.states):
-        # x0 applied through the start values of the FMU's states, found from the outputs'
-        # map (the model module makes the FMI calls)
-        start = start_from_outputs(model, fmu.name, x0)
-        values = {**values, **start}
-        model = write_model(fmu, states, inputs, iface.states, K, values, tolerance=tol)
-    mode = ctrl.get("mode", DEFAULTS["controller.mode"])
-    params: dict = {"predictor": "none" if mode == "uncompensated" else "closed"}
-    u0 = _array("controller.u0", ctrl["u0"], 1) if "u0" in ctrl else None
-    check_zoh_delay(tau, T)  # u = K x held over each period; no padding here
-    return fmu_plant_loop(fmu, states, inputs, plant.get("parameters"), T, r, tau, N, x0, u0,
-                          model=model, controller_parameters=params, start=start, **common)
-
-
-def _fmu_tolerance(plant: dict, make: Callable[[], Loop]) -> Loop:
-    """The loop of a plant FMU (``make()``) with ``[plant] tolerance``, checked first, for
-    its ``fmi2SetupExperiment`` (``with_tolerance``)."""
-    from delaycomp.system.plantfmu import check_tolerance, with_tolerance
-
-    tol = plant.get("tolerance")
-    tol = None if tol is None else check_tolerance(tol)
-    return with_tolerance(make(), tol)
 
 
 def _ident(where: str, value) -> str:

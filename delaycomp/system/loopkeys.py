@@ -234,7 +234,7 @@ ZOH_TAU = "a finite multiple l*T of T, l >= 0"
 ZOH_TAU_PAD = f"{ZOH_TAU} (with pad=1: {ON_BASE_GRID})"
 
 #: the values allowed, in words, of each key the reader checks on its own, by dotted name:
-#: the reader's ``KEYS`` (``delaycomp.system.loopfile``) pair each with its check, and
+#: the reader's ``KEYS`` (``delaycomp.system.loopvalues``) pair each with its check, and
 #: ``delaycomp list`` prints them without importing the reader (and so numpy)
 ALLOWED: dict[str, str] = {
     "T": "a finite number > 0",

@@ -8,13 +8,11 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability
 
+from delaycomp.fmu.sampling import HeldSampleMixin, ends_on_sample, reaches_release
 from delaycomp.fmu.slave import (
-    HeldSampleMixin,
     TableSlave,
     check_finite,
     check_inputs,
-    ends_on_sample,
-    reaches_release,
     state_count,
     state_flag,
     state_refused,

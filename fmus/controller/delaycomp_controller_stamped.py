@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from delaycomp.fmu.slave import StampedSlaveMixin, TableSlave, check_finite
+from delaycomp.fmu.sampling import StampedSlaveMixin
+from delaycomp.fmu.slave import TableSlave, check_finite
 from delaycomp.maths.stamped import StampedController
 from delaycomp.names import indexed
 

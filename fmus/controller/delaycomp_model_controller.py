@@ -11,8 +11,8 @@ import importlib
 import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Variability, Integer
 
+from delaycomp.fmu.sampling import HeldSampleMixin
 from delaycomp.fmu.slave import (
-    HeldSampleMixin,
     TableSlave,
     check_finite,
     check_inputs,

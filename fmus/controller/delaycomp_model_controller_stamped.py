@@ -15,12 +15,8 @@ import importlib
 
 import numpy as np
 
-from delaycomp.fmu.slave import (
-    StampedSlaveMixin,
-    TableSlave,
-    check_finite,
-    check_model_parameters,
-)
+from delaycomp.fmu.sampling import StampedSlaveMixin
+from delaycomp.fmu.slave import TableSlave, check_finite, check_model_parameters
 from delaycomp.maths.model import from_module
 from delaycomp.maths.predictors import DEFAULT_TOL
 from delaycomp.maths.stamped import StampedModelController
