@@ -21,7 +21,7 @@ LOOP_GROUPS: dict[str, tuple[str, ...]] = {"plant": ("plant",), "controller": ("
 CONFIG_NAME = "delaycomp_fmu.json"
 
 #: suffix of the Integer twin ``<name>_index`` of a String parameter with a fixed set of
-#: choices (``delaycomp.fmu.slave``, item 7)
+#: choices (``delaycomp.fmu.slave``, point 9)
 INDEX_SUFFIX = "_index"
 
 

@@ -372,7 +372,7 @@ int model_step(Instance *c, double t, double h) {
         m->next += 1;
         m->proposal_valid = 0;
     }
-    if (!m->released) {  /* delaycomp.fmu.slave.reaches_release */
+    if (!m->released) {  /* delaycomp.fmu.sampling.reaches_release */
         double T = c->d.real[VR_T], t_end = t + h;
         double release = c->d.t0 + (double)(m->next - 1) * T + m->padding;
         double tol = GRID_RTOL * T + fmax(4 * DBL_EPSILON * fabs(t_end), drift(t_end, h, c->d.t0));

@@ -1,5 +1,5 @@
 /* The sampled controllers' held sample and proposal (held.h): one copy of
- * delaycomp.fmu.slave.HeldSampleMixin's rules and of the proposal's, for the LTI, the
+ * delaycomp.fmu.sampling.HeldSampleMixin's rules and of the proposal's, for the LTI, the
  * time-stamp and the model controllers. */
 #include <string.h>
 

@@ -1,6 +1,6 @@
 /* The sampled controllers' held sample and proposal, written once for the three native
  * controllers (the LTI, the time-stamp and a user model's). The mirror of
- * delaycomp.fmu.slave.HeldSampleMixin (_sample, _hold, _checked_held) and of the proposal
+ * delaycomp.fmu.sampling.HeldSampleMixin (_sample, _hold, _checked_held) and of the proposal
  * the Python controllers keep (_proposed: u_i computed once per sample, committed by the
  * step that leaves the sampling instant).
  *

@@ -159,7 +159,7 @@ double drift(double t, double h, double t0);
 int grid_step(double t, double step, double h, double t0);
 /* A sampled controller's step [t, t + h]: *at_sample, whether it ends on the next instant
  * t0 + next T (up to GRID_RTOL T and the drift of the host's clock); -1 and the Python FMUs'
- * message where it passes over it (delaycomp.fmu.slave.ends_on_sample). */
+ * message where it passes over it (delaycomp.fmu.sampling.ends_on_sample). */
 int ends_on_sample(Instance *c, double t, double h, double T, long next, int *at_sample);
 /* (Re)allocate the model buffer to n doubles (zeroed); -1 and a logged error if no memory. */
 int alloc_buf(Instance *c, size_t n);

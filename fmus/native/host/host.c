@@ -30,7 +30,7 @@
  *   from k, each step t_{k+1} - t_k (steps that differ from H and from one another in the
  *   last bits). Default: every step is H, from t_k = t0 + k h.
  * Build: cc -std=c11 -O2 -Wall -Wextra -Werror -I<fmi2 headers> host.c -o host -ldl -lm
- * (delaycomp.fmu.native.compile_host). The same source builds for Windows (mingw-w64: it loads
+ * (delaycomp.fmu.host.compile_host). The same source builds for Windows (mingw-w64: it loads
  * binaries/win64/ID.dll with LoadLibrary) and Linux on aarch64 (binaries/aarch64-linux/).
  */
 #define _POSIX_C_SOURCE 200809L
