@@ -25,7 +25,7 @@ import shutil
 import struct
 import weakref
 from collections.abc import Callable, Sequence
-from ctypes import byref, c_bool, c_double, c_int, c_size_t, c_void_p
+from ctypes import byref, c_bool, c_double, c_int, c_int32, c_size_t, c_void_p
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -227,6 +227,9 @@ class FmuComponent(ComponentBase):
         self._do_step_fn: _RawCall | Literal[False] | None = None
         self._env_id = next(_ENV_IDS)
         _COMPONENTS[self._env_id] = weakref.ref(self)
+        #: a ctypes ``c_int32`` kept at ``worst_status`` while a stepping core in C runs
+        #: this component (``delaycomp.orchestrator.native_core``), else None
+        self.worst_cell: c_int32 | None = None
 
     def _fn(self, name: str) -> str:
         """The FMI function ``name`` (FMI 2.0's: ``GetReal``) of this FMU's version."""
@@ -236,6 +239,8 @@ class FmuComponent(ComponentBase):
     def _logger(self, status, message):
         text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
         self._note(status, text)
+        if self.worst_cell is not None:  # a stepping core in C reads it after each read
+            self.worst_cell.value = self.worst_status
 
     def _callbacks(self) -> fmi2CallbackFunctions:
         cb = fmi2CallbackFunctions()
@@ -465,6 +470,48 @@ class FmuComponent(ComponentBase):
         self._failed(exc)
         raise exc
 
+    # -- what a stepping core needs (delaycomp.orchestrator.native_core) -----------------
+    @property
+    def clocked(self) -> bool:
+        """A clocked FMI 3.0 FMU (its ticks are scheduled by this component)."""
+        return self._clock is not None
+
+    def native_functions(self) -> tuple[int, int, int, int] | None:
+        """The instance pointer and the addresses of its ``GetReal``, ``SetReal`` and
+        ``DoStep`` (FMI 3.0: ``GetFloat64``, ``SetFloat64``, ``DoStep``), for a caller in C
+        that calls them as this component does; ``None`` before ``setup`` or where fmpy
+        holds no library handle or an FMI call logger is set (every call goes through
+        fmpy then)."""
+        if self.fmu is None:
+            return None
+        raws = [self._raw(self._fn(f)) for f in ("GetReal", "SetReal", "DoStep")]
+        if any(r is None for r in raws):
+            return None
+        from ctypes import cast
+
+        addresses = [cast(r[0], c_void_p).value or 0  # type: ignore[arg-type]
+                     for r in raws if r is not None]
+        return (int(self.fmu.component), *addresses)  # type: ignore[return-value]
+
+    def value_references(self, names: Sequence[str]) -> list[int]:
+        """The value references of the variables ``names``."""
+        return list(self._vrs(names))
+
+    def call_failed_with(self, function: str, status: int):
+        """Raise what this component raises when its FMI call ``function`` (FMI 2.0's
+        name, ``DoStep``, ``GetReal``, ``SetReal``) returned ``status`` (> warning)."""
+        self._raise(self._fn(function), status)
+
+    def step_refused(self, t: float, h: float, terminate: bool, early: bool) -> None:
+        """Raise what this component raises when ``fmi3DoStep`` from ``t`` (step ``h``) asks
+        to ``terminate`` the simulation or returns ``early``."""
+        self._step3_flags(t, h, terminate, early)
+
+    def read_refused(self):
+        """Raise what this component raises when it logged an error (worst status >=
+        error) and its outputs are read."""
+        raise FmuRefused(self.last_message or "the FMU logged an error")
+
     def reader(self, names: Sequence[str]) -> Callable[[], list[float]]:
         """``() -> [values]`` of the outputs ``names``: the master's hot path."""
         vrs = self._vrs(names)
@@ -493,7 +540,7 @@ class FmuComponent(ComponentBase):
                     self._raise(self._fn("GetReal"), status)
                 out = list(values)
             if self.worst_status >= 3:  # it logged an error computing them: do not use them
-                raise FmuRefused(self.last_message or "the FMU logged an error")
+                self.read_refused()
             return out
         return read
 

@@ -472,13 +472,57 @@ class Master:
                 comp.do_step(t, h)
         except SimulationError:
             raise
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - reported with the component's reason
             assert comp is not None  # the loop raised: it ran
-            reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
-            raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}",
-                                  comp.name) from exc
+            self.step_failed(comp, exc, t)
         self.k = k + 1
         self._propagate()
+
+    @staticmethod
+    def step_failed(comp, exc: Exception, t: float):
+        """Raise the ``SimulationError`` of ``comp``'s step from ``t`` that raised
+        ``exc``: its logged reason, else the exception's."""
+        reason = getattr(comp, "last_message", None) or str(exc) or type(exc).__name__
+        raise SimulationError(f"{comp.name} failed at t = {t:.12g}: {reason}",
+                              comp.name) from exc
+
+    # -- what a stepping core needs of the master ----------------------------------------
+    @property
+    def stepping(self) -> list:
+        """The components in the order ``step`` steps them."""
+        return list(self._stepping)
+
+    @property
+    def values(self) -> list[float]:
+        """The value vector of the current tick (``slot``): every output, as last read
+        (a stepping core writes its own back here)."""
+        return self._slots
+
+    def tick_plan(self) -> list[tuple[str, Component, list[str], list[int]]]:
+        """One tick's propagation as the master does it, in order: ``("get", component,
+        outputs, slots)`` reads the outputs into the value vector, ``("set", component,
+        inputs, slots)`` sets the inputs from it. The components without feedthrough are
+        read first, the feedthrough chain is set and read in topological order, the first
+        ones' inputs are set last."""
+        plan = self._plan
+        ops: list[tuple[str, Component, list[str], list[int]]] = []
+        ops += [("get", c, list(outs), list(oslots)) for c, outs, oslots in plan.heads]
+        for c, ins, islots, outs, oslots in plan.chain:
+            if islots:  # a component of the chain without inputs is only read
+                ops.append(("set", c, list(ins), list(islots)))
+            ops.append(("get", c, list(outs), list(oslots)))
+        ops += [("set", c, list(ins), list(islots)) for c, ins, islots in plan.tails]
+        return ops
+
+    def propagation_failed(self, exc: Exception, k: int):
+        """Raise the ``SimulationError`` of a read or write at tick ``k`` that raised
+        ``exc`` (a non-finite value already in the vector is blamed first)."""
+        self._fail(exc, k)
+
+    def refuse_nonfinite(self, k: int) -> None:
+        """Raise the ``SimulationError`` naming the first NaN or infinite value of the
+        vector at tick ``k``, if there is one."""
+        self._refuse_nonfinite(k)
 
     def run_until(self, stop_ticks: int) -> None:
         """Step until tick ``stop_ticks`` (no step if it is reached already)."""
@@ -562,6 +606,34 @@ class Recorder:
         else:
             self.times[:] = [t]
             self.rows[:] = [row]
+
+    @property
+    def slots(self) -> list[int]:
+        """The recorded signals' slots in the master's value vector, in column order."""
+        return list(self._idx)
+
+    def record_block(self, times, rows) -> None:
+        """Rows recorded by a stepping core in one go (their ticks were due): ``times``
+        and ``rows`` (a 2-D array, one row a tick, ``slots``' columns), as ``record``
+        would have kept them row by row; a sink with ``write_rows(times, rows)``
+        (``CsvStream``) takes them at once, any other row by row."""
+        n = len(times)
+        if not n:
+            return
+        self.count += n
+        if self.sink is not None:
+            write_rows = getattr(self.sink, "write_rows", None)
+            if write_rows is not None:
+                write_rows(times, rows)
+            else:
+                for t, row in zip(times, rows):
+                    self.sink(float(t), tuple(row.tolist()))
+        if self.keep:
+            self.times.extend(times.tolist() if hasattr(times, "tolist") else times)
+            self.rows.extend(map(tuple, rows.tolist()))
+        else:
+            self.times[:] = [float(times[-1])]
+            self.rows[:] = [tuple(rows[-1].tolist())]
 
     def column(self, name: str) -> list[float]:
         """The kept values of the signal ``name`` (``"instance.variable"``)."""

@@ -18,10 +18,11 @@ from delaycomp.errors import Interrupted, ParameterError
 from delaycomp.fmu.cache import source_fmu
 from delaycomp.orchestrator.fmu import FmuComponent
 from delaycomp.orchestrator.master import Master, Recorder, SimulationError
+from delaycomp.orchestrator.native_core import STEPPING
 from delaycomp.system import FmuFile, Loop, Timing
 
-__all__ = ["ENGINES", "Result", "SimulationError", "make_components", "make_master",
-           "parameters_of", "run_loop"]
+__all__ = ["ENGINES", "STEPPING", "Result", "SimulationError", "check_stepping",
+           "make_components", "make_master", "parameters_of", "run_loop"]
 
 
 @dataclass
@@ -43,6 +44,12 @@ class Result:
     #: text)`` with status ``"ok"`` (information: the command line shows it with ``-v``)
     #: or ``"warning"`` (always shown)
     logged: list[tuple[str, str, str]] = field(default_factory=list)
+    #: what stepped the run: ``"native-core"`` (``delaycomp.orchestrator.native_core``),
+    #: ``"python"`` (the Python master), or ``""`` (another tool's master)
+    stepped_by: str = ""
+    #: why the Python master stepped a run of the FMU engine that the native core did not
+    #: (``""``: it was asked for, or the core stepped it)
+    stepping_note: str = ""
 
     @property
     def row_count(self) -> int:
@@ -189,10 +196,22 @@ def parameters_of(loop: Loop) -> dict[str, dict]:
     return loop.parameters()
 
 
+def check_stepping(stepping: str, engine: str = "fmu") -> None:
+    """Refuse (``ParameterError``) a ``stepping`` that is not one of ``STEPPING``, or the
+    native core asked of the in-process engine (whose slaves are Python)."""
+    if stepping not in STEPPING:
+        raise ParameterError(f"stepping {stepping!r} is not allowed: must be one of "
+                             f"{', '.join(STEPPING)}")
+    if stepping == "native-core" and engine != "fmu":
+        raise ParameterError(f"stepping 'native-core' is not allowed with the {engine} "
+                             "engine: the native core steps native FMUs (engine fmu)")
+
+
 def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
              t0: float = 0.0, engine: str = "fmu",
              fmus: dict[str, Path] | None = None, every: int = 1, sink=None,
-             keep: bool = True, progress=None, watchdog: float | None = None) -> Result:
+             keep: bool = True, progress=None, watchdog: float | None = None,
+             stepping: str = "auto") -> Result:
     """Co-simulate ``loop`` from ``t0`` to ``stop_time``.
 
     Parameters
@@ -223,6 +242,13 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
         process) may take per call before the run is stopped; default
         ``default_watchdog`` (10 s, or 100 base
         steps if longer).
+    stepping : str
+        ``auto``: where every FMU is a native one of this process (the default FMUs of a
+        loop that has them, an archive's native FMUs), the native stepping core steps
+        the loop (``delaycomp.orchestrator.native_core``: the same calls from C, the same
+        rows bit for bit), else the Python master (``Result.stepping_note`` says why);
+        ``native-core``: the core, or ``ParameterError`` saying why not before anything
+        runs; ``python``: the Python master.
 
     Returns
     -------
@@ -230,9 +256,10 @@ def run_loop(loop: Loop, stop_time: float, fmu_dir: Path | None = None,
         On a component failure the result so far, with ``success=False`` and the failure
         in ``message``.
     """
+    check_stepping(stepping, engine)
     ticks = loop.timing.ticks(stop_time - t0)
     return _run(loop, ticks, stop_time, fmu_dir, t0, engine, fmus, every, sink, keep,
-                progress, watchdog)
+                progress, watchdog, stepping)
 
 
 def single_threaded_blas():
@@ -250,7 +277,10 @@ def single_threaded_blas():
 
 def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
          engine: str, fmus: dict[str, Path] | None, every: int = 1, sink=None,
-         keep: bool = True, progress=None, watchdog: float | None = None) -> Result:
+         keep: bool = True, progress=None, watchdog: float | None = None,
+         stepping: str = "auto") -> Result:
+    from delaycomp.orchestrator.native_core import NativeCore, why_not
+
     # In-process, the slaves' floating-point guard is set once for the run, not per step
     # (the FMUs keep their own: their host's numpy settings are not ours to assume).
     guard = engine == "inprocess"
@@ -258,6 +288,12 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                                    fp_guarded=guard, fmus=fmus, sink=sink, keep=keep,
                                    final=ticks, watchdog=watchdog)
     components = list(master.components.values())
+    why = "" if stepping == "python" or engine != "fmu" else why_not(master) or ""
+    if why and stepping == "native-core":  # asked for: refused before anything runs
+        master.terminate()
+        raise ParameterError(f"stepping 'native-core' is not allowed for loop {spec.name}: "
+                             f"{why}")
+    use_core = engine == "fmu" and stepping != "python" and not why
     success, message, culprit = True, "", None
     with contextlib.ExitStack() as stack:
         interrupted = stack.enter_context(_interrupts_seen())
@@ -270,7 +306,18 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
             master.initialize()
             if t0 == 0.0:  # a run that starts where the loop's history ends
                 check_initial(spec, master)
-            if guard:
+            core = None
+            if use_core:
+                try:
+                    core = NativeCore(master, recorder)
+                except RuntimeError as exc:  # an FMI call logger on fmpy: Python steps
+                    if stepping == "native-core":
+                        raise ParameterError(f"stepping 'native-core' is not allowed for "
+                                             f"loop {spec.name}: {exc}") from None
+                    use_core, why = False, str(exc)
+            if core is not None:
+                core.run_until(ticks, progress)
+            elif guard:
                 with np.errstate(all="ignore"):
                     _run_until(master, ticks, progress)
             else:
@@ -292,7 +339,8 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
               if m.startswith(("[ok]", "[warning]"))]
     notes = [f"{name}: {text}" for name, _, text in logged]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
-                  recorder.count, culprit, logged)
+                  recorder.count, culprit, logged,
+                  stepped_by="native-core" if use_core else "python", stepping_note=why)
 
 
 #: how far an output may be from its value in ``Loop.initial`` once initialized,

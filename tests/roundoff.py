@@ -47,6 +47,13 @@ EPS = float(np.finfo(float).eps)
 #: the loop (a sample one base step late, a parameter lost) is 1e-3 of the peak or more.
 SAME_ARITHMETIC_ULPS = 4
 
+#: The native C FMUs against the Python FMUs or their slaves in-process: the same maths,
+#: its matrix exponentials and sums rounded by other code (C against scipy and numpy), so
+#: a signal differs from its twin's by round-off that the loop carries along:
+#: ``delaycomp.verify.check.NATIVE_RTOL``, 1e-12 of a signal's peak (measured at most
+#: 4e-14 on every reference case). In EPS: about 4500.
+NATIVE_ULPS = 1e-12 / EPS
+
 #: A closed-form trace computed again (the exact-flow reference scripts, tests/
 #: test_references.py): a few EPS per sample, carried along a loop that contracts or grows
 #: with the signal itself; measured at most 1.8 EPS of a column's peak with the SkylakeX,

@@ -311,12 +311,17 @@ def check_interrupted_run(rc: int, err: str, partial: Path, stop: float, h: floa
     return t
 
 
-@pytest.mark.parametrize("engine", ["fmu", "inprocess"])
+@pytest.mark.parametrize("engine", ["fmu", "fmu-python-master", "inprocess"])
 def test_ctrl_c_during_a_run_names_the_time_reached(tmp_path, engine):
+    """The native FMUs stepped by the native core (``fmu``, the default), by the Python
+    master, and the in-process engine."""
     out = tmp_path / "o.csv"
     part = tmp_path / "o.csv.part"
-    rc, err = interrupt(["run", "example-3.6", "--stop-time", "100000", "--engine", engine,
-                         "--out", str(out)], tmp_path, part.exists, after=0.5)
+    how = (["--stepping", "python"] if engine == "fmu-python-master"
+           else ["--stepping", "native-core"] if engine == "fmu" else [])
+    rc, err = interrupt(["run", "example-3.6", "--stop-time", "100000", "--engine",
+                         engine.split("-")[0], *how, "--out", str(out)], tmp_path,
+                        part.exists, after=0.5)
     t = check_interrupted_run(rc, err, tmp_path / "o.csv.partial", 100000.0, 0.01)
     assert t > 0  # it ran a while: half a second
     assert not out.exists() and not part.exists()

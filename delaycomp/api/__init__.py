@@ -367,24 +367,7 @@ def choose_fmus(loop: LoopLike, fmus: str = "auto", fmu_dir: str | Path | None =
         return None, None
     from delaycomp.fmu import twins
 
-    native_dir = Path(fmu_dir) / "native" if fmu_dir else None
-    found: dict[str, Path] = {}
-    if fmu_dir:
-        there, found = twins.fmus_in_dir(loop, Path(fmu_dir), fmus, fmi, clocked)
-        if there == "python" and fmus == "auto":  # what build --out left there
-            try:  # the note of a loop that has no native FMUs anyway
-                twins.check_native(loop, fmi, clocked)
-            except ValueError as exc:
-                return None, twins.why_not_native(exc)
-            from delaycomp.progress import detail
-
-            detail(f"the Python FMUs run this loop: {fmu_dir} holds Python ones")
-            return None, None
-    if fmus == "python":
-        return None, None
-    if fmus == "native" or fmi == 3:
-        return twins.native_fmus(loop, native_dir, fmi, clocked, found), None
-    return twins.native_or_why(loop, native_dir, found=found)
+    return twins.choose(loop, fmus, Path(fmu_dir) if fmu_dir else None, fmi, clocked)
 
 
 def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
@@ -392,7 +375,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         every: int = 1, sink=None, keep: bool = True, progress=None,
         watchdog: float | None = None,
         sets: Sequence[str] | Mapping[str, object] = (), fmi: int = 2,
-        clocked: bool = False) -> Result:
+        clocked: bool = False, stepping: str = "auto") -> Result:
     """Co-simulate ``loop`` from 0 to ``stop_time`` (default: the loop's), one row per base
     step; ``engine="inprocess"`` runs the Python FMUs' slaves without the FMI layer (the
     same numbers, faster). ``fmus`` (``FMU_KINDS``): with the FMU engine, the native C
@@ -420,6 +403,12 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     numbers, bit for bit, as the FMI 2.0 ones; with ``clocked=True`` the controller is the
     clocked one, its ticks scheduled in event mode (the same numbers again).
 
+    ``stepping`` (``STEPPING``): ``auto`` hands a loop whose FMUs are all native ones to the
+    native stepping core (C: the same FMI calls in the same order, the same rows bit for
+    bit; ``result.stepped_by`` says ``native-core``, else ``python`` and
+    ``result.stepping_note`` why); ``native-core`` asks for the core (``ParameterError``
+    where it cannot step the loop); ``python`` the Python master.
+
     Examples
     --------
     >>> res = run("example-3.6", 5.0, engine="inprocess", sets={"r": 0.5})
@@ -427,9 +416,10 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
     (5.0, 501)
     """
     from delaycomp.orchestrator.isolated import check_watchdog
-    from delaycomp.orchestrator.simulate import run_loop
+    from delaycomp.orchestrator.simulate import check_stepping, run_loop
 
     fmi_version(fmi, clocked)  # also where ``fmus`` names the files
+    check_stepping(stepping, engine)
     loop = as_loop(loop, sets)
     stop = loop.stop_time if stop_time is None else stop_time
     if stop is None:
@@ -444,7 +434,7 @@ def run(loop: LoopLike, stop_time: float | None = None, *, engine: str = "fmu",
         chosen, why = choose_fmus(loop, fmus, fmu_dir, engine, fmi, clocked)
     result = run_loop(loop, stop, Path(fmu_dir) if fmu_dir else None, engine=engine,
                       fmus=chosen, every=every, sink=sink, keep=keep, progress=progress,
-                      watchdog=watchdog)
+                      watchdog=watchdog, stepping=stepping)
     if why:
         result.notes.append(f"the Python FMUs ran (no native ones here: {why})")
     if not result.success:

@@ -41,7 +41,8 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
     def run_or_failed(loop, **options):
         try:
             return run(loop, stop, engine=args.engine, fmu_dir=args.fmu_dir, every=every,
-                       watchdog=args.watchdog, **options)
+                       watchdog=args.watchdog,
+                       stepping=getattr(args, "stepping", "auto"), **options)
         except SimulationFailed as exc:  # reported with its rows so far below
             return exc.result
 
@@ -50,11 +51,13 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
     undriven_note(loop, args.verbosity)
     keep = bool(args.plot)
     seconds, memory = check_budget(loop, ticks * (1 + len(others or {})),
-                                   args.engine, every, keep)
+                                   stepped_how(args, loop, fmus, runner), every, keep)
     info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
          f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
     other_paths = {other: compare_path(args.out, other) if args.out else None
                    for other in others or {}}
+    if runner is None and getattr(args, "stepping", "auto") == "native-core":
+        refuse_without_core(loop, fmus, (other_fmus or {}), others or {})
     clear_previous(args.out, args.plot, *other_paths.values())
     names = loop.columns
     stream = CsvStream(args.out, names) if args.out else None
@@ -78,6 +81,7 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
             stream.finish(False)
         raise
     elapsed = time.perf_counter() - started
+    stepped_note(name, result, args.verbosity)
     where = stream.finish(result.success) if stream is not None else None
     runs = None
     if others and result.success:
@@ -118,6 +122,49 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
             if path is not None:
                 print(f"{name}, {other_label}: {runs[other_label].row_count} rows in {path}")
     return code
+
+
+def stepped_how(args, loop, fmus, runner) -> str:
+    """The engine of the run's estimate (``delaycomp.formats.outputs.estimate``):
+    ``native-core`` where the native core will step it, else ``--engine``."""
+    from delaycomp.orchestrator.native_core import why_not_files
+
+    if (runner is None and args.engine == "fmu"
+            and getattr(args, "stepping", "auto") != "python"
+            and why_not_files(loop, fmus if isinstance(fmus, dict) else None) is None):
+        return "native-core"
+    return args.engine
+
+
+def refuse_without_core(loop, fmus, other_fmus: dict, others: dict) -> None:
+    """``--stepping native-core`` refused (``UsageError``) before any work where the native
+    core cannot step this run or a ``--compare`` run (``why_not_files``)."""
+    from delaycomp.cli.parsers import UsageError
+    from delaycomp.orchestrator.native_core import why_not_files
+
+    runs = [(loop, fmus), *((other, other_fmus.get(label)) for label, other in others.items())]
+    for each, files in runs:
+        why = why_not_files(each, files if isinstance(files, dict) else None)
+        if why:
+            raise UsageError(f"--stepping native-core is not allowed for this run: {why}")
+
+
+def stepped_note(name: str, result, verbosity: int) -> None:
+    """Under ``-v``, what stepped the run: the native stepping core, or the Python master
+    and why the core did not (``Result.stepped_by``, ``Result.stepping_note``).
+
+    >>> from delaycomp.orchestrator.simulate import Result
+    >>> stepped_note("ex", Result([], None, None, stepped_by="python",
+    ...                           stepping_note="plant is a Python FMU"), 2)
+    """
+    from delaycomp.progress import VERBOSE, info
+
+    if result.stepped_by == "native-core":
+        info(f"{name}: stepped by the native core (C, no Python between the FMI calls)",
+             verbosity, VERBOSE)
+    elif result.stepped_by == "python":
+        why = f" ({result.stepping_note})" if result.stepping_note else ""
+        info(f"{name}: stepped by the Python master{why}", verbosity, VERBOSE)
 
 
 def undriven_note(loop, verbosity: int) -> None:

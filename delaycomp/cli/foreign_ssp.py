@@ -48,6 +48,9 @@ def run_ssp(args) -> int:
     if args.engine != "fmu":
         raise UsageError("--engine inprocess runs a scenario by name; a FILE.ssp runs its "
                          "FMUs")
+    if args.master != "delaycomp" and args.stepping != "auto":
+        raise UsageError(f"--stepping chooses how our master steps: --master {args.master} "
+                         "steps the archive itself")
     if args.compare:
         raise UsageError("--compare runs a scenario or a loop file (a FILE.ssp: run it "
                          "twice, with --set controller.mode=compensated and "

@@ -164,6 +164,12 @@ def run_parser(sub) -> None:
     r.add_argument("--engine", choices=("fmu", "inprocess"), default="fmu",
                    help="fmu: the built FMUs through fmpy (default); inprocess: the same "
                         "slaves called directly, same numbers, several times faster")
+    r.add_argument("--stepping", choices=("auto", "native-core", "python"), default="auto",
+                   help="what steps a loop of FMUs: auto (default): the native stepping "
+                        "core, in C, where every FMU is a native one (the same calls, the "
+                        "same rows bit for bit, without Python between them), else the "
+                        "Python master (-v says which, and why); native-core: the core, "
+                        "an error where it cannot; python: the Python master")
     _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
                  "runs them where it can); with --fmu-dir DIR those delaycomp build --out "
                  "DIR wrote there, missing ones built into DIR/native")

@@ -56,6 +56,9 @@ def cmd_run(args) -> int:
     from delaycomp.plotting import UNITS_BY_LOOP
 
     if args.engine != "fmu":  # the Python FMUs' slaves, called in this process
+        if args.stepping == "native-core":
+            raise UsageError("--stepping native-core steps FMUs: --engine inprocess is "
+                             "not allowed with it")
         if args.native or args.fmi == 3:
             raise UsageError(f"{'--native' if args.native else '--fmi 3'} runs FMUs: "
                              "--engine inprocess is not allowed with it")

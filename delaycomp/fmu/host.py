@@ -4,19 +4,25 @@ here for this machine or for another platform (``compile_host``), run there or u
 emulator (``emulator``: wine, qemu-user), and given the loop on its command line
 (``host_argv``, with the FMUs ``unpack``-ed into folders). The tests and the benchmarks
 hold the native FMUs' numbers to the Python master's through it.
+
+The native stepping core (``fmus/native/host/stepping.c``), the library our master hands
+a loop of native FMUs to (``delaycomp.orchestrator.native_core``), is built here too:
+``core_library``, once per version, source and compiler, in the build cache.
 """
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 from delaycomp.fmu import toolchain
 from delaycomp.fmu.native import SOURCE_DIR, compiler, fmi_header_dir
 from delaycomp.fmu.toolchain import NativeBuildError
 
-__all__ = ["EMULATORS", "compile_host", "emulator", "host_argv", "unpack"]
+__all__ = ["EMULATORS", "compile_host", "core_library", "emulator", "host_argv", "unpack"]
 
 
 def compile_host(exe: Path, platform: str | None = None) -> Path:
@@ -43,6 +49,51 @@ def compile_host(exe: Path, platform: str | None = None) -> Path:
     if proc.returncode != 0:
         raise NativeBuildError(f"compiling the C host failed:\n{proc.stderr.strip()}")
     return Path(exe)
+
+
+#: the native stepping core's source, in the C host's folder
+CORE_SOURCE = SOURCE_DIR / "host" / "stepping.c"
+
+
+def core_library(cache: Path | None = None) -> Path:
+    """The native stepping core (``fmus/native/host/stepping.c``) as a shared library of
+    this machine, compiled on first use by this machine's C compiler (``compiler``:
+    ``$CC``, else Zig's, else ``cc``, ``gcc`` or ``clang``; ``-ffp-contract=off``: every
+    time is computed as Python computes it) into ``cache`` (default: beside the native
+    FMUs' build cache), named by the digest of the source, this version and the compiler
+    command, and taken from there afterwards.
+
+    Raises
+    ------
+    NativeBuildError
+        No C compiler here, or it failed (the message says which).
+    """
+    from delaycomp.fmu.native import native_fmu_dir
+    from delaycomp.tmpfiles import build_lock
+    from delaycomp.version import __version__
+
+    argv = compiler()
+    digest = hashlib.sha256("\0".join([__version__, *argv]).encode()
+                            + CORE_SOURCE.read_bytes()).hexdigest()[:12]
+    folder = Path(cache) if cache is not None else native_fmu_dir().parent / "core"
+    suffix = {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
+    lib = folder / f"delaycomp_core-{digest}{suffix}"
+    if lib.is_file():
+        return lib
+    folder.mkdir(parents=True, exist_ok=True)
+    with build_lock(lib):  # parallel first runs: one compiles, the others wait
+        if lib.is_file():
+            return lib
+        part = lib.with_name(f".{lib.name}.part")
+        proc = subprocess.run([*argv, "-std=c11", "-O2", "-fPIC", "-shared",
+                               "-ffp-contract=off", "-Wall", "-Wextra", "-Werror",
+                               str(CORE_SOURCE), "-o", str(part), "-lm"],
+                              capture_output=True, text=True, check=False)
+        if proc.returncode != 0:
+            first = (proc.stderr.strip().splitlines() or ["(no message)"])[0]
+            raise NativeBuildError(f"compiling the native stepping core failed: {first}")
+        part.replace(lib)
+    return lib
 
 
 def _platform_name(platform: str) -> str:

@@ -22,7 +22,8 @@ from delaycomp.fmu.native import (
 )
 from delaycomp.fmu.toolchain import NativeBuildError
 
-__all__ = ["check_native", "fmus_in_dir", "native_fmus", "native_or_why", "why_not_native"]
+__all__ = ["check_native", "choose", "fmus_in_dir", "native_fmus", "native_or_why",
+           "why_not_native"]
 
 
 def fmus_in_dir(loop, fmu_dir: Path, fmus: str = "auto", fmi: int = 2,
@@ -108,6 +109,33 @@ def native_or_why(loop, fmu_dir: Path | None = None, fmi: int = 2,
         return native_fmus(loop, fmu_dir, fmi, found=found), None
     except (ValueError, NativeBuildError, ModelError) as exc:
         return None, why_not_native(exc)
+
+
+def choose(loop, fmus: str = "auto", fmu_dir: Path | None = None, fmi: int = 2,
+           clocked: bool = False) -> tuple[dict[str, Path] | None, str | None]:
+    """The FMU files a run of ``loop`` (a ``Loop``) with the FMU engine uses, and why not
+    the native ones where it could have: ``(files, why)``, ``files`` ``None`` for the
+    Python FMUs of the build cache (``delaycomp.api.choose_fmus``, which checks its
+    arguments first, says the rules: ``fmus`` is ``auto``, ``native`` or ``python``; the
+    FMUs of ``fmu_dir`` first, missing native ones built into ``fmu_dir/native``)."""
+    native_dir = Path(fmu_dir) / "native" if fmu_dir else None
+    found: dict[str, Path] = {}
+    if fmu_dir:
+        there, found = fmus_in_dir(loop, Path(fmu_dir), fmus, fmi, clocked)
+        if there == "python" and fmus == "auto":  # what build --out left there
+            try:  # the note of a loop that has no native FMUs anyway
+                check_native(loop, fmi, clocked)
+            except ValueError as exc:
+                return None, why_not_native(exc)
+            from delaycomp.progress import detail
+
+            detail(f"the Python FMUs run this loop: {fmu_dir} holds Python ones")
+            return None, None
+    if fmus == "python":
+        return None, None
+    if fmus == "native" or fmi == 3:
+        return native_fmus(loop, native_dir, fmi, clocked, found), None
+    return native_or_why(loop, native_dir, found=found)
 
 
 def why_not_native(exc: Exception) -> str:

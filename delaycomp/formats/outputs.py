@@ -231,6 +231,26 @@ class CsvStream:
         self._writer.writerow([repr(float(t)), *(repr(float(v)) for v in row)])
         self.rows += 1
 
+    def write_rows(self, times, rows) -> None:
+        """Many rows at once (a stepping core's block): ``times`` and ``rows`` (a 2-D
+        array, one row a time), the same text as calling the stream row by row."""
+        n = len(times)
+        if not n:
+            return
+        if self._writer is None:
+            self._open()
+        assert self._fh is not None  # _open() made it
+        width = len(self.names)
+        import numpy as np
+
+        flat = np.column_stack([np.asarray(times, dtype=float),
+                                np.asarray(rows, dtype=float).reshape(n, width)])
+        # repr of every float (%r): the text csv.writer writes for these strings, which
+        # hold no delimiter, quote or line break
+        self._fh.write((",".join(["%r"] * (width + 1)) + "\r\n") * n
+                       % tuple(flat.ravel().tolist()))
+        self.rows += n
+
     def finish(self, success: bool) -> Path:
         """Close the file; return where it is now (``FILE`` or ``FILE.partial``)."""
         final = self.path if success else partial_path(self.path)
@@ -250,7 +270,11 @@ class CsvStream:
 #: Lower bounds of the cost of one base step of a four-component loop, in seconds, from
 #: BENCHMARKS.md (section 1: 11.8 us per step in-process and 43 us with FMUs for the
 #: cheapest scenario). Estimates are lower bounds: a refused run would take longer still.
-SECONDS_PER_TICK = {"inprocess": 10e-6, "fmu": 40e-6}
+SECONDS_PER_TICK = {"inprocess": 10e-6, "fmu": 40e-6, "native-core": 0.1e-6}
+#: Lower bound of the cost of one recorded row where the native stepping core steps the
+#: loop (its base step is then cheaper than the row: formatting a CSV row of Example 3.6
+#: takes about 2 us, its base step in the core about 0.2 us)
+SECONDS_PER_ROW_CORE = 1e-6
 #: A run whose estimate exceeds this is refused (one day).
 MAX_RUN_SECONDS = 86400.0
 #: Bytes per held value of a delay line or input history (a Python tuple of ``n`` floats
@@ -290,6 +314,9 @@ def format_bytes(n: float) -> str:
 def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
              keep: bool = True) -> tuple[float, float]:
     """Lower bounds of a run's wall time (s) and memory (bytes) before it starts.
+    ``engine``: ``fmu``, ``inprocess``, or ``native-core`` (the FMU engine's loop stepped
+    by the native core: ``SECONDS_PER_TICK`` a base step and ``SECONDS_PER_ROW_CORE`` a
+    recorded row).
 
     Memory counts the delay lines (``delay / h`` held values each), the controller's
     input history (``(r + tau) / h`` values) and, with ``keep``, the recorded rows.
@@ -312,7 +339,10 @@ def estimate(loop, ticks: int, engine: str = "fmu", every: int = 1,
     kept = 0.0
     if keep:
         kept = (ticks / every + 1) * (len(loop.recorded) + 1) * BYTES_PER_KEPT_VALUE
-    return ticks * SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK["inprocess"]), held + kept
+    seconds = ticks * SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK["inprocess"])
+    if engine == "native-core":
+        seconds += (ticks / every + 1) * SECONDS_PER_ROW_CORE
+    return seconds, held + kept
 
 
 def check_budget(loop, ticks: int, engine: str = "fmu", every: int = 1,
@@ -322,11 +352,13 @@ def check_budget(loop, ticks: int, engine: str = "fmu", every: int = 1,
     seconds, memory = estimate(loop, ticks, engine, every, keep)
     steps = f"{ticks:.4g} base steps (T = {loop.T!r}, N = {loop.N})"
     if seconds > MAX_RUN_SECONDS:
+        per = SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK["inprocess"]) * 1e6
+        rate = (f"{per:g} us per step and {SECONDS_PER_ROW_CORE * 1e6:g} us per row (the "
+                "native stepping core)" if engine == "native-core"
+                else f"{per:g} us per step ({engine} engine)")
         raise OutputError(
-            f"this run needs {steps}: at least {format_duration(seconds)} at "
-            f"{SECONDS_PER_TICK.get(engine, SECONDS_PER_TICK['inprocess']) * 1e6:g} us per "
-            f"step ({engine} engine), over the limit of {format_duration(MAX_RUN_SECONDS)}; lower "
-            "--stop-time or N")
+            f"this run needs {steps}: at least {format_duration(seconds)} at {rate}, over "
+            f"the limit of {format_duration(MAX_RUN_SECONDS)}; lower --stop-time or N")
     ram = physical_memory()
     if ram is not None and memory > ram / 2:
         what = "delay buffers and kept rows" if keep else "delay buffers"

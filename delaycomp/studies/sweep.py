@@ -209,24 +209,55 @@ def evaluate(job: Job) -> dict:
         return {"rho": rho, "stable": int(rho < 1.0), "final_norm": None, "peak_norm": None,
                 "deadbeat_time": None, "failed": ""}
     fmu_dir = Path(job.fmu_dir) if job.fmu_dir is not None else None
-    return result_metrics(spec, run_loop(spec, job.stop, fmu_dir, engine=job.engine))
+    files = point_fmus(spec, fmu_dir) if job.engine == "fmu" else None
+    return result_metrics(spec, run_loop(spec, job.stop, fmu_dir, engine=job.engine,
+                                         fmus=files))
+
+
+def point_fmus(loop, fmu_dir: Path | None = None) -> dict[str, Path] | None:
+    """The FMU files of a grid point's run on the ``fmu`` engine, as ``delaycomp run``
+    chooses them: the native ones where the loop has them here (stepped by the native
+    core, ``delaycomp.orchestrator.native_core``), else ``None``, the Python FMUs
+    (``delaycomp.fmu.twins.choose``)."""
+    from delaycomp.fmu import twins
+
+    return twins.choose(loop, "auto", fmu_dir)[0]
+
+
+def native_point(loop) -> bool:
+    """Can the ``fmu`` engine run ``loop`` (a point the batch engine does not take) with
+    native FMUs, stepped by the native core? A C compiler, the core, and native twins of
+    every instance (``delaycomp.fmu.twins.check_native``; a model that does not translate
+    still runs, on its Python FMUs)."""
+    from delaycomp.fmu import twins
+    from delaycomp.orchestrator.native_core import core_status
+
+    try:
+        twins.check_native(loop)
+    except ValueError:
+        return False
+    return core_status() is None
 
 
 def _prebuild(jobs: list[Job]) -> None:
-    """Build every FMU the jobs need here, once, before workers start."""
+    """Build every FMU the jobs need here, once, before workers start: the native ones
+    where the loop has them (``point_fmus``), else the Python ones."""
     from delaycomp.fmu.cache import fmu_path
 
     seen = set()
     for job in jobs:
-        for inst in open_source(job.scenario).loop(list(job.sets)).instances:
-            key = inst.source.build_key()
-            if key is None:
-                continue
-            kind, config = key
-            ident = (kind, tuple(sorted(config.items())))
-            if ident not in seen:
-                seen.add(ident)
-                fmu_path(kind, config, Path(job.fmu_dir) if job.fmu_dir else None)
+        loop = open_source(job.scenario).loop(list(job.sets))
+        keys = [inst.source.build_key() for inst in loop.instances]
+        ident = tuple((k[0], tuple(sorted(k[1].items()))) for k in keys if k is not None)
+        if ident in seen:
+            continue
+        seen.add(ident)
+        fmu_dir = Path(job.fmu_dir) if job.fmu_dir else None
+        if point_fmus(loop, fmu_dir) is not None:
+            continue  # native, built (or found) by point_fmus
+        for key in keys:
+            if key is not None:
+                fmu_path(key[0], key[1], fmu_dir)
 
 
 def check_sweep_size(source: Source, axes: list[Axis], sets: list[str],
@@ -502,8 +533,9 @@ class _Piece:
     """A piece's validated points as the batch engine takes them: in groups that share a
     batch (``delaycomp.studies.sweep_batch.groups``: indices in the piece, points
     stacked), each model group's model, and the points it cannot take, each with its
-    reason and its per-point engine: in-process, or ``fmu`` where the loop holds an FMU
-    file (the in-process engine runs delaycomp's own slaves only)."""
+    reason and its per-point engine: ``fmu`` where the loop holds an FMU file (the
+    in-process engine runs delaycomp's own slaves only) or has native FMUs here (the
+    native core steps them: ``native_point``), else in-process."""
 
     groups: dict
     models: dict
@@ -518,7 +550,8 @@ class _Piece:
         fallback = []
         for i, why in others:
             files = any(isinstance(inst.source, FmuFile) for inst in loops[i].instances)
-            fallback.append((i, why, "fmu" if files else "inprocess"))
+            fallback.append((i, why, "fmu" if files or native_point(loops[i])
+                             else "inprocess"))
         return cls(found, models, fallback)
 
     def nbytes(self) -> int:

@@ -142,9 +142,9 @@ NATIVE_RTOL = 1e-12
 
 
 def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
-    """The native C FMUs (``delaycomp.fmu.native``) in our master, for the cases whose loop
-    has native FMUs (the LTI ones): one row against the reference, one against the Python
-    FMUs (``native-vs-python``)."""
+    """The native C FMUs (``delaycomp.fmu.native``) in our Python master, for the cases
+    whose loop has native FMUs (the LTI ones): one row against the reference, one against
+    the Python FMUs (``native-vs-python``)."""
     from delaycomp.fmu.twins import native_fmus
     from delaycomp.orchestrator.simulate import run_loop
 
@@ -154,7 +154,7 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
             fmus = native_fmus(spec)
         except ValueError:  # a user model's plant or controller: no native twin
             continue
-        res = run_loop(spec, c.stop_time(), fmus=fmus)
+        res = run_loop(spec, c.stop_time(), fmus=fmus, stepping="python")
         if not res.success:
             yield CheckRow(c.id, "native", float("inf"), "-", False, res.message)
             continue
@@ -168,6 +168,39 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
         rel = float((np.abs(res.data - py.data) / peak).max())
         yield CheckRow(c.id, "native-vs-python", rel,
                        f"{NATIVE_RTOL:g} x max abs(python) (relative)", rel <= NATIVE_RTOL)
+
+
+def _run_native_core(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """The native C FMUs stepped by the native core (``delaycomp.orchestrator.native_core``),
+    for the cases whose loop has native FMUs: one row against the reference, one against
+    the same FMUs in the Python master (``native-core-vs-master``), which must be the same
+    rows bit for bit (the same binaries called with the same arguments in the same
+    order: a difference of zero, not a tolerance)."""
+    from delaycomp.fmu.twins import native_fmus
+    from delaycomp.orchestrator.simulate import run_loop
+
+    for c in cases:
+        spec = c.loop()
+        try:
+            fmus = native_fmus(spec)
+        except ValueError:  # a user model's plant or controller: no native twin
+            continue
+        res = run_loop(spec, c.stop_time(), fmus=fmus, stepping="native-core")
+        if not res.success:
+            yield CheckRow(c.id, "native-core", float("inf"), "-", False, res.message)
+            continue
+        cmp = compare(c, res.names, res.times, res.data)
+        yield CheckRow(c.id, "native-core", cmp.max_error, cmp.tolerance, cmp.passed)
+        py = run_loop(spec, c.stop_time(), fmus=fmus, stepping="python")
+        if not py.success or py.names != res.names or py.data.shape != res.data.shape:
+            yield CheckRow(c.id, "native-core-vs-master", float("inf"), "-", False,
+                           py.message)
+            continue
+        same = (res.times.tobytes() == py.times.tobytes()
+                and res.data.tobytes() == py.data.tobytes())
+        diff = float(np.abs(res.data - py.data).max(initial=0.0))
+        yield CheckRow(c.id, "native-core-vs-master", diff,
+                       "0 (bit for bit)", same)
 
 
 @dataclass(frozen=True)
@@ -189,6 +222,7 @@ class CompilerRequirement(Requirement):
 
 
 PROVIDERS.register("native", _run_native, CompilerRequirement())
+PROVIDERS.register("native-core", _run_native_core, CompilerRequirement())
 
 
 def _third_party(master: str) -> Provider:

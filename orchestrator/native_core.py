@@ -1,0 +1,283 @@
+"""The native stepping core: a loop of native FMUs stepped from C.
+
+When every component of a run is a native FMU in this process (``FmuComponent``: a C
+binary that runs no Python, not clocked, its FMI functions at hand), the master sets the
+loop up, initializes it and terminates it as always, and ``NativeCore`` hands the
+stepping in between to ``fmus/native/host/stepping.c`` (``delaycomp.fmu.host.core_library``,
+loaded with ctypes): the same FMI calls with the same arguments in the same order as
+``Master.step``, so the same rows, bit for bit, without a Python call per FMI call. The
+rows come back in blocks, to the master's recorder and its sink; between blocks Python
+runs (the progress bar, Ctrl-C). A failure inside the core is raised as the Python master
+raises it: the same ``SimulationError``, at the same tick, with the same message.
+
+``why_not(master)`` says why a master cannot hand its loop over (``None``: it can).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from collections.abc import Callable
+from ctypes import POINTER, Structure, c_double, c_int32, c_int64, c_uint, c_void_p
+from typing import cast
+
+import numpy as np
+
+from delaycomp.orchestrator.fmu import FmuComponent
+from delaycomp.orchestrator.master import Master, Recorder, interrupt_held
+
+__all__ = ["STEPPING", "NativeCore", "core_status", "why_not", "why_not_files"]
+
+#: how a run is stepped: ``auto`` (the native core where ``why_not`` finds nothing against
+#: it, else the Python master), ``native-core`` (the core, or the run is refused saying
+#: why), ``python`` (the Python master)
+STEPPING = ("auto", "native-core", "python")
+
+_OP_GET, _OP_SET = 0, 1
+_DONE, _FULL, _STEP, _STEP3, _CALL, _LOGGED, _NONFINITE, _BAD = range(8)
+#: rows a block holds at most (a block is also at most about ``_BLOCK_SECONDS`` of work)
+_MAX_BLOCK = 1 << 16
+#: values a block's rows hold at most (8 MB: a loop of many states gets fewer rows)
+_MAX_BLOCK_VALUES = 1 << 20
+_BLOCK_SECONDS = 0.05
+
+
+class _Component(Structure):
+    _fields_ = [("instance", c_void_p), ("get", c_void_p), ("set", c_void_p),
+                ("step", c_void_p), ("fmi", c_int32), ("worst", POINTER(c_int32))]
+
+
+class _Op(Structure):
+    _fields_ = [("kind", c_int32), ("comp", c_int32), ("n", c_int64),
+                ("vrs", POINTER(c_uint)), ("slots", POINTER(c_int64))]
+
+
+class _Loop(Structure):
+    _fields_ = [("ncomp", c_int64), ("comps", POINTER(_Component)), ("nops", c_int64),
+                ("ops", POINTER(_Op)), ("nslots", c_int64), ("slots", POINTER(c_double)),
+                ("scratch", POINTER(c_double)), ("t0", c_double), ("T", c_double),
+                ("h", c_double), ("N", c_int64), ("ncols", c_int64),
+                ("cols", POINTER(c_int64)), ("every", c_int64), ("final", c_int64)]
+
+
+class _Failure(Structure):
+    _fields_ = [("code", c_int32), ("comp", c_int32), ("op", c_int32), ("status", c_int32),
+                ("flag", c_int32)]
+
+
+_LIB: ctypes.CDLL | None = None
+_WHY: str | None = None
+
+
+def _load() -> ctypes.CDLL | None:
+    """The core's library, compiled on first use (``core_library``) and loaded once per
+    process; ``None`` where it cannot be had here (``_WHY`` says why)."""
+    global _LIB, _WHY
+    if _LIB is None and _WHY is None:
+        from delaycomp.fmu.host import core_library
+        from delaycomp.fmu.toolchain import NativeBuildError
+
+        try:
+            lib = ctypes.CDLL(str(core_library()))
+        except (NativeBuildError, OSError) as exc:
+            _WHY = f"the native stepping core is not available here: {exc}"
+            return None
+        sizes = (c_int64 * 4)()
+        lib.core_layout(sizes)
+        ours = [ctypes.sizeof(s) for s in (_Component, _Op, _Loop, _Failure)]
+        if list(sizes) != ours:  # a library of another build: never pass it our structs
+            _WHY = (f"the native stepping core's layout {list(sizes)} is not this "
+                    f"module's {ours}")
+            return None
+        lib.core_run.restype = c_int32
+        lib.core_run.argtypes = [POINTER(_Loop), POINTER(c_int64), c_int64,
+                                 POINTER(c_double), POINTER(c_double), c_int64,
+                                 POINTER(c_int64), POINTER(_Failure)]
+        _LIB = lib
+    return _LIB
+
+
+def core_status() -> str | None:
+    """``None`` where the native stepping core can be had here (compiling it on the first
+    call), else why not."""
+    _load()
+    return _WHY
+
+
+def why_not(master: Master) -> str | None:
+    """Why ``master`` cannot hand its stepping to the native core, in words, or ``None``:
+    every component must be a native FMU of this process (``FmuComponent``, no Python in
+    its binary, no clock), and the core's library must be here (compiled on the first
+    call). Asked before ``setup``: nothing runs yet."""
+    for c in master.components.values():
+        if type(c) is not FmuComponent:
+            kind = ("an FMU in a child process (another tool's)"
+                    if type(c).__name__ == "IsolatedFmu" else f"a {type(c).__name__}")
+            return f"{c.name} is {kind}, not a native FMU of this process"
+        if c.runs_python:
+            return f"{c.name} is a Python FMU"
+        if c.clocked:
+            return f"{c.name} is a clocked FMI 3.0 FMU (its ticks are scheduled in Python)"
+    _load()
+    return _WHY
+
+
+def why_not_files(loop, fmus: dict | None) -> str | None:
+    """``why_not`` asked of a loop and the FMU files that will run it (``fmus``, instance
+    -> file, as ``run_loop`` takes them; an instance without one runs its Python FMU),
+    before anything is set up: for a command to refuse ``--stepping native-core`` before
+    any work. ``why_not(master)`` has the last word."""
+    import zipfile
+    from xml.etree import ElementTree
+
+    from delaycomp.system import FmuFile
+
+    for inst in loop.instances:
+        if isinstance(inst.source, FmuFile):
+            return (f"{inst.name} is an FMU file of another tool (it runs in a child "
+                    "process)")
+        path = (fmus or {}).get(inst.name)
+        if path is None:
+            return f"{inst.name} is a Python FMU"
+        try:
+            with zipfile.ZipFile(path) as zf:
+                root = ElementTree.fromstring(zf.read("modelDescription.xml"))
+        except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
+            continue  # the run refuses the file itself, in its own words
+        if (root.get("generationTool") or "").startswith("PythonFMU"):
+            return f"{inst.name} is a Python FMU"
+        if any(v.tag == "Clock" and v.get("causality") == "input"
+               for v in root.iter("Clock")):
+            return f"{inst.name} is a clocked FMI 3.0 FMU (its ticks are scheduled in Python)"
+    _load()
+    return _WHY
+
+
+class NativeCore:
+    """The stepping of ``master`` (set up and initialized, ``why_not(master)`` is ``None``)
+    and its ``recorder`` handed to the native core: ``run_until(ticks)`` as
+    ``Master.run_until`` does it. Raises ``RuntimeError`` where a component's FMI
+    functions are not at hand (fmpy with an FMI call logger)."""
+
+    def __init__(self, master: Master, recorder: Recorder):
+        lib = _load()
+        if lib is None:  # why_not(master) said so
+            raise RuntimeError(_WHY)
+        self._lib, self.master, self.recorder = lib, master, recorder
+        keep: list = []  # every ctypes object the loop points into, alive with it
+        comps = cast("list[FmuComponent]", master.stepping)  # why_not(master) is None
+        index = {c.name: i for i, c in enumerate(comps)}
+        table = (_Component * len(comps))()
+        self._cells = [c_int32(0) for _ in comps]
+        for i, c in enumerate(comps):
+            functions = c.native_functions()
+            if functions is None:  # an FMI call logger set on fmpy: calls go through it
+                raise RuntimeError(f"{c.name}'s FMI functions are not at hand")
+            table[i] = _Component(*functions, 3 if c.fmi3 else 2,
+                                  ctypes.pointer(self._cells[i]))
+        #: each op as the master's tick_plan names it
+        self._ops = master.tick_plan()
+        op_table = (_Op * len(self._ops))()
+        widest = 1
+        for o, (kind, comp, names, slots) in enumerate(self._ops):
+            vrs = (c_uint * max(1, len(names)))(
+                *cast(FmuComponent, comp).value_references(names))
+            where = (c_int64 * max(1, len(slots)))(*slots)
+            keep += [vrs, where]
+            op_table[o] = _Op(_OP_GET if kind == "get" else _OP_SET, index[comp.name],
+                              len(names), vrs, where)
+            widest = max(widest, len(names))
+        values = master.values
+        self._slots = (c_double * max(1, len(values)))(*values)
+        scratch = (c_double * widest)()
+        recorded = recorder.slots
+        cols = (c_int64 * max(1, len(recorded)))(*recorded)
+        final = -1 if recorder.final is None else recorder.final
+        keep += [table, op_table, scratch, cols]
+        self._keep = keep
+        self._loop = _Loop(len(comps), table, len(self._ops), op_table, len(values),
+                           self._slots, scratch, master.t0, master.T, master.h, master.N,
+                           len(recorded), cols, recorder.every, final)
+        self._comps = comps
+        self._ncols = len(recorded)
+
+    def run_until(self, ticks: int, progress: Callable[[int], None] | None = None) -> None:
+        """Step until tick ``ticks`` (``Master.run_until``), in blocks of at most
+        ``_MAX_BLOCK`` rows (``_MAX_BLOCK_VALUES`` values) and about ``_BLOCK_SECONDS`` of
+        work, the rows of each block
+        handed to the recorder (``Recorder.record_block``); ``progress(k)`` about every
+        1 % of the way, as the Python master's run reports it."""
+        master = self.master
+        k = c_int64(master.k)
+        nrows = c_int64(0)
+        failure = _Failure()
+        chunk = max(1, ticks // 100) if progress is not None else None
+        next_report = master.k + chunk if chunk else ticks
+        block = 64  # ticks of the first block; then about _BLOCK_SECONDS of work each
+        capacity = max(1, min(_MAX_BLOCK, _MAX_BLOCK_VALUES // max(1, self._ncols)))
+        times = np.empty(capacity)
+        rows = np.empty((capacity, max(1, self._ncols)))
+        tp = times.ctypes.data_as(POINTER(c_double))
+        rp = rows.ctypes.data_as(POINTER(c_double))
+        for c, cell in zip(self._comps, self._cells):
+            cell.value = c.worst_status
+            c.worst_cell = cell  # its logger keeps the cell at its worst status
+        try:
+            while master.k < ticks:
+                begun = master.k
+                stop = min(ticks, next_report, begun + block)
+                started = time.perf_counter()
+                # Ctrl-C waits for the block's end (at most about _BLOCK_SECONDS and the
+                # writing of its rows): the tick reached and the rows kept then agree
+                with interrupt_held():
+                    code = self._lib.core_run(ctypes.byref(self._loop), ctypes.byref(k),
+                                              stop, tp, rp, capacity, ctypes.byref(nrows),
+                                              ctypes.byref(failure))
+                    spent = time.perf_counter() - started
+                    master.k = k.value
+                    if nrows.value:
+                        self.recorder.record_block(times[:nrows.value],
+                                                   rows[:nrows.value, :self._ncols])
+                if code not in (_DONE, _FULL):
+                    self._raise(code, failure)
+                if progress is not None and master.k >= next_report:
+                    progress(master.k)
+                if master.k >= next_report:
+                    next_report = min(ticks, master.k + (chunk or ticks))
+                if spent > 0:
+                    rate = max(1, master.k - begun) / spent
+                    block = int(min(max(64.0, rate * _BLOCK_SECONDS), 1e12))
+        finally:
+            values = master.values
+            values[:] = self._slots[:len(values)]
+            for c in self._comps:
+                c.worst_cell = None
+
+    def _raise(self, code: int, failure: _Failure):
+        """Raise the error the Python master raises for the failure the core reports."""
+        master = self.master
+        values = master.values
+        values[:] = self._slots[:len(values)]
+        k = master.k
+        if code in (_STEP, _STEP3):
+            comp = self._comps[failure.comp]
+            t = master.time_of(k)
+            try:
+                if code == _STEP:
+                    comp.call_failed_with("DoStep", failure.status)
+                comp.step_refused(t, master.h, failure.flag == 1, failure.flag == 2)
+            except Exception as exc:  # noqa: BLE001 - reported as Master.step reports it
+                master.step_failed(comp, exc, t)
+        if code in (_CALL, _LOGGED):
+            kind, op_comp, _, _ = self._ops[failure.op]
+            comp = cast(FmuComponent, op_comp)
+            try:
+                if code == _CALL:
+                    comp.call_failed_with("GetReal" if kind == "get" else "SetReal",
+                                          failure.status)
+                comp.read_refused()
+            except Exception as exc:  # noqa: BLE001 - reported as the propagation reports it
+                master.propagation_failed(exc, k)
+        if code == _NONFINITE:
+            master.refuse_nonfinite(k)
+        raise RuntimeError(f"the native stepping core stopped with code {code}")
