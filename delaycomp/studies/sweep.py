@@ -243,7 +243,9 @@ def _prebuild(jobs: list[Job]) -> None:
     """Build every FMU the jobs need here, once, before workers start: the native ones
     where the loop has them (``point_fmus``), else the Python ones."""
     from delaycomp.fmu.cache import fmu_path
+    from delaycomp.orchestrator.native_core import core_status
 
+    core_status()  # the native core compiled here once, not in each worker at once
     seen = set()
     for job in jobs:
         loop = open_source(job.scenario).loop(list(job.sets))
