@@ -186,32 +186,16 @@ def test_the_command_line_refuses_before_any_work_and_says_which_stepped(tmp_pat
     assert "example-3.6: stepped by the Python master\n" in capsys.readouterr().err
 
 
-PLANT_LOOP = """T = 0.5
-N = 10
-r = 0.3
-tau = 0.5
-stop_time = 2.0
-[plant]
-fmu = "Oscillator.fmu"
-states = ["position", "velocity"]
-inputs = ["force"]
-x0 = [1.0, 0.0]
-[controller]
-A = [[0, 1], [1, -0.2]]
-B = [[0], [1]]
-K = [[-3.0, -2.5]]
-"""
-
-
 def test_a_plant_fmu_of_another_tool_runs_in_the_python_master(tmp_path):
     """Another tool's FMU (C, run in a child process with a watchdog) is not the core's:
     the Python master steps the loop and says why; asked for, the core is refused."""
     from tests.cfmu.build import build_oscillator
+    from tests.test_messages import PLANT_LOOP  # the oscillator's loop, to t = 100000
 
     build_oscillator(tmp_path, "Oscillator.fmu")
     path = tmp_path / "loop.toml"
     path.write_text(PLANT_LOOP, encoding="utf-8")
-    res = api.run(path)
+    res = api.run(path, 2.0)
     assert res.stepped_by == "python"
     assert res.stepping_note == ("plant is an FMU in a child process (another tool's), not "
                                  "a native FMU of this process")

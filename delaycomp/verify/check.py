@@ -141,10 +141,11 @@ PROVIDERS.register("container", _run_container, CONTAINER)
 NATIVE_RTOL = 1e-12
 
 
-def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
-    """The native C FMUs (``delaycomp.fmu.native``) in our Python master, for the cases
-    whose loop has native FMUs (the LTI ones): one row against the reference, one against
-    the Python FMUs (``native-vs-python``)."""
+def _native_runs(cases: Iterable[RefCase], master: str, stepping: str,
+                 second: Callable) -> Iterable[CheckRow]:
+    """For each case whose loop has native FMUs, the native FMUs stepped by ``stepping``:
+    the row ``master`` against the reference, then, where the run succeeded, the row
+    ``second(case, loop, fmus, result)`` (its comparison with another run)."""
     from delaycomp.fmu.twins import native_fmus
     from delaycomp.orchestrator.simulate import run_loop
 
@@ -154,20 +155,31 @@ def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
             fmus = native_fmus(spec)
         except ValueError:  # a user model's plant or controller: no native twin
             continue
-        res = run_loop(spec, c.stop_time(), fmus=fmus, stepping="python")
+        res = run_loop(spec, c.stop_time(), fmus=fmus, stepping=stepping)
         if not res.success:
-            yield CheckRow(c.id, "native", float("inf"), "-", False, res.message)
+            yield CheckRow(c.id, master, float("inf"), "-", False, res.message)
             continue
         cmp = compare(c, res.names, res.times, res.data)
-        yield CheckRow(c.id, "native", cmp.max_error, cmp.tolerance, cmp.passed)
+        yield CheckRow(c.id, master, cmp.max_error, cmp.tolerance, cmp.passed)
+        yield second(c, spec, fmus, res)
+
+
+def _run_native(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
+    """The native C FMUs (``delaycomp.fmu.native``) in our Python master, for the cases
+    whose loop has native FMUs (the LTI ones): one row against the reference, one against
+    the Python FMUs (``native-vs-python``)."""
+    from delaycomp.orchestrator.simulate import run_loop
+
+    def against_python(c, spec, fmus, res) -> CheckRow:
         py = run_loop(spec, c.stop_time())
         if not py.success or py.names != res.names:
-            yield CheckRow(c.id, "native-vs-python", float("inf"), "-", False, py.message)
-            continue
+            return CheckRow(c.id, "native-vs-python", float("inf"), "-", False, py.message)
         peak = np.maximum(np.abs(py.data).max(axis=0), np.finfo(float).tiny)
         rel = float((np.abs(res.data - py.data) / peak).max())
-        yield CheckRow(c.id, "native-vs-python", rel,
-                       f"{NATIVE_RTOL:g} x max abs(python) (relative)", rel <= NATIVE_RTOL)
+        return CheckRow(c.id, "native-vs-python", rel,
+                        f"{NATIVE_RTOL:g} x max abs(python) (relative)", rel <= NATIVE_RTOL)
+
+    return _native_runs(cases, "native", "python", against_python)
 
 
 def _run_native_core(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
@@ -176,31 +188,19 @@ def _run_native_core(cases: Iterable[RefCase]) -> Iterable[CheckRow]:
     the same FMUs in the Python master (``native-core-vs-master``), which must be the same
     rows bit for bit (the same binaries called with the same arguments in the same
     order: a difference of zero, not a tolerance)."""
-    from delaycomp.fmu.twins import native_fmus
     from delaycomp.orchestrator.simulate import run_loop
 
-    for c in cases:
-        spec = c.loop()
-        try:
-            fmus = native_fmus(spec)
-        except ValueError:  # a user model's plant or controller: no native twin
-            continue
-        res = run_loop(spec, c.stop_time(), fmus=fmus, stepping="native-core")
-        if not res.success:
-            yield CheckRow(c.id, "native-core", float("inf"), "-", False, res.message)
-            continue
-        cmp = compare(c, res.names, res.times, res.data)
-        yield CheckRow(c.id, "native-core", cmp.max_error, cmp.tolerance, cmp.passed)
+    def against_master(c, spec, fmus, res) -> CheckRow:
         py = run_loop(spec, c.stop_time(), fmus=fmus, stepping="python")
         if not py.success or py.names != res.names or py.data.shape != res.data.shape:
-            yield CheckRow(c.id, "native-core-vs-master", float("inf"), "-", False,
-                           py.message)
-            continue
+            return CheckRow(c.id, "native-core-vs-master", float("inf"), "-", False,
+                            py.message)
         same = (res.times.tobytes() == py.times.tobytes()
                 and res.data.tobytes() == py.data.tobytes())
         diff = float(np.abs(res.data - py.data).max(initial=0.0))
-        yield CheckRow(c.id, "native-core-vs-master", diff,
-                       "0 (bit for bit)", same)
+        return CheckRow(c.id, "native-core-vs-master", diff, "0 (bit for bit)", same)
+
+    return _native_runs(cases, "native-core", "native-core", against_master)
 
 
 @dataclass(frozen=True)
