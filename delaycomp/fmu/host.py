@@ -93,6 +93,9 @@ def core_library(cache: Path | None = None) -> Path:
             first = (proc.stderr.strip().splitlines() or ["(no message)"])[0]
             raise NativeBuildError(f"compiling the native stepping core failed: {first}")
         part.replace(lib)
+    from delaycomp.progress import detail
+
+    detail(f"built the native stepping core: {lib}")
     return lib
 
 
