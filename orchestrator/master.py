@@ -425,9 +425,9 @@ class Master:
             for put, gather in self._tails:
                 put(gather(slots))
         except Exception as exc:  # noqa: BLE001 - reported with the component's reason
-            self._fail(exc, k)
+            self.propagation_failed(exc, k)
         if not math.isfinite(sum(slots)):  # NaN or inf among the outputs (one sum a tick)
-            self._refuse_nonfinite(k)
+            self.refuse_nonfinite(k)
         if not record or not self._observers:
             return
         t = self.time_of(k)
@@ -442,7 +442,7 @@ class Master:
                 return inst, var, slots[s]
         return None
 
-    def _refuse_nonfinite(self, k: int) -> None:
+    def refuse_nonfinite(self, k: int) -> None:
         """Stop the run where an output is NaN or infinite (a plant FMU that broke down,
         at any tick, the last included), naming it and the time; a sum that overflowed
         over finite outputs passes."""
@@ -452,8 +452,10 @@ class Master:
             raise SimulationError(f"{inst} failed at t = {self.time_of(k):.12g}: its output "
                                   f"{var} = {value!r} is not allowed: must be finite", inst)
 
-    def _fail(self, exc: Exception, k: int):
-        self._refuse_nonfinite(k)  # a component refusing a NaN input: blame the source
+    def propagation_failed(self, exc: Exception, k: int):
+        """Raise the ``SimulationError`` of a read or write at tick ``k`` that raised
+        ``exc`` (a non-finite value already in the vector is blamed first)."""
+        self.refuse_nonfinite(k)  # a component refusing a NaN input: blame the source
         culprit = next((c for c in self.components.values()
                         if getattr(c, "last_message", None)), None)
         name = culprit.name if culprit else "a component"
@@ -514,15 +516,6 @@ class Master:
         ops += [("set", c, list(ins), list(islots)) for c, ins, islots in plan.tails]
         return ops
 
-    def propagation_failed(self, exc: Exception, k: int):
-        """Raise the ``SimulationError`` of a read or write at tick ``k`` that raised
-        ``exc`` (a non-finite value already in the vector is blamed first)."""
-        self._fail(exc, k)
-
-    def refuse_nonfinite(self, k: int) -> None:
-        """Raise the ``SimulationError`` naming the first NaN or infinite value of the
-        vector at tick ``k``, if there is one."""
-        self._refuse_nonfinite(k)
 
     def run_until(self, stop_ticks: int) -> None:
         """Step until tick ``stop_ticks`` (no step if it is reached already)."""
@@ -614,7 +607,7 @@ class Recorder:
 
     def record_block(self, times, rows) -> None:
         """Rows recorded by a stepping core in one go (their ticks were due): ``times``
-        and ``rows`` (a 2-D array, one row a tick, ``slots``' columns), as ``record``
+        (a 1-D array) and ``rows`` (a 2-D array, one row a tick, ``slots``' columns), as ``record``
         would have kept them row by row; a sink with ``write_rows(times, rows)``
         (``CsvStream``) takes them at once, any other row by row."""
         n = len(times)
@@ -629,7 +622,7 @@ class Recorder:
                 for t, row in zip(times, rows):
                     self.sink(float(t), tuple(row.tolist()))
         if self.keep:
-            self.times.extend(times.tolist() if hasattr(times, "tolist") else times)
+            self.times.extend(times.tolist())
             self.rows.extend(map(tuple, rows.tolist()))
         else:
             self.times[:] = [float(times[-1])]

@@ -23,7 +23,7 @@ from typing import cast
 
 import numpy as np
 
-from delaycomp.orchestrator.fmu import FmuComponent
+from delaycomp.orchestrator.fmu import FmuComponent, python_generated
 from delaycomp.orchestrator.master import Master, Recorder, interrupt_held
 
 __all__ = ["STEPPING", "NativeCore", "core_status", "why_not", "why_not_files"]
@@ -144,7 +144,7 @@ def why_not_files(loop, fmus: dict | None) -> str | None:
                 root = ElementTree.fromstring(zf.read("modelDescription.xml"))
         except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
             continue  # the run refuses the file itself, in its own words
-        if (root.get("generationTool") or "").startswith("PythonFMU"):
+        if python_generated(root.get("generationTool")):
             return f"{inst.name} is a Python FMU"
         if any(v.tag == "Clock" and v.get("causality") == "input"
                for v in root.iter("Clock")):

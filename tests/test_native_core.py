@@ -203,3 +203,17 @@ def test_a_plant_fmu_of_another_tool_runs_in_the_python_master(tmp_path):
         "plant is an FMU file of another tool (it runs in a child process)")
     with pytest.raises(ParameterError, match="plant is an FMU in a child process"):
         api.run(path, stepping="native-core")
+
+
+def test_the_core_compiles_as_strict_c99(tmp_path):
+    """``stepping.c`` is C99, pedantic, every warning an error, with this machine's
+    system compiler (the core's own build uses the native FMUs' compiler, Zig's where it
+    is here): its function pointers are cast between function pointer types only."""
+    import subprocess
+
+    from delaycomp.fmu.host import CORE_SOURCE
+    from delaycomp.fmu.toolchain import system_compiler
+
+    subprocess.run([*system_compiler(), "-std=c99", "-pedantic", "-Wall", "-Wextra",
+                    "-Werror", "-O2", "-fPIC", "-shared", str(CORE_SOURCE), "-o",
+                    str(tmp_path / "core.so"), "-lm"], check=True)

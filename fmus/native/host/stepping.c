@@ -41,9 +41,11 @@ typedef int (*Get3)(void *, const unsigned int *, size_t, double *, size_t);
 typedef int (*Set3)(void *, const unsigned int *, size_t, const double *, size_t);
 typedef int (*Step3)(void *, double, double, bool, bool *, bool *, bool *, double *);
 
+typedef void (*AnyFunction)(void);  /* a function pointer of no type: cast to its own */
+
 typedef struct {
     void *instance;              /* the fmi2Component / fmi3Instance */
-    void *get, *set, *step;      /* fmi2GetReal, fmi2SetReal, fmi2DoStep (or FMI 3.0's) */
+    AnyFunction get, set, step;  /* fmi2GetReal, fmi2SetReal, fmi2DoStep (or FMI 3.0's) */
     int32_t fmi;                 /* 2 or 3 */
     const int32_t *worst;        /* the worst status its log has shown (the host's logger
                                     keeps it): a read after a logged error is refused */
