@@ -22,6 +22,14 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]  # no such module there: the locks are skipped
 
 
+def cache_root() -> Path:
+    """Where delaycomp keeps what it builds and records once for later runs:
+    ``$DELAYCOMP_CACHE_DIR``, else ``$XDG_CACHE_HOME/delaycomp`` or ``~/.cache/delaycomp``."""
+    root = os.environ.get("DELAYCOMP_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "delaycomp")
+    return Path(root)
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

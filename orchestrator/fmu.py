@@ -236,6 +236,12 @@ class FmuComponent(ComponentBase):
         #: a ctypes ``c_int32`` kept at ``worst_status`` while a stepping core in C runs
         #: this component (``delaycomp.orchestrator.native_core``), else None
         self.worst_cell: c_int32 | None = None
+        #: what ``setup`` did, for a replay of it (``delaycomp.orchestrator.replay``): the
+        #: experiment ``(tolerance, start, stop)`` and every parameter set, in order, as
+        #: ``(type, value reference, values)`` (FMI 3.0's type names, ``Real`` and the
+        #: others of FMI 2.0)
+        self.experiment: tuple[float | None, float, float] | None = None
+        self.parameter_calls: list[tuple[str, int, list]] = []
 
     def _fn(self, name: str) -> str:
         """The FMI function ``name`` (FMI 2.0's: ``GetReal``) of this FMU's version."""
@@ -294,6 +300,8 @@ class FmuComponent(ComponentBase):
             raise
         self.fmu = fmu
         self._do_step_fn = None
+        self.experiment = (self.tolerance, start_time, stop_time)
+        self.parameter_calls = []
         try:
             if self.fmi3:
                 self._t0 = self._time = float(start_time)
@@ -378,16 +386,24 @@ class FmuComponent(ComponentBase):
                                      "Boolean and String parameters)")
             cast_to = {"Boolean": bool, "String": str}.get(
                 var.type, float if var.type.startswith("Float") else int)
-            setter(vr, [cast_to(v) for v in values])
+            cast_values = [cast_to(v) for v in values]
+            setter(vr, cast_values)
+            self.parameter_calls.append(
+                ("Int64" if var.type == "Enumeration" else var.type, vr[0], cast_values))
             return
         if var.type == "Real":
-            self.fmu.setReal(vr, [float(value)])
+            kind, cast_value = "Real", float(value)
+            self.fmu.setReal(vr, [cast_value])
         elif var.type in ("Integer", "Enumeration"):
-            self.fmu.setInteger(vr, [int(value)])
+            kind, cast_value = "Integer", int(value)
+            self.fmu.setInteger(vr, [cast_value])
         elif var.type == "Boolean":
-            self.fmu.setBoolean(vr, [bool(value)])
+            kind, cast_value = "Boolean", bool(value)
+            self.fmu.setBoolean(vr, [cast_value])
         else:
-            self.fmu.setString(vr, [str(value)])
+            kind, cast_value = "String", str(value)
+            self.fmu.setString(vr, [cast_value])
+        self.parameter_calls.append((kind, vr[0], [cast_value]))
 
     def _failed(self, exc: FMICallException) -> None:
         self.worst_status = max(self.worst_status, exc.status)
@@ -498,6 +514,18 @@ class FmuComponent(ComponentBase):
         addresses = [cast(r[0], c_void_p).value or 0  # type: ignore[arg-type]
                      for r in raws if r is not None]
         return (int(self.fmu.component), *addresses)  # type: ignore[return-value]
+
+    @property
+    def unzipped(self) -> str:
+        """The folder the FMU is unpacked in (what it needs to run: ``needed_to_run``)."""
+        return self._unzipdir
+
+    def library(self) -> str | None:
+        """The path of the binary fmpy loaded for this instance (``None`` before ``setup``,
+        or where fmpy does not say)."""
+        dll = getattr(self.fmu, "dll", None)
+        name = getattr(dll, "_name", None)
+        return name if isinstance(name, str) else None
 
     def value_references(self, names: Sequence[str]) -> list[int]:
         """The value references of the variables ``names``."""

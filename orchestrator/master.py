@@ -28,7 +28,6 @@ refused at setup.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -36,6 +35,7 @@ from operator import itemgetter
 from typing import Protocol, cast
 
 from delaycomp.errors import DelaycompError
+from delaycomp.orchestrator.interrupts import interrupt_held
 from delaycomp.system.loop import Connection  # the one Connection: Port -> Port
 
 
@@ -224,36 +224,6 @@ def _find_cycle(names: set[str], connections: Sequence[Connection]) -> list[str]
     assert all(b in succ[a] for a, b in zip(cycle, cycle[1:] + cycle[:1]))
     return [*cycle, cycle[0]]
 
-
-
-@contextlib.contextmanager
-def interrupt_held():
-    """SIGINT while the block runs is held, and raised once it ends (the previous handler
-    called: Python's, or the command line's, raises KeyboardInterrupt): for the FMI calls
-    in which a Python FMU runs code of its runtime that an interrupt breaks (pythonfmu's
-    instantiation: a KeyboardInterrupt there crashed the process, SIGSEGV) and for the
-    teardown of a run, which frees every component before the interrupt goes on. In the
-    main thread only, where a handler of Python code is installed.
-
-    >>> with interrupt_held():
-    ...     pass
-    """
-    import signal
-    import threading
-
-    previous = (signal.getsignal(signal.SIGINT)
-                if threading.current_thread() is threading.main_thread() else None)
-    if not callable(previous):
-        yield
-        return
-    held: list = []
-    signal.signal(signal.SIGINT, lambda signum, frame: held.append(frame))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if held:
-            previous(signal.SIGINT, held[0])
 
 
 class Master:

@@ -19,14 +19,16 @@ import ctypes
 import time
 from collections.abc import Callable
 from ctypes import POINTER, Structure, c_double, c_int32, c_int64, c_uint, c_void_p
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
-import numpy as np
+from delaycomp.orchestrator.interrupts import interrupt_held
 
-from delaycomp.orchestrator.fmu import FmuComponent, python_generated
-from delaycomp.orchestrator.master import Master, Recorder, interrupt_held
+if TYPE_CHECKING:
+    from delaycomp.orchestrator.fmu import FmuComponent
+    from delaycomp.orchestrator.master import Master, Recorder
 
-__all__ = ["STEPPING", "NativeCore", "core_status", "why_not", "why_not_files"]
+__all__ = ["STEPPING", "CoreFailure", "CoreLoop", "NativeCore", "core_library_loaded",
+           "core_path", "core_status", "run_blocks", "why_not", "why_not_files"]
 
 #: how a run is stepped: ``auto`` (the native core where ``why_not`` finds nothing against
 #: it, else the Python master), ``native-core`` (the core, or the run is refused saying
@@ -65,35 +67,86 @@ class _Failure(Structure):
                 ("flag", c_int32)]
 
 
+class _Log(Structure):
+    """The core's logger's record of one instance (``CoreLog``): the worst status logged
+    and the number of messages."""
+    _fields_ = [("worst", c_int32), ("count", c_int32)]
+
+
+class _Callbacks2(Structure):
+    """``fmi2CallbackFunctions`` as the core fills it (``core_callbacks2``)."""
+    _fields_ = [("logger", c_void_p), ("allocateMemory", c_void_p), ("freeMemory", c_void_p),
+                ("stepFinished", c_void_p), ("componentEnvironment", c_void_p)]
+
+
+#: the core's structures by their C names, for a host that sets FMUs up itself
+#: (``delaycomp.orchestrator.replay``)
+CoreComponent, CoreOp, CoreLoop, CoreFailure, CoreLog, CoreCallbacks2 = (
+    _Component, _Op, _Loop, _Failure, _Log, _Callbacks2)
+#: ``core_run``'s and ``core_propagate``'s codes: the stop tick reached, the row buffer full
+CORE_DONE, CORE_FULL = _DONE, _FULL
+
+
 _LIB: ctypes.CDLL | None = None
+_LIB_PATH: str | None = None
 _WHY: str | None = None
+
+
+def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
+    """``lib`` with its functions' types declared; ``ValueError`` where its structures'
+    layout is not this module's (a library of another build: never pass it our structs)."""
+    sizes = (c_int64 * 6)()
+    lib.core_layout(sizes)
+    ours = [ctypes.sizeof(s) for s in (_Component, _Op, _Loop, _Failure, _Log, _Callbacks2)]
+    if list(sizes) != ours:
+        raise ValueError(f"the native stepping core's layout {list(sizes)} is not this "
+                         f"module's {ours}")
+    lib.core_run.restype = c_int32
+    lib.core_run.argtypes = [POINTER(_Loop), POINTER(c_int64), c_int64, POINTER(c_double),
+                             POINTER(c_double), c_int64, POINTER(c_int64), POINTER(_Failure)]
+    lib.core_propagate.restype = c_int32
+    lib.core_propagate.argtypes = [POINTER(_Loop), POINTER(_Failure)]
+    lib.core_callbacks2.restype = None
+    lib.core_callbacks2.argtypes = [POINTER(_Callbacks2), POINTER(_Log)]
+    lib.core_logger3.restype = None
+    lib.core_logger3.argtypes = [POINTER(c_void_p)]
+    return lib
 
 
 def _load() -> ctypes.CDLL | None:
     """The core's library, compiled on first use (``core_library``) and loaded once per
     process; ``None`` where it cannot be had here (``_WHY`` says why)."""
-    global _LIB, _WHY
+    global _LIB, _WHY, _LIB_PATH
     if _LIB is None and _WHY is None:
         from delaycomp.fmu.host import core_library
         from delaycomp.fmu.toolchain import NativeBuildError
 
         try:
-            lib = ctypes.CDLL(str(core_library()))
-        except (NativeBuildError, OSError) as exc:
-            _WHY = f"the native stepping core is not available here: {exc}"
+            path = str(core_library())
+            _LIB, _LIB_PATH = _bind(ctypes.CDLL(path)), path
+        except (NativeBuildError, OSError, ValueError) as exc:
+            _WHY = (str(exc) if isinstance(exc, ValueError)
+                    else f"the native stepping core is not available here: {exc}")
             return None
-        sizes = (c_int64 * 4)()
-        lib.core_layout(sizes)
-        ours = [ctypes.sizeof(s) for s in (_Component, _Op, _Loop, _Failure)]
-        if list(sizes) != ours:  # a library of another build: never pass it our structs
-            _WHY = (f"the native stepping core's layout {list(sizes)} is not this "
-                    f"module's {ours}")
-            return None
-        lib.core_run.restype = c_int32
-        lib.core_run.argtypes = [POINTER(_Loop), POINTER(c_int64), c_int64,
-                                 POINTER(c_double), POINTER(c_double), c_int64,
-                                 POINTER(c_int64), POINTER(_Failure)]
-        _LIB = lib
+    return _LIB
+
+
+def core_path() -> str | None:
+    """The path of the core's library this process loaded (``None``: none yet)."""
+    return _LIB_PATH
+
+
+def core_library_loaded(path: str) -> ctypes.CDLL | None:
+    """The core's library at ``path`` (a replayed run's, ``delaycomp.orchestrator.replay``),
+    loaded once per process without compiling anything; ``None`` where it is not this
+    process's core (another path once one is loaded, a missing file, another layout)."""
+    global _LIB, _LIB_PATH
+    if _LIB is not None:
+        return _LIB if _LIB_PATH == path else None
+    try:
+        _LIB, _LIB_PATH = _bind(ctypes.CDLL(path)), path
+    except (OSError, ValueError):
+        return None
     return _LIB
 
 
@@ -109,6 +162,8 @@ def why_not(master: Master) -> str | None:
     every component must be a native FMU of this process (``FmuComponent``, no Python in
     its binary, no clock), and the core's library must be here (compiled on the first
     call). Asked before ``setup``: nothing runs yet."""
+    from delaycomp.orchestrator.fmu import FmuComponent
+
     for c in master.components.values():
         if type(c) is not FmuComponent:
             kind = ("an FMU in a child process (another tool's)"
@@ -130,6 +185,7 @@ def why_not_files(loop, fmus: dict | None) -> str | None:
     import zipfile
     from xml.etree import ElementTree
 
+    from delaycomp.orchestrator.fmu import python_generated
     from delaycomp.system import FmuFile
 
     for inst in loop.instances:
@@ -181,7 +237,7 @@ class NativeCore:
         widest = 1
         for o, (kind, comp, names, slots) in enumerate(self._ops):
             vrs = (c_uint * max(1, len(names)))(
-                *cast(FmuComponent, comp).value_references(names))
+                *cast("FmuComponent", comp).value_references(names))
             where = (c_int64 * max(1, len(slots)))(*slots)
             keep += [vrs, where]
             op_table[o] = _Op(_OP_GET if kind == "get" else _OP_SET, index[comp.name],
@@ -202,51 +258,28 @@ class NativeCore:
         self._ncols = len(recorded)
 
     def run_until(self, ticks: int, progress: Callable[[int], None] | None = None) -> None:
-        """Step until tick ``ticks`` (``Master.run_until``), in blocks of at most
-        ``_MAX_BLOCK`` rows (``_MAX_BLOCK_VALUES`` values) and about ``_BLOCK_SECONDS`` of
-        work, the rows of each block
-        handed to the recorder (``Recorder.record_block``); ``progress(k)`` about every
-        1 % of the way, as the Python master's run reports it."""
-        master = self.master
-        k = c_int64(master.k)
-        nrows = c_int64(0)
-        failure = _Failure()
-        chunk = max(1, ticks // 100) if progress is not None else None
-        next_report = master.k + chunk if chunk else ticks
-        block = 64  # ticks of the first block; then about _BLOCK_SECONDS of work each
-        capacity = max(1, min(_MAX_BLOCK, _MAX_BLOCK_VALUES // max(1, self._ncols)))
-        times = np.empty(capacity)
-        rows = np.empty((capacity, max(1, self._ncols)))
-        tp = times.ctypes.data_as(POINTER(c_double))
-        rp = rows.ctypes.data_as(POINTER(c_double))
+        """Step until tick ``ticks`` (``Master.run_until``) with ``run_blocks``, the rows
+        of each block handed to the recorder (``Recorder.record_block``); ``progress(k)``
+        about every 1 % of the way, as the Python master's run reports it."""
+        import numpy as np
+
+        master, ncols = self.master, self._ncols
+
+        def record(k: int, times, rows, n: int) -> None:
+            master.k = k
+            if n:
+                self.recorder.record_block(np.frombuffer(times, count=n),
+                                           np.frombuffer(rows, count=n * ncols
+                                                         ).reshape(n, ncols))
+
         for c, cell in zip(self._comps, self._cells):
             cell.value = c.worst_status
             c.worst_cell = cell  # its logger keeps the cell at its worst status
         try:
-            while master.k < ticks:
-                begun = master.k
-                stop = min(ticks, next_report, begun + block)
-                started = time.perf_counter()
-                # Ctrl-C waits for the block's end (at most about _BLOCK_SECONDS and the
-                # writing of its rows): the tick reached and the rows kept then agree
-                with interrupt_held():
-                    code = self._lib.core_run(ctypes.byref(self._loop), ctypes.byref(k),
-                                              stop, tp, rp, capacity, ctypes.byref(nrows),
-                                              ctypes.byref(failure))
-                    spent = time.perf_counter() - started
-                    master.k = k.value
-                    if nrows.value:
-                        self.recorder.record_block(times[:nrows.value],
-                                                   rows[:nrows.value, :self._ncols])
-                if code not in (_DONE, _FULL):
-                    self._raise(code, failure)
-                if progress is not None and master.k >= next_report:
-                    progress(master.k)
-                if master.k >= next_report:
-                    next_report = min(ticks, master.k + (chunk or ticks))
-                if spent > 0:
-                    rate = max(1, master.k - begun) / spent
-                    block = int(min(max(64.0, rate * _BLOCK_SECONDS), 1e12))
+            code, _, failure = run_blocks(self._lib, self._loop, master.k, ticks, ncols,
+                                          record, progress)
+            if code != _DONE:
+                self._raise(code, failure)
         finally:
             values = master.values
             values[:] = self._slots[:len(values)]
@@ -270,7 +303,7 @@ class NativeCore:
                 master.step_failed(comp, exc, t)
         if code in (_CALL, _LOGGED):
             kind, op_comp, _, _ = self._ops[failure.op]
-            comp = cast(FmuComponent, op_comp)
+            comp = cast("FmuComponent", op_comp)
             try:
                 if code == _CALL:
                     comp.call_failed_with("GetReal" if kind == "get" else "SetReal",
@@ -281,3 +314,44 @@ class NativeCore:
         if code == _NONFINITE:
             master.refuse_nonfinite(k)
         raise RuntimeError(f"the native stepping core stopped with code {code}")
+
+
+def run_blocks(lib: ctypes.CDLL, loop: _Loop, k: int, ticks: int, ncols: int,
+               on_block: Callable[[int, ctypes.Array, ctypes.Array, int], None],
+               progress: Callable[[int], None] | None = None) -> tuple[int, int, _Failure]:
+    """``core_run`` of ``loop`` from tick ``k`` to ``ticks``, in blocks of at most
+    ``_MAX_BLOCK`` rows (``_MAX_BLOCK_VALUES`` values) and about ``_BLOCK_SECONDS`` of
+    work. After each block, with Ctrl-C held (``interrupt_held``: the tick reached and the
+    rows kept then agree), ``on_block(k, times, rows, n)`` gets the tick reached and the
+    block's ``n`` rows: ``times[:n]`` and ``rows[:n * ncols]``, one row after the other
+    (ctypes arrays, reused by the next block). ``progress(k)`` about every 1 % of the way.
+    Returns ``(code, k, failure)``: ``CORE_DONE``, or the code of the failure that
+    stopped the core and its description, and the tick reached."""
+    kk = c_int64(k)
+    nrows = c_int64(0)
+    failure = _Failure()
+    chunk = max(1, ticks // 100) if progress is not None else None
+    next_report = k + chunk if chunk else ticks
+    block = 64  # ticks of the first block; then about _BLOCK_SECONDS of work each
+    capacity = max(1, min(_MAX_BLOCK, _MAX_BLOCK_VALUES // max(1, ncols)))
+    times = (c_double * capacity)()
+    rows = (c_double * (capacity * max(1, ncols)))()
+    while kk.value < ticks:
+        begun = kk.value
+        stop = min(ticks, next_report, begun + block)
+        started = time.perf_counter()
+        with interrupt_held():
+            code = lib.core_run(ctypes.byref(loop), ctypes.byref(kk), stop, times, rows,
+                                capacity, ctypes.byref(nrows), ctypes.byref(failure))
+            spent = time.perf_counter() - started
+            on_block(kk.value, times, rows, nrows.value)
+        if code not in (_DONE, _FULL):
+            return code, kk.value, failure
+        if progress is not None and kk.value >= next_report:
+            progress(kk.value)
+        if kk.value >= next_report:
+            next_report = min(ticks, kk.value + (chunk or ticks))
+        if spent > 0:
+            rate = max(1, kk.value - begun) / spent
+            block = int(min(max(64.0, rate * _BLOCK_SECONDS), 1e12))
+    return _DONE, kk.value, failure

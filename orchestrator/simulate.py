@@ -50,6 +50,9 @@ class Result:
     #: why the Python master stepped a run of the FMU engine that the native core did not
     #: (``""``: it was asked for, or the core stepped it)
     stepping_note: str = ""
+    #: the run's recipe, where the native core stepped it and no FMU said anything
+    #: (``delaycomp.orchestrator.replay.recipe_of``: a later run can replay it), else None
+    recipe: dict | None = None
 
     @property
     def row_count(self) -> int:
@@ -280,6 +283,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
          keep: bool = True, progress=None, watchdog: float | None = None,
          stepping: str = "auto") -> Result:
     from delaycomp.orchestrator.native_core import NativeCore, why_not
+    from delaycomp.orchestrator.replay import recipe_of
 
     # In-process, the slaves' floating-point guard is set once for the run, not per step
     # (the FMUs keep their own: their host's numpy settings are not ours to assume).
@@ -295,6 +299,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                              f"{why}")
     use_core = engine == "fmu" and stepping != "python" and not why
     success, message, culprit = True, "", None
+    recipe = None
     with contextlib.ExitStack() as stack:
         interrupted = stack.enter_context(_interrupts_seen())
         # BLAS on one thread where Python maths runs in this process (the in-process
@@ -304,8 +309,9 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
         try:
             master.setup(stop_time, spec.parameters())
             master.initialize()
+            reads: list = []
             if t0 == 0.0:  # a run that starts where the loop's history ends
-                check_initial(spec, master)
+                reads = check_initial(spec, master)
             core = None
             if use_core:
                 try:
@@ -317,6 +323,7 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
                     use_core, why = False, str(exc)
             if core is not None:
                 core.run_until(ticks, progress)
+                recipe = recipe_of(master, recorder, ticks, reads)
             elif guard:
                 with np.errstate(all="ignore"):
                     _run_until(master, ticks, progress)
@@ -340,7 +347,9 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
     notes = [f"{name}: {text}" for name, _, text in logged]
     return Result(recorder.names, np.array(recorder.times), data, success, message, notes,
                   recorder.count, culprit, logged,
-                  stepped_by="native-core" if use_core else "python", stepping_note=why)
+                  stepped_by="native-core" if use_core else "python", stepping_note=why,
+                  recipe=recipe if success and not any(getattr(c, "messages", ())
+                                                       for c in components) else None)
 
 
 #: how far an output may be from its value in ``Loop.initial`` once initialized,
@@ -350,19 +359,23 @@ def _run(spec: Loop, ticks: int, stop_time: float, fmu_dir, t0: float,
 INITIAL_RTOL = 1e-6
 
 
-def check_initial(spec: Loop, master: Master) -> None:
+def check_initial(spec: Loop, master: Master) -> list[tuple[str, list[str], list[float]]]:
     """Refuse (``SimulationError``, one line naming both vectors) a loop whose outputs
     in ``Loop.initial`` (a plant FMU's measured outputs) are not the values the loop
-    assumes (``x0``, the measured history) once the master has initialized it."""
+    assumes (``x0``, the measured history) once the master has initialized it. Returns
+    the reads it made, ``(instance, outputs, values)`` each (a recipe replays them)."""
+    reads: list[tuple[str, list[str], list[float]]] = []
     if not spec.initial:
-        return
+        return reads
     by_instance: dict[str, list[tuple[str, float]]] = {}
     for port, value in spec.initial:
         by_instance.setdefault(port.instance, []).append((port.variable, value))
     for name, pairs in by_instance.items():
         names = [v for v, _ in pairs]
         want = np.array([x for _, x in pairs])
-        got = np.array(master.components[name].get_outputs(names), dtype=float)
+        values = list(master.components[name].get_outputs(names))
+        reads.append((name, names, values))
+        got = np.array(values, dtype=float)
         tol = INITIAL_RTOL * (1.0 + float(np.max(np.abs(want))))
         if not (np.all(np.isfinite(got)) and np.all(np.abs(got - want) <= tol)):
             raise SimulationError(
@@ -371,6 +384,7 @@ def check_initial(spec: Loop, master: Master) -> None:
                 f"{want.tolist()}, the measured history the loop assumes: set the FMU's "
                 f"initial state (plant.start or plant.parameters) to give x0, or change "
                 "x0", instance=name)
+    return reads
 
 
 @contextlib.contextmanager

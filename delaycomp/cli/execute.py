@@ -27,13 +27,15 @@ def compare_path(out: Path, mode: str) -> Path:
 
 def execute(args, loop, stop: float, name: str, title: str, timing, units,
             label: str | None = None, others: dict | None = None, fmus=None,
-            runner=None, other_fmus: dict | None = None) -> int:
+            runner=None, other_fmus: dict | None = None, remember=None) -> int:
     """Run ``loop`` (and, for ``--compare``, the ``others``, each with its
     ``other_fmus``) to ``stop`` with the CSV streamed to ``--out`` (an other run's to
     ``compare_path``) and decimated by ``--output-interval``; then plot and report.
 
     ``runner(stop)`` replaces our master (a third-party master: its rows come at the end
-    and are decimated afterwards)."""
+    and are decimated afterwards). ``remember(result, shown)``: after a run that went
+    well and left a recipe (``Result.recipe``), what the command showed of it besides its
+    rows and summary (``delaycomp.cli.recipes``)."""
     from delaycomp.api import run
     from delaycomp.formats.outputs import CsvStream, check_budget, clear_previous, output_every
     from delaycomp.progress import bar, info
@@ -48,12 +50,13 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
 
     ticks = loop.timing.ticks(stop)
     every = output_every(args.output_interval, loop.T, loop.N)
-    undriven_note(loop, args.verbosity)
+    notes = undriven_note(loop, args.verbosity)
     keep = bool(args.plot)
     seconds, memory = check_budget(loop, ticks * (1 + len(others or {})),
                                    stepped_how(args, loop, fmus, runner), every, keep)
-    info(f"{name}: {ticks} base steps of h = {loop.h!r} s, a row every {every}; "
-         f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB", args.verbosity, 2)
+    estimate = (f"{ticks} base steps of h = {loop.h!r} s, a row every {every}; "
+                f"estimated at least {seconds:.3g} s and {memory / 1e6:.3g} MB")
+    info(f"{name}: {estimate}", args.verbosity, 2)
     other_paths = {other: compare_path(args.out, other) if args.out else None
                    for other in others or {}}
     if runner is None and getattr(args, "stepping", "auto") == "native-core":
@@ -117,6 +120,8 @@ def execute(args, loop, stop: float, name: str, title: str, timing, units,
                 return 1
             runs[other_label] = other
     code = _report_run(args, result, elapsed, name, title, where, timing, units, runs)
+    if code == 0 and remember is not None and result.recipe is not None and not others:
+        remember(result, {"notes": notes, "estimate": estimate})
     if code == 0 and runs:
         for other_label, path in other_paths.items():
             if path is not None:
@@ -167,15 +172,17 @@ def stepped_note(name: str, result, verbosity: int) -> None:
         info(f"{name}: stepped by the Python master{why}", verbosity, VERBOSE)
 
 
-def undriven_note(loop, verbosity: int) -> None:
+def undriven_note(loop, verbosity: int) -> list[str]:
     """The note (once, unless ``-q``) naming the inputs of a user's FMU that the loop does
     not drive, with the start values they keep
-    (``delaycomp.system.plantfmu.undriven_notes``)."""
+    (``delaycomp.system.plantfmu.undriven_notes``); returns the notes."""
     from delaycomp.progress import info
     from delaycomp.system.plantfmu import undriven_notes
 
-    for note in undriven_notes(loop):
+    notes = list(undriven_notes(loop))
+    for note in notes:
         info(f"note: {note}", verbosity)
+    return notes
 
 
 def show_notes(result, verbosity: int) -> None:
@@ -212,7 +219,16 @@ def _report_run(args, result, elapsed: float, name: str, title: str, where=None,
         from delaycomp.plotting import plot_result
 
         plot_result(result, args.plot, title, timing, units, runs)
-    last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(result.names, result.data[-1]))
-    print(f"{name}: {result.row_count} rows to t = {result.times[-1]:.6g} "
-          f"in {elapsed:.2f} s; final {last}")
+    print(summary(name, result.row_count, float(result.times[-1]), result.names,
+                  result.data[-1], elapsed))
     return 0
+
+
+def summary(name: str, rows: int, last_time: float, names, last_row, elapsed: float) -> str:
+    """The one line that ends a run that went well: its rows, its last time and values.
+
+    >>> summary("ex.ssp", 3, 0.02, ["plant.x"], [0.5], 0.0123)
+    'ex.ssp: 3 rows to t = 0.02 in 0.01 s; final plant.x = 0.5'
+    """
+    last = ", ".join(f"{n} = {v:.6g}" for n, v in zip(names, last_row))
+    return f"{name}: {rows} rows to t = {last_time:.6g} in {elapsed:.2f} s; final {last}"

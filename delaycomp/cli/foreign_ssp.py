@@ -9,6 +9,7 @@ from pathlib import Path
 
 from delaycomp.cli.execute import execute
 from delaycomp.cli.parsers import UsageError
+from delaycomp.cli.recipes import remember
 from delaycomp.errors import short
 
 
@@ -91,8 +92,16 @@ def run_ssp(args) -> int:
 
         name = Path(args.scenario).name
         loop = spec.replace(name=name, title=system.info.description or system.info.name)
+        fmus = archive.fmus()
+
+        def keep_recipe(result, shown):
+            # only a loop whose every FMU is the archive's (no FMU from elsewhere, which
+            # the key does not see): a later run of the same command replays it
+            if all(inst.name in fmus for inst in loop.instances):
+                remember(args, result, shown)
+
         return execute(args, loop, stop, name, title_of_loop(loop), Marks.of_loop(loop),
-                       None, fmus=archive.fmus(), runner=runner)
+                       None, fmus=fmus, runner=runner, remember=keep_recipe)
 
 
 def _tolerance_note(args, spec) -> None:

@@ -9,6 +9,7 @@ from delaycomp.cli.arguments import check_outputs, chosen_fmus, source_of
 from delaycomp.cli.execute import compare_path, execute
 from delaycomp.cli.foreign_ssp import run_ssp
 from delaycomp.cli.parsers import UsageError
+from delaycomp.cli.recipes import replayed
 from delaycomp.errors import ParameterError
 
 
@@ -26,7 +27,8 @@ def cmd_run(args) -> int:
         if args.native or args.python:
             flag = "--native" if args.native else "--python"
             raise UsageError(f"{flag} is not allowed with a FILE.ssp: the archive's FMUs run")
-        return run_ssp(args)
+        code = replayed(args)  # from the recipe of its first run, where there is one
+        return run_ssp(args) if code is None else code
     if args.period is not None or args.steps is not None or args.role:
         raise UsageError("--period, --steps and --role apply to a FILE.ssp of another tool")
     if args.master != "delaycomp":

@@ -33,9 +33,9 @@ __all__ = ["cache_hit", "check_fmu", "check_sources", "default_fmu_dir", "fmu_fi
 
 def default_fmu_dir() -> Path:
     """Build cache: ``$DELAYCOMP_CACHE_DIR`` or ``~/.cache/delaycomp``, per source digest."""
-    root = os.environ.get("DELAYCOMP_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "delaycomp")
-    return Path(root) / f"fmus-{__version__}-{source_digest()}"
+    from delaycomp.tmpfiles import cache_root
+
+    return cache_root() / f"fmus-{__version__}-{source_digest()}"
 
 
 def fmu_file_name(kind: str, config: dict) -> str:

@@ -237,19 +237,34 @@ class CsvStream:
         n = len(times)
         if not n:
             return
-        if self._writer is None:
-            self._open()
-        assert self._fh is not None  # _open() made it
         width = len(self.names)
         import numpy as np
 
         flat = np.column_stack([np.asarray(times, dtype=float),
                                 np.asarray(rows, dtype=float).reshape(n, width)])
+        self.write_flat(flat.ravel().tolist(), n)
+
+    def write_flat(self, values, n: int) -> None:
+        """``n`` rows at once from ``values``, a list of floats: each row's time then its
+        values, one row after the other (the same text as the stream row by row)."""
+        if not n:
+            return
+        if self._writer is None:
+            self._open()
+        assert self._fh is not None  # _open() made it
         # repr of every float (%r): the text csv.writer writes for these strings, which
         # hold no delimiter, quote or line break
-        self._fh.write((",".join(["%r"] * (width + 1)) + "\r\n") * n
-                       % tuple(flat.ravel().tolist()))
+        self._fh.write((",".join(["%r"] * (len(self.names) + 1)) + "\r\n") * n
+                       % tuple(values))
         self.rows += n
+
+    def discard(self) -> None:
+        """Close and remove what was written: no result, not even a partial one."""
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = self._writer = None
+            self.tmp.unlink(missing_ok=True)
+        self.rows = 0
 
     def finish(self, success: bool) -> Path:
         """Close the file; return where it is now (``FILE`` or ``FILE.partial``)."""

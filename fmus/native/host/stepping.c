@@ -27,6 +27,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #if defined(_WIN32)
 #define EXPORT __declspec(dllexport)
@@ -117,6 +118,24 @@ static int call_op(const CoreLoop *L, const CoreOp *op) {
     return status > 1 ? status : 0;
 }
 
+/* One tick's propagation (Master._propagate): the plan in order, then the value vector
+ * checked finite. CORE_DONE, or the failure (described in *fail). */
+static int32_t propagate(const CoreLoop *L, CoreFailure *fail) {
+    for (int64_t o = 0; o < L->nops; o++) {
+        const CoreOp *op = &L->ops[o];
+        int status = call_op(L, op);
+        if (status > 1 || (op->kind == OP_GET && *L->comps[op->comp].worst >= 3)) {
+            fail->comp = op->comp;
+            fail->op = (int32_t)o;
+            fail->status = status;
+            return fail->code = status > 1 ? CORE_CALL : CORE_LOGGED;
+        }
+    }
+    for (int64_t s = 0; s < L->nslots; s++)
+        if (!isfinite(L->slots[s])) return fail->code = CORE_NONFINITE;
+    return fail->code = CORE_DONE;
+}
+
 /* Step from tick *k to at most tick `stop` (Master.step() each time), recording the
  * ticks due into times[] and rows[] (ncols values a row; at most `capacity` rows, their
  * count in *nrows). *k is the tick reached (the master's k: on a failure in a step, the
@@ -153,18 +172,7 @@ EXPORT int32_t core_run(const CoreLoop *L, int64_t *k, int64_t stop, double *tim
             }
         }
         *k += 1;
-        for (int64_t o = 0; o < L->nops; o++) {
-            const CoreOp *op = &L->ops[o];
-            int status = call_op(L, op);
-            if (status > 1 || (op->kind == OP_GET && *L->comps[op->comp].worst >= 3)) {
-                fail->comp = op->comp;
-                fail->op = (int32_t)o;
-                fail->status = status;
-                return fail->code = status > 1 ? CORE_CALL : CORE_LOGGED;
-            }
-        }
-        for (int64_t s = 0; s < L->nslots; s++)
-            if (!isfinite(L->slots[s])) return fail->code = CORE_NONFINITE;
+        if (propagate(L, fail) != CORE_DONE) return fail->code;
         if (*k % L->every == 0 || *k == L->final) {
             times[*nrows] = time_of(L, *k);
             double *row = rows + *nrows * L->ncols;
@@ -175,11 +183,71 @@ EXPORT int32_t core_run(const CoreLoop *L, int64_t *k, int64_t stop, double *tim
     return fail->code = CORE_DONE;
 }
 
+/* The propagation of the current tick alone (what Master.initialize() does at tick 0
+ * once every component has left initialization mode), for a host that set the FMUs up
+ * itself (delaycomp.orchestrator.replay). CORE_DONE, or the failure. */
+EXPORT int32_t core_propagate(const CoreLoop *L, CoreFailure *fail) {
+    fail->code = CORE_DONE;
+    fail->comp = fail->op = fail->status = fail->flag = -1;
+    return propagate(L, fail);
+}
+
+/* --- the callbacks of a host that instantiates the FMUs itself (the replay) ----------
+ * Its logger formats nothing and keeps nothing but, per instance, the worst status
+ * logged and how many messages came: the replay needs only to know that an FMU said
+ * something (then it gives way to the Python master, which reports it in its words). */
+typedef struct {
+    int32_t worst;               /* the worst status logged (CoreComponent.worst) */
+    int32_t count;               /* messages logged */
+} CoreLog;
+
+static void note(CoreLog *log, int status) {
+    if (log == NULL) return;
+    if (status > log->worst) log->worst = status;
+    log->count += 1;
+}
+
+static void logger2(void *env, const char *instance, int status, const char *category,
+                 const char *message, ...) {
+    (void)instance; (void)category; (void)message;
+    note((CoreLog *)env, status);
+}
+
+static void logger3(void *env, int status, const char *category, const char *message) {
+    (void)category; (void)message;
+    note((CoreLog *)env, status);
+}
+
+typedef struct {                 /* fmi2CallbackFunctions */
+    void (*logger)(void *, const char *, int, const char *, const char *, ...);
+    void *(*allocateMemory)(size_t, size_t);
+    void (*freeMemory)(void *);
+    void (*stepFinished)(void *, int);
+    void *componentEnvironment;
+} Callbacks2;
+
+/* An FMI 2.0 instance's callbacks: this logger (its environment: `log`), calloc, free. */
+EXPORT void core_callbacks2(Callbacks2 *cb, CoreLog *log) {
+    cb->logger = logger2;
+    cb->allocateMemory = calloc;
+    cb->freeMemory = free;
+    cb->stepFinished = NULL;
+    cb->componentEnvironment = log;
+}
+
+/* FMI 3.0's fmi3LogMessageCallback of the same logger (its instance environment: a
+ * CoreLog). */
+EXPORT void core_logger3(void (**logger)(void *, int, const char *, const char *)) {
+    *logger = logger3;
+}
+
 /* The layout this library was built with, for the caller to check its own against:
- * the sizes of CoreComponent, CoreOp, CoreLoop and CoreFailure. */
+ * the sizes of CoreComponent, CoreOp, CoreLoop, CoreFailure, CoreLog and Callbacks2. */
 EXPORT void core_layout(int64_t *sizes) {
     sizes[0] = (int64_t)sizeof(CoreComponent);
     sizes[1] = (int64_t)sizeof(CoreOp);
     sizes[2] = (int64_t)sizeof(CoreLoop);
     sizes[3] = (int64_t)sizeof(CoreFailure);
+    sizes[4] = (int64_t)sizeof(CoreLog);
+    sizes[5] = (int64_t)sizeof(Callbacks2);
 }
