@@ -391,6 +391,7 @@ class FmuComponent(ComponentBase):
             self.parameter_calls.append(
                 ("Int64" if var.type == "Enumeration" else var.type, vr[0], cast_values))
             return
+        cast_value: object
         if var.type == "Real":
             kind, cast_value = "Real", float(value)
             self.fmu.setReal(vr, [cast_value])

@@ -81,8 +81,12 @@ class _Callbacks2(Structure):
 
 #: the core's structures by their C names, for a host that sets FMUs up itself
 #: (``delaycomp.orchestrator.replay``)
-CoreComponent, CoreOp, CoreLoop, CoreFailure, CoreLog, CoreCallbacks2 = (
-    _Component, _Op, _Loop, _Failure, _Log, _Callbacks2)
+CoreComponent = _Component
+CoreOp = _Op
+CoreLoop = _Loop
+CoreFailure = _Failure
+CoreLog = _Log
+CoreCallbacks2 = _Callbacks2
 #: ``core_run``'s and ``core_propagate``'s codes: the stop tick reached, the row buffer full
 CORE_DONE, CORE_FULL = _DONE, _FULL
 

@@ -62,12 +62,14 @@ __all__ = ["FORMAT", "NotReplayed", "Replayed", "recipe_of", "replay"]
 FORMAT = 1
 
 #: an FMI 3.0 parameter's setter and the ctypes type of its values, by variable type
-_SETTERS3 = {"Float64": ("fmi3SetFloat64", c_double), "Float32": ("fmi3SetFloat32", c_float),
-             "Int32": ("fmi3SetInt32", c_int32), "Int64": ("fmi3SetInt64", c_int64),
-             "Boolean": ("fmi3SetBoolean", c_bool), "String": ("fmi3SetString", c_char_p)}
+_SETTERS3: dict[str, tuple[str, Any]] = {
+    "Float64": ("fmi3SetFloat64", c_double), "Float32": ("fmi3SetFloat32", c_float),
+    "Int32": ("fmi3SetInt32", c_int32), "Int64": ("fmi3SetInt64", c_int64),
+    "Boolean": ("fmi3SetBoolean", c_bool), "String": ("fmi3SetString", c_char_p)}
 #: an FMI 2.0 parameter's setter and the ctypes type of its value, by variable type
-_SETTERS2 = {"Real": ("fmi2SetReal", c_double), "Integer": ("fmi2SetInteger", c_int),
-             "Boolean": ("fmi2SetBoolean", c_int), "String": ("fmi2SetString", c_char_p)}
+_SETTERS2: dict[str, tuple[str, Any]] = {
+    "Real": ("fmi2SetReal", c_double), "Integer": ("fmi2SetInteger", c_int),
+    "Boolean": ("fmi2SetBoolean", c_int), "String": ("fmi2SetString", c_char_p)}
 
 
 class NotReplayed(DelaycompError):

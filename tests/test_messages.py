@@ -327,6 +327,30 @@ def test_ctrl_c_during_a_run_names_the_time_reached(tmp_path, engine):
     assert not out.exists() and not part.exists()
 
 
+def test_ctrl_c_during_a_replayed_run_names_the_time_reached(tmp_path):
+    """A run replayed from the recipe of its first run (``delaycomp.cli.recipes``): the
+    same exit status and last line, and the rows to the time reached in ``.partial``."""
+    archive = tmp_path / "ex36.ssp"
+    subprocess.run([sys.executable, "-m", "delaycomp", "ssp", "example-3.6", "--native",
+                    "--out", str(archive), "-q"], check=True, capture_output=True)
+    argv = ["run", str(archive), "--stop-time", "50000", "--output-interval", "5", "-v"]
+    first = subprocess.run([sys.executable, "-m", "delaycomp", *argv, "--out",
+                            str(tmp_path / "first.csv")], capture_output=True, text=True)
+    assert first.returncode == 0 and "recipe kept" in first.stderr, first.stderr
+    out = tmp_path / "o.csv"
+    part = tmp_path / "o.csv.part"
+    rc, err = interrupt([*argv, "--out", str(out)], tmp_path, part.exists, after=0.2)
+    assert "replayed from the recipe of its first run" in err, err
+    assert rc == 130 and "Traceback" not in err and "error" not in err, err
+    found = INTERRUPTED_AT.fullmatch(err.strip().splitlines()[-1])
+    assert found, err
+    t = float(found[1])
+    rows = (tmp_path / "o.csv.partial").read_text().splitlines()
+    last = float(rows[-1].split(",")[0])
+    assert 0 < t < 50000 and last <= t and t - last <= 5.0 + 1e-9 * t, (t, last)
+    assert not out.exists() and not part.exists()
+
+
 PLANT_LOOP = """T = 0.5
 N = 10
 r = 0.3

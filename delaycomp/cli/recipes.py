@@ -34,8 +34,9 @@ __all__ = ["KEEP", "remember", "replayed"]
 #: recipes kept in the cache (the ones used last; a recipe holds a copy of its FMUs'
 #: binaries, some hundred kB)
 KEEP = 32
-#: options that do not change what a run computes: where its results go, what it says
-_OUTPUT_ONLY = frozenset({"out", "verbosity", "progress"})
+#: options that do not change what a run computes: where its results go, what it says,
+#: the archive's path (its bytes are in the key)
+_OUTPUT_ONLY = frozenset({"out", "verbosity", "progress", "scenario"})
 
 
 def _folder() -> Path:
@@ -113,6 +114,8 @@ def replayed(args) -> int | None:
     from delaycomp.progress import VERBOSE, info
 
     name = Path(args.scenario).name
+    info(f"{name}: replayed from the recipe of its first run ({folder}), without numpy or "
+         "fmpy", args.verbosity, VERBOSE)
     clear_previous(args.out)
     stream = CsvStream(args.out, recipe["names"]) if args.out else None
     started = time.perf_counter()
@@ -121,7 +124,7 @@ def replayed(args) -> int | None:
     except NotReplayed as exc:
         if stream is not None:
             stream.discard()
-        info(f"{name}: not replayed ({exc}): the whole run", args.verbosity, VERBOSE)
+        info(f"{name}: the replay gave way ({exc}): the whole run", args.verbosity, VERBOSE)
         return None
     except BaseException:
         if stream is not None:
@@ -133,8 +136,6 @@ def replayed(args) -> int | None:
     info(f"{name}: {shown['estimate']}", args.verbosity, VERBOSE)
     info(f"{name}: stepped by the native core (C, no Python between the FMI calls)",
          args.verbosity, VERBOSE)
-    info(f"{name}: set up as its first run did, from its recipe in {folder} (without "
-         "numpy or fmpy)", args.verbosity, VERBOSE)
     if stream is not None:
         stream.finish(True)
     print(summary(name, done.rows, done.last_time, done.names, done.last_row, elapsed))
@@ -173,6 +174,10 @@ def remember(args, result, shown: dict) -> None:
         shutil.rmtree(work, ignore_errors=True)
         return
     _prune(root)
+    from delaycomp.progress import VERBOSE, info
+
+    info(f"{Path(args.scenario).name}: its recipe kept for the next run of this command "
+         f"({target})", args.verbosity, VERBOSE)
 
 
 def _prune(root: Path) -> None:
