@@ -113,9 +113,10 @@ def test_bench_sections_8_and_12_run_and_go_into_the_report(tmp_path):
 
 
 def test_bench_report_of_sections_8_and_12(tmp_path):
-    """The report's section 8 (both stop times, the Python master, the native core and
-    OMSimulator, their targets met or not, the import share) and section 12, from given
-    numbers; and the import time read from ``python -X importtime``."""
+    """The report's section 8 (both stop times, the Python master, the native core's first
+    and replayed runs and OMSimulator, their targets met or not, the import share, the
+    CSVs compared) and section 12, from given numbers; and the import time read from
+    ``python -X importtime``."""
     bench = _bench_module()
     assert bench._import_seconds(
         "import time: self [us] | cumulative | imported package\n"
@@ -125,12 +126,14 @@ def test_bench_report_of_sections_8_and_12(tmp_path):
         "something else\n") == 4000e-6
 
     def row(stop, core, oms):
-        return dict(python=0.02, fmpy=0.12, master=3 * core, core=core, omsimulator=oms,
-                    stop=stop, steps=round(stop / 0.01), target=bench.TARGET_PACKED[stop],
-                    ratio=core / oms, master_ratio=3 * core / oms, speedup=3.0)
+        return dict(python=0.02, fmpy=0.12, master=3 * core, first=2 * core, core=core,
+                    omsimulator=oms, stop=stop, steps=round(stop / 0.01),
+                    target=bench.TARGET_PACKED[stop], ratio=core / oms,
+                    first_ratio=2 * core / oms, master_ratio=3 * core / oms, speedup=3.0)
 
-    results = {"packed": {"rows": [row(40.0, 0.3, 0.2), row(2000.0, 0.8, 2.0)], "same": True,
-                          "imports": 0.17, "imports_wall": 0.25},
+    packed = {"rows": [row(40.0, 0.3, 0.2), row(2000.0, 0.8, 2.0)], "same": True,
+              "same_replayed": True, "imports": 0.17, "imports_wall": 0.25}
+    results = {"packed": packed,
                "sweep_points": dict(inprocess=2.0, core=0.5, points=8, ratio=4.0,
                                     engine="per-point engine (fmu): 8 points")}
     out = tmp_path / "BENCHMARKS.md"
@@ -139,21 +142,39 @@ def test_bench_report_of_sections_8_and_12(tmp_path):
     text = out.read_text(encoding="utf-8")
     assert ("| `delaycomp run` of Example 3.6 packed with `--native`, `--stop-time 2000` "
             "(200 000 base steps, CSV out, the native stepping core) at most 0.5x "
-            "OMSimulator's command line (whole processes) | 0.40x (800 ms against 2000 ms; "
-            "the Python master: 2400 ms, 1.20x) | met |") in text
+            "OMSimulator's command line (whole processes) | 0.40x (the run replayed from its "
+            "first run's recipe: 800 ms against 2000 ms; the first run: 1600 ms, 0.80x; the "
+            "Python master: 2400 ms, 1.20x) | met |") in text
     assert ("`--stop-time 40` (4 000 base steps, CSV out, the native stepping core) at most "
-            "1x OMSimulator's command line (whole processes) | 1.50x (300 ms against 200 ms; "
-            "the Python master: 900 ms, 4.50x) | NOT met |") in text
+            "1x OMSimulator's command line (whole processes) | 1.50x (the run replayed from "
+            "its first run's recipe: 300 ms against 200 ms; the first run: 600 ms, 3.00x; the "
+            "Python master: 900 ms, 4.50x) | NOT met |") in text
     sec8 = text.split("## 8.")[1].split("## 12.")[0]
     assert "| command | 40 s [ms] | against OMSimulator | 2000 s [ms] | against OMSimulator |" \
         in sec8
-    assert "| `delaycomp run ... --stepping native-core` (after) | 300 | 1.50x | 800 | 0.40x |" \
-        in sec8
+    assert ("| `delaycomp run` (native core, first run: FMUs set up through fmpy) | 600 | 3.00x "
+            "| 1600 | 0.80x |") in sec8
+    assert ("| `delaycomp run` (native core, replayed from the first run's recipe) | 300 | "
+            "1.50x | 800 | 0.40x |") in sec8
+    assert sec8.index("(before) |") < sec8.index("first run: FMUs") \
+        < sec8.index("replayed from the first") < sec8.index("| `OMSimulator")
     assert "(before) | 900 | 4.50x | 2400 | 1.20x |" in sec8
     assert "| `OMSimulator --stopTime=S --resultFile=oms.csv ex36-native.ssp` | 200 | 1.00x | " \
         "2000 | 1.00x |" in sec8
+    assert "1.5x and 1.5x the core's first run's time at 40 and 2000 s" in sec8
+    assert "the replayed run takes 50% and 50% of the first run's" in sec8
+    assert "The replayed run imports neither numpy nor fmpy" in sec8
     assert "170 ms of 250 ms importing (68%)" in sec8 and "76%" in sec8
     assert "which is why its target is not met" in sec8 and "byte for byte" in sec8
+    assert "not here" not in sec8
+    # a replayed CSV that differs is said so, and so is a first run's
+    for key in ("same", "same_replayed"):
+        bench.write_report(out, {"packed": {**packed, key: False}},
+                           argparse.Namespace(quick=False, sections=None, repeats=7))
+        sec8 = out.read_text(encoding="utf-8").split("## 8.")[1]
+        assert sec8.count("(**not here: they differ**)") == 1
+        mark = sec8.index("(**not here")
+        assert (mark < sec8.index(", and so does the replayed run")) == (key == "same")
     sec12 = text.split("## 12.")[1]
     assert "| `--engine inprocess` (before) | 8 | 2000 | 4.0 | 1x |" in sec12
     assert "| default: per-point `fmu`, native core (after) | 8 | 500 | 16.0 | 4.0x faster |" \

@@ -169,7 +169,10 @@ def run_parser(sub) -> None:
                         "core, in C, where every FMU is a native one (the same calls, the "
                         "same rows bit for bit, without Python between them), else the "
                         "Python master (-v says which, and why); native-core: the core, "
-                        "an error where it cannot; python: the Python master")
+                        "an error where it cannot; python: the Python master. A second "
+                        "run FILE.ssp of the same command (auto, native-core) is replayed "
+                        "from the recipe its first run kept, without numpy or fmpy (the "
+                        "same rows; docs: reference/native)")
     _fmu_kind(r, "run the native C FMUs, an error where the loop has none (the default "
                  "runs them where it can); with --fmu-dir DIR those delaycomp build --out "
                  "DIR wrote there, missing ones built into DIR/native")

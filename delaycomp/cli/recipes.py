@@ -24,7 +24,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -82,10 +81,14 @@ def _key(args) -> str | None:
 
     if progress.shows(args.verbosity):  # a bar on a terminal: the whole run shows it
         return None
+    sha = hashlib.sha256()
     try:
-        digest = hashlib.sha256(Path(args.scenario).read_bytes()).hexdigest()
+        with open(args.scenario, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                sha.update(chunk)
     except OSError:  # no such file: the whole run says so
         return None
+    digest = sha.hexdigest()
     options = {k: v for k, v in sorted(vars(args).items()) if k not in _OUTPUT_ONLY}
     machine = os.uname().machine if hasattr(os, "uname") else os.environ.get(
         "PROCESSOR_ARCHITECTURE", "")
@@ -151,6 +154,8 @@ def remember(args, result, shown: dict) -> None:
     with a copy of its FMUs' folders and what the command ``shown`` besides its rows and
     summary (``notes``, ``estimate``). Quietly nothing where it cannot be kept (a cache
     that cannot be written is not this run's failure)."""
+    import shutil
+
     key = _key(args)
     if key is None or result.recipe is None:
         return
@@ -182,6 +187,8 @@ def remember(args, result, shown: dict) -> None:
 
 def _prune(root: Path) -> None:
     """Keep the ``KEEP`` recipes used last."""
+    import shutil
+
     try:
         kept = sorted((p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")),
                       key=lambda p: p.stat().st_mtime, reverse=True)

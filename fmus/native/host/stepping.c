@@ -22,6 +22,11 @@
  * core_run returns after `stop` ticks, or when its row buffer is full, or at the first
  * failure, which it describes (the Python master then raises the same error). It calls
  * nothing but the FMUs: their logger (Python's, through fmpy) may run meanwhile.
+ *
+ * A run replayed from its recipe (delaycomp.orchestrator.replay) sets the FMUs up itself,
+ * from ctypes, without fmpy: it takes this library's callbacks for them (core_callbacks2,
+ * core_logger3: a logger that only counts the messages and keeps the worst status) and
+ * the first tick's propagation (core_propagate) as well.
  */
 #include <math.h>
 #include <stdbool.h>
