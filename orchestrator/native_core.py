@@ -11,6 +11,9 @@ runs (the progress bar, Ctrl-C). A failure inside the core is raised as the Pyth
 raises it: the same ``SimulationError``, at the same tick, with the same message.
 
 ``why_not(master)`` says why a master cannot hand its loop over (``None``: it can).
+``run_blocks`` is the core's block loop, which a run replayed from its recipe
+(``delaycomp.orchestrator.replay``) shares; this module imports neither numpy nor fmpy
+until a master's run needs them.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ if TYPE_CHECKING:
     from delaycomp.orchestrator.fmu import FmuComponent
     from delaycomp.orchestrator.master import Master, Recorder
 
-__all__ = ["STEPPING", "CoreFailure", "CoreLoop", "NativeCore", "core_library_loaded",
+__all__ = ["CORE_DONE", "CORE_FULL", "STEPPING", "CoreCallbacks2", "CoreComponent",
+           "CoreFailure", "CoreLog", "CoreLoop", "CoreOp", "NativeCore", "core_library_loaded",
            "core_path", "core_status", "run_blocks", "why_not", "why_not_files"]
 
 #: how a run is stepped: ``auto`` (the native core where ``why_not`` finds nothing against
