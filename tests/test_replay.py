@@ -24,32 +24,24 @@ from delaycomp.orchestrator.replay import NotReplayed, replay
 from delaycomp.orchestrator.simulate import run_loop
 from delaycomp.tmpfiles import cache_root
 
+from .test_oneface import DOUBLE_TOML
+
 pytestmark = pytest.mark.skipif(native_core.core_status() is not None,
                                 reason=f"{native_core.core_status()}")
 
 REPLAYED = "replayed from the recipe of its first run"
 GAVE_WAY = "the replay gave way"
 KEPT = re.compile(r"its recipe kept for the next run of this command \((.+)\)")
-#: the loop file of a user: a double integrator, both delays lossy, jittered network
-#: channels (seeded)
-NETWORK_LOOP = """name = "dbl"
-T = 0.2
-N = 20
-r = 0.36
-tau = 0.4
-stop_time = 3.0
-[plant]
-A = [[0.0, 1.0], [0.0, 0.0]]
-B = [[0.0], [1.0]]
-x0 = [1.0, 0.0]
-[controller]
-K = [[-1.0, -1.6]]
+#: the loop file of a user (a double integrator, ``tests/test_oneface.py``'s), both
+#: delays lossy, jittered network channels (seeded)
+NETWORK_LOOP = DOUBLE_TOML.replace("stop_time = 6.0", "stop_time = 3.0") + """
 [meas_delay]
 distribution = "uniform"
 jitter = 0.35
 loss_model = "bernoulli"
 loss = 0.3
 seed = 11
+
 [input_delay]
 distribution = "uniform"
 jitter = 0.25
