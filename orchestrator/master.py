@@ -35,6 +35,7 @@ from operator import itemgetter
 from typing import Protocol, cast
 
 from delaycomp.errors import DelaycompError
+from delaycomp.maths.grid import tick_time
 from delaycomp.orchestrator.interrupts import interrupt_held
 from delaycomp.system.loop import Connection  # the one Connection: Port -> Port
 
@@ -331,9 +332,8 @@ class Master:
 
     # -- lifecycle ---------------------------------------------------------------------
     def time_of(self, k: int) -> float:
-        """Time of tick ``k``, exact at every sampling instant."""
-        i, j = divmod(k, self.N)
-        return self.t0 + i * self.T + j * self.h
+        """Time of tick ``k``, exact at every sampling instant (``tick_time``)."""
+        return tick_time(k, self.t0, self.T, self.h, self.N)
 
     def add_observer(self, observer) -> None:
         """Hand ``observer.record(k, t, values)`` the output values of every tick from now

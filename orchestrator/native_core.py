@@ -32,7 +32,8 @@ if TYPE_CHECKING:
 
 __all__ = ["CORE_DONE", "CORE_FULL", "STEPPING", "CoreCallbacks2", "CoreComponent",
            "CoreFailure", "CoreLog", "CoreLoop", "CoreOp", "NativeCore", "core_library_loaded",
-           "core_path", "core_status", "run_blocks", "why_not", "why_not_files"]
+           "core_ops", "core_path", "core_status", "make_loop", "run_blocks", "why_not",
+           "why_not_files"]
 
 #: how a run is stepped: ``auto`` (the native core where ``why_not`` finds nothing against
 #: it, else the Python master), ``native-core`` (the core, or the run is refused saying
@@ -228,9 +229,7 @@ class NativeCore:
         if lib is None:  # why_not(master) said so
             raise RuntimeError(_WHY)
         self._lib, self.master, self.recorder = lib, master, recorder
-        keep: list = []  # every ctypes object the loop points into, alive with it
         comps = cast("list[FmuComponent]", master.stepping)  # why_not(master) is None
-        index = {c.name: i for i, c in enumerate(comps)}
         table = (_Component * len(comps))()
         self._cells = [c_int32(0) for _ in comps]
         for i, c in enumerate(comps):
@@ -241,27 +240,12 @@ class NativeCore:
                                   ctypes.pointer(self._cells[i]))
         #: each op as the master's tick_plan names it
         self._ops = master.tick_plan()
-        op_table = (_Op * len(self._ops))()
-        widest = 1
-        for o, (kind, comp, names, slots) in enumerate(self._ops):
-            vrs = (c_uint * max(1, len(names)))(
-                *cast("FmuComponent", comp).value_references(names))
-            where = (c_int64 * max(1, len(slots)))(*slots)
-            keep += [vrs, where]
-            op_table[o] = _Op(_OP_GET if kind == "get" else _OP_SET, index[comp.name],
-                              len(names), vrs, where)
-            widest = max(widest, len(names))
-        values = master.values
-        self._slots = (c_double * max(1, len(values)))(*values)
-        scratch = (c_double * widest)()
         recorded = recorder.slots
-        cols = (c_int64 * max(1, len(recorded)))(*recorded)
-        final = -1 if recorder.final is None else recorder.final
-        keep += [table, op_table, scratch, cols]
-        self._keep = keep
-        self._loop = _Loop(len(comps), table, len(self._ops), op_table, len(values),
-                           self._slots, scratch, master.t0, master.T, master.h, master.N,
-                           len(recorded), cols, recorder.every, final)
+        self._loop, self._keep = make_loop(
+            table, core_ops(master), master.values, (master.t0, master.T, master.h, master.N),
+            recorded, recorder.every, -1 if recorder.final is None else recorder.final)
+        self._keep.append(table)
+        self._slots = self._keep[0]
         self._comps = comps
         self._ncols = len(recorded)
 
@@ -363,3 +347,38 @@ def run_blocks(lib: ctypes.CDLL, loop: _Loop, k: int, ticks: int, ncols: int,
             rate = max(1, kk.value - begun) / spent
             block = int(min(max(64.0, rate * _BLOCK_SECONDS), 1e12))
     return _DONE, kk.value, failure
+
+
+def core_ops(master: Master) -> list[tuple[int, int, list[int], list[int]]]:
+    """``master.tick_plan()`` as the core takes it: ``(kind, component, value references,
+    slots)`` each, the kind ``0`` for a read and ``1`` for a write, the component by its
+    index in ``master.stepping``."""
+    index = {c.name: i for i, c in enumerate(master.stepping)}
+    return [(_OP_GET if kind == "get" else _OP_SET, index[comp.name],
+             cast("FmuComponent", comp).value_references(names), list(slots))
+            for kind, comp, names, slots in master.tick_plan()]
+
+
+def make_loop(components: ctypes.Array, ops, values, timing: tuple[float, float, float, int],
+              columns, every: int, final: int) -> tuple[_Loop, list]:
+    """The core's loop (``CoreLoop``) over ``components`` (a ``CoreComponent`` array, in
+    stepping order) and ``ops`` (``core_ops``), its value vector starting at ``values``,
+    ``timing`` ``(t0, T, h, N)``, recording the slots ``columns`` every ``every`` ticks and
+    at tick ``final`` (-1: none); and every ctypes object it points into, to keep alive
+    with it, the value vector first."""
+    keep: list = []
+    table = (_Op * max(1, len(ops)))()
+    widest = 1
+    for o, (kind, comp, vrs, where) in enumerate(ops):
+        refs = (c_uint * max(1, len(vrs)))(*vrs)
+        at = (c_int64 * max(1, len(where)))(*where)
+        keep += [refs, at]
+        table[o] = _Op(kind, comp, len(vrs), refs, at)
+        widest = max(widest, len(vrs))
+    slots = (c_double * max(1, len(values)))(*values)
+    scratch = (c_double * widest)()
+    cols = (c_int64 * max(1, len(columns)))(*columns)
+    t0, T, h, N = timing
+    loop = _Loop(len(components), components, len(ops), table, len(values), slots, scratch,
+                 t0, T, h, N, len(columns), cols, every, final)
+    return loop, [slots, table, scratch, cols, *keep]

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from delaycomp.errors import DelaycompError, Interrupted
+from delaycomp.maths.grid import tick_time
 from delaycomp.orchestrator.interrupts import interrupt_held
 from delaycomp.orchestrator.native_core import (
     CORE_DONE,
@@ -47,9 +48,10 @@ from delaycomp.orchestrator.native_core import (
     CoreFailure,
     CoreLog,
     CoreLoop,
-    CoreOp,
     core_library_loaded,
+    core_ops,
     core_path,
+    make_loop,
     run_blocks,
 )
 
@@ -119,18 +121,16 @@ def recipe_of(master: Master, recorder: Recorder, ticks: int,
         components.append({
             "name": c.name, "fmi": 3 if c.fmi3 else 2, "folder": folders.index(c.unzipped),
             "library": os.path.relpath(library, c.unzipped),
-            "model_identifier": c.md.coSimulation.modelIdentifier, "guid": c.md.guid,
+            "guid": c.md.guid,
             "tolerance": None if tolerance is None else float(tolerance),
             "start": float(start), "stop": float(stop),
             "parameters": [[kind, vr, list(values)] for kind, vr, values in c.parameter_calls]})
     index = {c.name: i for i, c in enumerate(comps)}
-    ops = [[0 if kind == "get" else 1, index[comp.name],
-            comps[index[comp.name]].value_references(names), list(slots)]
-           for kind, comp, names, slots in master.tick_plan()]
     reads = [[index[name], comps[index[name]].value_references(list(outputs)),
               [float(v) for v in values]] for name, outputs, values in initial]
     return {"format": FORMAT, "core": path, "folders": folders, "components": components,
-            "ops": ops, "nslots": len(master.values), "initial": reads,
+            "ops": [list(op) for op in core_ops(master)], "nslots": len(master.values),
+            "initial": reads,
             "t0": master.t0, "T": master.T, "N": master.N, "h": master.h, "ticks": ticks,
             "every": recorder.every, "final": recorder.final if recorder.final is not None
             else -1, "columns": recorder.slots, "names": list(recorder.names)}
@@ -148,9 +148,8 @@ class Replayed:
 
 
 def _time_of(recipe: dict, k: int) -> float:
-    """``Master.time_of``: tick ``k``'s time, computed as the master computes it."""
-    i, j = divmod(k, recipe["N"])
-    return recipe["t0"] + i * recipe["T"] + j * recipe["h"]
+    """``Master.time_of``: tick ``k``'s time (``tick_time``)."""
+    return tick_time(k, recipe["t0"], recipe["T"], recipe["h"], recipe["N"])
 
 
 class _Instance:
@@ -328,17 +327,18 @@ def replay(recipe: dict, on_rows: Callable[[list[float], int], None] | None = No
             k = k_reached
             if not n:
                 return
+            replayed.rows += n
+            replayed.last_time = times[n - 1]
+            replayed.last_row = list(rows[(n - 1) * ncols:n * ncols])
+            if on_rows is None:
+                return
             width = ncols + 1
             flat = [0.0] * (n * width)
             flat[0::width] = times[:n]
             values = rows[:n * ncols]
             for j in range(ncols):
                 flat[j + 1::width] = values[j::ncols]
-            replayed.rows += n
-            replayed.last_time = flat[-width]
-            replayed.last_row = flat[-ncols:] if ncols else []
-            if on_rows is not None:
-                on_rows(flat, n)
+            on_rows(flat, n)
 
         failure = CoreFailure()
         if lib.core_propagate(ctypes.byref(loop), ctypes.byref(failure)) != CORE_DONE:
@@ -381,26 +381,13 @@ def _check_quiet(instances: Sequence[_Instance]) -> None:
 
 
 def _loop(recipe: dict, instances: Sequence[_Instance]) -> tuple[CoreLoop, list]:
-    """The core's loop of a replay, and the ctypes objects it points into (to keep)."""
+    """The core's loop of a replay (``make_loop``), and the ctypes objects it points into
+    (to keep; the value vector first)."""
     comps = (CoreComponent * len(instances))()
     for i, inst in enumerate(instances):
         comps[i] = CoreComponent(inst.handle, *inst.functions(), 3 if inst.fmi3 else 2,
                                  ctypes.cast(ctypes.pointer(inst.log), POINTER(c_int32)))
-    ops = recipe["ops"]
-    table = (CoreOp * max(1, len(ops)))()
-    keep: list = []
-    widest = 1
-    for o, (kind, comp, vrs, where) in enumerate(ops):
-        refs = (c_uint * max(1, len(vrs)))(*vrs)
-        at = (c_int64 * max(1, len(where)))(*where)
-        keep += [refs, at]
-        table[o] = CoreOp(kind, comp, len(vrs), refs, at)
-        widest = max(widest, len(vrs))
-    slots = (c_double * max(1, recipe["nslots"]))()
-    scratch = (c_double * widest)()
-    columns = recipe["columns"]
-    cols = (c_int64 * max(1, len(columns)))(*columns)
-    loop = CoreLoop(len(instances), comps, len(ops), table, recipe["nslots"], slots,
-                    scratch, recipe["t0"], recipe["T"], recipe["h"], recipe["N"],
-                    len(columns), cols, recipe["every"], recipe["final"])
-    return loop, [slots, comps, table, scratch, cols, *keep]
+    loop, keep = make_loop(comps, recipe["ops"], [0.0] * recipe["nslots"],
+                           (recipe["t0"], recipe["T"], recipe["h"], recipe["N"]),
+                           recipe["columns"], recipe["every"], recipe["final"])
+    return loop, [*keep, comps]

@@ -154,6 +154,10 @@ def refuse_without_core(loop, fmus, other_fmus: dict, others: dict) -> None:
             raise UsageError(f"--stepping native-core is not allowed for this run: {why}")
 
 
+#: what ``-v`` says of a run the native stepping core stepped
+CORE_STEPPED = "stepped by the native core (C, no Python between the FMI calls)"
+
+
 def stepped_note(name: str, result, verbosity: int) -> None:
     """Under ``-v``, what stepped the run: the native stepping core, or the Python master
     and why the core did not (``Result.stepped_by``, ``Result.stepping_note``).
@@ -165,8 +169,7 @@ def stepped_note(name: str, result, verbosity: int) -> None:
     from delaycomp.progress import VERBOSE, info
 
     if result.stepped_by == "native-core":
-        info(f"{name}: stepped by the native core (C, no Python between the FMI calls)",
-             verbosity, VERBOSE)
+        info(f"{name}: {CORE_STEPPED}", verbosity, VERBOSE)
     elif result.stepped_by == "python":
         why = f" ({result.stepping_note})" if result.stepping_note else ""
         info(f"{name}: stepped by the Python master{why}", verbosity, VERBOSE)

@@ -111,7 +111,7 @@ def replayed(args) -> int | None:
         recipe["folders"] = [str(folder / f) for f in recipe["folders"]]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    from delaycomp.cli.execute import summary
+    from delaycomp.cli.execute import CORE_STEPPED, summary
     from delaycomp.formats.outputs import CsvStream, clear_previous
     from delaycomp.orchestrator.replay import NotReplayed, replay
     from delaycomp.progress import VERBOSE, info
@@ -137,8 +137,7 @@ def replayed(args) -> int | None:
     for note in shown["notes"]:
         info(f"note: {note}", args.verbosity)
     info(f"{name}: {shown['estimate']}", args.verbosity, VERBOSE)
-    info(f"{name}: stepped by the native core (C, no Python between the FMI calls)",
-         args.verbosity, VERBOSE)
+    info(f"{name}: {CORE_STEPPED}", args.verbosity, VERBOSE)
     if stream is not None:
         stream.finish(True)
     print(summary(name, done.rows, done.last_time, done.names, done.last_row, elapsed))

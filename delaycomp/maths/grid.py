@@ -386,3 +386,15 @@ def ticks(duration: float, T: float, N: int, name: str = "--stop-time") -> int:
         raise ValueError(f"{name} {duration!r} is not allowed: must be a multiple of the "
                          f"base step h = T/N = {h!r}")
     return k
+
+
+def tick_time(k: int, t0: float, T: float, h: float, N: int) -> float:
+    """The time of tick ``k`` of the base grid ``h = T / N`` from ``t0``: ``t0 + (k // N) T
+    + (k % N) h``, exact at every sampling instant (the master's ``time_of``; the native
+    stepping core computes it the same way).
+
+    >>> tick_time(250, 0.0, 1.0, 0.01, 100)
+    2.5
+    """
+    i, j = divmod(k, N)
+    return t0 + i * T + j * h
